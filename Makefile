@@ -1,0 +1,44 @@
+# jnr set-up and entry points. Two commands matter on a fresh machine:
+#   make demo   build the rig, export it, export a randomly edited head with a picture
+#   make test   run the test suite
+# Both create .venv (Python 3.11) on first use and install what is needed.
+
+PYTHON ?= python3
+VENV   ?= .venv
+PY     := $(VENV)/bin/python
+STAMP  := $(VENV)/.installed
+TORCH_SPEC ?= torch==2.13.0
+
+.PHONY: demo test venv llvm bench clean-venv
+
+$(STAMP): pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install --quiet --upgrade pip
+	# The CPU build of torch; a bare `torch` requirement would pull a multi-GB CUDA build.
+	$(PY) -m pip install --quiet "$(TORCH_SPEC)"
+	$(PY) -m pip install --quiet -e ".[dev]"
+	touch $(STAMP)
+
+venv: $(STAMP) llvm
+
+# Dr.Jit's CPU backend needs libLLVM >= 17 (Debian 12 ships 14/15 by default).
+llvm:
+	@if ls /usr/lib/*/libLLVM-19*.so* /usr/lib/*/libLLVM.so.19* >/dev/null 2>&1; then :; \
+	elif [ "$$(id -u)" = "0" ] && command -v apt-get >/dev/null; then \
+		(apt-get install -y -qq libllvm19 >/dev/null 2>&1 || (apt-get update -qq && apt-get install -y -qq libllvm19 >/dev/null)) \
+		|| echo "jnr: could not install libllvm19; Mitsuba's LLVM backend will be unavailable" >&2; \
+	else \
+		echo "jnr: Dr.Jit needs libLLVM >= 17: run 'sudo apt-get install libllvm19' (or set DRJIT_LIBLLVM_PATH)" >&2; \
+	fi
+
+demo: venv
+	$(VENV)/bin/jnr demo --out out/demo --force
+
+test: venv
+	$(PY) -m pytest -q
+
+bench: venv
+	$(PY) benchmarks/bench_rig_forward.py
+
+clean-venv:
+	rm -rf $(VENV)

@@ -1,0 +1,1 @@
+"""Fitting pipelines and the ``jnr`` command line. Uses every other package."""

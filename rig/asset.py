@@ -1,0 +1,141 @@
+"""The versioned rig asset: template mesh, joints and initial skinning weights in one ``.npz``.
+
+``build_asset()`` regenerates everything from code (deterministic); the committed file
+``rig/assets/jnr_rig_v1.npz`` is its output, loaded once per process by :func:`load_asset`.
+Arrays are named and typed; the joint order is :data:`rig.joints.JOINT_NAMES` and the region order is
+:data:`rig.template.REGION_NAMES` (both stored in the file and checked on load).
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .joints import JOINT_NAMES, JOINTS, PARENTS
+from .template import REGION_NAMES, TEMPLATE_VERSION, build_template
+from .weights import SkinningLayout, initial_weights
+
+ASSET_DIR = Path(__file__).resolve().parent / "assets"
+DEFAULT_ASSET = ASSET_DIR / f"jnr_rig_v{TEMPLATE_VERSION}.npz"
+
+
+class AssetError(RuntimeError):
+    """The rig asset is missing, corrupt or of another version."""
+
+
+@dataclass(frozen=True)
+class RigAsset:
+    """Everything the rig needs, as numpy arrays.
+
+    Attributes:
+        vertices: ``(V, 3)`` float64 template vertices, mm.
+        faces: ``(F, 3)`` int64.
+        face_uvs: ``(F, 3, 2)`` float64 per-corner UVs.
+        regions: ``(V,)`` int64 index into ``region_names``.
+        region_names: region names.
+        mirror: ``(V,)`` int64 vertex mirror map.
+        joint_names: ``K`` joint names; ``parents``: ``(K,)`` int64; ``joint_positions``: ``(K, 3)`` mm.
+        weight_rows, weight_cols, weight_free_index: the sparse symmetric layout of the weights.
+        weight_free: ``(S,)`` float64 initial weights' free floats.
+        eye_loops: ``(2, n)`` int64 eyelid-rim loops (left, right); ``mouth_loop``: ``(m,)`` lip rim.
+        version: asset version.
+    """
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    face_uvs: np.ndarray
+    regions: np.ndarray
+    region_names: tuple[str, ...]
+    mirror: np.ndarray
+    joint_names: tuple[str, ...]
+    parents: np.ndarray
+    joint_positions: np.ndarray
+    weight_rows: np.ndarray
+    weight_cols: np.ndarray
+    weight_free_index: np.ndarray
+    weight_free: np.ndarray
+    eye_loops: np.ndarray
+    mouth_loop: np.ndarray
+    version: int
+
+    @property
+    def layout(self) -> SkinningLayout:
+        return SkinningLayout(self.weight_rows, self.weight_cols, self.weight_free_index, len(self.weight_free),
+                              (len(self.vertices), len(self.joint_names)))
+
+    @property
+    def weights(self) -> np.ndarray:
+        """Dense ``(V, K)`` initial weights."""
+        return self.layout.dense(self.weight_free)
+
+    def region_mask(self, *names: str) -> np.ndarray:
+        """``(V,)`` bool: vertices in any of the named regions."""
+        unknown = [n for n in names if n not in self.region_names]
+        if unknown:
+            raise KeyError(f"unknown region(s) {unknown}; regions are {list(self.region_names)}")
+        return np.isin(self.regions, [self.region_names.index(n) for n in names])
+
+
+def build_asset() -> RigAsset:
+    """Generate the template, joints and initial weights from code (deterministic)."""
+    mesh = build_template()
+    w = initial_weights(mesh)
+    layout = SkinningLayout.from_weights(w, mesh.mirror)
+    return RigAsset(
+        vertices=mesh.vertices, faces=mesh.faces, face_uvs=mesh.face_uvs, regions=mesh.regions,
+        region_names=REGION_NAMES, mirror=mesh.mirror, joint_names=JOINT_NAMES,
+        parents=np.asarray(PARENTS, np.int64), joint_positions=np.array([j.position for j in JOINTS], float),
+        weight_rows=layout.rows, weight_cols=layout.cols, weight_free_index=layout.free_index,
+        weight_free=layout.free_values(w), eye_loops=np.stack(mesh.eye_loops), mouth_loop=mesh.mouth_loop,
+        version=TEMPLATE_VERSION,
+    )
+
+
+def save_asset(asset: RigAsset, path: str | Path) -> None:
+    """Write the asset as a compressed ``.npz`` (atomically)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    arrays = {k: getattr(asset, k) for k in RigAsset.__dataclass_fields__}
+    arrays["region_names"] = np.array(asset.region_names)
+    arrays["joint_names"] = np.array(asset.joint_names)
+    arrays["version"] = np.array(asset.version)
+    fd, tmp = tempfile.mkstemp(suffix=".npz", dir=path.parent)
+    os.close(fd)
+    try:
+        np.savez_compressed(tmp, **arrays)
+        os.chmod(tmp, 0o644)
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+
+
+def read_asset(path: str | Path) -> RigAsset:
+    """Read an asset file (no caching). Raises :class:`AssetError` when it is unusable."""
+    path = Path(path)
+    if not path.is_file():
+        raise AssetError(f"rig asset not found: {path} (rebuild it with `jnr rig build`)")
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            fields = {k: data[k] for k in RigAsset.__dataclass_fields__}
+    except Exception as exc:  # zip/npz errors come in many types
+        raise AssetError(f"rig asset {path} is unreadable: {exc}") from None
+    fields["region_names"] = tuple(str(s) for s in fields["region_names"])
+    fields["joint_names"] = tuple(str(s) for s in fields["joint_names"])
+    fields["version"] = int(fields["version"])
+    asset = RigAsset(**fields)
+    if asset.version != TEMPLATE_VERSION or asset.joint_names != JOINT_NAMES or asset.region_names != REGION_NAMES:
+        raise AssetError(f"rig asset {path} is version {asset.version} with another joint/region order; "
+                         f"this code expects version {TEMPLATE_VERSION} (rebuild it with `jnr rig build`)")
+    return asset
+
+
+@functools.lru_cache(maxsize=4)
+def load_asset(path: str | None = None) -> RigAsset:
+    """The rig asset, loaded once per process (default: the committed one)."""
+    return read_asset(path or DEFAULT_ASSET)
