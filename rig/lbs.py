@@ -144,6 +144,51 @@ def hierarchy_levels(parents: torch.Tensor) -> list[torch.Tensor]:
             for level in range(max(depth) + 1)]
 
 
+def skinning_basis(vertices: torch.Tensor, weights: torch.Tensor) -> torch.Tensor:
+    """Per-vertex weighted homogeneous coordinates ``X[v, 4k + c] = w_vk * [v_v, 1]_c``.
+
+    LBS is then one matrix product with the stacked skinning transforms (:func:`skin_with_basis`);
+    the basis depends only on the rest vertices and weights, so a rig can build it once.
+
+    Args:
+        vertices: ``(V, 3)`` or ``(B, V, 3)`` rest vertices, mm.
+        weights: ``(V, K)`` or ``(B, V, K)``.
+
+    Returns:
+        ``(V, 4K)`` or ``(B, V, 4K)``.
+    """
+    _check(vertices.shape[-1] == 3 and vertices.dim() in (2, 3), "skinning_basis", "vertices", "(V, 3) or (B, V, 3)",
+           tuple(vertices.shape))
+    _check(weights.dim() in (2, 3) and weights.shape[-2] == vertices.shape[-2], "skinning_basis", "weights",
+           f"(V, K) or (B, V, K) with V = {vertices.shape[-2]}", tuple(weights.shape))
+    homogeneous = torch.cat([vertices, torch.ones_like(vertices[..., :1])], dim=-1)
+    basis = weights.unsqueeze(-1) * homogeneous.unsqueeze(-2)
+    return basis.flatten(-2)
+
+
+def skin_with_basis(basis: torch.Tensor, skinning: torch.Tensor) -> torch.Tensor:
+    """Linear blend skinning from a :func:`skinning_basis`: ``v'_v = sum_k w_vk A_k [v_v, 1]``.
+
+    Args:
+        basis: ``(V, 4K)`` dense or sparse-CSR, or ``(B, V, 4K)`` dense.
+        skinning: ``(B, K, 4, 4)`` skinning transforms.
+
+    Returns:
+        ``(B, V, 3)`` posed vertices, mm.
+    """
+    _check(skinning.dim() == 4 and skinning.shape[-2:] == (4, 4), "skin_with_basis", "skinning", "(B, K, 4, 4)",
+           tuple(skinning.shape))
+    batch, K = skinning.shape[:2]
+    _check(basis.shape[-1] == 4 * K, "skin_with_basis", "basis", f"(V, {4 * K}) or (B, V, {4 * K})",
+           tuple(basis.shape))
+    if basis.dim() == 3:
+        # (B, V, 4K) @ (B, 4K, 3)
+        return torch.bmm(basis, skinning[:, :, :3, :].permute(0, 1, 3, 2).reshape(batch, 4 * K, 3))
+    # One GEMM for the whole batch: (V, 4K) @ (4K, B*3).
+    stacked = skinning[:, :, :3, :].permute(1, 3, 0, 2).reshape(4 * K, batch * 3)
+    return (basis @ stacked).view(-1, batch, 3).transpose(0, 1)
+
+
 def skin_vertices(vertices: torch.Tensor, weights: torch.Tensor, skinning: torch.Tensor) -> torch.Tensor:
     """Linear blend skinning (JNR eq. 2): ``v'_i = sum_k w_ik A_k v_i``.
 
@@ -160,13 +205,11 @@ def skin_vertices(vertices: torch.Tensor, weights: torch.Tensor, skinning: torch
     batch, K = skinning.shape[:2]
     _check(weights.shape[-1] == K and weights.dim() in (2, 3), "skin_vertices", "weights", f"(V, {K}) or (B, V, {K})",
            tuple(weights.shape))
-    _check(vertices.shape[-1] == 3 and vertices.dim() in (2, 3), "skin_vertices", "vertices", "(V, 3) or (B, V, 3)",
-           tuple(vertices.shape))
-    # Blend the 3x4 matrices first, (B, V, 12), then apply each vertex's own matrix.
-    rows = skinning[:, :, :3, :].reshape(batch, K, 12)
-    blended = torch.matmul(weights, rows).view(batch, -1, 3, 4)
-    return (blended[..., :3] * vertices.unsqueeze(-2)).sum(-1) + blended[..., 3]
+    basis = skinning_basis(vertices, weights)
+    if basis.dim() == 3 and basis.shape[0] != batch:
+        basis = basis.expand(batch, -1, -1)
+    return skin_with_basis(basis, skinning)
 
 
 __all__ = ["ShapeError", "euler_to_matrix", "channels_to_trs", "local_transforms", "joint_world_transforms",
-           "hierarchy_levels", "skin_vertices", "ROTATE", "TRANSLATE", "SCALE_AXES", "UNIFORM_SCALE"]
+           "hierarchy_levels", "skin_vertices", "skinning_basis", "skin_with_basis", "ROTATE", "TRANSLATE", "SCALE_AXES", "UNIFORM_SCALE"]

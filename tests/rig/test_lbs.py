@@ -94,3 +94,23 @@ def test_gradcheck_through_the_chain(rig64):
     assert torch.autograd.gradcheck(lambda t: f(t, free.detach()), (theta,), eps=1e-6, atol=1e-6)
     # 7k skinning floats: random-projection (fast mode) gradcheck.
     assert torch.autograd.gradcheck(lambda w: f(theta.detach(), w), (free,), eps=1e-6, atol=1e-6, fast_mode=True)
+
+
+def test_sparse_default_path_equals_dense_path(rig64, asset):
+    theta = random_theta(torch.Generator().manual_seed(2), 4, spread=0.5, dtype=torch.float64)
+    sparse = rig64(theta).vertices
+    dense = rig64(theta, weights=torch.as_tensor(asset.weights)).vertices
+    assert torch.abs(sparse - dense).max() < 1e-10
+    # gradients w.r.t. theta agree too
+    t1 = theta.clone().requires_grad_()
+    rig64(t1).vertices.square().sum().backward()
+    t2 = theta.clone().requires_grad_()
+    rig64(t2, weights=torch.as_tensor(asset.weights)).vertices.square().sum().backward()
+    assert torch.allclose(t1.grad, t2.grad, rtol=1e-9, atol=1e-6)
+
+
+def test_batched_weights_and_vertices(rig64, asset):
+    theta = random_theta(torch.Generator().manual_seed(4), 2, spread=0.5, dtype=torch.float64)
+    w = torch.as_tensor(asset.weights).expand(2, -1, -1)
+    v = torch.as_tensor(asset.vertices).expand(2, -1, -1)
+    assert torch.abs(rig64(theta, weights=w, vertices=v).vertices - rig64(theta).vertices).max() < 1e-10
