@@ -32,7 +32,9 @@ def _mitsuba():
 def render_preview(vertices: np.ndarray, faces: np.ndarray, *, colors: np.ndarray | None = None,
                    view: str = "front", yaw: float | None = None, pitch: float | None = None,
                    size: tuple[int, int] = (512, 640), spp: int = 16, distance: float = 900.0,
-                   fov: float = 22.0, target: tuple[float, float, float] = (0.0, -30.0, 0.0)) -> np.ndarray:
+                   fov: float = 22.0, target: tuple[float, float, float] = (0.0, -30.0, 0.0),
+                   markers: np.ndarray | None = None, marker_radius: float = 2.5,
+                   marker_color: tuple[float, float, float] = (0.9, 0.1, 0.1)) -> np.ndarray:
     """Render a shaded picture of a mesh.
 
     Args:
@@ -43,6 +45,8 @@ def render_preview(vertices: np.ndarray, faces: np.ndarray, *, colors: np.ndarra
         size: ``(width, height)`` in pixels.
         spp: samples per pixel.
         distance: camera distance from ``target`` in mm; ``fov``: horizontal field of view in degrees.
+        markers: optional ``(N, 3)`` points (mm) drawn as small spheres (e.g. joints), seen through the
+            mesh, which is then drawn half-transparent.
 
     Returns:
         ``(H, W, 3)`` uint8 sRGB image.
@@ -59,8 +63,10 @@ def render_preview(vertices: np.ndarray, faces: np.ndarray, *, colors: np.ndarra
     if colors is None:
         colors = np.broadcast_to(np.array([0.80, 0.58, 0.47], np.float32), vertices.shape)
     props = mi.Properties()
-    props["bsdf"] = mi.load_dict({"type": "diffuse",
-                                  "reflectance": {"type": "mesh_attribute", "name": "vertex_color"}})
+    skin = {"type": "diffuse", "reflectance": {"type": "mesh_attribute", "name": "vertex_color"}}
+    if markers is not None:  # see the joints inside the head
+        skin = {"type": "blendbsdf", "weight": 0.55, "bsdf_0": skin, "bsdf_1": {"type": "null"}}
+    props["bsdf"] = mi.load_dict(skin)
     mesh = mi.Mesh("head", vertex_count=len(vertices), face_count=len(faces), props=props,
                    has_vertex_normals=True, has_vertex_texcoords=False)
     mesh.add_attribute("vertex_color", 3, np.asarray(colors, np.float32).ravel().tolist())
@@ -77,7 +83,7 @@ def render_preview(vertices: np.ndarray, faces: np.ndarray, *, colors: np.ndarra
     key_dir = -np.array([0.55, 0.65, 0.5]) if yaw < 90 else -np.array([-0.3, 0.6, 0.75])
     scene = mi.load_dict({
         "type": "scene",
-        "integrator": {"type": "direct"},
+        "integrator": {"type": "path", "max_depth": 8} if markers is not None else {"type": "direct"},
         "sensor": {
             "type": "perspective", "fov": fov, "fov_axis": "x",
             "to_world": mi.ScalarTransform4f().look_at(origin=origin.tolist(), target=target_arr.tolist(),
@@ -88,10 +94,19 @@ def render_preview(vertices: np.ndarray, faces: np.ndarray, *, colors: np.ndarra
         "key": {"type": "directional", "direction": key_dir.tolist(), "irradiance": {"type": "rgb", "value": 2.4}},
         "fill": {"type": "constant", "radiance": {"type": "rgb", "value": [0.30, 0.32, 0.36]}},
         "head": mesh,
+        **_marker_shapes(mi, markers, marker_radius, marker_color),
     })
     image = np.asarray(mi.render(scene, spp=int(spp)))
     srgb = np.where(image <= 0.0031308, 12.92 * image, 1.055 * np.power(np.clip(image, 0, None), 1 / 2.4) - 0.055)
     return (np.clip(srgb, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
+
+
+def _marker_shapes(mi, markers, radius, color) -> dict:
+    if markers is None:
+        return {}
+    bsdf = {"type": "diffuse", "reflectance": {"type": "rgb", "value": list(color)}}
+    return {f"marker_{i}": {"type": "sphere", "center": [float(c) for c in p], "radius": float(radius),
+                            "bsdf": bsdf} for i, p in enumerate(np.asarray(markers, float))}
 
 
 def save_png(image: np.ndarray, path: str | Path) -> None:

@@ -188,3 +188,21 @@ def _check_table() -> None:
 
 
 _check_table()
+
+
+def joint_table_markdown() -> str:
+    """Markdown table of the joints: name, parent, bind position, channels with our limits and Table 1's.
+
+    ``docs/joints.md`` holds this table (a test keeps the two the same).
+    """
+    def fmt(x: float) -> str:
+        return f"{x:g}"
+
+    lines = ["| # | joint | parent | bind position (mm) | channel: limits (deg / mm / factor) | Table 1 (deg / cm / factor) |",
+             "|---|---|---|---|---|---|"]
+    for i, j in enumerate(JOINTS):
+        ours = "<br>".join(f"`{c}`: [{fmt(lo)}, {fmt(hi)}]" for c, (lo, hi) in j.channels.items()) or "-"
+        table = "<br>".join(f"{c}: [{fmt(lo)}, {fmt(hi)}]" for c, (lo, hi) in j.table_channels.items()) or "-"
+        pos = ", ".join(fmt(p) for p in j.position)
+        lines.append(f"| {i} | `{j.name}` | {j.parent or '-'} | ({pos}) | {ours} | {table} |")
+    return "\n".join(lines) + "\n"

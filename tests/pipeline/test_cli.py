@@ -1,0 +1,116 @@
+import json
+
+import numpy as np
+import pytest
+import torch
+import trimesh
+
+from pipeline.cli import main
+from rig.export import read_skinned_gltf
+from rig.parameters import params_to_theta
+
+
+def run(capsys, *argv):
+    code = main(list(argv))
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def test_rig_info_json(capsys, asset):
+    code, out, _ = run(capsys, "rig", "info", "--json")
+    assert code == 0
+    info = json.loads(out)
+    assert info["vertices"] == len(asset.vertices) and info["faces"] == len(asset.faces)
+    assert info["joints"] == 52 and info["free_parameters"] == 105
+    assert info["skinning_floats"] == len(asset.weight_free)
+    assert info["model_floats"] == 3 * len(asset.vertices) + 3 * 52 + len(asset.weight_free)
+
+
+def test_rig_edit_writes_the_edited_head(capsys, tmp_path, rig64):
+    params = {"nose_tip.translate_z": 8.0, "crown.translate_y": 20.0, "left_cheek.scale": 1.2}
+    (tmp_path / "p.json").write_text(json.dumps({"joints": params}))
+    out = tmp_path / "edited.obj"
+    code, _, err = run(capsys, "rig", "edit", str(tmp_path / "p.json"), "--out", str(out))
+    assert code == 0, err
+    loaded = trimesh.load(out, process=False)
+    expected = rig64(params_to_theta(params, dtype=torch.float64)[None]).vertices[0].numpy()
+    assert np.abs(np.asarray(loaded.vertices)[: len(expected)] - expected).max() < 1e-5
+
+
+def test_gltf_export_reimports_with_same_vertices_and_52_joints(capsys, tmp_path, asset, rig64):
+    params = {"nose_tip.translate_z": 8.0, "left_ear_rotate_scale.rotate_z": -20.0}
+    (tmp_path / "p.json").write_text(json.dumps(params))
+    out = tmp_path / "rig.glb"
+    code, _, err = run(capsys, "rig", "export", "--format", "gltf", "--out", str(out), "--params", str(tmp_path / "p.json"))
+    assert code == 0, err
+    back = read_skinned_gltf(out)
+    assert np.abs(back["vertices"] - asset.vertices).max() < 1e-3  # float32 in metres
+    assert list(back["joint_names"]) == list(asset.joint_names) and len(back["joint_names"]) == 52
+    assert np.array_equal(back["parents"], asset.parents)
+    # Skinning the file's rest mesh with its own node transforms reproduces the edited head.
+    world = np.zeros((52, 4, 4))
+    for k, p in enumerate(back["parents"]):
+        world[k] = back["local_matrices"][k] if p < 0 else world[p] @ back["local_matrices"][k]
+    A = world @ back["inverse_bind_matrices"]
+    V = back["vertices"]
+    posed = np.zeros_like(V)
+    for slot in range(4):
+        j, w = back["joints"][:, slot], back["weights"][:, slot]
+        posed += w[:, None] * (np.einsum("vij,vj->vi", A[j, :3, :3], V) + A[j, :3, 3])
+    expected = rig64(params_to_theta(params, dtype=torch.float64)[None]).vertices[0].numpy()
+    assert np.abs(posed - expected).max() < 1e-2
+
+
+@pytest.mark.parametrize("content, message", [
+    ('{"joints": {"nose_tip.translate_q": 1}}', "unknown rig parameter"),
+    ('{"joints": {"crown.translate_y": 400}}', "outside its limits"),
+    ("{oops", "not valid JSON"),
+])
+def test_bad_parameter_file_is_a_clear_error(capsys, tmp_path, content, message):
+    (tmp_path / "p.json").write_text(content)
+    out = tmp_path / "e.ply"
+    code, _, err = run(capsys, "rig", "edit", str(tmp_path / "p.json"), "--out", str(out))
+    assert code == 2 and message in err and "Traceback" not in err
+    assert not out.exists()
+
+
+def test_missing_file_and_existing_output(capsys, tmp_path):
+    code, _, err = run(capsys, "rig", "edit", str(tmp_path / "nope.json"), "--out", str(tmp_path / "e.obj"))
+    assert code == 2 and "not found" in err
+    (tmp_path / "p.json").write_text("{}")
+    (tmp_path / "e.obj").write_text("keep me")
+    code, _, err = run(capsys, "rig", "edit", str(tmp_path / "p.json"), "--out", str(tmp_path / "e.obj"))
+    assert code == 2 and "--force" in err
+    assert (tmp_path / "e.obj").read_text() == "keep me"
+    code, _, err = run(capsys, "rig", "edit", str(tmp_path / "p.json"), "--out", str(tmp_path / "e.stl"))
+    assert code == 2 and "format" in err
+
+
+def test_clamp_option_warns_and_clamps(capsys, tmp_path):
+    (tmp_path / "p.json").write_text('{"crown.translate_y": 400}')
+    with pytest.warns(UserWarning, match="clamped"):
+        code, _, err = run(capsys, "rig", "edit", str(tmp_path / "p.json"), "--out", str(tmp_path / "e.ply"), "--clamp")
+    assert code == 0, err
+
+
+def test_rig_build_check_matches_committed_asset(capsys, tmp_path):
+    code, out, _ = run(capsys, "rig", "build", "--check")
+    assert code == 0 and "identical" in out
+    code, _, err = run(capsys, "rig", "build", "--out", str(tmp_path / "a.npz"))
+    assert code == 0, err
+    code, out, _ = run(capsys, "rig", "build", "--check", "--out", str(tmp_path / "a.npz"))
+    assert code == 0
+
+
+def test_demo_writes_everything(capsys, tmp_path):
+    out = tmp_path / "demo"
+    code, stdout, err = run(capsys, "demo", "--out", str(out), "--spp", "2", "--quiet")
+    assert code == 0, err
+    for name in ("template.obj", "template.ply", "template.glb", "edited.obj", "edited.glb", "edited.png",
+                 "edited_params.json", "summary.json"):
+        assert (out / name).stat().st_size > 0, name
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["rebuild_max_difference_mm"] <= 1e-6
+    assert summary["edit_max_displacement_mm"] > 1.0
+    code, _, err = run(capsys, "demo", "--out", str(out), "--quiet")
+    assert code == 2 and "--force" in err
