@@ -30,6 +30,7 @@ from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 import pygltflib
 import trimesh
 
@@ -250,36 +251,13 @@ def _translation(t: np.ndarray) -> np.ndarray:
 
 
 def _matrix_to_quaternion(r: np.ndarray) -> np.ndarray:
-    """Unit quaternion ``(x, y, z, w)`` (glTF order) of a 3x3 rotation matrix."""
-    trace = np.trace(r)
-    if trace > 0.0:
-        s = 2.0 * np.sqrt(trace + 1.0)
-        q = [(r[2, 1] - r[1, 2]) / s, (r[0, 2] - r[2, 0]) / s, (r[1, 0] - r[0, 1]) / s, 0.25 * s]
-    elif r[0, 0] > r[1, 1] and r[0, 0] > r[2, 2]:
-        s = 2.0 * np.sqrt(1.0 + r[0, 0] - r[1, 1] - r[2, 2])
-        q = [0.25 * s, (r[0, 1] + r[1, 0]) / s, (r[0, 2] + r[2, 0]) / s, (r[2, 1] - r[1, 2]) / s]
-    elif r[1, 1] > r[2, 2]:
-        s = 2.0 * np.sqrt(1.0 + r[1, 1] - r[0, 0] - r[2, 2])
-        q = [(r[0, 1] + r[1, 0]) / s, 0.25 * s, (r[1, 2] + r[2, 1]) / s, (r[0, 2] - r[2, 0]) / s]
-    else:
-        s = 2.0 * np.sqrt(1.0 + r[2, 2] - r[0, 0] - r[1, 1])
-        q = [(r[0, 2] + r[2, 0]) / s, (r[1, 2] + r[2, 1]) / s, 0.25 * s, (r[1, 0] - r[0, 1]) / s]
-    q = np.asarray(q, dtype=np.float64)
-    q /= np.linalg.norm(q)
+    """Unit quaternion ``(x, y, z, w)`` (glTF's order, scipy's too) of a 3x3 rotation matrix, ``w >= 0``."""
+    q = Rotation.from_matrix(r).as_quat()
     return q if q[3] >= 0.0 else -q
 
 
 def _quaternion_to_matrix(q: Sequence[float]) -> np.ndarray:
-    x, y, z, w = (float(c) for c in q)
-    n = x * x + y * y + z * z + w * w
-    s = 2.0 / n if n > 0.0 else 0.0
-    return np.array(
-        [
-            [1 - s * (y * y + z * z), s * (x * y - z * w), s * (x * z + y * w)],
-            [s * (x * y + z * w), 1 - s * (x * x + z * z), s * (y * z - x * w)],
-            [s * (x * z - y * w), s * (y * z + x * w), 1 - s * (x * x + y * y)],
-        ]
-    )
+    return Rotation.from_quat(np.asarray(q, dtype=np.float64)).as_matrix()
 
 
 def _compose_trs(t: Sequence[float] | None, r: Sequence[float] | None, s: Sequence[float] | None):

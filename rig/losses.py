@@ -57,7 +57,8 @@ def uniform_laplacian(faces: np.ndarray, num_vertices: int) -> torch.Tensor:
     deg = np.asarray(a.sum(axis=1)).ravel()
     lap = (sp.identity(num_vertices) - sp.diags(1.0 / deg) @ a).tocoo()
     idx = torch.tensor(np.stack([lap.row, lap.col]), dtype=torch.long)
-    return torch.sparse_coo_tensor(idx, torch.tensor(lap.data), (num_vertices, num_vertices)).coalesce()
+    return torch.sparse_coo_tensor(idx, torch.tensor(lap.data), (num_vertices, num_vertices),
+                                   check_invariants=True).coalesce()
 
 
 def laplacian_loss(pred: torch.Tensor, target: torch.Tensor, laplacian: torch.Tensor) -> torch.Tensor:
