@@ -67,6 +67,16 @@ class JointRig(nn.Module):
         self.register_buffer("weights_free", torch.as_tensor(asset.weight_free, dtype=dtype))
         self.levels = hierarchy_levels(self.parents)
         self._basis_cache: tuple[tuple, torch.Tensor] | None = None
+        self._laplacian: torch.Tensor | None = None
+
+    @property
+    def laplacian(self) -> torch.Tensor:
+        """Sparse ``(V, V)`` uniform Laplacian of the template (for L_p), built on first use."""
+        if self._laplacian is None:
+            from .losses import uniform_laplacian
+
+            self._laplacian = uniform_laplacian(self.asset.faces, self.num_vertices).to(self.template.dtype)
+        return self._laplacian
 
     @property
     def num_parameters(self) -> int:
