@@ -244,6 +244,107 @@ def cmd_demo(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+class _StageBars:
+    """One tqdm bar per stage name: ``bars(stage, done, total)``."""
+
+    def __init__(self, disable: bool = False) -> None:
+        self.disable = disable
+        self.bar = None
+        self.stage = None
+
+    def __call__(self, stage: str, done: int, total: int) -> None:
+        from tqdm import tqdm
+
+        if stage != self.stage:
+            self.close()
+            self.stage = stage
+            self.bar = tqdm(total=total, desc=stage, disable=self.disable, leave=False)
+        self.bar.n = done
+        self.bar.refresh() if done == total or done % 10 == 0 else None
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+            self.bar = None
+
+
+def cmd_data_synth(args: argparse.Namespace) -> int:
+    from rig.population import write_population
+
+    out = Path(args.out)
+    bars = _StageBars(args.quiet)
+    try:
+        manifest = write_population(out, seed=args.seed, splits=tuple(args.splits), file_format=args.format,
+                                    overwrite=args.force, progress=lambda d, t: bars("synthesising heads", d, t))
+    except FileExistsError as exc:
+        raise CliError(str(exc)) from None
+    finally:
+        bars.close()
+    print(f"wrote {manifest}")
+    return EXIT_OK
+
+
+def _parse_overrides(items: list[str]) -> dict:
+    import yaml
+
+    out = {}
+    for item in items or []:
+        if "=" not in item:
+            raise CliError(f"--set expects KEY=VALUE, got {item!r}")
+        key, value = item.split("=", 1)
+        out[key.strip()] = yaml.safe_load(value)
+    return out
+
+
+def cmd_train(args: argparse.Namespace) -> int:
+    from pipeline.train import load_config, train
+    from rig.asset import ASSET_DIR
+
+    try:
+        config = load_config(args.config, _parse_overrides(args.set))
+    except (TypeError, ValueError) as exc:
+        raise CliError(str(exc)) from None
+    out = Path(args.out) if args.out else ASSET_DIR / "jnr_skinning_v1.npz"
+    _check_output(out, args.force or args.out is None)
+    log_path = Path(args.log) if args.log else out.with_suffix(".log.json")
+    bars = _StageBars(args.quiet)
+    try:
+        report = train(config, out, log_path=log_path, progress=bars)
+    finally:
+        bars.close()
+    print(json.dumps({"artifact": str(out), "log": str(log_path), "counts": report.counts,
+                      "seconds": report.seconds, "train_rmse_mm_per_joint_fit": report.rmse_train_mm["per_joint_fit"]},
+                     indent=2))
+    return EXIT_OK
+
+
+def cmd_eval_capacity(args: argparse.Namespace) -> int:
+    from pipeline.evaluate import CapacitySettings, evaluate_capacity
+
+    settings = CapacitySettings(joint_iterations=args.joint_iterations, z_iterations=args.z_iterations,
+                                cycles=args.cycles, seed=args.seed)
+    bars = _StageBars(args.quiet)
+    try:
+        result = evaluate_capacity(tuple(args.splits), settings, neural_path=args.skinning, limit=args.limit,
+                                   progress=bars)
+    finally:
+        bars.close()
+    text = json.dumps(result, indent=2)
+    if args.out:
+        out = Path(args.out)
+        _check_output(out, args.force)
+        out.write_text(text + "\n")
+    if args.json:
+        print(text)
+    else:
+        print(f"{'split':10s} {'weights':16s} {'mean mm':>9s} {'std mm':>8s} {'heads':>6s}")
+        for split, row in result["splits"].items():
+            for name in ("initial", "learned_linear", "neural"):
+                r = row[name]
+                print(f"{split:10s} {name:16s} {r['mean_mm']:9.3f} {r['std_mm']:8.3f} {r['heads']:6d}")
+    return EXIT_OK
+
+
 # ----------------------------------------------------------------------------------------------------
 # parser
 # ----------------------------------------------------------------------------------------------------
@@ -307,6 +408,52 @@ def build_parser() -> argparse.ArgumentParser:
     edit.add_argument("--clamp", action="store_true", help="clamp out-of-limit parameters (with a warning)")
     edit.add_argument("--force", action="store_true", help="overwrite the output")
     edit.set_defaults(func=cmd_rig_edit)
+
+    data = sub.add_parser("data", help="synthetic data: the head population that stands in for scans")
+    data_sub = data.add_subparsers(dest="data_command", metavar="DATA_COMMAND")
+    data_sub.required = True
+    synth = data_sub.add_parser("synth", help="write the synthetic head population as meshes with a manifest",
+                                description="Write the 85 train / 2 validation / 7 test identities and the "
+                                            "100 held-out heads (template topology, mm) and manifest.json.")
+    synth.add_argument("--out", required=True, help="output folder")
+    synth.add_argument("--seed", type=int, default=0, help="population seed (default: 0)")
+    synth.add_argument("--format", choices=("ply", "obj"), default="ply")
+    synth.add_argument("--splits", nargs="+", default=["train", "val", "test", "heldout"],
+                       choices=["train", "val", "test", "heldout"])
+    synth.add_argument("--force", action="store_true", help="replace the output folder")
+    synth.add_argument("--quiet", action="store_true", help="no progress bar")
+    synth.set_defaults(func=cmd_data_synth)
+
+    tr = sub.add_parser("train", help="learn the linear and neural skinning weights from the synthetic population",
+                        description="Fit joints, learn global linear weights (alternating), synthesise "
+                                    "skinning-weight sets, train the auto-encoder and fine-tune the decoder "
+                                    "WGAN-style. Writes rig/assets/jnr_skinning_v1.npz unless --out is given.")
+    tr.add_argument("--config", help="YAML file overriding TrainConfig fields (configs/train.yaml)")
+    tr.add_argument("--set", action="append", metavar="KEY=VALUE", help="override one setting (repeatable)")
+    tr.add_argument("--out", help="artifact path (default: the packaged rig/assets/jnr_skinning_v1.npz)")
+    tr.add_argument("--log", help="training log JSON (default: next to the artifact)")
+    tr.add_argument("--force", action="store_true", help="overwrite --out")
+    tr.add_argument("--quiet", action="store_true", help="no progress bars")
+    tr.set_defaults(func=cmd_train)
+
+    ev = sub.add_parser("eval", help="evaluations")
+    ev_sub = ev.add_subparsers(dest="eval_command", metavar="EVAL_COMMAND")
+    ev_sub.required = True
+    cap = ev_sub.add_parser("capacity", help="known-correspondence error of initial / learned linear / neural skinning",
+                            description="Fit the rig to the synthetic test and held-out heads with each skinning "
+                                        "variant; point-to-point error in mm (mean, std over heads) and model sizes.")
+    cap.add_argument("--json", action="store_true", help="print JSON")
+    cap.add_argument("--splits", nargs="+", default=["test", "heldout"], choices=["train", "val", "test", "heldout"])
+    cap.add_argument("--limit", type=int, help="only the first N heads of each split")
+    cap.add_argument("--skinning", help="learned-skinning artifact (default: the packaged one)")
+    cap.add_argument("--joint-iterations", type=int, default=400)
+    cap.add_argument("--z-iterations", type=int, default=300)
+    cap.add_argument("--cycles", type=int, default=2)
+    cap.add_argument("--seed", type=int, default=0, help="population seed (default: 0)")
+    cap.add_argument("--out", help="also write the JSON here")
+    cap.add_argument("--force", action="store_true", help="overwrite --out")
+    cap.add_argument("--quiet", action="store_true", help="no progress bars")
+    cap.set_defaults(func=cmd_eval_capacity)
     return parser
 
 

@@ -129,7 +129,7 @@ def learn_linear_skinning(rig: JointRig, targets: torch.Tensor, *, cycles: int =
         done += joint_iterations
         theta = fit.theta
         rmse.append(float(fit.rmse.mean()))
-        snaps.append(fit.snapshots)
+        snaps.append(fit.snapshots if len(fit.snapshots) else fit.theta[None])
         if cycle == cycles:
             break
         free, losses = fit_linear_weights(rig, targets, theta, free, iterations=weight_iterations, lr=weight_lr,

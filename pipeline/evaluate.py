@@ -1,0 +1,87 @@
+"""``jnr eval capacity``: JNR's known-correspondence ablation (its Tables 1 and 2) on synthetic heads.
+
+For the 7 test heads and the held-out set, the rig is fitted to each head with
+(1) the initial painted weights, (2) the learned linear weights, (3) neural skinning (test-time fit of
+joints and Z). The error is the point-to-point distance between fitted and true vertices (mm), mean
+over a head's vertices, then mean and std over heads. Model sizes count the identity part in floats.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import torch
+
+EVAL_CHUNK = 20
+
+
+@dataclass(frozen=True)
+class CapacitySettings:
+    """Iteration counts of the capacity evaluation (the fits must converge for a fair comparison)."""
+
+    joint_iterations: int = 400
+    z_iterations: int = 300
+    cycles: int = 2
+    seed: int = 0
+
+
+def _per_head_error(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    return (pred - target).norm(dim=-1).mean(-1)
+
+
+def _summary(errors: torch.Tensor) -> dict:
+    return {"mean_mm": round(float(errors.mean()), 4), "std_mm": round(float(errors.std(unbiased=False)), 4),
+            "median_mm": round(float(errors.median()), 4), "heads": int(errors.numel())}
+
+
+def evaluate_capacity(splits: tuple[str, ...] = ("test", "heldout"), settings: CapacitySettings = CapacitySettings(),
+                      neural_path: str | None = None, limit: int | None = None, progress=None) -> dict:
+    """Fit the three skinning variants to each split's heads; return errors and model sizes."""
+    from rig.fitting import fit_joints
+    from rig.model import JointRig
+    from rig.neural import fit_neural, load_neural
+    from rig.population import population_split
+
+    rig = JointRig(dtype=torch.float32)
+    neural, meta = load_neural(rig, neural_path)
+    S = rig.num_skinning_floats
+    result: dict = {
+        "model_floats": {
+            "initial": {"skinning": S, "decoder": 0, "template_and_joints": 3 * rig.num_vertices + 3 * rig.num_joints},
+            "learned_linear": {"skinning": S, "decoder": 0},
+            "neural": {"skinning": S, "decoder": neural.decoder.num_weights, "latent": 50},
+        },
+        "settings": settings.__dict__, "splits": {}, "training": meta.get("counts", {}),
+    }
+    linear_w = neural.linear_weights().detach()
+    for split in splits:
+        heads = population_split(split, seed=settings.seed)
+        targets = torch.as_tensor(heads.vertices, dtype=torch.float32)
+        if limit:
+            targets = targets[:limit]
+        row: dict = {}
+        t0 = time.perf_counter()
+        for name, weights in (("initial", None), ("learned_linear", linear_w)):
+            errs = []
+            for start in range(0, targets.shape[0], EVAL_CHUNK):
+                chunk = targets[start:start + EVAL_CHUNK]
+                fit = fit_joints(rig, chunk, weights=weights, iterations=settings.joint_iterations)
+                with torch.no_grad():
+                    errs.append(_per_head_error(rig(fit.theta, weights=weights).vertices, chunk))
+                if progress:
+                    progress(f"{split}: {name}", min(start + EVAL_CHUNK, targets.shape[0]), targets.shape[0])
+            row[name] = _summary(torch.cat(errs))
+        errs = []
+        for start in range(0, targets.shape[0], EVAL_CHUNK):
+            chunk = targets[start:start + EVAL_CHUNK]
+            fit = fit_neural(neural, chunk, cycles=settings.cycles, joint_iterations=settings.joint_iterations,
+                             z_iterations=settings.z_iterations)
+            with torch.no_grad():
+                errs.append(_per_head_error(rig(fit.theta, weights=neural(fit.z)).vertices, chunk))
+            if progress:
+                progress(f"{split}: neural", min(start + EVAL_CHUNK, targets.shape[0]), targets.shape[0])
+        row["neural"] = _summary(torch.cat(errs))
+        row["seconds"] = round(time.perf_counter() - t0, 1)
+        result["splits"][split] = row
+    return result
