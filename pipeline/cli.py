@@ -326,7 +326,7 @@ def cmd_eval_capacity(args: argparse.Namespace) -> int:
     bars = _StageBars(args.quiet)
     try:
         result = evaluate_capacity(tuple(args.splits), settings, neural_path=args.skinning, limit=args.limit,
-                                   progress=bars)
+                                   progress=bars, oracle=args.oracle)
     finally:
         bars.close()
     text = json.dumps(result, indent=2)
@@ -339,7 +339,9 @@ def cmd_eval_capacity(args: argparse.Namespace) -> int:
     else:
         print(f"{'split':10s} {'weights':16s} {'mean mm':>9s} {'std mm':>8s} {'heads':>6s}")
         for split, row in result["splits"].items():
-            for name in ("initial", "learned_linear", "neural"):
+            for name in ("initial", "learned_linear", "neural", "per_head_optimal_weights"):
+                if name not in row:
+                    continue
                 r = row[name]
                 print(f"{split:10s} {name:16s} {r['mean_mm']:9.3f} {r['std_mm']:8.3f} {r['heads']:6d}")
     return EXIT_OK
@@ -450,6 +452,8 @@ def build_parser() -> argparse.ArgumentParser:
     cap.add_argument("--z-iterations", type=int, default=300)
     cap.add_argument("--cycles", type=int, default=2)
     cap.add_argument("--seed", type=int, default=0, help="population seed (default: 0)")
+    cap.add_argument("--oracle", action="store_true",
+                     help="also report per-head optimal weights (the bound for any skinning model with this pattern)")
     cap.add_argument("--out", help="also write the JSON here")
     cap.add_argument("--force", action="store_true", help="overwrite --out")
     cap.add_argument("--quiet", action="store_true", help="no progress bars")

@@ -35,9 +35,34 @@ def _summary(errors: torch.Tensor) -> dict:
             "median_mm": round(float(errors.median()), 4), "heads": int(errors.numel())}
 
 
+def _oracle_errors(rig, targets: torch.Tensor, linear_w: torch.Tensor, linear_free: torch.Tensor,
+                   settings: CapacitySettings, rounds: int = 3) -> torch.Tensor:
+    from rig.fitting import fit_joints
+    from rig.learn import solve_weights, valid_weights
+
+    errs = []
+    for start in range(0, targets.shape[0], EVAL_CHUNK):
+        chunk = targets[start:start + EVAL_CHUNK]
+        theta = fit_joints(rig, chunk, weights=linear_w, iterations=settings.joint_iterations).theta
+        for r in range(rounds):
+            w = valid_weights(rig, solve_weights(rig, theta, chunk, linear_free, reg=1.0))
+            if r < rounds - 1:
+                theta = fit_joints(rig, chunk, weights=w, init=theta, iterations=settings.joint_iterations // 2).theta
+        with torch.no_grad():
+            errs.append(torch.stack([_per_head_error(rig(theta[i:i + 1], weights=w[i]).vertices[0], chunk[i])
+                                     for i in range(chunk.shape[0])]))
+    return torch.cat(errs)
+
+
 def evaluate_capacity(splits: tuple[str, ...] = ("test", "heldout"), settings: CapacitySettings = CapacitySettings(),
-                      neural_path: str | None = None, limit: int | None = None, progress=None) -> dict:
-    """Fit the three skinning variants to each split's heads; return errors and model sizes."""
+                      neural_path: str | None = None, limit: int | None = None, progress=None,
+                      oracle: bool = False) -> dict:
+    """Fit the three skinning variants to each split's heads; return errors and model sizes.
+
+    With ``oracle``, also the bound that no skinning model with the rig's sparsity pattern can beat:
+    per-head optimal weights (closed form, :func:`rig.learn.solve_weights`) alternated with refitting
+    the joints, starting from the learned-linear fit.
+    """
     from rig.fitting import fit_joints
     from rig.model import JointRig
     from rig.neural import fit_neural, load_neural
@@ -82,6 +107,9 @@ def evaluate_capacity(splits: tuple[str, ...] = ("test", "heldout"), settings: C
             if progress:
                 progress(f"{split}: neural", min(start + EVAL_CHUNK, targets.shape[0]), targets.shape[0])
         row["neural"] = _summary(torch.cat(errs))
+        if oracle:
+            row["per_head_optimal_weights"] = _summary(_oracle_errors(rig, targets, linear_w, neural.linear_free,
+                                                                      settings))
         row["seconds"] = round(time.perf_counter() - t0, 1)
         result["splits"][split] = row
     return result
