@@ -98,12 +98,17 @@ def build_asset() -> RigAsset:
 
 def save_asset(asset: RigAsset, path: str | Path) -> None:
     """Write the asset as a compressed ``.npz`` (atomically)."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     arrays = {k: getattr(asset, k) for k in RigAsset.__dataclass_fields__}
     arrays["region_names"] = np.array(asset.region_names)
     arrays["joint_names"] = np.array(asset.joint_names)
     arrays["version"] = np.array(asset.version)
+    write_npz_atomic(path, arrays)
+
+
+def write_npz_atomic(path: str | Path, arrays: dict[str, np.ndarray]) -> None:
+    """``np.savez_compressed`` through a temporary file in the same folder, so no half-written file is left."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(suffix=".npz", dir=path.parent)
     os.close(fd)
     try:

@@ -319,26 +319,16 @@ def fit_neural(neural: NeuralSkinning, targets: torch.Tensor, *, cycles: int = 2
 def save_neural(neural: NeuralSkinning, path, meta: dict | None = None) -> None:
     """Write the learned linear weights and the decoder as one ``.npz`` (named float32 arrays)."""
     import json
-    import os
-    import tempfile
-    from pathlib import Path
 
     import numpy as np
 
-    path = Path(path)
+    from .asset import write_npz_atomic
+
     arrays = {"linear_free": neural.linear_free.detach().cpu().numpy().astype(np.float64)}
     for name, value in neural.decoder.state_dict().items():
         arrays[f"decoder.{name}"] = value.detach().cpu().numpy().astype(np.float32)
     arrays["meta_json"] = np.array(json.dumps(meta or {}))
-    fd, tmp = tempfile.mkstemp(suffix=".npz", dir=path.parent)
-    os.close(fd)
-    try:
-        np.savez_compressed(tmp, **arrays)
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+    write_npz_atomic(path, arrays)
 
 
 def load_neural(rig, path=None) -> tuple[NeuralSkinning, dict]:

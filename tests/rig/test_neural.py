@@ -97,3 +97,17 @@ def test_tiny_training_run_lowers_its_loss_and_fit_uses_z(rig32):
     fit = fit_neural(neural, targets, cycles=1, joint_iterations=80, z_iterations=40)
     assert fit.z.abs().max() > 0
     assert all(b <= a + 1e-4 for a, b in zip(fit.rmse_per_stage[0], fit.rmse_per_stage[1]))
+
+
+def test_artifact_round_trip_and_missing_file(rig32, tmp_path):
+    from rig.asset import AssetError
+    from rig.neural import load_neural, save_neural
+
+    neural, meta = load_neural(rig32)  # the committed artifact
+    assert meta["counts"]["train_heads"] == 85
+    save_neural(neural, tmp_path / "n.npz", meta)
+    again, _ = load_neural(rig32, tmp_path / "n.npz")
+    z = torch.randn(2, LATENT, generator=torch.Generator().manual_seed(0))
+    assert torch.equal(neural(z), again(z))
+    with pytest.raises(AssetError, match="jnr train"):
+        load_neural(rig32, tmp_path / "missing.npz")
