@@ -34,6 +34,16 @@ def main() -> None:
     save_png(np.concatenate(tiles, 1), DOCS / "template_regions.png")
     tiles = [render_preview(v, f, view=view, markers=asset.joint_positions, **kw) for view in ("front", "side")]
     save_png(np.concatenate(tiles, 1), DOCS / "template_joints.png")
+    # Initial skinning weights of a few joints (red = 1), as JNR's Fig. 1.
+    w = asset.weights
+    tiles = []
+    for joints in (("nose_tip", "nose_ridge_a", "left_cheek", "right_cheek"),
+                   ("left_upper_eyelid", "right_lower_eyelid", "chin", "top_lip", "bottom_lip"),
+                   ("left_ear_rotate_scale", "crown", "left_jaw_root", "left_brow_outer")):
+        heat = np.clip(sum(w[:, asset.joint_names.index(j)] for j in joints), 0.0, 1.0)[:, None]
+        colors = (1 - heat) * np.array([0.75, 0.75, 0.78]) + heat * np.array([0.85, 0.08, 0.06])
+        tiles.append(render_preview(v, f, colors=colors, view="three_quarter", **kw))
+    save_png(np.concatenate(tiles, 1), DOCS / "template_weights.png")
 
 
 if __name__ == "__main__":
