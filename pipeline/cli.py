@@ -5,6 +5,9 @@
     jnr rig build [--out FILE | --check]       regenerate the template asset from code
     jnr rig export --format obj|ply|gltf --out FILE [--params PARAMS.json]
     jnr rig edit PARAMS.json --out FILE        write the head edited by named parameters
+    jnr data synth --out DIR                   write the synthetic head population
+    jnr train                                  learn linear + neural skinning weights
+    jnr eval capacity [--json]                 known-correspondence error of each skinning variant
 
 Errors in the input (missing or malformed files, unknown parameter names, values outside limits,
 existing outputs without ``--force``) end with a one-line message on stderr and exit status 2; an
@@ -276,8 +279,8 @@ def cmd_data_synth(args: argparse.Namespace) -> int:
     try:
         manifest = write_population(out, seed=args.seed, splits=tuple(args.splits), file_format=args.format,
                                     overwrite=args.force, progress=lambda d, t: bars("synthesising heads", d, t))
-    except FileExistsError as exc:
-        raise CliError(str(exc)) from None
+    except FileExistsError:
+        raise CliError(f"output folder {out} exists and is not empty; pass --force to replace it") from None
     finally:
         bars.close()
     print(f"wrote {manifest}")
