@@ -12,7 +12,7 @@ from typing import Callable
 
 import torch
 
-from .lbs import ShapeError
+from .lbs import ShapeError, skinning_basis
 from .losses import LAMBDA_M, LAMBDA_P, LAMBDA_X, rig_loss, vertex_rmse
 from .model import JointRig
 from .parameters import NUM_PARAMETERS, theta_limits
@@ -71,9 +71,13 @@ def fit_joints(rig: JointRig, targets: torch.Tensor, *, weights: torch.Tensor | 
     opt = torch.optim.Adam([z], lr=lr)
     lap = rig.laplacian
     losses, snapshots = [], []
+    # The weights stay fixed: build the skinning basis once, then each step is one matrix product.
+    basis = None if weights is None else skinning_basis(rig.template, weights.detach().to(dtype))
+    if basis is not None and basis.dim() == 3 and basis.shape[0] != B:
+        basis = basis.expand(B, -1, -1)
     for it in range(iterations):
         theta = z * span
-        pred = rig(theta, weights=weights).vertices
+        pred = rig(theta, basis=basis).vertices
         loss = rig_loss(pred, targets, theta, low, high, lap, lambda_m, lambda_x, lambda_p)["total"].mean()
         opt.zero_grad()
         loss.backward()
@@ -85,6 +89,6 @@ def fit_joints(rig: JointRig, targets: torch.Tensor, *, weights: torch.Tensor | 
             progress(it, losses[-1])
     with torch.no_grad():
         theta = z.detach() * span
-        rmse = vertex_rmse(rig(theta, weights=weights).vertices, targets)
+        rmse = vertex_rmse(rig(theta, basis=basis).vertices, targets)
     snaps = torch.stack(snapshots) if snapshots else theta.new_zeros(0, B, NUM_PARAMETERS)
     return JointFit(theta, rmse, torch.tensor(losses), snaps)

@@ -123,7 +123,7 @@ class JointRig(nn.Module):
         return joint_world_transforms(tau, self.bind_positions, self.parents, self.levels)
 
     def forward(self, theta: torch.Tensor, weights: torch.Tensor | None = None,
-                vertices: torch.Tensor | None = None) -> RigOutput:
+                vertices: torch.Tensor | None = None, basis: torch.Tensor | None = None) -> RigOutput:
         """Pose the rig.
 
         Args:
@@ -131,12 +131,16 @@ class JointRig(nn.Module):
             weights: optional ``(V, K)`` or ``(B, V, K)`` skinning weights (default: the rig's).
             vertices: optional ``(V, 3)`` or ``(B, V, 3)`` rest vertices (default: the template), e.g.
                 with expression offsets added.
+            basis: optional precomputed :func:`rig.lbs.skinning_basis` of ``vertices`` and ``weights``
+                (``(V, 4K)`` or ``(B, V, 4K)``), for loops where only ``theta`` changes.
 
         Returns:
             :class:`RigOutput` with ``vertices (B, V, 3)`` in mm.
         """
         world, skinning = self.joint_transforms(theta)
-        if weights is None and vertices is None and not self.weights_free.requires_grad:
+        if basis is not None:
+            posed = skin_with_basis(basis, skinning)
+        elif weights is None and vertices is None and not self.weights_free.requires_grad:
             # The common case (fitting joints): a cached sparse product, ~16 non-zeros per row.
             posed = skin_with_basis(self._default_basis(), skinning)
         else:
