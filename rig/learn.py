@@ -19,7 +19,6 @@ import numpy as np
 import torch
 
 from .fitting import fit_joints
-from .joints import JOINT_MIRROR
 from .lbs import ShapeError, skin_vertices
 from .losses import LAMBDA_P, laplacian_loss, vertex_rmse
 from .model import JointRig
@@ -264,4 +263,4 @@ def solve_weights(rig: JointRig, theta: torch.Tensor, targets: torch.Tensor, pri
 
 
 __all__ = ["valid_weights", "fit_linear_weights", "learn_linear_skinning", "LinearSkinningResult", "OrbitSystem",
-           "solve_weights", "JOINT_MIRROR"]
+           "solve_weights"]

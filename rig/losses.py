@@ -11,7 +11,6 @@ import scipy.sparse as sp
 import torch
 
 from .lbs import ShapeError
-from .parameters import CHANNELS
 
 LAMBDA_M = 0.03
 LAMBDA_X = 0.3

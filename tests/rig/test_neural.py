@@ -2,7 +2,7 @@ import pytest
 import torch
 
 from rig.joints import JOINT_MIRROR
-from rig.learn import OrbitSystem, fit_linear_weights, solve_weights, valid_weights
+from rig.learn import fit_linear_weights, solve_weights, valid_weights
 from rig.neural import (LATENT, Critic, GroupLinear, NeuralSkinning, SkinningDecoder, SkinningEncoder, fit_neural,
                         train_autoencoder)
 from rig.parameters import random_theta

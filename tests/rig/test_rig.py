@@ -3,7 +3,7 @@ import pytest
 import torch
 
 from rig.joints import JOINT_MIRROR, JOINT_NAMES, PARENTS
-from rig.parameters import CHANNELS, NUM_PARAMETERS, mirror_theta, params_to_theta, random_theta
+from rig.parameters import CHANNELS, mirror_theta, params_to_theta, random_theta
 
 
 def test_initial_weights_are_sparse_normalised_symmetric(asset):
