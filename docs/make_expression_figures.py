@@ -1,0 +1,65 @@
+"""Render the 24 expression blendshapes at coefficient 1 into ``docs/expressions.png``.
+
+A 6 x 4 grid of small front views (template + the shape's offsets at its ``high`` limit), each tile
+labelled with the shape's name. Run from the repository root::
+
+    python docs/make_expression_figures.py [--out docs/expressions.png] [--spp 16]
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+import torch
+
+ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+from rig.asset import load_asset  # noqa: E402
+from rig.expressions import EXPRESSIONS, ExpressionModel  # noqa: E402
+
+COLUMNS, ROWS = 6, 4
+TILE = (200, 240)  # width, height in pixels
+
+
+def render_grid(spp: int = 16, view: str = "front") -> np.ndarray:
+    """``(ROWS * 240, COLUMNS * 200, 3)`` uint8 picture of every shape at coefficient ``high``."""
+    from PIL import Image, ImageDraw
+
+    from render.preview import render_preview
+
+    asset = load_asset()
+    model = ExpressionModel(asset, dtype=torch.float64)
+    grid = Image.new("RGB", (COLUMNS * TILE[0], ROWS * TILE[1]), (255, 255, 255))
+    for i, spec in enumerate(EXPRESSIONS):
+        c = torch.zeros(1, len(EXPRESSIONS), dtype=torch.float64)
+        c[0, i] = spec.high
+        with torch.no_grad():
+            verts = model.vertices(c)[0].numpy()
+        tile = Image.fromarray(render_preview(verts, asset.faces, view=view, size=TILE, spp=spp,
+                                              distance=600.0, target=(0.0, -20.0, 30.0)))
+        draw = ImageDraw.Draw(tile)
+        label = spec.name if spec.high == 1.0 else f"{spec.name} = {spec.high:g}"
+        draw.text((6, 6), label, fill=(0, 0, 0))
+        grid.paste(tile, ((i % COLUMNS) * TILE[0], (i // COLUMNS) * TILE[1]))
+    return np.asarray(grid)
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--out", default=str(ROOT / "docs" / "expressions.png"))
+    parser.add_argument("--spp", type=int, default=16)
+    parser.add_argument("--view", default="front")
+    args = parser.parse_args(argv)
+    from render.preview import save_png
+
+    save_png(render_grid(args.spp, args.view), args.out)
+    print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()
