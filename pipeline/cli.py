@@ -83,11 +83,7 @@ def _write_head(path: Path, fmt: str, theta, rig=None) -> None:
     with torch.no_grad():
         out = rig(theta[None])
     if fmt == "gltf":
-        from rig.lbs import channels_to_trs, local_transforms
-
-        rotation, translation, scale = channels_to_trs(theta[None], rig.channel_joint, rig.channel_kind,
-                                                       rig.num_joints)
-        tau = local_transforms(rotation, translation, scale)[0].numpy()
+        tau = rig.channel_transforms(theta[None])[0].numpy()
         export_skinned_gltf(path, asset.vertices, asset.faces, joint_names=list(asset.joint_names),
                             parents=asset.parents, joint_positions=asset.joint_positions, weights=asset.weights,
                             face_uvs=asset.face_uvs, joint_transforms=tau)

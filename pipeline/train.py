@@ -12,15 +12,12 @@ Artifacts: ``rig/assets/jnr_skinning_v1.npz`` (learned linear floats + decoder) 
 from __future__ import annotations
 
 import json
-import logging
 import time
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 from typing import Callable
 
 import torch
-
-log = logging.getLogger("jnr.train")
 
 
 @dataclass(frozen=True)

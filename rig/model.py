@@ -114,13 +114,16 @@ class JointRig(nn.Module):
             self._basis_cache = (key, basis)
         return self._basis_cache[1]
 
-    def joint_transforms(self, theta: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """``theta (B, P)`` -> ``(joint_world, skinning)``, each ``(B, K, 4, 4)``."""
+    def channel_transforms(self, theta: torch.Tensor) -> torch.Tensor:
+        """``theta (B, P)`` -> each joint's local channel transform ``tau`` (eq. 1), ``(B, K, 4, 4)``."""
         if theta.dim() != 2 or theta.shape[1] != NUM_PARAMETERS:
             raise ShapeError(f"JointRig: theta must have shape (B, {NUM_PARAMETERS}), got {tuple(theta.shape)}")
         rotation, translation, scale = channels_to_trs(theta, self.channel_joint, self.channel_kind, self.num_joints)
-        tau = local_transforms(rotation, translation, scale)
-        return joint_world_transforms(tau, self.bind_positions, self.parents, self.levels)
+        return local_transforms(rotation, translation, scale)
+
+    def joint_transforms(self, theta: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """``theta (B, P)`` -> ``(joint_world, skinning)``, each ``(B, K, 4, 4)``."""
+        return joint_world_transforms(self.channel_transforms(theta), self.bind_positions, self.parents, self.levels)
 
     def forward(self, theta: torch.Tensor, weights: torch.Tensor | None = None,
                 vertices: torch.Tensor | None = None, basis: torch.Tensor | None = None) -> RigOutput:

@@ -23,7 +23,9 @@ from typing import Callable
 import torch
 from torch import nn
 
-from .lbs import ShapeError
+from .fitting import fit_joints
+from .lbs import ShapeError, skin_vertices
+from .losses import LAMBDA_P, laplacian_loss, vertex_rmse
 
 LATENT = 50
 LAMBDA_SPARSE = 0.05
@@ -270,9 +272,6 @@ def fit_neural(neural: NeuralSkinning, targets: torch.Tensor, *, cycles: int = 2
     Returns:
         :class:`NeuralFit`.
     """
-    from .fitting import fit_joints
-    from .losses import LAMBDA_P, laplacian_loss, vertex_rmse
-
     rig = neural.rig
     dtype = rig.template.dtype
     targets = targets.to(dtype)
@@ -296,8 +295,6 @@ def fit_neural(neural: NeuralSkinning, targets: torch.Tensor, *, cycles: int = 2
             opt = torch.optim.Adam([zz], lr=z_lr)
             for it in range(z_iterations):
                 w = neural(zz)
-                from .lbs import skin_vertices
-
                 pred = skin_vertices(rig.template, w, skinning)
                 loss = (vertex_rmse(pred, targets) + LAMBDA_P * laplacian_loss(pred, targets, rig.laplacian)
                         + z_prior * zz.square().sum(-1)).sum()
