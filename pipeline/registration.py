@@ -111,6 +111,56 @@ def _closest_on_triangles(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.nda
     return out
 
 
+def incident_faces(faces: np.ndarray, num_vertices: int) -> np.ndarray:
+    """``(V, W)`` ids of the faces around each vertex (padded with -1)."""
+    faces = np.asarray(faces, dtype=np.int64)
+    order = np.argsort(faces.ravel(), kind="stable")
+    vert_of = faces.ravel()[order]
+    counts = np.bincount(vert_of, minlength=num_vertices)
+    table = -np.ones((num_vertices, max(int(counts.max()), 1)), dtype=np.int64)
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    table[vert_of, np.arange(len(order)) - np.repeat(starts, counts)] = order // 3
+    return table
+
+
+def barycentric(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """Barycentric coordinates ``(N, 3)`` of points ``p`` in the planes of triangles ``(a, b, c)`` (each ``(N, 3)``)."""
+    v0, v1, v2 = b - a, c - a, p - a
+    d00, d01, d11 = (v0 * v0).sum(1), (v0 * v1).sum(1), (v1 * v1).sum(1)
+    d20, d21 = (v2 * v0).sum(1), (v2 * v1).sum(1)
+    den = np.where(np.abs(d00 * d11 - d01 * d01) > 1e-300, d00 * d11 - d01 * d01, 1e-300)
+    w1 = (d11 * d20 - d01 * d21) / den
+    w2 = (d00 * d21 - d01 * d20) / den
+    return np.stack([1.0 - w1 - w2, w1, w2], 1)
+
+
+def closest_on_one_ring(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray, incident: np.ndarray,
+                        nearest: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Closest surface points among the faces around each point's nearest vertex.
+
+    Args:
+        points: ``(N, 3)``; vertices: ``(V, 3)``; faces: ``(F, 3)``; incident: :func:`incident_faces`;
+        nearest: ``(N,)`` id of each point's nearest vertex.
+
+    Returns:
+        ``(face (N,), bary (N, 3), closest (N, 3))``: ``closest = sum_i bary_i * vertices[faces[face, i]]``.
+    """
+    cand = incident[nearest]  # (N, W), -1 padded (a few pole vertices make W large: work on the valid pairs)
+    rows, cols = np.nonzero(cand >= 0)
+    face_of = cand[rows, cols]
+    tri = vertices[faces[face_of]]  # (M, 3, 3)
+    q = _closest_on_triangles(points[rows], tri[:, 0], tri[:, 1], tri[:, 2])
+    d2 = ((q - points[rows]) ** 2).sum(-1)
+    order = np.lexsort((d2, rows))  # by point, then by distance
+    first = order[np.r_[0, np.flatnonzero(np.diff(rows[order])) + 1]]
+    face = face_of[first]
+    closest = q[first]
+    t = vertices[faces[face]]
+    bary = np.clip(barycentric(closest, t[:, 0], t[:, 1], t[:, 2]), 0.0, 1.0)
+    bary /= bary.sum(1, keepdims=True)
+    return face, bary, closest
+
+
 class MeshDistance:
     """Exact point-to-surface distances to a triangle mesh.
 

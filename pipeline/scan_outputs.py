@@ -1,0 +1,182 @@
+"""What ``jnr fit-scan`` writes, and reading its parameters back.
+
+The output folder (written to a temporary folder beside it, then moved into place, so a failure
+leaves nothing half-written):
+
+=====================  ===========================================================================
+file                   contents
+=====================  ===========================================================================
+``mesh.ply``           the fitted head in the input cloud's frame and units (overlays the cloud)
+``mesh.obj``           the same, OBJ
+``params.json``        joints by name (deg, mm, factor), latent Z, expressions by name, the pose
+                       (rig space -> cloud frame, mm), the input's units and frame; also a valid
+                       ``jnr rig edit`` parameter file (its ``joints`` key)
+``cloud_error.ply``    the input cloud coloured by its distance to the fitted mesh (blue 0 ->
+                       red at ``vmax``), with the distance as the float property ``error_mm``
+``report.json``        scan-to-mesh distance (median, mean, std, mm), pre-alignment, stage
+                       losses, timings, the configuration used
+=====================  ===========================================================================
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import shutil
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from rig.asset import load_asset
+from rig.expressions import EXPRESSION_NAMES, ExpressionModel, coefficients_from_dict
+from rig.model import JointRig
+from rig.neural import LATENT, load_neural
+from rig.parameters import params_to_theta, theta_to_params
+
+from .config import config_to_dict
+from .pointcloud import PointCloud, error_colors, to_rig_frame, write_point_cloud_ply
+from .scan_fit import FitScanConfig, ScanFit
+
+PARAMS_FORMAT = "jnr-scan-params/1"
+OUTPUT_FILES = ("mesh.ply", "mesh.obj", "params.json", "cloud_error.ply", "report.json")
+
+
+def distance_stats(distances: np.ndarray) -> dict:
+    """Median, mean, std, 90th percentile (mm) and the fractions within 2 and 5 mm."""
+    d = np.asarray(distances, float)
+    return {"median_mm": float(np.median(d)), "mean_mm": float(d.mean()), "std_mm": float(d.std()),
+            "p90_mm": float(np.percentile(d, 90)), "within_2mm": float((d <= 2).mean()),
+            "within_5mm": float((d <= 5).mean()), "points": int(len(d))}
+
+
+def params_payload(fit: ScanFit, cloud: PointCloud, frame: str) -> dict:
+    """The ``params.json`` content of a fit."""
+    rot = fit.rotation
+    return {
+        "format": PARAMS_FORMAT,
+        "units": {"rotate": "deg", "translate": "mm", "scale": "factor"},
+        "joints": theta_to_params(torch.as_tensor(fit.theta), include_rest=True),
+        "latent_z": [float(x) for x in fit.z],
+        "expressions": {n: float(c) for n, c in zip(EXPRESSION_NAMES, fit.expressions)},
+        "pose": {
+            "description": "rig space (mm, +Y up, +Z out of the face) -> the cloud in mm and the rig frame: "
+                           "x = scale * R x_rig + t; the input file's frame and units follow from 'input'",
+            "rotation_matrix": rot.tolist(),
+            "rotation_vector_rad": [float(x) for x in _rotvec(rot)],
+            "translation_mm": [float(x) for x in fit.translation],
+            "scale": float(fit.scale),
+        },
+        "input": {"units": cloud.units, "scale_to_mm": cloud.scale_to_mm, "frame": frame},
+    }
+
+
+def _rotvec(rot: np.ndarray) -> np.ndarray:
+    from scipy.spatial.transform import Rotation
+
+    return Rotation.from_matrix(rot).as_rotvec()
+
+
+def mesh_from_params(params: dict | str | Path, *, rig: JointRig | None = None, use_neural: bool = True,
+                     frame: str = "input") -> np.ndarray:
+    """Rebuild the fitted mesh from a ``params.json`` (its dict or path).
+
+    Args:
+        frame: ``"input"`` (the input cloud's frame and units, as ``mesh.ply``), ``"cloud"`` (rig frame,
+            mm, posed) or ``"rig"`` (rig space, before the pose).
+
+    Returns:
+        ``(V, 3)`` vertices.
+    """
+    if not isinstance(params, dict):
+        params = json.loads(Path(params).read_text())
+    if params.get("format") != PARAMS_FORMAT:
+        raise ValueError(f"not a jnr fit-scan parameter file (format {params.get('format')!r}, "
+                         f"expected {PARAMS_FORMAT!r})")
+    rig = rig or JointRig()
+    theta = params_to_theta(params["joints"])[None].to(rig.template.dtype)
+    c = coefficients_from_dict(params["expressions"], dtype=rig.template.dtype)[None]
+    z = torch.as_tensor(params["latent_z"], dtype=rig.template.dtype)[None]
+    if z.shape != (1, LATENT):
+        raise ValueError(f"latent_z must have {LATENT} values, got {z.shape[1]}")
+    with torch.no_grad():
+        rest = ExpressionModel(rig.asset, dtype=rig.template.dtype).vertices(c)[0]
+        weights = load_neural(rig)[0](z)[0] if use_neural else rig.dense_weights()
+        v = rig(theta, weights=weights, vertices=rest).vertices[0].numpy().astype(np.float64)
+    if frame == "rig":
+        return v
+    pose = params["pose"]
+    v = float(pose["scale"]) * v @ np.asarray(pose["rotation_matrix"]).T + np.asarray(pose["translation_mm"])
+    if frame == "cloud":
+        return v
+    inp = params["input"]
+    return to_rig_frame(v, inp["frame"]) / float(inp["scale_to_mm"])
+
+
+def write_scan_outputs(out_dir: str | Path, cloud: PointCloud, fit: ScanFit, distances: np.ndarray, *,
+                       frame: str = "y-up", config: FitScanConfig | None = None, force: bool = False,
+                       extra: dict | None = None) -> Path:
+    """Write the output folder of a fit (see the module docstring) atomically.
+
+    Args:
+        out_dir: the folder; an existing one is replaced only with ``force``.
+        cloud: the fitted cloud (rig frame, mm); frame: the input's frame (``y-up`` or ``opencv``).
+        distances: ``(N,)`` distance of every cloud point to the fitted mesh, mm.
+        extra: more entries for ``report.json`` (e.g. the command line).
+
+    Raises:
+        FileExistsError: ``out_dir`` exists and ``force`` is false.
+    """
+    import trimesh
+
+    out_dir = Path(out_dir)
+    if out_dir.exists() and not force:
+        raise FileExistsError(f"output folder {out_dir} exists; pass --force to replace it")
+    if not out_dir.parent.is_dir():
+        raise FileNotFoundError(f"the parent folder of {out_dir} does not exist")
+    faces = load_asset().faces
+
+    def back(points: np.ndarray) -> np.ndarray:
+        return to_rig_frame(np.asarray(points, float), frame) / cloud.scale_to_mm
+
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", suffix=".tmp", dir=out_dir.parent))
+    try:
+        mesh = trimesh.Trimesh(back(fit.vertices), faces, process=False)
+        mesh.export(tmp / "mesh.ply")
+        mesh.export(tmp / "mesh.obj")
+        (tmp / "params.json").write_text(json.dumps(params_payload(fit, cloud, frame), indent=2) + "\n")
+        vmax = max(5.0, float(np.percentile(distances, 95)))
+        write_point_cloud_ply(tmp / "cloud_error.ply", back(cloud.points), colors=error_colors(distances, vmax),
+                              scalars={"error_mm": np.asarray(distances, np.float32)})
+        report = {
+            "input": {"path": cloud.path, "points": int(len(cloud.points)), "units": cloud.units,
+                      "scale_to_mm": cloud.scale_to_mm, "frame": frame, "had_normals": cloud.normals is not None},
+            "scan_to_mesh": distance_stats(distances),
+            "error_colour_scale_mm": [0.0, vmax],
+            "prealign": {"rms_mm": fit.prealign.rms_mm, "inlier_fraction": fit.prealign.inlier_fraction,
+                         "hypotheses": fit.prealign.hypotheses, "scale": fit.prealign.scale},
+            "stages": [dict(s.__dict__, free=list(s.free)) for s in fit.stages],
+            "timings_s": fit.timings,
+            "config": config_to_dict(config) if config is not None else None,
+        }
+        report.update(extra or {})
+        (tmp / "report.json").write_text(json.dumps(_finite(report), indent=2) + "\n")
+        if out_dir.exists():
+            shutil.rmtree(out_dir) if out_dir.is_dir() else out_dir.unlink()
+        tmp.rename(out_dir)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return out_dir
+
+
+def _finite(obj):
+    """JSON has no NaN/inf: write them as null."""
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, dict):
+        return {k: _finite(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_finite(v) for v in obj]
+    return obj
