@@ -286,15 +286,12 @@ def cmd_data_synth(args: argparse.Namespace) -> int:
 
 
 def _parse_overrides(items: list[str]) -> dict:
-    import yaml
+    from pipeline.config import ConfigError, parse_overrides
 
-    out = {}
-    for item in items or []:
-        if "=" not in item:
-            raise CliError(f"--set expects KEY=VALUE, got {item!r}")
-        key, value = item.split("=", 1)
-        out[key.strip()] = yaml.safe_load(value)
-    return out
+    try:
+        return parse_overrides(items)
+    except ConfigError as exc:
+        raise CliError(str(exc)) from None
 
 
 def cmd_train(args: argparse.Namespace) -> int:
@@ -349,11 +346,11 @@ def cmd_eval_capacity(args: argparse.Namespace) -> int:
 
 
 def _load_fit_scan_config(args: argparse.Namespace):
-    from pipeline.config import ConfigError, load_config, parse_overrides
+    from pipeline.config import ConfigError, load_config
     from pipeline.scan_fit import FitScanConfig
 
+    overrides = _parse_overrides(args.set)
     try:
-        overrides = parse_overrides(args.set)
         if args.seed is not None:
             overrides["seed"] = args.seed
         return load_config(FitScanConfig, args.config, overrides)

@@ -271,11 +271,9 @@ def _trimmed_icp(cloud: np.ndarray, cloud_n: np.ndarray | None, tree: cKDTree, m
         score = float(np.mean(np.where(ok, np.minimum(d, 10.0) ** 2, 100.0)))
         if it == iterations:
             break
-        dd = np.where(ok, d, np.inf)
-        keep = dd <= np.quantile(dd, trim)
-        keep &= np.isfinite(dd)
-        if keep.sum() < 10:
+        if ok.sum() < 10:
             break
+        keep = ok & (d <= np.quantile(d[ok], trim))
         r, tt, s = umeyama(model_v[j[keep]], cloud[keep], with_scale=with_scale)
         if with_scale:
             s = float(np.clip(s, *scale_bounds))
@@ -291,7 +289,9 @@ def rigid_prealign(cloud: np.ndarray, cloud_normals: np.ndarray | None, model_ve
                    rolls_deg: tuple[float, ...] = (0.0,), coarse_points: int = 1500, coarse_iterations: int = 15,
                    fine_points: int = 5000, fine_iterations: int = 40, trim: float = 0.8,
                    with_scale: bool = True, scale_bounds: tuple[float, float] = (0.85, 1.2),
-                   inlier_mm: float = 8.0, landmarks: tuple[np.ndarray, np.ndarray] | None = None) -> RigidAlignment:
+                   inlier_mm: float = 8.0, landmarks: tuple[np.ndarray, np.ndarray] | None = None,
+                   rigid_mask: np.ndarray | None = None,
+                   vertical_shifts_mm: tuple[float, ...] = (0.0, -30.0, 30.0)) -> RigidAlignment:
     """Robust rigid (similarity) alignment of a head mesh to a partial scan.
 
     Nothing is assumed about where the cloud is or which way the face points about the vertical: the
@@ -307,6 +307,9 @@ def rigid_prealign(cloud: np.ndarray, cloud_normals: np.ndarray | None, model_ve
         model_vertices: ``(V, 3)`` rig-space vertices; model_faces: ``(F, 3)``.
         face_mask: optional ``(V,)`` bool of the face region (centroid fallback when the cloud has no
             dominant viewing direction).
+        rigid_mask: optional ``(V,)`` bool of the vertices ICP matches against (e.g. the parts that
+            expressions do not move: an open jaw then does not tilt the alignment; its points are
+            trimmed). The inlier fraction is measured against the whole model.
 
     Returns:
         :class:`RigidAlignment`.
@@ -314,7 +317,10 @@ def rigid_prealign(cloud: np.ndarray, cloud_normals: np.ndarray | None, model_ve
     rng = np.random.default_rng(seed)
     cloud = np.asarray(cloud, float)
     model_v = np.asarray(model_vertices, float)
-    model_n = vertex_normals(model_v, model_faces)
+    model_n_all = vertex_normals(model_v, model_faces)
+    full_tree = cKDTree(model_v)
+    keep = np.ones(len(model_v), bool) if rigid_mask is None else np.asarray(rigid_mask, bool)
+    model_v_all, model_v, model_n = model_v, model_v[keep], model_n_all[keep]
     tree = cKDTree(model_v)
 
     def pick(n: int) -> np.ndarray:
@@ -330,7 +336,7 @@ def rigid_prealign(cloud: np.ndarray, cloud_normals: np.ndarray | None, model_ve
         if np.linalg.norm(m) > 0.3:
             mean_n = m / np.linalg.norm(m)
     centroid = cloud.mean(0)
-    face_centroid = model_v[face_mask].mean(0) if face_mask is not None else model_v.mean(0)
+    face_centroid = model_v_all[face_mask].mean(0) if face_mask is not None else model_v_all.mean(0)
 
     candidates: list[tuple[np.ndarray, np.ndarray, float]] = []
     if landmarks is not None:
@@ -348,8 +354,8 @@ def rigid_prealign(cloud: np.ndarray, cloud_normals: np.ndarray | None, model_ve
                     if mean_n is not None and face_dir @ mean_n < 0.0:
                         continue  # the face would point away from the viewer
                     if mean_n is not None:
-                        facing = (model_n @ (rot.T @ mean_n)) > 0.3
-                        c_model = model_v[facing].mean(0) if facing.sum() > 50 else face_centroid
+                        facing = (model_n_all @ (rot.T @ mean_n)) > 0.3
+                        c_model = model_v_all[facing].mean(0) if facing.sum() > 50 else face_centroid
                     else:
                         c_model = face_centroid
                     candidates.append((rot, centroid - rot @ c_model, 1.0))
@@ -362,14 +368,18 @@ def rigid_prealign(cloud: np.ndarray, cloud_normals: np.ndarray | None, model_ve
     scored.sort(key=lambda x: x[0])
     cn_fine = None if cn_all is None else cn_all[fine]
     best = None
-    for score0, r, tt, ss in scored[:3]:  # refine the three best, keep the best refined
-        r, tt, ss, score = _trimmed_icp(cloud[fine], cn_fine, tree, model_n, model_v, r, tt, ss,
-                                        fine_iterations, trim, with_scale, scale_bounds, min_dot)
-        if best is None or score < best[0]:
-            best = (score, r, tt, ss)
+    # Refine the three best, each also shifted along the head's vertical axis (ICP on a partial face
+    # can settle with the face slid up or down by a feature, e.g. the chin matched to the mouth).
+    for score0, r, tt, ss in scored[:3]:
+        for shift in vertical_shifts_mm:
+            r1, t1, s1, score = _trimmed_icp(cloud[fine], cn_fine, tree, model_n, model_v, r,
+                                             tt + shift * (r @ np.array([0.0, 1.0, 0.0])), ss,
+                                             fine_iterations, trim, with_scale, scale_bounds, min_dot)
+            if best is None or score < best[0]:
+                best = (score, r1, t1, s1)
     score, rot, t, s = best
     q = invert_similarity(cloud[fine], rot, t, s)
-    d, _ = tree.query(q)
+    d, _ = full_tree.query(q)
     d = d * s
     inl = d <= inlier_mm
     rms = float(np.sqrt(np.mean(d[inl] ** 2))) if inl.any() else float("inf")

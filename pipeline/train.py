@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import json
 import time
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Callable
 
@@ -53,20 +53,9 @@ class TrainConfig:
 
 def load_config(path: str | Path | None, overrides: dict | None = None) -> TrainConfig:
     """Typed defaults, overridden by a YAML file and then by ``overrides``; unknown keys are errors."""
-    values: dict = {}
-    if path is not None:
-        import yaml
+    from .config import load_config as load_typed
 
-        data = yaml.safe_load(Path(path).read_text()) or {}
-        if not isinstance(data, dict):
-            raise ValueError(f"{path}: expected a mapping of TrainConfig fields")
-        values.update(data)
-    values.update(overrides or {})
-    known = {f.name: f.type for f in fields(TrainConfig)}
-    unknown = sorted(set(values) - set(known))
-    if unknown:
-        raise ValueError(f"unknown training setting(s) {unknown}; known: {sorted(known)}")
-    return TrainConfig(**values)
+    return load_typed(TrainConfig, path, overrides)
 
 
 @dataclass(frozen=True)

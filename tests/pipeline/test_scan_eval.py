@@ -30,11 +30,7 @@ def test_records_and_metrics(evaluation):
 
 @pytest.mark.parametrize("kind", [
     "neutral",
-    pytest.param("expressive", marks=pytest.mark.xfail(strict=True, reason=(
-        "known pre-alignment failure (pipeline/registration.py, not this module): on heldout_000's "
-        "expressive scan (seed 0) rigid_prealign picks pitch +12.7 deg for a true -12.8 deg and is 52 mm "
-        "off in Y (inlier fraction 0.66, just above the 0.6 gate), so the template starts ~82 mm from the "
-        "head and the fit cannot recover"))),
+    "expressive",
 ])
 def test_jnr_beats_prealigned_template(evaluation, kind):
     """The rig fit improves on the unregistered template after the shared rigid pre-alignment."""
