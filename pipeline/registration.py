@@ -291,7 +291,8 @@ def rigid_prealign(cloud: np.ndarray, cloud_normals: np.ndarray | None, model_ve
                    with_scale: bool = True, scale_bounds: tuple[float, float] = (0.85, 1.2),
                    inlier_mm: float = 8.0, landmarks: tuple[np.ndarray, np.ndarray] | None = None,
                    rigid_mask: np.ndarray | None = None,
-                   vertical_shifts_mm: tuple[float, ...] = (0.0, -30.0, 30.0)) -> RigidAlignment:
+                   vertical_shifts_mm: tuple[float, ...] = (0.0, -30.0, 30.0),
+                   facing_min: float = 0.3) -> RigidAlignment:
     """Robust rigid (similarity) alignment of a head mesh to a partial scan.
 
     Nothing is assumed about where the cloud is or which way the face points about the vertical: the
@@ -310,6 +311,10 @@ def rigid_prealign(cloud: np.ndarray, cloud_normals: np.ndarray | None, model_ve
         rigid_mask: optional ``(V,)`` bool of the vertices ICP matches against (e.g. the parts that
             expressions do not move: an open jaw then does not tilt the alignment; its points are
             trimmed). The inlier fraction is measured against the whole model.
+        vertical_shifts_mm: offsets along the head's vertical axis tried when refining the best
+            hypotheses.
+        facing_min: hypotheses whose face direction has a smaller cosine with the cloud's mean normal
+            (the viewing direction of a single-view scan) are skipped.
 
     Returns:
         :class:`RigidAlignment`.
@@ -351,8 +356,8 @@ def rigid_prealign(cloud: np.ndarray, cloud_normals: np.ndarray | None, model_ve
                 for roll in rolls_deg:
                     rot = Rotation.from_euler("yxz", [yaw, pitch, roll], degrees=True).as_matrix()
                     face_dir = rot @ np.array([0.0, 0.0, 1.0])
-                    if mean_n is not None and face_dir @ mean_n < 0.0:
-                        continue  # the face would point away from the viewer
+                    if mean_n is not None and face_dir @ mean_n < facing_min:
+                        continue  # the face would point (nearly) away from the viewer
                     if mean_n is not None:
                         facing = (model_n_all @ (rot.T @ mean_n)) > 0.3
                         c_model = model_v_all[facing].mean(0) if facing.sum() > 50 else face_centroid

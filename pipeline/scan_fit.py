@@ -41,7 +41,7 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from rig.expressions import EXPRESSION_NAMES, ExpressionModel, expression_limits
-from rig.lbs import skin_vertices
+from rig.lbs import skin_vertices, skin_with_basis, skinning_basis
 from rig.losses import limit_loss, regularizer
 from rig.model import JointRig
 from rig.neural import LATENT, NeuralSkinning, load_neural
@@ -261,7 +261,7 @@ class _Model:
         self.theta_n = torch.zeros(NUM_PARAMETERS, dtype=dtype, requires_grad=True)
         self.z = torch.zeros(LATENT, dtype=dtype, requires_grad=True)
         self.c = torch.zeros(len(EXPRESSION_NAMES), dtype=dtype, requires_grad=True)
-        self._fixed_weights = None if neural is not None else None
+        self._basis: tuple[tuple[int, int], torch.Tensor] | None = None
 
     @property
     def theta(self) -> torch.Tensor:
@@ -282,13 +282,18 @@ class _Model:
         grad = set(free)
         theta = self.theta if "joints" in grad else self.theta.detach()
         c = self.c if "expressions" in grad else self.c.detach()
+        _, skinning = self.rig.joint_transforms(theta[None])
+        if not grad & {"latent", "expressions"}:
+            # Rest shape and weights are fixed: reuse their skinning basis (one GEMM per step).
+            key = (self.z._version, self.c._version)
+            if self._basis is None or self._basis[0] != key:
+                rest = self.expr.template + self.expr(self.c.detach()[None])[0]
+                self._basis = (key, skinning_basis(rest, self.weights().detach()))
+            return skin_with_basis(self._basis[1], skinning)[0]
         with torch.set_grad_enabled("latent" in grad):
             w = self.weights()
-        if "latent" not in grad:
-            w = w.detach()
         rest = self.expr.template + self.expr(c[None])[0]
-        _, skinning = self.rig.joint_transforms(theta[None])
-        return skin_vertices(rest, w, skinning)[0]
+        return skin_vertices(rest, w if "latent" in grad else w.detach(), skinning)[0]
 
     def to_cloud(self, v: torch.Tensor) -> torch.Tensor:
         return self.log_scale.exp() * v @ self.rotation().T + self.translation

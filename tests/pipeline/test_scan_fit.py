@@ -186,3 +186,31 @@ def test_metres_are_detected_and_converted(tmp_path, asset, recwarn):
     assert np.ptp(mesh.vertices[:, 1]) < 1.0
     with pytest.raises(FileExistsError):
         write_scan_outputs(out, cloud, fit, np.zeros(len(cloud.points)))
+
+
+def test_cli_data_scan_then_fit_with_landmarks_in_opencv_frame(tmp_path, asset):
+    """`jnr data scan` writes a cloud and its truth; the cloud in camera (OpenCV) coordinates and in
+    metres, with 3D landmarks, is fitted and written back in that frame and those units."""
+    import trimesh
+
+    from landmarks.points3d import landmark_vertices
+
+    scan = tmp_path / "scan.ply"
+    assert main(["data", "scan", "--out", str(scan), "--head", "2", "--seed", "4"]) == 0
+    truth = trimesh.load(tmp_path / "scan_truth.ply", process=False).vertices
+    cloud = read_point_cloud(scan)
+    flip = np.array([1.0, -1.0, -1.0])
+    np.save(tmp_path / "cam.npy", np.c_[cloud.points * flip / 1000.0, cloud.normals * flip])
+    marks = {n: (truth[i] * flip / 1000.0).tolist() for n, i in landmark_vertices(asset).items()}
+    (tmp_path / "marks.json").write_text(json.dumps({"landmarks": marks}))
+    (tmp_path / "short.yaml").write_text(SHORT_YAML)
+    out = tmp_path / "fit"
+    assert main(["fit-scan", str(tmp_path / "cam.npy"), "--out", str(out), "--frame", "opencv", "--units", "m",
+                 "--landmarks", str(tmp_path / "marks.json"), "--config", str(tmp_path / "short.yaml"),
+                 "--quiet"]) == 0
+    fitted = trimesh.load(out / "mesh.ply", process=False).vertices * flip * 1000.0  # back to mm, y-up
+    face = asset.region_mask(*FACE_REGIONS)
+    assert np.linalg.norm(fitted - truth, axis=1)[face].mean() < 3.0
+    assert json.loads((out / "params.json").read_text())["input"] == {"units": "m", "scale_to_mm": 1000.0,
+                                                                      "frame": "opencv"}
+    assert main(["data", "scan", "--out", str(scan)]) == 2  # exists
