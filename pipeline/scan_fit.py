@@ -10,14 +10,16 @@ NICP, and a regulariser L_m (eq. 4) that diminishes while the correspondences co
    frame), ``joints`` (the 105 channels), ``latent`` (Z) and ``expressions`` (24 coefficients) with
    Adam, rebuilding correspondences every ``correspondence_every`` iterations:
 
-   - cloud -> model: each (subsampled) cloud point and its nearest model vertex;
-   - model -> cloud: each model vertex and its nearest cloud point;
+   - cloud -> model: each (subsampled) cloud point and the closest point on the model's surface
+     (searched around its nearest vertex; a barycentric combination of three vertices), residual
+     point-to-plane plus ``tangential_weight`` times the tangential part;
+   - model -> cloud: each model vertex facing the sensor and its nearest cloud point, residual
+     point-to-plane on the cloud normal;
 
    both found with KD-trees and rejected when farther than an adaptive distance, when the normals
    disagree by more than ``normal_angle_deg``, or (model -> cloud) when the cloud point lies on the
-   scan's border (a vertex outside the scanned area would otherwise be pulled to the border). The
-   residual is point-to-plane plus a small tangential part, under a Geman-McClure robust loss whose
-   scale follows the residuals. Regions the scan misses (holes, the back of the head) get no data
+   scan's border (a vertex outside the scanned area would otherwise be pulled to the border), under
+   a Geman-McClure robust loss whose scale is a high quantile of the residuals. Regions the scan misses (holes, the back of the head) get no data
    term and are filled by the rig's prior (joints, neural skinning, expression limits).
 3. **Diminishing L_m**: its weight starts at ``lambda_m_start`` and shrinks towards ``lambda_m_end``
    as the correspondences settle (the median vertex motion between two rebuilds falls below
@@ -84,7 +86,8 @@ def jnr_schedule(joint_iterations: int = 30, latent_iterations: int = 15, expres
     Before it, a coarse stage (pose and expressions, ``coarse_iterations``; 0 leaves it out) lets the
     expressions take up large deformations such as an open jaw: started with the joints, the fit
     explains an open mouth with joint motion and stays in that local minimum (measured: lips 4 mm
-    off on a scan of the rig's own mesh, 0.7 mm with the coarse stage). JNR runs 500 iterations per
+    off when fitting the rig's own posed, expressive vertices as a cloud; 0.7 mm with the coarse
+    stage). JNR runs 500 iterations per
     stage on a GPU; the defaults are scaled to a 2-core CPU.
     """
     stages: list[Stage] = []
