@@ -290,7 +290,6 @@ def rigid_prealign(cloud: np.ndarray, cloud_normals: np.ndarray | None, model_ve
                    fine_points: int = 5000, fine_iterations: int = 40, trim: float = 0.8,
                    with_scale: bool = True, scale_bounds: tuple[float, float] = (0.85, 1.2),
                    inlier_mm: float = 8.0, landmarks: tuple[np.ndarray, np.ndarray] | None = None,
-                   rigid_mask: np.ndarray | None = None,
                    vertical_shifts_mm: tuple[float, ...] = (0.0, -30.0, 30.0),
                    facing_min: float = 0.3) -> RigidAlignment:
     """Robust rigid (similarity) alignment of a head mesh to a partial scan.
@@ -308,9 +307,6 @@ def rigid_prealign(cloud: np.ndarray, cloud_normals: np.ndarray | None, model_ve
         model_vertices: ``(V, 3)`` rig-space vertices; model_faces: ``(F, 3)``.
         face_mask: optional ``(V,)`` bool of the face region (centroid fallback when the cloud has no
             dominant viewing direction).
-        rigid_mask: optional ``(V,)`` bool of the vertices ICP matches against (e.g. the parts that
-            expressions do not move: an open jaw then does not tilt the alignment; its points are
-            trimmed). The inlier fraction is measured against the whole model.
         vertical_shifts_mm: offsets along the head's vertical axis tried when refining the best
             hypotheses.
         facing_min: hypotheses whose face direction has a smaller cosine with the cloud's mean normal
@@ -322,10 +318,7 @@ def rigid_prealign(cloud: np.ndarray, cloud_normals: np.ndarray | None, model_ve
     rng = np.random.default_rng(seed)
     cloud = np.asarray(cloud, float)
     model_v = np.asarray(model_vertices, float)
-    model_n_all = vertex_normals(model_v, model_faces)
-    full_tree = cKDTree(model_v)
-    keep = np.ones(len(model_v), bool) if rigid_mask is None else np.asarray(rigid_mask, bool)
-    model_v_all, model_v, model_n = model_v, model_v[keep], model_n_all[keep]
+    model_n = vertex_normals(model_v, model_faces)
     tree = cKDTree(model_v)
 
     def pick(n: int) -> np.ndarray:
@@ -341,7 +334,7 @@ def rigid_prealign(cloud: np.ndarray, cloud_normals: np.ndarray | None, model_ve
         if np.linalg.norm(m) > 0.3:
             mean_n = m / np.linalg.norm(m)
     centroid = cloud.mean(0)
-    face_centroid = model_v_all[face_mask].mean(0) if face_mask is not None else model_v_all.mean(0)
+    face_centroid = model_v[face_mask].mean(0) if face_mask is not None else model_v.mean(0)
 
     candidates: list[tuple[np.ndarray, np.ndarray, float]] = []
     if landmarks is not None:
@@ -359,8 +352,8 @@ def rigid_prealign(cloud: np.ndarray, cloud_normals: np.ndarray | None, model_ve
                     if mean_n is not None and face_dir @ mean_n < facing_min:
                         continue  # the face would point (nearly) away from the viewer
                     if mean_n is not None:
-                        facing = (model_n_all @ (rot.T @ mean_n)) > 0.3
-                        c_model = model_v_all[facing].mean(0) if facing.sum() > 50 else face_centroid
+                        facing = (model_n @ (rot.T @ mean_n)) > 0.3
+                        c_model = model_v[facing].mean(0) if facing.sum() > 50 else face_centroid
                     else:
                         c_model = face_centroid
                     candidates.append((rot, centroid - rot @ c_model, 1.0))
@@ -384,7 +377,7 @@ def rigid_prealign(cloud: np.ndarray, cloud_normals: np.ndarray | None, model_ve
                 best = (score, r1, t1, s1)
     score, rot, t, s = best
     q = invert_similarity(cloud[fine], rot, t, s)
-    d, _ = full_tree.query(q)
+    d, _ = tree.query(q)
     d = d * s
     inl = d <= inlier_mm
     rms = float(np.sqrt(np.mean(d[inl] ** 2))) if inl.any() else float("inf")

@@ -55,8 +55,6 @@ from .registration import (MeshDistance, RigidAlignment, closest_on_one_ring, in
 
 FREE_GROUPS = ("pose", "joints", "latent", "expressions")
 FACE_REGIONS = ("forehead", "brows", "eyelids", "nose", "cheeks", "lips", "chin")
-RIGID_REGIONS = ("scalp", "forehead", "brows", "eyelids", "nose", "cheeks", "ears", "eyeballs")
-"""What the rigid pre-alignment matches: the parts expressions hardly move (no lips, chin, jaw, neck)."""
 
 
 @dataclass(frozen=True)

@@ -214,3 +214,15 @@ def test_cli_data_scan_then_fit_with_landmarks_in_opencv_frame(tmp_path, asset):
     assert json.loads((out / "params.json").read_text())["input"] == {"units": "m", "scale_to_mm": 1000.0,
                                                                       "frame": "opencv"}
     assert main(["data", "scan", "--out", str(scan)]) == 2  # exists
+
+
+def test_cli_eval_scans(tmp_path, capsys):
+    (tmp_path / "short.yaml").write_text(SHORT_YAML)
+    assert main(["eval", "scans", "--neutral", "1", "--expressive", "0", "--no-baseline", "--config",
+                 str(tmp_path / "short.yaml"), "--json", "--quiet", "--out", str(tmp_path / "e.json")]) == 0
+    data = json.loads(capsys.readouterr().out)
+    (rec,) = data["records"]
+    assert rec["method"] == "jnr" and rec["kind"] == "neutral" and 0 < rec["vertex_mean_mm"] < 5
+    assert json.loads((tmp_path / "e.json").read_text()) == data
+    assert main(["eval", "scans", "--neutral", "-1", "--quiet"]) == 2
+    assert "error" in capsys.readouterr().err
