@@ -11,6 +11,7 @@ from __future__ import annotations
 import functools
 import os
 import tempfile
+import weakref
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -19,6 +20,22 @@ import numpy as np
 from .joints import JOINT_NAMES, JOINTS, PARENTS
 from .template import REGION_NAMES, TEMPLATE_VERSION, build_template
 from .weights import SkinningLayout, initial_weights
+
+
+def cached_per_asset(build):
+    """Decorator: ``build(asset)`` is computed once per asset object (held weakly, keyed by identity)."""
+    cache: dict[int, tuple[weakref.ref, object]] = {}
+
+    @functools.wraps(build)
+    def get(asset):
+        hit = cache.get(id(asset))
+        if hit is not None and hit[0]() is asset:
+            return hit[1]
+        value = build(asset)
+        cache[id(asset)] = (weakref.ref(asset), value)
+        return value
+
+    return get
 
 ASSET_DIR = Path(__file__).resolve().parent / "assets"
 DEFAULT_ASSET = ASSET_DIR / f"jnr_rig_v{TEMPLATE_VERSION}.npz"

@@ -69,7 +69,6 @@ from __future__ import annotations
 
 import math
 import warnings
-import weakref
 from dataclasses import dataclass
 from typing import Mapping
 
@@ -80,7 +79,7 @@ import torch
 from scipy.interpolate import CubicSpline, PchipInterpolator
 from torch import nn
 
-from .asset import RigAsset, load_asset
+from .asset import RigAsset, cached_per_asset, load_asset
 from .population import _bump, _capsule_bump, _ramp, _smoothed_normals, _unit
 from .template import EYE_CENTER
 
@@ -455,17 +454,9 @@ def build_expression_basis(asset: RigAsset | None = None) -> np.ndarray:
     return basis
 
 
-_BASIS_CACHE: dict[int, tuple[weakref.ref, np.ndarray, np.ndarray]] = {}
-
-
+@cached_per_asset
 def _cached(asset: RigAsset) -> tuple[np.ndarray, np.ndarray]:
-    hit = _BASIS_CACHE.get(id(asset))
-    if hit is not None and hit[0]() is asset:
-        return hit[1], hit[2]
-    basis = build_expression_basis(asset)
-    jaw_w = _jaw_weight(asset, _mouth(asset))
-    _BASIS_CACHE[id(asset)] = (weakref.ref(asset), basis, jaw_w)
-    return basis, jaw_w
+    return build_expression_basis(asset), _jaw_weight(asset, _mouth(asset))
 
 
 def peak_displacements(asset: RigAsset | None = None) -> dict[str, float]:

@@ -56,14 +56,13 @@ Coordinates: millimetres, right-handed, +Y up, +Z out of the face, +X the subjec
 
 from __future__ import annotations
 
-import weakref
 import zlib
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.interpolate import CubicSpline
 
-from .asset import RigAsset, load_asset
+from .asset import RigAsset, cached_per_asset, load_asset
 from .expressions import _laplace_extend, _left_eye, _mouth
 from .population import SPLIT_SIZES, _check_seed, _check_split, _smoothed_normals, population_split
 
@@ -268,16 +267,8 @@ def _build(asset: RigAsset) -> _Fields:
     return _Fields(linear, _jaw_weight(asset), lid_w, lid_d, np.asarray(center, float))
 
 
-_CACHE: dict[int, tuple[weakref.ref, _Fields]] = {}
-
-
-def _fields(asset: RigAsset) -> _Fields:
-    hit = _CACHE.get(id(asset))
-    if hit is not None and hit[0]() is asset:
-        return hit[1]
-    fields = _build(asset)
-    _CACHE[id(asset)] = (weakref.ref(asset), fields)
-    return fields
+_fields = cached_per_asset(_build)
+"""The fields of an asset, built once."""
 
 
 def _jaw_offsets(asset: RigAsset, weight: np.ndarray, c: np.ndarray) -> np.ndarray:

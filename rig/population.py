@@ -61,7 +61,6 @@ import json
 import os
 import secrets
 import shutil
-import weakref
 import zlib
 from dataclasses import dataclass
 from pathlib import Path
@@ -71,7 +70,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 from scipy.special import ndtr, ndtri
 
-from .asset import RigAsset, load_asset
+from .asset import RigAsset, cached_per_asset, load_asset
 
 GENERATOR_VERSION = 1
 SPLIT_SIZES: dict[str, int] = {"train": 85, "val": 2, "test": 7, "heldout": 100}
@@ -470,18 +469,12 @@ def build_basis(asset: RigAsset) -> FeatureBasis:
     return FeatureBasis(names=FEATURE_NAMES, features=FEATURES, fields=fields, template=template)
 
 
-_BASIS_CACHE: dict[int, tuple[weakref.ref, FeatureBasis]] = {}
+_cached_basis = cached_per_asset(build_basis)
 
 
 def feature_basis(asset: RigAsset | None = None) -> FeatureBasis:
     """The feature basis of ``asset`` (default: :func:`rig.asset.load_asset`), computed once per asset."""
-    asset = load_asset() if asset is None else asset
-    hit = _BASIS_CACHE.get(id(asset))
-    if hit is not None and hit[0]() is asset:
-        return hit[1]
-    basis = build_basis(asset)
-    _BASIS_CACHE[id(asset)] = (weakref.ref(asset), basis)
-    return basis
+    return _cached_basis(load_asset() if asset is None else asset)
 
 
 # ----------------------------------------------------------------------------------------------------
