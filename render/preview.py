@@ -24,9 +24,17 @@ VIEWS = {
 def _mitsuba():
     import mitsuba as mi  # imported here: render/ is the only package that touches Mitsuba
 
-    if mi.variant() is None:
+    # Always scalar_rgb (needs no libLLVM), even where the differentiable renderer has made llvm_ad_rgb
+    # current; render_preview restores the caller's variant afterwards.
+    if mi.variant() != "scalar_rgb":
         mi.set_variant("scalar_rgb")
     return mi
+
+
+def _current_variant():
+    import mitsuba as mi
+
+    return mi.variant()
 
 
 def render_preview(vertices: np.ndarray, faces: np.ndarray, *, colors: np.ndarray | None = None,
@@ -51,6 +59,20 @@ def render_preview(vertices: np.ndarray, faces: np.ndarray, *, colors: np.ndarra
     Returns:
         ``(H, W, 3)`` uint8 sRGB image.
     """
+    previous = _current_variant()
+    try:
+        return _render_preview(vertices, faces, colors=colors, view=view, yaw=yaw, pitch=pitch, size=size, spp=spp,
+                               distance=distance, fov=fov, target=target, markers=markers,
+                               marker_radius=marker_radius, marker_color=marker_color)
+    finally:
+        if previous is not None and previous != "scalar_rgb":
+            import mitsuba as mi
+
+            mi.set_variant(previous)
+
+
+def _render_preview(vertices, faces, *, colors, view, yaw, pitch, size, spp, distance, fov, target, markers,
+                    marker_radius, marker_color) -> np.ndarray:
     mi = _mitsuba()
     vertices = np.asarray(vertices, np.float32)
     faces = np.asarray(faces, np.uint32)
