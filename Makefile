@@ -39,6 +39,8 @@ test: venv
 
 bench: venv
 	$(PY) benchmarks/bench_rig_forward.py
+	$(PY) benchmarks/bench_render.py
+	$(PY) benchmarks/bench_fit_scan.py --neutral 5 --expressive 5
 
 clean-venv:
 	rm -rf $(VENV)

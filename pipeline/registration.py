@@ -291,7 +291,7 @@ def rigid_prealign(cloud: np.ndarray, cloud_normals: np.ndarray | None, model_ve
                    with_scale: bool = True, scale_bounds: tuple[float, float] = (0.85, 1.2),
                    inlier_mm: float = 8.0, landmarks: tuple[np.ndarray, np.ndarray] | None = None,
                    vertical_shifts_mm: tuple[float, ...] = (0.0, -30.0, 30.0),
-                   facing_min: float = 0.3) -> RigidAlignment:
+                   facing_min: float = 0.3, refine_best: int = 3) -> RigidAlignment:
     """Robust rigid (similarity) alignment of a head mesh to a partial scan.
 
     Nothing is assumed about where the cloud is or which way the face points about the vertical: the
@@ -309,6 +309,7 @@ def rigid_prealign(cloud: np.ndarray, cloud_normals: np.ndarray | None, model_ve
             dominant viewing direction).
         vertical_shifts_mm: offsets along the head's vertical axis tried when refining the best
             hypotheses.
+        refine_best: how many of the best coarse hypotheses are refined.
         facing_min: hypotheses whose face direction has a smaller cosine with the cloud's mean normal
             (the viewing direction of a single-view scan) are skipped.
 
@@ -366,9 +367,9 @@ def rigid_prealign(cloud: np.ndarray, cloud_normals: np.ndarray | None, model_ve
     scored.sort(key=lambda x: x[0])
     cn_fine = None if cn_all is None else cn_all[fine]
     best = None
-    # Refine the three best, each also shifted along the head's vertical axis (ICP on a partial face
+    # Refine the best few, each also shifted along the head's vertical axis (ICP on a partial face
     # can settle with the face slid up or down by a feature, e.g. the chin matched to the mouth).
-    for score0, r, tt, ss in scored[:3]:
+    for score0, r, tt, ss in scored[:refine_best]:
         for shift in vertical_shifts_mm:
             r1, t1, s1, score = _trimmed_icp(cloud[fine], cn_fine, tree, model_n, model_v, r,
                                              tt + shift * (r @ np.array([0.0, 1.0, 0.0])), ss,
