@@ -57,7 +57,7 @@ def test_recovers_a_known_pose_and_expression_from_its_own_scan(known_head, asse
     scan = simulate_scan(known_head, asset.faces, rng=5, settings=CLEAN, yaw_deg=25.0)
     fit = fit_scan(validate_points(scan.points, scan.normals))
     err, start = _face_error(fit, scan, asset), _template_error(fit, scan, asset)
-    assert err < 1.0 and err < 0.35 * start, (err, start)
+    assert err < 1.1 and err < 0.35 * start, (err, start)  # measured 0.88 vs 3.17
     jaw = EXPRESSION_NAMES.index("jaw_open")
     assert abs(fit.expressions[jaw] - TRUE_EXPRESSION["jaw_open"]) < 0.15
     assert [s.name for s in fit.stages][:2] == ["coarse", "joints 1.1"]
@@ -70,7 +70,7 @@ def test_robust_to_noise_outliers_and_a_30_percent_hole(known_head, asset):
     assert scan.hole_fraction > 0.25
     fit = fit_scan(validate_points(scan.points, scan.normals))
     err, start = _face_error(fit, scan, asset), _template_error(fit, scan, asset)
-    assert err < 1.6 and err < 0.5 * start, (err, start)
+    assert err < 1.8 and err < 0.6 * start, (err, start)  # measured 1.50 vs 3.21
 
 
 def test_config_yaml_overrides_and_rejects_unknown_keys(tmp_path):
