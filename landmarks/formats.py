@@ -1,0 +1,183 @@
+"""Read and write 2D landmark files: iBUG ``.pts``, ``.json`` and ``.csv``.
+
+In memory, points are always ``(N, 2)`` float64 **0-based OpenCV pixel coordinates** (origin at the centre
+of the top-left pixel, x right, y down), iBUG-68 order.
+
+=======  ======================================================================================
+format   layout
+=======  ======================================================================================
+.pts     ``version: 1`` / ``n_points: 68`` / ``{`` / one ``x y`` line per point / ``}``. iBUG
+         (300-W) files hold **1-based** (Matlab) pixel coordinates: 1 is subtracted on read and
+         added on write.
+.json    ``{"landmarks": [[x, y], ...], "convention": "ibug68", "pixel_origin": "opencv"}``
+         (0-based; a file whose ``pixel_origin`` is ``"matlab"`` is shifted by -1 on read).
+.csv     header ``index,x,y`` then one ``i,x,y`` row per point, ``i`` = 0..N-1 in order (0-based).
+=======  ======================================================================================
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+NUM_LANDMARKS = 68
+FORMATS = (".pts", ".json", ".csv")
+
+
+class LandmarkFileError(ValueError):
+    """A landmark file is malformed (wrong count, non-finite or unparsable values, bad structure)."""
+
+
+def _error(path: Path, line: int | None, message: str) -> LandmarkFileError:
+    where = f"{path}" if line is None else f"{path}, line {line}"
+    return LandmarkFileError(f"{where}: {message}")
+
+
+def _number(text: str, path: Path, line: int) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise _error(path, line, f"not a number: {text!r}") from None
+    if not math.isfinite(value):
+        raise _error(path, line, f"non-finite value {text!r}")
+    return value
+
+
+def _format(path: Path) -> str:
+    suffix = path.suffix.lower()
+    if suffix not in FORMATS:
+        raise LandmarkFileError(f"{path}: unknown landmark format {suffix!r}; expected one of {list(FORMATS)}")
+    return suffix
+
+
+def _check_count(points: np.ndarray, n_points: int, path: Path) -> np.ndarray:
+    if len(points) != n_points:
+        raise _error(path, None, f"expected {n_points} landmarks, got {len(points)}")
+    return points
+
+
+def _read_pts(path: Path, text: str, n_points: int) -> np.ndarray:
+    lines = [(i + 1, ln.strip()) for i, ln in enumerate(text.splitlines())]
+    lines = [(i, ln) for i, ln in lines if ln]
+    header: dict[str, str] = {}
+    k = 0
+    while k < len(lines) and lines[k][1] != "{":
+        lineno, ln = lines[k]
+        key, sep, value = ln.partition(":")
+        if not sep:
+            raise _error(path, lineno, f"expected a 'key: value' header line or '{{', got {ln!r}")
+        header[key.strip()] = value.strip()
+        k += 1
+    if k == len(lines):
+        raise _error(path, None, "no '{' opening the point list")
+    if "n_points" not in header:
+        raise _error(path, None, "header has no 'n_points'")
+    try:
+        declared = int(header["n_points"])
+    except ValueError:
+        raise _error(path, None, f"n_points is not an integer: {header['n_points']!r}") from None
+    points, closed = [], False
+    for lineno, ln in lines[k + 1:]:
+        if ln == "}":
+            closed = True
+            break
+        fields = ln.split()
+        if len(fields) != 2:
+            raise _error(path, lineno, f"expected 'x y', got {ln!r}")
+        points.append([_number(f, path, lineno) for f in fields])
+    if not closed:
+        raise _error(path, None, "no '}' closing the point list")
+    if len(points) != declared:
+        raise _error(path, None, f"n_points says {declared} but the file lists {len(points)} points")
+    return _check_count(np.array(points, np.float64).reshape(-1, 2), n_points, path) - 1.0  # 1-based -> 0-based
+
+
+def _read_json(path: Path, text: str, n_points: int) -> np.ndarray:
+    try:
+        data = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise _error(path, exc.lineno, f"invalid JSON: {exc.msg}") from None
+    if not isinstance(data, dict) or "landmarks" not in data:
+        raise _error(path, None, "expected an object with a 'landmarks' list")
+    convention = data.get("convention", "ibug68")
+    if convention != "ibug68":
+        raise _error(path, None, f"unsupported convention {convention!r}; expected 'ibug68'")
+    origin = data.get("pixel_origin", "opencv")
+    if origin not in ("opencv", "matlab"):
+        raise _error(path, None, f"pixel_origin must be 'opencv' or 'matlab', got {origin!r}")
+    rows = data["landmarks"]
+    if not isinstance(rows, list):
+        raise _error(path, None, "'landmarks' must be a list of [x, y] pairs")
+    points = []
+    for i, row in enumerate(rows):
+        if (not isinstance(row, list) or len(row) != 2
+                or not all(isinstance(c, (int, float)) and not isinstance(c, bool) for c in row)):
+            raise _error(path, None, f"landmark {i}: expected [x, y] numbers, got {row!r}")
+        if not all(math.isfinite(c) for c in row):
+            raise _error(path, None, f"landmark {i}: non-finite value {row!r}")
+        points.append([float(c) for c in row])
+    points = _check_count(np.array(points, np.float64).reshape(-1, 2), n_points, path)
+    return points - 1.0 if origin == "matlab" else points
+
+
+def _read_csv(path: Path, text: str, n_points: int) -> np.ndarray:
+    rows = list(csv.reader(io.StringIO(text)))
+    if not rows or [c.strip().lower() for c in rows[0]] != ["index", "x", "y"]:
+        raise _error(path, 1, f"expected the header 'index,x,y', got {','.join(rows[0]) if rows else 'an empty file'!r}")
+    points = []
+    for lineno, row in enumerate(rows[1:], start=2):
+        if not row or all(not c.strip() for c in row):
+            continue
+        if len(row) != 3:
+            raise _error(path, lineno, f"expected 'index,x,y', got {','.join(row)!r}")
+        index = row[0].strip()
+        if index != str(len(points)):
+            raise _error(path, lineno, f"expected index {len(points)}, got {index!r}")
+        points.append([_number(row[1].strip(), path, lineno), _number(row[2].strip(), path, lineno)])
+    return _check_count(np.array(points, np.float64).reshape(-1, 2), n_points, path)
+
+
+def read_landmarks(path: str | Path, n_points: int = NUM_LANDMARKS) -> np.ndarray:
+    """Read 2D landmarks; the format is chosen by the extension (``.pts``, ``.json``, ``.csv``).
+
+    Returns:
+        ``(n_points, 2)`` float64, 0-based OpenCV pixel coordinates.
+
+    Raises:
+        FileNotFoundError: ``path`` does not exist.
+        LandmarkFileError: unknown extension, malformed content, wrong count or non-finite values (the
+            message names the file and, where known, the line).
+    """
+    path = Path(path)
+    fmt = _format(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"landmark file not found: {path}")
+    text = path.read_text(encoding="utf-8")
+    reader = {".pts": _read_pts, ".json": _read_json, ".csv": _read_csv}[fmt]
+    return reader(path, text, n_points)
+
+
+def write_landmarks(path: str | Path, points) -> None:
+    """Write ``(N, 2)`` 0-based OpenCV pixel coordinates in the format given by the extension
+    (``.pts`` files get 1-based coordinates, as iBUG's). Values are written with ``repr`` precision, so a
+    read gives back the same floats (up to the ±1 shift's rounding for ``.pts``)."""
+    path = Path(path)
+    fmt = _format(path)
+    pts = np.asarray(points, np.float64)
+    if pts.ndim != 2 or pts.shape[1] != 2:
+        raise ValueError(f"write_landmarks: points must have shape (N, 2), got {pts.shape}")
+    if not np.isfinite(pts).all():
+        raise ValueError(f"write_landmarks: points contain non-finite values (rows {np.flatnonzero(~np.isfinite(pts).all(1)).tolist()})")
+    if fmt == ".pts":
+        body = "\n".join(f"{x!r} {y!r}" for x, y in (pts + 1.0).tolist())
+        text = f"version: 1\nn_points: {len(pts)}\n{{\n{body}\n}}\n"
+    elif fmt == ".json":
+        text = json.dumps({"landmarks": pts.tolist(), "convention": "ibug68", "pixel_origin": "opencv"}, indent=1) + "\n"
+    else:
+        text = "index,x,y\n" + "".join(f"{i},{x!r},{y!r}\n" for i, (x, y) in enumerate(pts.tolist()))
+    path.write_text(text, encoding="utf-8")
