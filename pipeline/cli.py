@@ -390,6 +390,8 @@ def cmd_fit_scan(args: argparse.Namespace) -> int:
             bars.close()
     except (CloudError, LandmarkError) as exc:
         raise CliError(str(exc)) from None
+    except FloatingPointError as exc:
+        raise CliError(str(exc), EXIT_FAILURE) from None
     distances = scan_to_mesh(cloud.points, fit.vertices, load_asset().faces)
     write_scan_outputs(out, cloud, fit, distances, frame=args.frame, config=config, force=args.force,
                        extra={"command": "jnr " + " ".join(sys.argv[1:]) if sys.argv[1:] else "jnr fit-scan",
