@@ -29,17 +29,15 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 from kornia.geometry.camera import PinholeCamera
-from kornia.geometry.conversions import axis_angle_to_rotation_matrix
-from scipy.spatial.transform import Rotation
 
 from landmarks.ibug68 import contour_landmarks, ibug68_embedding, landmark_positions
 from landmarks.loss import landmark_reprojection_loss, project_points
-from rig.expressions import EXPRESSION_NAMES, ExpressionModel, expression_limits
-from rig.lbs import ShapeError, skin_vertices, skin_with_basis, skinning_basis
+from rig.expressions import ExpressionModel
+from rig.lbs import ShapeError
 from rig.losses import limit_loss, regularizer
 from rig.model import JointRig
 from rig.neural import LATENT, NeuralSkinning, load_neural
-from rig.parameters import NUM_PARAMETERS, mirror_theta, theta_limits
+from rig.parameters import NUM_PARAMETERS, mirror_theta
 
 from .photo_camera import (
     RIG_TO_OPENCV,
@@ -48,6 +46,7 @@ from .photo_camera import (
     make_camera,
     solve_pose,
 )
+from .rig_state import RigState
 from .scan_fit import Stage
 
 NUM_LANDMARKS = 68
@@ -131,51 +130,15 @@ class LandmarkFit:
     seconds: float
 
 
-class _PhotoModel:
+class _PhotoModel(RigState):
     """(pose, joints, Z, expressions) -> rig-space vertices and camera-space points."""
 
     def __init__(self, rig: JointRig, neural: NeuralSkinning | None, expressions: ExpressionModel,
                  rotation: np.ndarray, translation: np.ndarray) -> None:
-        self.rig, self.neural, self.expr = rig, neural, expressions
+        super().__init__(rig, neural, expressions, rotation)
         dtype = rig.template.dtype
-        self.low, self.high = theta_limits(dtype)
-        self.span = (self.high - self.low).clamp_min(1e-3)
-        self.c_low, self.c_high = expression_limits(dtype)
         self.flip = torch.as_tensor(RIG_TO_OPENCV, dtype=dtype)
-        self.rotvec = torch.tensor(Rotation.from_matrix(rotation).as_rotvec(), dtype=dtype, requires_grad=True)
         self.translation = torch.tensor(translation, dtype=dtype, requires_grad=True)
-        self.theta_n = torch.zeros(NUM_PARAMETERS, dtype=dtype, requires_grad=True)
-        self.z = torch.zeros(LATENT, dtype=dtype, requires_grad=True)
-        self.c = torch.zeros(len(EXPRESSION_NAMES), dtype=dtype, requires_grad=True)
-        self._basis: tuple[tuple[int, int], torch.Tensor] | None = None
-
-    @property
-    def theta(self) -> torch.Tensor:
-        return self.theta_n * self.span
-
-    def weights(self) -> torch.Tensor:
-        return self.rig.dense_weights() if self.neural is None else self.neural(self.z[None])[0]
-
-    def rotation(self) -> torch.Tensor:
-        return axis_angle_to_rotation_matrix(self.rotvec[None])[0]
-
-    def rig_vertices(self, free: tuple[str, ...] = ()) -> torch.Tensor:
-        """``(V, 3)`` rig-space vertices; only the groups in ``free`` carry gradients."""
-        theta = self.theta if "joints" in free else self.theta.detach()
-        c = self.c if "expressions" in free else self.c.detach()
-        _, skinning = self.rig.joint_transforms(theta[None])
-        if "latent" not in free and "expressions" not in free:
-            # Rest shape and weights are fixed: one GEMM per step with a cached skinning basis.
-            key = (self.z._version, self.c._version)
-            if self._basis is None or self._basis[0] != key:
-                with torch.no_grad():
-                    rest = self.expr.template + self.expr(self.c[None])[0]
-                    self._basis = (key, skinning_basis(rest, self.weights()))
-            return skin_with_basis(self._basis[1], skinning)[0]
-        with torch.set_grad_enabled("latent" in free):
-            w = self.weights()
-        rest = self.expr.template + self.expr(c[None])[0]
-        return skin_vertices(rest, w, skinning)[0]
 
     def to_camera(self, points: torch.Tensor, free: tuple[str, ...] = ()) -> torch.Tensor:
         """``(N, 3)`` rig space -> OpenCV camera space, mm."""
@@ -292,8 +255,7 @@ def fit_landmarks(landmarks2d, width: int, height: int, *, focal: float | None =
                 loss.backward()
                 opt.step()
                 if "expressions" in free:  # (only then: a write to c invalidates the cached skinning basis)
-                    with torch.no_grad():
-                        model.c.copy_(torch.maximum(torch.minimum(model.c, model.c_high), model.c_low))
+                    model.clamp_expressions()
                 if progress is not None:
                     progress(stage.name, it + 1, stage.iterations)
             losses[stage.name] = float(loss.detach())

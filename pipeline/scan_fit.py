@@ -40,20 +40,18 @@ from typing import Callable, Mapping
 import numpy as np
 import torch
 from scipy.spatial import cKDTree
-from scipy.spatial.transform import Rotation
 
-from rig.expressions import EXPRESSION_NAMES, ExpressionModel, expression_limits
-from rig.lbs import skin_vertices, skin_with_basis, skinning_basis
+from rig.expressions import ExpressionModel
 from rig.losses import limit_loss, regularizer
 from rig.model import JointRig
 from rig.neural import LATENT, NeuralSkinning, load_neural
-from rig.parameters import NUM_PARAMETERS, theta_limits
+from rig.parameters import NUM_PARAMETERS
 
 from .pointcloud import CloudError, PointCloud, boundary_mask, estimate_normals
+from .rig_state import FREE_GROUPS, RigState
 from .registration import (MeshDistance, RigidAlignment, closest_on_one_ring, incident_faces, rigid_prealign,
                            vertex_normals)
 
-FREE_GROUPS = ("pose", "joints", "latent", "expressions")
 FACE_REGIONS = ("forehead", "brows", "eyelids", "nose", "cheeks", "lips", "chin")
 
 
@@ -246,55 +244,15 @@ def _geman_mcclure(e: torch.Tensor, sigma: float) -> torch.Tensor:
     return s2 * e / (s2 + e)
 
 
-class _Model:
+class _Model(RigState):
     """The differentiable map (pose, joints, Z, expressions) -> vertices in the cloud frame."""
 
     def __init__(self, rig: JointRig, neural: NeuralSkinning | None, expressions: ExpressionModel,
                  prealign: RigidAlignment) -> None:
-        self.rig, self.neural, self.expr = rig, neural, expressions
+        super().__init__(rig, neural, expressions, prealign.rotation)
         dtype = rig.template.dtype
-        self.span = (lambda lo_hi: (lo_hi[1] - lo_hi[0]).clamp_min(1e-3))(theta_limits(dtype))
-        self.low, self.high = theta_limits(dtype)
-        self.c_low, self.c_high = expression_limits(dtype)
         self.log_scale = torch.tensor(math.log(prealign.scale), dtype=dtype, requires_grad=True)
-        self.rotvec = torch.tensor(Rotation.from_matrix(prealign.rotation).as_rotvec(), dtype=dtype, requires_grad=True)
         self.translation = torch.tensor(prealign.translation, dtype=dtype, requires_grad=True)
-        self.theta_n = torch.zeros(NUM_PARAMETERS, dtype=dtype, requires_grad=True)
-        self.z = torch.zeros(LATENT, dtype=dtype, requires_grad=True)
-        self.c = torch.zeros(len(EXPRESSION_NAMES), dtype=dtype, requires_grad=True)
-        self._basis: tuple[tuple[int, int], torch.Tensor] | None = None
-
-    @property
-    def theta(self) -> torch.Tensor:
-        return self.theta_n * self.span
-
-    def weights(self) -> torch.Tensor:
-        if self.neural is None:
-            return self.rig.dense_weights()
-        return self.neural(self.z[None])[0]
-
-    def rotation(self) -> torch.Tensor:
-        from kornia.geometry.conversions import axis_angle_to_rotation_matrix
-
-        return axis_angle_to_rotation_matrix(self.rotvec[None])[0]
-
-    def rig_vertices(self, free: tuple[str, ...] = ()) -> torch.Tensor:
-        """``(V, 3)`` rig-space vertices; only the groups in ``free`` carry gradients."""
-        grad = set(free)
-        theta = self.theta if "joints" in grad else self.theta.detach()
-        c = self.c if "expressions" in grad else self.c.detach()
-        _, skinning = self.rig.joint_transforms(theta[None])
-        if not grad & {"latent", "expressions"}:
-            # Rest shape and weights are fixed: reuse their skinning basis (one GEMM per step).
-            key = (self.z._version, self.c._version)
-            if self._basis is None or self._basis[0] != key:
-                rest = self.expr.template + self.expr(self.c.detach()[None])[0]
-                self._basis = (key, skinning_basis(rest, self.weights().detach()))
-            return skin_with_basis(self._basis[1], skinning)[0]
-        with torch.set_grad_enabled("latent" in grad):
-            w = self.weights()
-        rest = self.expr.template + self.expr(c[None])[0]
-        return skin_vertices(rest, w if "latent" in grad else w.detach(), skinning)[0]
 
     def to_cloud(self, v: torch.Tensor) -> torch.Tensor:
         return self.log_scale.exp() * v @ self.rotation().T + self.translation
@@ -302,10 +260,6 @@ class _Model:
     @property
     def scale(self) -> float:
         return float(self.log_scale.detach().exp())
-
-    def state(self) -> dict:
-        return {"theta": self.theta.detach().clone(), "z": self.z.detach().clone(), "c": self.c.detach().clone(),
-                "rotvec": self.rotvec.detach().clone(), "translation": self.translation.detach().clone()}
 
 
 def _prepare_cloud(cloud: PointCloud, config: FitScanConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -473,8 +427,7 @@ def fit_scan(cloud: PointCloud, config: FitScanConfig | None = None, *,
                 opt.zero_grad()
                 loss.backward()
                 opt.step()
-                with torch.no_grad():
-                    model.c.copy_(torch.maximum(torch.minimum(model.c, model.c_high), model.c_low))
+                model.clamp_expressions()
                 if progress is not None:
                     progress(stage.name, it + 1, stage.iterations)
             pairs = record["pairs"]
