@@ -11,12 +11,12 @@ TORCH_SPEC ?= torch==2.13.0
 
 .PHONY: demo test venv llvm bench clean-venv
 
-$(STAMP): pyproject.toml
+$(STAMP): pyproject.toml Makefile
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
 	# The CPU build of torch; a bare `torch` requirement would pull a multi-GB CUDA build.
 	$(PY) -m pip install --quiet "$(TORCH_SPEC)"
-	$(PY) -m pip install --quiet -e ".[dev]"
+	$(PY) -m pip install --quiet -e ".[dev,landmarks]"
 	touch $(STAMP)
 
 venv: $(STAMP) llvm
