@@ -34,6 +34,7 @@ import numpy as np
 import torch
 
 from rig.asset import RigAsset, cached_per_asset, load_asset
+from rig.geometry import barycentric, closest_points_on_triangles, vertex_normals
 from rig.lbs import ShapeError
 
 IBUG68_NAMES: tuple[str, ...] = (
@@ -192,14 +193,6 @@ def _midline_path(vertices: np.ndarray, mirror: np.ndarray, faces: np.ndarray, y
     ids = np.flatnonzero((mirror == np.arange(len(vertices))) & (vertices[:, 1] >= y_lo)
                          & (vertices[:, 1] <= y_hi) & (vertices[:, 2] >= z_min))
     return ids[np.argsort(-vertices[ids, 1])]
-
-
-def _vertex_normals_np(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    fn = np.cross(vertices[faces[:, 1]] - vertices[faces[:, 0]], vertices[faces[:, 2]] - vertices[faces[:, 0]])
-    n = np.zeros_like(vertices)
-    for k in range(3):
-        np.add.at(n, faces[:, k], fn)
-    return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
 
 
 # --- the embedding ---------------------------------------------------------------------------------------
@@ -369,45 +362,13 @@ def _embedding(asset: RigAsset) -> LandmarkEmbedding:
 def _closest_point_on_faces(v: np.ndarray, faces: np.ndarray, face_ids: np.ndarray, p: np.ndarray
                             ) -> tuple[int, np.ndarray]:
     """Closest point to ``p`` on the given faces (exact point-triangle distance), as ``(face, barycentric)``."""
-    best = (np.inf, -1, None)
-    for f in face_ids:
-        a, b, c = v[faces[f]]
-        w = _closest_barycentric(a, b, c, p)
-        d = np.linalg.norm(w @ np.stack([a, b, c]) - p)
-        if d < best[0]:
-            best = (d, int(f), w)
-    return best[1], best[2]
-
-
-def _closest_barycentric(a, b, c, p) -> np.ndarray:
-    # Ericson, Real-Time Collision Detection, 5.1.5.
-    ab, ac, ap = b - a, c - a, p - a
-    d1, d2 = ab @ ap, ac @ ap
-    if d1 <= 0 and d2 <= 0:
-        return np.array([1.0, 0.0, 0.0])
-    bp = p - b
-    d3, d4 = ab @ bp, ac @ bp
-    if d3 >= 0 and d4 <= d3:
-        return np.array([0.0, 1.0, 0.0])
-    vc = d1 * d4 - d3 * d2
-    if vc <= 0 and d1 >= 0 and d3 <= 0:
-        t = d1 / (d1 - d3)
-        return np.array([1 - t, t, 0.0])
-    cp = p - c
-    d5, d6 = ab @ cp, ac @ cp
-    if d6 >= 0 and d5 <= d6:
-        return np.array([0.0, 0.0, 1.0])
-    vb = d5 * d2 - d1 * d6
-    if vb <= 0 and d2 >= 0 and d6 <= 0:
-        t = d2 / (d2 - d6)
-        return np.array([1 - t, 0.0, t])
-    va = d3 * d6 - d5 * d4
-    if va <= 0 and (d4 - d3) >= 0 and (d5 - d6) >= 0:
-        t = (d4 - d3) / ((d4 - d3) + (d5 - d6))
-        return np.array([0.0, 1 - t, t])
-    denom = 1.0 / (va + vb + vc)
-    s, t = vb * denom, vc * denom
-    return np.array([1 - s - t, s, t])
+    face_ids = np.asarray(face_ids, dtype=np.int64)
+    tri = v[faces[face_ids]]  # (n, 3, 3)
+    q = closest_points_on_triangles(np.broadcast_to(p, (len(face_ids), 3)), tri[:, 0], tri[:, 1], tri[:, 2])
+    best = int(np.argmin(((q - p) ** 2).sum(-1)))
+    w = np.clip(barycentric(q[best:best + 1], tri[best:best + 1, 0], tri[best:best + 1, 1],
+                            tri[best:best + 1, 2])[0], 0.0, 1.0)
+    return int(face_ids[best]), w / w.sum()
 
 
 def ibug68_embedding(asset: RigAsset | None = None) -> LandmarkEmbedding:
@@ -454,15 +415,6 @@ def landmark_positions(vertices, embedding: LandmarkEmbedding, faces):
     return np.einsum("blkc,lk->blc", verts[:, tri], embedding.barycentric.astype(verts.dtype))
 
 
-def _vertex_normals_torch(vertices: torch.Tensor, faces: torch.Tensor) -> torch.Tensor:
-    v0, v1, v2 = vertices[faces[:, 0]], vertices[faces[:, 1]], vertices[faces[:, 2]]
-    fn = torch.linalg.cross(v1 - v0, v2 - v0, dim=-1)
-    n = torch.zeros_like(vertices)
-    for k in range(3):
-        n = n.index_add(0, faces[:, k], fn)
-    return n / n.norm(dim=-1, keepdim=True).clamp_min(1e-12)
-
-
 def contour_candidates(asset: RigAsset | None = None) -> tuple[np.ndarray, ...]:
     """Per jaw-contour landmark, the candidate template vertices (front -> back) of the dynamic contour;
     empty for the chin (8), which stays fixed."""
@@ -496,8 +448,8 @@ def contour_landmarks(vertices: torch.Tensor, faces, camera_center, asset: RigAs
     faces_t = torch.as_tensor(np.asarray(faces.cpu() if isinstance(faces, torch.Tensor) else faces),
                               dtype=torch.long, device=vertices.device)
     data = _contour(asset)
-    with torch.no_grad():
-        normals = _vertex_normals_torch(vertices.detach(), faces_t)
+    normals = torch.as_tensor(vertex_normals(vertices.detach().cpu().double().numpy(), faces_t.cpu().numpy()),
+                              dtype=vertices.dtype, device=vertices.device)
     picked = []
     for k in range(17):
         cand = data.candidates[k]

@@ -13,6 +13,8 @@ import numpy as np
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
+from rig.geometry import barycentric, closest_points_on_triangles, vertex_normals
+
 
 # ----------------------------------------------------------------------------------------------------
 # Similarity transforms
@@ -64,53 +66,6 @@ def invert_similarity(points: np.ndarray, rotation: np.ndarray, translation: np.
 # Mesh geometry
 # ----------------------------------------------------------------------------------------------------
 
-def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """Area-weighted unit vertex normals ``(V, 3)`` of a triangle mesh (outward for a CCW mesh)."""
-    v = np.asarray(vertices, float)
-    f = np.asarray(faces)
-    fn = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])  # length = 2 * area
-    n = np.zeros_like(v)
-    for c in range(3):
-        n[:, c] = np.bincount(f.ravel(), weights=np.repeat(fn[:, c], 3), minlength=len(v))
-    return n / np.linalg.norm(n, axis=1, keepdims=True).clip(1e-12)
-
-
-def _closest_on_triangles(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
-    """Closest points on triangles ``(a, b, c)`` to points ``p`` (all ``(..., 3)``), Ericson's regions."""
-    ab, ac, ap = b - a, c - a, p - a
-    d1, d2 = (ab * ap).sum(-1), (ac * ap).sum(-1)
-    bp = p - b
-    d3, d4 = (ab * bp).sum(-1), (ac * bp).sum(-1)
-    cp = p - c
-    d5, d6 = (ab * cp).sum(-1), (ac * cp).sum(-1)
-    va = d3 * d6 - d5 * d4
-    vb = d5 * d2 - d1 * d6
-    vc = d1 * d4 - d3 * d2
-    tiny = 1e-300
-    # Interior (default), then override by edge and vertex regions in increasing priority.
-    denom = va + vb + vc
-    v_ = vb / np.where(np.abs(denom) > tiny, denom, tiny)
-    w_ = vc / np.where(np.abs(denom) > tiny, denom, tiny)
-    out = a + ab * v_[..., None] + ac * w_[..., None]
-    # Edge BC.
-    e_bc = (va <= 0) & ((d4 - d3) >= 0) & ((d5 - d6) >= 0)
-    t = (d4 - d3) / np.where(((d4 - d3) + (d5 - d6)) > tiny, (d4 - d3) + (d5 - d6), tiny)
-    out = np.where(e_bc[..., None], b + (c - b) * t[..., None], out)
-    # Edge AC.
-    e_ac = (vb <= 0) & (d2 >= 0) & (d6 <= 0)
-    t = d2 / np.where((d2 - d6) > tiny, d2 - d6, tiny)
-    out = np.where(e_ac[..., None], a + ac * t[..., None], out)
-    # Edge AB.
-    e_ab = (vc <= 0) & (d1 >= 0) & (d3 <= 0)
-    t = d1 / np.where((d1 - d3) > tiny, d1 - d3, tiny)
-    out = np.where(e_ab[..., None], a + ab * t[..., None], out)
-    # Vertex regions.
-    out = np.where(((d6 >= 0) & (d5 <= d6))[..., None], c, out)
-    out = np.where(((d3 >= 0) & (d4 <= d3))[..., None], b, out)
-    out = np.where(((d1 <= 0) & (d2 <= 0))[..., None], a, out)
-    return out
-
-
 def incident_faces(faces: np.ndarray, num_vertices: int) -> np.ndarray:
     """``(V, W)`` ids of the faces around each vertex (padded with -1)."""
     faces = np.asarray(faces, dtype=np.int64)
@@ -121,17 +76,6 @@ def incident_faces(faces: np.ndarray, num_vertices: int) -> np.ndarray:
     starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
     table[vert_of, np.arange(len(order)) - np.repeat(starts, counts)] = order // 3
     return table
-
-
-def barycentric(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
-    """Barycentric coordinates ``(N, 3)`` of points ``p`` in the planes of triangles ``(a, b, c)`` (each ``(N, 3)``)."""
-    v0, v1, v2 = b - a, c - a, p - a
-    d00, d01, d11 = (v0 * v0).sum(1), (v0 * v1).sum(1), (v1 * v1).sum(1)
-    d20, d21 = (v2 * v0).sum(1), (v2 * v1).sum(1)
-    den = np.where(np.abs(d00 * d11 - d01 * d01) > 1e-300, d00 * d11 - d01 * d01, 1e-300)
-    w1 = (d11 * d20 - d01 * d21) / den
-    w2 = (d00 * d21 - d01 * d20) / den
-    return np.stack([1.0 - w1 - w2, w1, w2], 1)
 
 
 def closest_on_one_ring(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray, incident: np.ndarray,
@@ -149,7 +93,7 @@ def closest_on_one_ring(points: np.ndarray, vertices: np.ndarray, faces: np.ndar
     rows, cols = np.nonzero(cand >= 0)
     face_of = cand[rows, cols]
     tri = vertices[faces[face_of]]  # (M, 3, 3)
-    q = _closest_on_triangles(points[rows], tri[:, 0], tri[:, 1], tri[:, 2])
+    q = closest_points_on_triangles(points[rows], tri[:, 0], tri[:, 1], tri[:, 2])
     d2 = ((q - points[rows]) ** 2).sum(-1)
     order = np.lexsort((d2, rows))  # by point, then by distance
     first = order[np.r_[0, np.flatnonzero(np.diff(rows[order])) + 1]]
@@ -190,7 +134,7 @@ class MeshDistance:
 
     def _closest(self, p: np.ndarray, cand: np.ndarray):
         tri = self._tri[cand]  # (n, c, 3, 3)
-        q = _closest_on_triangles(p[:, None, :], tri[..., 0, :], tri[..., 1, :], tri[..., 2, :])
+        q = closest_points_on_triangles(p[:, None, :], tri[..., 0, :], tri[..., 1, :], tri[..., 2, :])
         d2 = ((q - p[:, None, :]) ** 2).sum(-1)
         best = d2.argmin(1)
         rows = np.arange(len(p))
@@ -227,7 +171,7 @@ def brute_force_distance(points: np.ndarray, vertices: np.ndarray, faces: np.nda
     f = np.asarray(faces)
     out = np.empty(len(points))
     for i, p in enumerate(np.asarray(points, float)):
-        q = _closest_on_triangles(p[None], v[f[:, 0]], v[f[:, 1]], v[f[:, 2]])
+        q = closest_points_on_triangles(p[None], v[f[:, 0]], v[f[:, 1]], v[f[:, 2]])
         out[i] = np.sqrt(((q - p) ** 2).sum(-1).min())
     return out
 

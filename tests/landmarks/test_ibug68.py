@@ -120,8 +120,8 @@ def test_contour_far_side_moves_towards_visible_silhouette(asset, pts):
     assert (out[1:7, 2].detach().numpy() > pts[1:7, 2] + 10.0).all()  # 7, by the chin, is already in front
     assert (out[far, 0].detach().numpy() > pts[far, 0]).all()
     # they sit near the silhouette: normals almost perpendicular to the view direction
-    from landmarks.ibug68 import _vertex_normals_np
-    n = _vertex_normals_np(asset.vertices, asset.faces)
+    from rig.geometry import vertex_normals
+    n = vertex_normals(asset.vertices, asset.faces)
     cam = np.array(_yaw_camera(30.0))
     p = out.detach().numpy()
     ids = [int(np.argmin(np.linalg.norm(asset.vertices - q, axis=1))) for q in p[far]]
