@@ -15,12 +15,13 @@ import io
 import json
 import math
 import os
-import tempfile
 import warnings
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.spatial import cKDTree
+
+from rig.asset import write_bytes_atomic
 
 SUPPORTED_EXTENSIONS = (".ply", ".obj", ".xyz", ".txt", ".csv", ".npy")
 UNITS = ("auto", "mm", "cm", "m")
@@ -466,25 +467,7 @@ def write_point_cloud_ply(path, points, *, colors=None, normals=None,
     header = ["ply", "format binary_little_endian 1.0", "comment written by jnr (pipeline.pointcloud)",
               f"element vertex {n}"] + [f"property {ply_type[dtype]} {name}" for name, dtype, _ in fields]
     header = ("\n".join(header + ["end_header"]) + "\n").encode("ascii")
-    _write_atomically(os.fspath(path), header + vertex.tobytes())
-
-
-def _write_atomically(path: str, payload: bytes) -> None:
-    folder = os.path.dirname(os.path.abspath(path))
-    fd, tmp = tempfile.mkstemp(dir=folder, prefix=f".{os.path.basename(path)}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(payload)
-            fh.flush()
-            os.fsync(fh.fileno())
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600 files; give the usual permissions
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    write_bytes_atomic(os.fspath(path), header + vertex.tobytes())
 
 
 # Blue → light blue → pale yellow → orange → red (ColorBrewer RdYlBu, reversed): even lightness steps

@@ -9,6 +9,7 @@ Arrays are named and typed; the joint order is :data:`rig.joints.JOINT_NAMES` an
 from __future__ import annotations
 
 import functools
+import io
 import os
 import tempfile
 import weakref
@@ -122,19 +123,32 @@ def save_asset(asset: RigAsset, path: str | Path) -> None:
     write_npz_atomic(path, arrays)
 
 
-def write_npz_atomic(path: str | Path, arrays: dict[str, np.ndarray]) -> None:
-    """``np.savez_compressed`` through a temporary file in the same folder, so no half-written file is left."""
+def write_bytes_atomic(path: str | Path, payload: bytes) -> None:
+    """Write ``payload`` through a temporary file in the same folder (then ``os.replace``), so no
+    half-written file is ever left at ``path``; the file gets the usual (umask) permissions."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(suffix=".npz", dir=path.parent)
-    os.close(fd)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
-        np.savez_compressed(tmp, **arrays)
-        os.chmod(tmp, 0o644)
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(payload)
+            fh.flush()
+            os.fsync(fh.fileno())
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600 files
         os.replace(tmp, path)
-    finally:
+    except BaseException:
         if os.path.exists(tmp):
             os.unlink(tmp)
+        raise
+
+
+def write_npz_atomic(path: str | Path, arrays: dict[str, np.ndarray]) -> None:
+    """``np.savez_compressed`` written atomically (:func:`write_bytes_atomic`)."""
+    buffer = io.BytesIO()
+    np.savez_compressed(buffer, **arrays)
+    write_bytes_atomic(path, buffer.getvalue())
 
 
 def read_asset(path: str | Path) -> RigAsset:
