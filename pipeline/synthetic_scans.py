@@ -18,6 +18,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 __all__ = ["DepthCamera", "ScanSettings", "SyntheticScan", "render_depth", "simulate_scan", "WORLD_TO_CAMERA"]
 
@@ -214,11 +215,7 @@ def _rays(camera: DepthCamera, u: np.ndarray, v: np.ndarray) -> np.ndarray:
 
 def _rotation(yaw_deg: float, pitch_deg: float, roll_deg: float) -> np.ndarray:
     """``R = R_z(roll) R_x(pitch) R_y(yaw)`` (yaw about +Y: positive turns the face towards +X)."""
-    y, p, r = np.radians([yaw_deg, pitch_deg, roll_deg])
-    ry = np.array([[np.cos(y), 0, np.sin(y)], [0, 1, 0], [-np.sin(y), 0, np.cos(y)]])
-    rx = np.array([[1, 0, 0], [0, np.cos(p), -np.sin(p)], [0, np.sin(p), np.cos(p)]])
-    rz = np.array([[np.cos(r), -np.sin(r), 0], [np.sin(r), np.cos(r), 0], [0, 0, 1]])
-    return rz @ rx @ ry
+    return Rotation.from_euler("yxz", [yaw_deg, pitch_deg, roll_deg], degrees=True).as_matrix()
 
 
 def _angle(value, rng_range, rng: np.random.Generator, name: str) -> float:
