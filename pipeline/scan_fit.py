@@ -234,11 +234,6 @@ def _residual(d: torch.Tensor, n: torch.Tensor, tangential: float) -> torch.Tens
     return normal ** 2 + tangential * (tangent ** 2).sum(-1)
 
 
-def _residual_np(d: np.ndarray, n: np.ndarray, tangential: float) -> np.ndarray:
-    normal = (d * n).sum(-1)
-    return normal ** 2 + tangential * ((d - normal[:, None] * n) ** 2).sum(-1)
-
-
 def _geman_mcclure(e: torch.Tensor, sigma: float) -> torch.Tensor:
     s2 = sigma * sigma
     return s2 * e / (s2 + e)
@@ -357,8 +352,10 @@ def fit_scan(cloud: PointCloud, config: FitScanConfig | None = None, *,
         ok2 = (d2 <= state["max_d"]) & ~border[k2] & ((vn * normals[k2]).sum(1) >= cos_max)
         if view_dir is not None:
             ok2 &= vn @ view_dir > config.min_facing
-        e1 = _residual_np(p_sub[ok1] - q1[ok1], n1[ok1], config.tangential_weight)
-        e2 = _residual_np(v_cloud[ok2] - points[k2[ok2]], normals[k2[ok2]], 0.0)
+        e1 = _residual(torch.from_numpy(p_sub[ok1] - q1[ok1]), torch.from_numpy(n1[ok1]),
+                       config.tangential_weight).numpy()
+        e2 = _residual(torch.from_numpy(v_cloud[ok2] - points[k2[ok2]]), torch.from_numpy(normals[k2[ok2]]),
+                       0.0).numpy()
         r = np.sqrt(np.concatenate([e1, e2]))
         sigma = max(config.robust_sigma_min_mm, float(np.quantile(r, config.robust_sigma_quantile)))
         inlier_rms = float(np.sqrt(np.mean(np.minimum(r, sigma * 3) ** 2)))
