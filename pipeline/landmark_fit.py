@@ -130,8 +130,8 @@ class LandmarkFit:
     seconds: float
 
 
-class _PhotoModel(RigState):
-    """(pose, joints, Z, expressions) -> rig-space vertices and camera-space points."""
+class PosedRig(RigState):
+    """(pose, joints, Z, expressions) -> rig-space vertices and OpenCV camera-space points (one photo)."""
 
     def __init__(self, rig: JointRig, neural: NeuralSkinning | None, expressions: ExpressionModel,
                  rotation: np.ndarray, translation: np.ndarray) -> None:
@@ -149,6 +149,61 @@ class _PhotoModel(RigState):
     def camera_center(self) -> np.ndarray:
         return camera_center_in_rig(self.rotation().detach().double().numpy(),
                                     self.translation.detach().double().numpy())
+
+
+class LandmarkTerm:
+    """The 68-landmark reprojection term of one photo, with the jaw contour re-picked as the silhouette
+    seen from the current camera centre.
+
+    Args:
+        asset: the rig asset (faces, contour candidates).
+        landmarks2d: ``(68, 2)`` target pixels (OpenCV, 0-based), iBUG-68 order.
+        camera: ``PinholeCamera`` with identity extrinsics (the model moves points to camera space).
+        huber_delta_px: Huber threshold, pixels.
+    """
+
+    def __init__(self, asset, landmarks2d: np.ndarray, camera: PinholeCamera, huber_delta_px: float) -> None:
+        self.asset, self.camera, self.delta = asset, camera, float(huber_delta_px)
+        self.faces = asset.faces
+        self.embedding = ibug68_embedding(asset)
+        self.target = torch.as_tensor(np.asarray(landmarks2d, np.float64), dtype=camera.intrinsics.dtype)[None]
+
+    def points3d(self, model: PosedRig, v: torch.Tensor) -> torch.Tensor:
+        """``(68, 3)`` rig space, mm: the static embedding, the jaw contour as seen from the camera."""
+        static = landmark_positions(v, self.embedding, self.faces)[0]
+        contour = contour_landmarks(v, self.faces, model.camera_center(), self.asset)
+        return torch.cat([contour, static[17:]])
+
+    def __call__(self, model: PosedRig, v: torch.Tensor, free: tuple[str, ...] = ()) -> torch.Tensor:
+        """Scalar loss, px^2 (:func:`landmarks.loss.landmark_reprojection_loss`)."""
+        points = model.to_camera(self.points3d(model, v), free)
+        return landmark_reprojection_loss(points[None], self.target.to(points.dtype), self.camera,
+                                          delta_px=self.delta)[0]
+
+    def project(self, model: PosedRig, v: torch.Tensor) -> np.ndarray:
+        """``(68, 2)`` float64 pixels of the model's landmarks."""
+        with torch.no_grad():
+            points = model.to_camera(self.points3d(model, v))
+            return project_points(points[None], self.camera)[0].double().numpy()
+
+
+def rig_prior(model: RigState, config) -> torch.Tensor:
+    """``lambda_m L_m + lambda_x L_x + lambda_z |Z|^2 + lambda_expressions |c|^2`` (+ the optional symmetry
+    prior) with the weights of ``config`` (:class:`LandmarkFitConfig` or a config with the same fields)."""
+    theta = model.theta
+    loss = config.lambda_m * regularizer(theta[None])[0] \
+        + config.lambda_x * limit_loss(theta[None], model.low, model.high)[0] \
+        + config.lambda_z * model.z.square().sum() + config.lambda_expressions * model.c.square().sum()
+    if config.lambda_symmetry:
+        loss = loss + config.lambda_symmetry * (theta - mirror_theta(theta)).square().mean()
+    return loss
+
+
+def landmark_errors(projected: np.ndarray, landmarks2d: np.ndarray) -> tuple[np.ndarray, float]:
+    """Per-landmark pixel error ``(68,)`` and the NME (mean error / outer-eye-corner distance of the input)."""
+    error = np.linalg.norm(np.asarray(projected) - np.asarray(landmarks2d), axis=1)
+    inter_ocular = float(np.linalg.norm(landmarks2d[EYE_OUTER[0]] - landmarks2d[EYE_OUTER[1]]))
+    return error, (float(error.mean() / inter_ocular) if inter_ocular > 0 else math.nan)
 
 
 def _check_landmarks(landmarks2d) -> np.ndarray:
@@ -212,30 +267,17 @@ def fit_landmarks(landmarks2d, width: int, height: int, *, focal: float | None =
     model_points = landmark_positions(start.double().numpy(), embedding, faces)[0]
     rotation0, translation0 = solve_pose(lm, model_points, width, height, focal)
 
-    model = _PhotoModel(rig, neural, expressions, rotation0, translation0)
-    target = torch.as_tensor(lm, dtype=dtype)[None]
+    model = PosedRig(rig, neural, expressions, rotation0, translation0)
     lrs = {"joints": [(model.theta_n, config.lr_joints)], "latent": [(model.z, config.lr_latent)],
            "expressions": [(model.c, config.lr_expressions)],
            "pose": [(model.rotvec, config.lr_rotation), (model.translation, config.lr_translation)]}
 
-    def landmarks3d(v: torch.Tensor) -> torch.Tensor:
-        """``(68, 3)`` rig space, the jaw contour as seen from the current camera centre."""
-        static = landmark_positions(v, embedding, faces)[0]
-        contour = contour_landmarks(v, faces, model.camera_center(), asset)
-        return torch.cat([contour, static[17:]])
+    term = LandmarkTerm(asset, lm, intrinsic_camera, config.huber_delta_px)
 
     def objective(free: tuple[str, ...]) -> tuple[torch.Tensor, torch.Tensor]:
         v = model.rig_vertices(free)
-        points = model.to_camera(landmarks3d(v), free)
-        data = landmark_reprojection_loss(points[None], target, intrinsic_camera,
-                                          delta_px=config.huber_delta_px)[0]
-        theta = model.theta
-        loss = data + config.lambda_m * regularizer(theta[None])[0] \
-            + config.lambda_x * limit_loss(theta[None], model.low, model.high)[0] \
-            + config.lambda_z * model.z.square().sum() + config.lambda_expressions * model.c.square().sum()
-        if config.lambda_symmetry:
-            loss = loss + config.lambda_symmetry * (theta - mirror_theta(theta)).square().mean()
-        return loss, data.detach()
+        data = term(model, v, free)
+        return data + rig_prior(model, config), data.detach()
 
     losses: dict[str, float] = {}
     if neural is not None:
@@ -256,6 +298,8 @@ def fit_landmarks(landmarks2d, width: int, height: int, *, focal: float | None =
                 opt.step()
                 if "expressions" in free:  # (only then: a write to c invalidates the cached skinning basis)
                     model.clamp_expressions()
+                if "joints" in free:
+                    model.clamp_joints()
                 if progress is not None:
                     progress(stage.name, it + 1, stage.iterations)
             losses[stage.name] = float(loss.detach())
@@ -266,17 +310,13 @@ def fit_landmarks(landmarks2d, width: int, height: int, *, focal: float | None =
 
     with torch.no_grad():
         v = model.rig_vertices()
-        points = model.to_camera(landmarks3d(v))
-        projected = project_points(points[None], intrinsic_camera)[0].double().numpy()
-        data = float(landmark_reprojection_loss(points[None], target, intrinsic_camera,
-                                                delta_px=config.huber_delta_px)[0])
-        static3d = landmark_positions(v, embedding, faces)[0].double().numpy()
+        projected = term.project(model, v)
+        data = float(term(model, v))
+        static3d = landmark_positions(v, term.embedding, faces)[0].double().numpy()
         rotation = model.rotation().double().numpy()
         translation = model.translation.double().numpy()
     losses["data_px2"] = data
-    error = np.linalg.norm(projected - lm, axis=1)
-    inter_ocular = float(np.linalg.norm(lm[EYE_OUTER[0]] - lm[EYE_OUTER[1]]))
-    nme = float(error.mean() / inter_ocular) if inter_ocular > 0 else math.nan
+    error, nme = landmark_errors(projected, lm)
     return LandmarkFit(theta=model.theta.detach().double().numpy(), z=model.z.detach().double().numpy(),
                        expressions=model.c.detach().double().numpy(), rotation=rotation, translation=translation,
                        camera=make_camera(width, height, focal, rotation=rotation, translation=translation),

@@ -155,3 +155,14 @@ def solve_pose(landmarks2d: np.ndarray, model_points: np.ndarray, width: int, he
         raise ValueError(f"{func}: PnP failed (no pose puts the head in front of the camera)")
     camera_rotation = cv2.Rodrigues(rvec)[0]
     return RIG_TO_OPENCV.T @ camera_rotation, tvec[:, 0].copy()
+
+
+def camera_direction_to_rig(direction: np.ndarray, rotation: np.ndarray) -> np.ndarray:
+    """A direction ``(3,)`` in the photo camera's frame (OpenCV) -> the same direction in rig space, for
+    a head pose ``rotation`` ``(3, 3)`` (directions ignore the translation). Unit length in, unit out."""
+    d = np.asarray(direction, np.float64)
+    rotation = np.asarray(rotation, np.float64)
+    if d.shape != (3,) or rotation.shape != (3, 3):
+        raise ShapeError(f"camera_direction_to_rig: direction must be (3,) and rotation (3, 3), got "
+                         f"{d.shape} and {rotation.shape}")
+    return (RIG_TO_OPENCV @ rotation).T @ d

@@ -73,6 +73,11 @@ class RigState:
         rest = self.expr.template + self.expr(c[None])[0]
         return skin_vertices(rest, w if "latent" in free else w.detach(), skinning)[0]
 
+    def clamp_joints(self) -> None:
+        """Project the joint channels back into their limits (in place), so every fit is a valid rig pose."""
+        with torch.no_grad():
+            self.theta_n.copy_(torch.maximum(torch.minimum(self.theta_n, self.high / self.span), self.low / self.span))
+
     def clamp_expressions(self) -> None:
         """Project the expression coefficients back into their limits (in place)."""
         with torch.no_grad():

@@ -94,6 +94,27 @@ def mesh_from_params(params: dict | str | Path, *, rig: JointRig | None = None, 
     if params.get("format") != PARAMS_FORMAT:
         raise ValueError(f"not a jnr fit-scan parameter file (format {params.get('format')!r}, "
                          f"expected {PARAMS_FORMAT!r})")
+    v = rig_vertices_from_params(params, rig=rig, use_neural=use_neural)
+    if frame == "rig":
+        return v
+    pose = params["pose"]
+    v = float(pose["scale"]) * v @ np.asarray(pose["rotation_matrix"]).T + np.asarray(pose["translation_mm"])
+    if frame == "cloud":
+        return v
+    inp = params["input"]
+    return to_rig_frame(v, inp["frame"]) / float(inp["scale_to_mm"])
+
+
+def rig_vertices_from_params(params: dict, *, rig: JointRig | None = None, use_neural: bool = True) -> np.ndarray:
+    """``(V, 3)`` float64 rig-space head (mm) of a fit's parameters: its ``joints`` (by name), ``expressions``
+    (by name) and ``latent_z`` (50 values), as written by ``jnr fit-scan`` and ``jnr fit``.
+
+    Raises:
+        ValueError: missing keys, unknown names, values outside limits, a latent of the wrong length.
+    """
+    missing = [k for k in ("joints", "expressions", "latent_z") if k not in params]
+    if missing:
+        raise ValueError(f"parameter file lacks {missing}")
     rig = rig or JointRig()
     theta = params_to_theta(params["joints"])[None].to(rig.template.dtype)
     c = coefficients_from_dict(params["expressions"], dtype=rig.template.dtype)[None]
@@ -103,15 +124,7 @@ def mesh_from_params(params: dict | str | Path, *, rig: JointRig | None = None, 
     with torch.no_grad():
         rest = ExpressionModel(rig.asset, dtype=rig.template.dtype).vertices(c)[0]
         weights = load_neural(rig)[0](z)[0] if use_neural else rig.dense_weights()
-        v = rig(theta, weights=weights, vertices=rest).vertices[0].numpy().astype(np.float64)
-    if frame == "rig":
-        return v
-    pose = params["pose"]
-    v = float(pose["scale"]) * v @ np.asarray(pose["rotation_matrix"]).T + np.asarray(pose["translation_mm"])
-    if frame == "cloud":
-        return v
-    inp = params["input"]
-    return to_rig_frame(v, inp["frame"]) / float(inp["scale_to_mm"])
+        return rig(theta, weights=weights, vertices=rest).vertices[0].numpy().astype(np.float64)
 
 
 def write_scan_outputs(out_dir: str | Path, cloud: PointCloud, fit: ScanFit, distances: np.ndarray, *,

@@ -129,7 +129,9 @@ class DifferentiableRenderer:
         props = mi.Properties()
         props["bsdf"] = mi.load_dict({"type": "diffuse",
                                       "reflectance": {"type": "mesh_attribute", "name": "vertex_color"}})
-        props["emitter"] = mi.load_dict({"type": "area",
+        # sampling_weight 0: next-event estimation always samples the sun; the ambient emission is only
+        # seen directly by camera rays (and by the few BSDF rays that hit the head itself)
+        props["emitter"] = mi.load_dict({"type": "area", "sampling_weight": 0.0,
                                          "radiance": {"type": "mesh_attribute", "name": "vertex_emission"}})
         mesh = mi.Mesh("head", vertex_count=self.num_welded, face_count=len(welded_faces), props=props,
                        has_vertex_normals=True, has_vertex_texcoords=False)

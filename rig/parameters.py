@@ -112,6 +112,10 @@ def mirror_theta(theta: torch.Tensor) -> torch.Tensor:
     return theta[..., MIRROR_INDEX] * sign
 
 
+LIMIT_TOLERANCE = 1e-6
+"""Values this far outside a limit (relative to the channel's range) are taken as the limit."""
+
+
 def params_to_theta(values: dict[str, float], *, clamp: bool = False, dtype: torch.dtype = torch.float32) -> torch.Tensor:
     """Named channel values -> flat vector ``(P,)``; channels not named stay at rest.
 
@@ -135,6 +139,9 @@ def params_to_theta(values: dict[str, float], *, clamp: bool = False, dtype: tor
         if not math.isfinite(value):
             raise ParameterError(f"rig parameter {name!r} must be finite, got {value}")
         c = CHANNELS[CHANNEL_INDEX[name]]
+        tol = LIMIT_TOLERANCE * max(1.0, c.high - c.low)  # float32 rounding of a fitted value at its limit
+        if c.low - tol <= value <= c.high + tol:
+            value = min(max(value, c.low), c.high)
         if not c.low <= value <= c.high:
             if not clamp:
                 raise ParameterError(
