@@ -8,6 +8,7 @@
     jnr data synth --out DIR                   write the synthetic head population
     jnr train                                  learn linear + neural skinning weights
     jnr data scan --out FILE.ply               a simulated depth scan of a held-out synthetic head
+    jnr fit PHOTO... --out DIR                 reconstruct the head in a photo (or several, in parallel)
     jnr fit-scan CLOUD --out DIR               fit the rig to a point cloud (non-rigid ICP)
     jnr eval capacity [--json]                 known-correspondence error of each skinning variant
     jnr eval scans [--neutral N --expressive N]  fit-scan vs nricp_amberg on simulated depth scans
@@ -403,6 +404,176 @@ def cmd_fit_scan(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp")
+
+
+def _photo_inputs(items: list[str]) -> list[Path]:
+    """Image files named directly, or found (non-recursively, sorted) in named folders."""
+    photos: list[Path] = []
+    for item in items:
+        path = Path(item)
+        if path.is_dir():
+            found = sorted(p for p in path.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
+            if not found:
+                raise CliError(f"folder {path} holds no images ({', '.join(IMAGE_SUFFIXES)})")
+            photos.extend(found)
+        elif path.is_file():
+            photos.append(path)
+        else:
+            raise CliError(f"image file not found: {path}")
+    return photos
+
+
+def _load_fit_photo_config(args: argparse.Namespace):
+    from pipeline.config import ConfigError, load_config
+    from pipeline.photo_fit import FitPhotoConfig
+
+    overrides = _parse_overrides(args.set)
+    if args.landmarks_only:
+        overrides["photometric"] = False
+    try:
+        return load_config(FitPhotoConfig, args.config, overrides)
+    except ConfigError as exc:
+        raise CliError(str(exc)) from None
+
+
+def fit_one_photo(photo_path: str | Path, out: str | Path, *, config=None, landmarks: str | None = None,
+                  face: int | None = None, focal: float | None = None, force: bool = False,
+                  progress=None, command: str = "jnr fit") -> dict:
+    """Detect (or read) the landmarks of one photo, fit it and write its output folder.
+
+    Returns:
+        A summary dict (output folder, landmark error, timings).
+
+    Raises:
+        CliError: unreadable image, no face / bad ``face`` index, bad landmarks file, bad focal,
+            existing output without ``force`` (exit status 2); a diverged fit (1).
+    """
+    from landmarks.detect import DetectionError, detect_landmarks, load_image
+    from landmarks.formats import LandmarkFileError, read_landmarks
+    from pipeline.photo_fit import FitPhotoConfig, fit_photo
+    from pipeline.photo_outputs import write_photo_outputs
+    from rig.lbs import ShapeError
+
+    t0 = time.perf_counter()
+    photo_path, out = Path(photo_path), Path(out)
+    if out.exists() and not force:
+        raise CliError(f"output folder {out} exists; pass --force to replace it")
+    if not out.parent.is_dir():
+        raise CliError(f"the parent folder of {out} does not exist")
+    if focal is not None and not (focal > 0 and focal < 1e6):
+        raise CliError(f"--focal must be a focal length in pixels > 0, got {focal}")
+    config = config or FitPhotoConfig()
+    try:
+        image = load_image(photo_path)
+        detection = None
+        if landmarks:
+            points = read_landmarks(landmarks)
+            source = {"landmarks": str(landmarks)}
+        else:
+            detection = detect_landmarks(image, face=face)
+            points = detection.landmarks
+            source = {"landmarks": "dlib 68-point detector", "face_box": detection.box.tolist(),
+                      "face_score": detection.score, "face_index": 0 if face is None else face}
+        fit = fit_photo(image, points, focal=focal, config=config, progress=progress)
+    except (DetectionError, LandmarkFileError, ShapeError) as exc:
+        raise CliError(f"{photo_path}: {exc}") from None
+    except FloatingPointError as exc:
+        raise CliError(f"{photo_path}: {exc}", EXIT_FAILURE) from None
+    except ValueError as exc:
+        raise CliError(f"{photo_path}: {exc}") from None
+    extra = {"input": {"photo": str(photo_path), "width": fit.width, "height": fit.height,
+                       "focal_px": fit.focal, "focal_source": "--focal" if focal else "default 1.4 * max(W, H)",
+                       **source},
+             "command": command}
+    write_photo_outputs(out, image, fit, config=config, force=force, extra=extra)
+    return {"photo": str(photo_path), "output": str(out), "mean_error_px": float(fit.error_px.mean()),
+            "nme": float(fit.nme), "seconds": time.perf_counter() - t0, "fit_seconds": fit.timings["total"]}
+
+
+def _fit_worker(task: tuple) -> tuple[str, dict | None, str | None, int]:
+    """One photo in a worker process: ``(photo, summary, error message, exit code)``."""
+    photo, out, config, focal, force, threads, command = task
+    import torch
+
+    torch.set_num_threads(threads)
+    try:
+        return photo, fit_one_photo(photo, out, config=config, focal=focal, force=force, command=command), None, 0
+    except CliError as exc:
+        return photo, None, str(exc), exc.code
+    except Exception as exc:  # noqa: BLE001 - reported per photo; the batch goes on
+        return photo, None, f"{photo}: {type(exc).__name__}: {exc}", EXIT_FAILURE
+
+
+def cmd_fit(args: argparse.Namespace) -> int:
+    """``jnr fit PHOTO... --out DIR``: single-photo reconstruction (see pipeline.photo_fit)."""
+    photos = _photo_inputs(args.photos)
+    config = _load_fit_photo_config(args)
+    out = Path(args.out)
+    command = "jnr " + " ".join(sys.argv[1:]) if sys.argv[1:] else "jnr fit"
+    if len(photos) == 1 and not Path(args.photos[0]).is_dir():
+        bars = _StageBars(args.quiet)
+        try:
+            summary = fit_one_photo(photos[0], out, config=config, landmarks=args.landmarks, face=args.face,
+                                    focal=args.focal, force=args.force, progress=bars, command=command)
+        finally:
+            bars.close()
+        print(f"fitted {photos[0]} in {summary['fit_seconds']:.1f} s: landmark error {summary['mean_error_px']:.2f} px "
+              f"(NME {summary['nme']:.4f})")
+        print(f"wrote {out}/: mesh.obj, mesh.ply, mesh.glb, params.json, overlay.png, render.png, landmarks.pts, "
+              "report.json")
+        return EXIT_OK
+
+    if args.landmarks or args.face is not None:
+        raise CliError("--landmarks and --face apply to a single photo; fit the photos one by one")
+    stems = [p.stem for p in photos]
+    names = [s if stems.count(s) == 1 else f"{s}_{i}" for i, s in enumerate(stems)]
+    if out.exists() and not out.is_dir():
+        raise CliError(f"--out {out} exists and is not a folder")
+    clashes = [n for n in names if (out / n).exists()]
+    if clashes and not args.force:
+        raise CliError(f"output folder(s) {', '.join(str(out / n) for n in clashes[:3])} exist; pass --force "
+                       "to replace them")
+    if not out.parent.is_dir():
+        raise CliError(f"the parent folder of {out} does not exist")
+    out.mkdir(exist_ok=True)
+    jobs = max(1, min(args.jobs or (os.cpu_count() or 1), len(photos)))
+    threads = max(1, (os.cpu_count() or 1) // jobs)
+    tasks = [(str(p), str(out / n), config, args.focal, args.force, threads, command) for p, n in zip(photos, names)]
+    from tqdm import tqdm
+
+    results = []
+    bar = tqdm(total=len(tasks), desc="photos", unit="photo", disable=args.quiet)
+    try:
+        if jobs == 1:
+            for task in tasks:
+                results.append(_fit_worker(task))
+                bar.update()
+        else:
+            import multiprocessing
+            from concurrent.futures import ProcessPoolExecutor, as_completed
+
+            with ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("spawn")) as pool:
+                futures = [pool.submit(_fit_worker, t) for t in tasks]
+                for future in as_completed(futures):
+                    results.append(future.result())
+                    bar.update()
+    finally:
+        bar.close()
+    results.sort(key=lambda r: [str(p) for p in photos].index(r[0]))
+    failed = [r for r in results if r[2] is not None]
+    for photo, summary, _, _ in results:
+        if summary is not None:
+            print(f"{photo}: {summary['mean_error_px']:.2f} px (NME {summary['nme']:.4f}), "
+                  f"{summary['fit_seconds']:.1f} s -> {summary['output']}")
+    for _, _, message, _ in failed:
+        print(f"jnr: error: {message}", file=sys.stderr)
+    print(f"fitted {len(results) - len(failed)} of {len(results)} photos with {jobs} process(es); outputs in {out}/")
+    if failed:
+        return max(code for *_, code in failed)
+    return EXIT_OK
+
+
 def cmd_data_scan(args: argparse.Namespace) -> int:
     """``jnr data scan --out FILE``: a simulated depth scan of a held-out synthetic head."""
     import numpy as np
@@ -490,6 +661,35 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--spp", type=int, default=32, help="samples per pixel of the picture (default: 32)")
     demo.add_argument("--quiet", action="store_true", help="no progress bar")
     demo.set_defaults(func=cmd_demo)
+
+    fit = sub.add_parser(
+        "fit", help="reconstruct the head in a photo (landmarks + differentiable rendering)",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        description="Fit the rig (head pose, 105 joint channels, neural-skinning latent Z, 24 expressions), a "
+                    "per-vertex albedo and an ambient + directional light to one photo: detect the 68 iBUG "
+                    "landmarks (dlib), place a pinhole camera (--focal, default 1.4 x the image's larger side) "
+                    "by solvePnP, fit the landmarks, then alternate joint / latent / expression stages with a "
+                    "robust photometric loss on the face pixels (Mitsuba 3 on the CPU) and the landmarks.",
+        epilog="Inputs: one or more image files (.jpg .png .bmp .tif .webp) or folders of them. Several photos are "
+               "fitted in parallel processes (--jobs); each gets OUT/<name>/.\nOutputs: mesh.obj, mesh.ply "
+               "(rig space, mm, +Y up, vertex colours = albedo), mesh.glb (skinned glTF), params.json (joints "
+               "by name, Z, expressions, camera, pose, light), overlay.png, render.png, landmarks.pts, "
+               "report.json (landmark error in px and NME, losses per stage, timings).\nLandmarks: --landmarks "
+               "FILE (.pts 1-based as in iBUG 300-W, .json {\"landmarks\": [[x, y], ...]} or .csv x,y; 0-based "
+               "OpenCV pixels) skips detection.\nSchedule and settings: configs/fit_photo.yaml (--config) and "
+               "--set KEY=VALUE (nested: --set landmarks.lambda_m=0.5).\nTry it: jnr fit photo.jpg --out out/photo")
+    fit.add_argument("photos", nargs="+", metavar="PHOTO", help="image file(s) or folder(s) of images")
+    fit.add_argument("--out", required=True, help="output folder (per photo: OUT/<name>/ when several)")
+    fit.add_argument("--landmarks", help="68 landmarks file (.pts, .json, .csv) instead of detection (one photo)")
+    fit.add_argument("--face", type=int, help="which detected face, 0 = the largest (default: 0)")
+    fit.add_argument("--focal", type=float, help="focal length in pixels (default: 1.4 x max(width, height))")
+    fit.add_argument("--landmarks-only", action="store_true", help="skip the photometric stages (~2 s a photo)")
+    fit.add_argument("--config", help="YAML overriding the fitting settings (e.g. configs/fit_photo.yaml)")
+    fit.add_argument("--set", action="append", metavar="KEY=VALUE", help="override one setting (repeatable)")
+    fit.add_argument("--jobs", type=int, help="parallel processes for several photos (default: the CPU count)")
+    fit.add_argument("--force", action="store_true", help="replace output folders that exist")
+    fit.add_argument("--quiet", action="store_true", help="no progress bars")
+    fit.set_defaults(func=cmd_fit)
 
     fs = sub.add_parser(
         "fit-scan", help="fit the rig to a point cloud (depth scan) by non-rigid ICP",

@@ -83,7 +83,8 @@ def parse_overrides(items: list[str] | None) -> dict:
 
 
 def load_config(cls: type[T], path: str | Path | None = None, overrides: dict | None = None) -> T:
-    """Defaults of ``cls``, overridden by a YAML file and then by ``overrides`` (top-level keys).
+    """Defaults of ``cls``, overridden by a YAML file and then by ``overrides`` (``"a"`` or, for a nested
+    config dataclass, ``"group.a"``).
 
     Raises:
         ConfigError: unknown keys, values of the wrong type, a file that is not a mapping.
@@ -104,7 +105,17 @@ def load_config(cls: type[T], path: str | Path | None = None, overrides: dict | 
         if not isinstance(data, dict):
             raise ConfigError(f"{path}: expected a mapping of {cls.__name__} fields")
         values.update(data)
-    values.update(overrides or {})
+    for key, value in (overrides or {}).items():
+        # "landmarks.lambda_m=0.5" sets a field of a nested config
+        *parents, leaf = key.split(".")
+        node = values
+        for part in parents:
+            child = node.get(part, {})
+            if not isinstance(child, dict):
+                raise ConfigError(f"--set {key}: {part!r} is not a nested group of settings")
+            node[part] = child = dict(child)
+            node = child
+        node[leaf] = value
     return _build(cls, values, cls.__name__ if path is None else str(path))
 
 

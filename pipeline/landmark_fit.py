@@ -166,7 +166,7 @@ class LandmarkTerm:
         self.asset, self.camera, self.delta = asset, camera, float(huber_delta_px)
         self.faces = asset.faces
         self.embedding = ibug68_embedding(asset)
-        self.target = torch.as_tensor(np.asarray(landmarks2d, np.float64), dtype=camera.intrinsics.dtype)[None]
+        self.target = torch.as_tensor(np.array(landmarks2d, np.float64), dtype=camera.intrinsics.dtype)[None]
 
     def points3d(self, model: PosedRig, v: torch.Tensor) -> torch.Tensor:
         """``(68, 3)`` rig space, mm: the static embedding, the jaw contour as seen from the camera."""
