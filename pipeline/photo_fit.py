@@ -44,6 +44,7 @@ from rig.expressions import ExpressionModel
 from rig.model import JointRig
 from rig.neural import NeuralSkinning, load_neural
 
+from .colour import srgb_to_linear
 from .landmark_fit import (
     LandmarkFit,
     LandmarkFitConfig,
@@ -280,18 +281,6 @@ class PhotoFit:
     stages: tuple[PhotoStageReport, ...]
     crop: Crop | None
     timings: dict
-
-
-def srgb_to_linear(image: np.ndarray) -> np.ndarray:
-    """sRGB-encoded values in [0, 1] -> linear RGB (IEC 61966-2-1), float32."""
-    x = np.clip(np.asarray(image, np.float32), 0.0, 1.0)
-    return np.where(x <= 0.04045, x / 12.92, ((x + 0.055) / 1.055) ** 2.4).astype(np.float32)
-
-
-def linear_to_srgb(image: np.ndarray) -> np.ndarray:
-    """Linear RGB in [0, 1] -> sRGB-encoded values in [0, 1], float32."""
-    x = np.clip(np.asarray(image, np.float32), 0.0, 1.0)
-    return np.where(x <= 0.0031308, 12.92 * x, 1.055 * x ** (1 / 2.4) - 0.055).astype(np.float32)
 
 
 def _check_image(image) -> np.ndarray:

@@ -39,9 +39,10 @@ from rig.model import JointRig
 from rig.neural import load_neural
 from rig.parameters import theta_to_params
 
+from .colour import linear_to_srgb
 from .config import config_to_dict
 from .photo_camera import camera_from_head_pose
-from .photo_fit import FitPhotoConfig, PhotoFit, linear_to_srgb
+from .photo_fit import FitPhotoConfig, PhotoFit
 from .scan_outputs import _finite, rig_vertices_from_params
 
 PARAMS_FORMAT = "jnr-photo-params/1"
