@@ -41,6 +41,7 @@ bench: venv
 	$(PY) benchmarks/bench_rig_forward.py
 	$(PY) benchmarks/bench_render.py
 	$(PY) benchmarks/bench_fit_scan.py --neutral 5 --expressive 5
+	$(PY) benchmarks/bench_fit_photo.py --neutral 5 --expressive 5
 
 clean-venv:
 	rm -rf $(VENV)

@@ -28,12 +28,25 @@ def _build(cls: type[T], values: dict, where: str) -> T:
     if unknown:
         raise ConfigError(f"{where}: unknown setting(s) {unknown}; known: {sorted(known)}")
     out: dict[str, Any] = {}
+    fields = {f.name: f for f in dataclasses.fields(cls)}
     for name, value in values.items():
+        base = _default(fields[name])
+        if isinstance(value, dict) and dataclasses.is_dataclass(base):
+            # a partial mapping for a nested config overrides that field's own default, not its class's
+            value = {**{f.name: getattr(base, f.name) for f in dataclasses.fields(base)}, **value}
         out[name] = _coerce(hints[name], value, f"{where}.{name}")
     try:
         return cls(**out)
     except (TypeError, ValueError) as exc:
         raise ConfigError(f"{where}: {exc}") from exc
+
+
+def _default(f: dataclasses.Field):
+    if f.default is not dataclasses.MISSING:
+        return f.default
+    if f.default_factory is not dataclasses.MISSING:
+        return f.default_factory()
+    return None
 
 
 def _coerce(hint, value, where: str):

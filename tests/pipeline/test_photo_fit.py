@@ -1,0 +1,116 @@
+"""Tests of pipeline/photo_fit.py: the face crop's camera, the light estimate, the configuration."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from kornia.geometry.camera import PinholeCamera
+
+from landmarks.loss import project_points
+from pipeline.colour import linear_to_srgb, srgb_to_linear
+from pipeline.config import ConfigError, load_config
+from pipeline.photo_camera import camera_direction_to_rig, make_camera
+from pipeline.photo_fit import (
+    Crop,
+    FitPhotoConfig,
+    PhotoStage,
+    _fit_light,
+    _hemisphere,
+    face_crop,
+)
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+class TestCrop:
+    def test_crop_camera_projects_like_the_photo_camera_resampled(self):
+        """A point's crop pixel = (photo pixel + 0.5 - corner) * scale - 0.5 (pixel centres at integers)."""
+        w, h, f = 640, 480, 900.0
+        crop = Crop(x0=200, y0=-30, side=250, size=100)
+        points = torch.tensor([[[10.0, -20.0, 600.0], [-40.0, 35.0, 650.0], [0.0, 0.0, 580.0]]], dtype=torch.float64)
+        full = make_camera(w, h, f, dtype=torch.float64)
+        full = PinholeCamera(full.intrinsics, torch.eye(4, dtype=torch.float64)[None], full.height, full.width)
+        uv = project_points(points, full)[0].numpy()
+        uv_crop = project_points(points, crop.camera(f, w, h, dtype=torch.float64))[0].numpy()
+        expected = (uv + 0.5 - np.array([crop.x0, crop.y0])) * crop.scale - 0.5
+        assert np.abs(uv_crop - expected).max() < 1e-9
+
+    def test_cut_resamples_and_masks_outside_pixels(self):
+        img = np.zeros((60, 80, 3), np.float32)
+        img[:, 40:] = 1.0  # right half white
+        crop = Crop(x0=20, y0=-20, side=40, size=20)  # top 20 rows are outside the photo
+        out, inside = crop.cut(img)
+        assert out.shape == (20, 20, 3) and inside.shape == (20, 20)
+        assert inside[:10].sum() == 0 and inside[10:].min() == 1.0
+        # columns 20..39 of the photo are black, 40..59 white: the crop's left half black, right half white
+        assert out[10:, :10].max() == 0.0 and out[10:, 10:].min() == pytest.approx(1.0)
+
+    def test_face_crop_contains_the_landmarks_with_a_margin(self):
+        rng = np.random.default_rng(0)
+        lm = rng.uniform([100, 150], [220, 300], size=(68, 2))
+        crop = face_crop(lm, 128, 0.25)
+        assert crop.size == 128
+        assert crop.x0 <= lm[:, 0].min() and crop.x0 + crop.side >= lm[:, 0].max()
+        top_margin = lm[:, 1].min() - crop.y0
+        assert top_margin >= 2 * 0.25 * np.ptp(lm[:, 1]) - 1  # room for the forehead
+
+
+class TestLight:
+    def test_fit_light_recovers_a_known_direction_and_intensities(self):
+        rng = np.random.default_rng(1)
+        n = rng.normal(size=(4000, 3))
+        n[:, 2] = -np.abs(n[:, 2])  # normals facing the camera (OpenCV: towards -z)
+        n /= np.linalg.norm(n, axis=1, keepdims=True)
+        albedo = rng.uniform(0.2, 0.8, size=(4000, 3))
+        candidates = _hemisphere(64)
+        true_d = candidates[17]
+        amb, irr = np.array([0.3, 0.25, 0.2]), np.array([2.0, 1.8, 1.5])
+        cos = np.clip(-(n @ true_d), 0, None)[:, None] / np.pi
+        target = albedo * (amb + irr * cos)
+        d, a, i = _fit_light(albedo, n, target, candidates)
+        assert np.allclose(d, true_d)
+        assert np.allclose(a, amb, atol=1e-6) and np.allclose(i, irr, atol=1e-5)
+
+    def test_hemisphere_directions_come_from_the_camera_side(self):
+        d = _hemisphere(64)
+        assert d.shape == (64, 3) and np.allclose(np.linalg.norm(d, axis=1), 1.0)
+        assert d[:, 2].min() >= 0.25 - 1e-9
+
+    def test_camera_direction_to_rig(self):
+        # a frontal head: camera +z (into the scene) is rig -z (into the face)
+        assert np.allclose(camera_direction_to_rig(np.array([0.0, 0.0, 1.0]), np.eye(3)), [0, 0, -1])
+        assert np.allclose(camera_direction_to_rig(np.array([0.0, 1.0, 0.0]), np.eye(3)), [0, -1, 0])
+
+
+def test_srgb_round_trip():
+    x = np.linspace(0, 1, 101, dtype=np.float32)
+    assert np.abs(linear_to_srgb(srgb_to_linear(x)) - x).max() < 1e-5
+    assert srgb_to_linear(np.array([0.5]))[0] == pytest.approx(0.2140, abs=1e-4)
+
+
+class TestConfig:
+    def test_shipped_yaml_equals_the_typed_defaults(self):
+        shipped = load_config(FitPhotoConfig, ROOT / "configs" / "fit_photo.yaml")
+        assert shipped == FitPhotoConfig()
+
+    def test_unknown_keys_and_bad_stages_are_errors(self, tmp_path):
+        with pytest.raises(ConfigError, match="unknown setting"):
+            load_config(FitPhotoConfig, None, {"render_sise": 64})
+        with pytest.raises(ConfigError, match="unknown setting"):
+            load_config(FitPhotoConfig, None, {"landmarks.lambda_mm": 1})
+        bad = tmp_path / "bad.yaml"
+        bad.write_text("stages:\n  - {name: x, free: [joints, hair], iterations: 3}\n")
+        with pytest.raises(ConfigError, match="free must be"):
+            load_config(FitPhotoConfig, bad)
+        with pytest.raises(ValueError, match="render_size"):
+            FitPhotoConfig(render_size=4)
+        with pytest.raises(ValueError, match="face_regions"):
+            FitPhotoConfig(face_regions=("forehead", "moustache"))
+
+    def test_nested_override(self):
+        c = load_config(FitPhotoConfig, None, {"landmarks.lambda_m": 0.7, "spp": 3})
+        assert c.landmarks.lambda_m == 0.7 and c.spp == 3
+        assert PhotoStage("a", ("albedo",), 2).iterations == 2
