@@ -109,13 +109,13 @@ def rig_info() -> dict:
     asset = load_asset()
     skinning = len(asset.weight_free)
     return {
-        "vertices": int(len(asset.vertices)),
-        "faces": int(len(asset.faces)),
-        "joints": int(len(asset.joint_names)),
+        "vertices": len(asset.vertices),
+        "faces": len(asset.faces),
+        "joints": len(asset.joint_names),
         "free_parameters": NUM_PARAMETERS,
         "free_parameters_symmetric": len(symmetric_groups()),
         "skinning_floats": int(skinning),
-        "skinning_nonzeros": int(len(asset.weight_rows)),
+        "skinning_nonzeros": len(asset.weight_rows),
         "max_influences": int(max(1, (asset.weights > 0).sum(1).max())),
         "model_floats": int(asset.vertices.size + asset.joint_positions.size + skinning),
         "regions": list(asset.region_names),
@@ -366,7 +366,12 @@ def cmd_fit_scan(args: argparse.Namespace) -> int:
     import numpy as np
 
     from landmarks.points3d import LandmarkError
-    from pipeline.pointcloud import CloudError, read_landmarks3d, read_point_cloud, to_rig_frame
+    from pipeline.pointcloud import (
+        CloudError,
+        read_landmarks3d,
+        read_point_cloud,
+        to_rig_frame,
+    )
     from pipeline.scan_fit import fit_scan, scan_to_mesh
     from pipeline.scan_outputs import write_scan_outputs
     from rig.asset import load_asset
@@ -425,6 +430,19 @@ def _photo_inputs(items: list[str]) -> list[Path]:
     return photos
 
 
+LANDMARK_SUFFIXES = (".pts", ".json", ".csv")
+
+
+def _sidecar_landmarks(photo: Path) -> Path:
+    """``--landmarks auto``: the landmarks file beside the photo with the same name (``face.png`` ->
+    ``face.pts``, ``.json`` or ``.csv``), as the iBUG 300-W sets ship them."""
+    for suffix in LANDMARK_SUFFIXES:
+        candidate = photo.with_suffix(suffix)
+        if candidate.is_file():
+            return candidate
+    raise CliError(f"--landmarks auto: no {'/'.join(LANDMARK_SUFFIXES)} file beside {photo}")
+
+
 def _load_fit_photo_config(args: argparse.Namespace):
     from pipeline.config import ConfigError, load_config
     from pipeline.photo_fit import FitPhotoConfig
@@ -468,6 +486,8 @@ def fit_one_photo(photo_path: str | Path, out: str | Path, *, config=None, landm
     try:
         image = load_image(photo_path)
         detection = None
+        if landmarks == "auto":
+            landmarks = _sidecar_landmarks(photo_path)
         if landmarks:
             points = read_landmarks(landmarks)
             source = {"landmarks": str(landmarks)}
@@ -494,12 +514,13 @@ def fit_one_photo(photo_path: str | Path, out: str | Path, *, config=None, landm
 
 def _fit_worker(task: tuple) -> tuple[str, dict | None, str | None, int]:
     """One photo in a worker process: ``(photo, summary, error message, exit code)``."""
-    photo, out, config, focal, force, threads, command = task
+    photo, out, config, landmarks, focal, force, threads, command = task
     import torch
 
     torch.set_num_threads(threads)
     try:
-        return photo, fit_one_photo(photo, out, config=config, focal=focal, force=force, command=command), None, 0
+        return photo, fit_one_photo(photo, out, config=config, landmarks=landmarks, focal=focal, force=force,
+                                    command=command), None, 0
     except CliError as exc:
         return photo, None, str(exc), exc.code
     except Exception as exc:  # noqa: BLE001 - reported per photo; the batch goes on
@@ -525,8 +546,9 @@ def cmd_fit(args: argparse.Namespace) -> int:
               "report.json")
         return EXIT_OK
 
-    if args.landmarks or args.face is not None:
-        raise CliError("--landmarks and --face apply to a single photo; fit the photos one by one")
+    if (args.landmarks and args.landmarks != "auto") or args.face is not None:
+        raise CliError("--landmarks FILE and --face apply to a single photo; for several, use --landmarks auto "
+                       "(a .pts/.json/.csv file beside each photo) or detection")
     stems = [p.stem for p in photos]
     names = [s if stems.count(s) == 1 else f"{s}_{i}" for i, s in enumerate(stems)]
     if out.exists() and not out.is_dir():
@@ -540,7 +562,8 @@ def cmd_fit(args: argparse.Namespace) -> int:
     out.mkdir(exist_ok=True)
     jobs = max(1, min(args.jobs or (os.cpu_count() or 1), len(photos)))
     threads = max(1, (os.cpu_count() or 1) // jobs)
-    tasks = [(str(p), str(out / n), config, args.focal, args.force, threads, command) for p, n in zip(photos, names)]
+    tasks = [(str(p), str(out / n), config, args.landmarks, args.focal, args.force, threads, command)
+             for p, n in zip(photos, names)]
     from tqdm import tqdm
 
     results = []
@@ -713,7 +736,9 @@ def build_parser() -> argparse.ArgumentParser:
                "--set KEY=VALUE (nested: --set landmarks.lambda_m=0.5).\nTry it: jnr fit photo.jpg --out out/photo")
     fit.add_argument("photos", nargs="+", metavar="PHOTO", help="image file(s) or folder(s) of images")
     fit.add_argument("--out", required=True, help="output folder (per photo: OUT/<name>/ when several)")
-    fit.add_argument("--landmarks", help="68 landmarks file (.pts, .json, .csv) instead of detection (one photo)")
+    fit.add_argument("--landmarks", metavar="FILE|auto",
+                     help="68 landmarks file (.pts, .json, .csv) instead of detection (one photo); 'auto': the "
+                          "file with the photo's name beside each photo (face.png -> face.pts), as in iBUG 300-W")
     fit.add_argument("--face", type=int, help="which detected face, 0 = the largest (default: 0)")
     fit.add_argument("--focal", type=float, help="focal length in pixels (default: 1.4 x max(width, height))")
     fit.add_argument("--landmarks-only", action="store_true", help="skip the photometric stages (~2 s a photo)")

@@ -114,3 +114,113 @@ def test_demo_writes_everything(capsys, tmp_path):
     assert summary["edit_max_displacement_mm"] > 1.0
     code, _, err = run(capsys, "demo", "--out", str(out), "--quiet")
     assert code == 2 and "--force" in err
+
+
+# ----------------------------------------------------------------------------------------------------
+# jnr fit PHOTO
+# ----------------------------------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def photo_dir(tmp_path_factory):
+    """Two small synthetic photos with their landmarks beside them (face.png + face.pts), one corrupt file."""
+    import shutil
+
+    from pipeline.synthetic_photos import PhotoSettings, synthetic_photo, write_synthetic_photo
+
+    root = tmp_path_factory.mktemp("photos")
+    settings = PhotoSettings(width=128, height=128, spp=4, offset_px=4)
+    for i in (0, 1):
+        src = write_synthetic_photo(synthetic_photo(i, seed=5, settings=settings), root / f"src{i}")
+        shutil.copy(src / "photo.png", root / f"face{i}.png")
+        shutil.copy(src / "landmarks.pts", root / f"face{i}.pts")
+        shutil.rmtree(src)
+    return root
+
+
+def _fast(*extra):
+    """Settings that keep a CLI fit to a few seconds."""
+    return ["--landmarks-only", "--set", "landmarks.stages=[{name: a, free: [pose, joints], iterations: 5}]",
+            "--quiet", *extra]
+
+
+def test_fit_one_photo_with_a_landmarks_file(capsys, tmp_path, photo_dir):
+    from pipeline.photo_outputs import mesh_from_photo_params
+
+    out = tmp_path / "one"
+    code, stdout, err = run(capsys, "fit", str(photo_dir / "face0.png"), "--landmarks", str(photo_dir / "face0.pts"),
+                            "--out", str(out), *_fast())
+    assert code == 0, err
+    assert "landmark error" in stdout
+    report = json.loads((out / "report.json").read_text())
+    assert report["input"]["landmarks"].endswith("face0.pts") and report["photometric_stages"] == []
+    obj = trimesh.load(out / "mesh.obj", process=False)
+    rebuilt = mesh_from_photo_params(out / "params.json")
+    assert np.abs(np.asarray(obj.vertices)[: len(rebuilt)] - rebuilt).max() < 1e-3
+    # existing output: an error, the folder untouched
+    before = (out / "report.json").read_bytes()
+    code, _, err = run(capsys, "fit", str(photo_dir / "face0.png"), "--landmarks", str(photo_dir / "face0.pts"),
+                       "--out", str(out), *_fast())
+    assert code == 2 and "exists" in err and (out / "report.json").read_bytes() == before
+
+
+@pytest.mark.parametrize("case, message", [
+    ("missing", "image file not found"),
+    ("corrupt", "cannot read image"),
+    ("blank", "no face found"),
+    ("bad_landmarks", "n_points"),
+    ("few_landmarks", "68"),
+    ("bad_focal", "--focal"),
+])
+def test_fit_bad_inputs_exit_2_and_write_nothing(capsys, tmp_path, photo_dir, case, message):
+    from PIL import Image
+
+    photo, extra = photo_dir / "face0.png", []
+    if case == "missing":
+        photo = tmp_path / "nothere.png"
+    elif case == "corrupt":
+        photo = tmp_path / "corrupt.jpg"
+        photo.write_bytes(b"\xff\xd8 not really a jpeg")
+    elif case == "blank":
+        photo = tmp_path / "blank.png"
+        Image.fromarray(np.full((120, 160, 3), 128, np.uint8)).save(photo)
+    elif case == "bad_landmarks":
+        (tmp_path / "bad.pts").write_text("version: 1\nn_points: 3\n{\n1 2\n}\n")
+        extra = ["--landmarks", str(tmp_path / "bad.pts")]
+    elif case == "few_landmarks":
+        (tmp_path / "few.csv").write_text("index,x,y\n0,1,2\n1,3,4\n")
+        extra = ["--landmarks", str(tmp_path / "few.csv")]
+    elif case == "bad_focal":
+        extra = ["--landmarks", str(photo_dir / "face0.pts"), "--focal", "-5"]
+    out = tmp_path / "out"
+    code, _, err = run(capsys, "fit", str(photo), "--out", str(out), *_fast(*extra))
+    assert code == 2, err
+    assert message in err and "Traceback" not in err
+    assert not out.exists() and not [p for p in tmp_path.iterdir() if p.name.startswith(".out")]
+
+
+def test_fit_face_index_out_of_range(capsys, tmp_path):
+    from PIL import Image
+    from skimage import data
+
+    Image.fromarray(data.astronaut()).save(tmp_path / "astronaut.png")
+    code, _, err = run(capsys, "fit", str(tmp_path / "astronaut.png"), "--face", "4", "--out", str(tmp_path / "o"),
+                       *_fast())
+    assert code == 2 and "--face must be 0..0" in err
+
+
+def test_fit_a_folder_in_parallel_with_sidecar_landmarks(capsys, tmp_path, photo_dir):
+    import shutil
+
+    folder = tmp_path / "batch"
+    shutil.copytree(photo_dir, folder)
+    (folder / "broken.png").write_bytes(b"\x89PNG broken")
+    out = tmp_path / "fits"
+    code, stdout, err = run(capsys, "fit", str(folder), "--landmarks", "auto", "--jobs", "2", "--out", str(out),
+                            *_fast())
+    # the two good photos are fitted, the broken one is reported and makes the exit status 2
+    assert code == 2 and "broken.png" in err
+    assert sorted(p.name for p in out.iterdir()) == ["face0", "face1"]
+    for name in ("face0", "face1"):
+        report = json.loads((out / name / "report.json").read_text())
+        assert report["input"]["landmarks"].endswith(f"{name}.pts")
+    assert "fitted 2 of 3 photos with 2 process(es)" in stdout

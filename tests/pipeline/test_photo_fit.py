@@ -114,3 +114,107 @@ class TestConfig:
         c = load_config(FitPhotoConfig, None, {"landmarks.lambda_m": 0.7, "spp": 3})
         assert c.landmarks.lambda_m == 0.7 and c.spp == 3
         assert PhotoStage("a", ("albedo",), 2).iterations == 2
+
+
+# ----------------------------------------------------------------------------------------------------
+# a synthetic photo with a known expression, fitted end to end
+# ----------------------------------------------------------------------------------------------------
+
+JAW_OPEN = 0.7
+
+
+@pytest.fixture(scope="module")
+def known_photo():
+    """A held-out head with the rig's jaw_open blendshape at 0.7, path-traced at 192x192 (a different
+    renderer and light model than the fit's), true landmarks + 0.5 px noise."""
+    from pipeline.synthetic_photos import PhotoSettings, simulate_photo
+    from rig.asset import load_asset
+    from rig.expressions import ExpressionModel, coefficients_from_dict
+    from rig.population import population_split
+
+    asset = load_asset()
+    expr = ExpressionModel(asset, dtype=torch.float64)
+    c = coefficients_from_dict({"jaw_open": JAW_OPEN}, dtype=torch.float64)[None]
+    offsets = (expr.vertices(c)[0] - torch.as_tensor(asset.vertices)).numpy()
+    head = population_split("heldout", 0).vertices[7] + offsets
+    settings = PhotoSettings(width=192, height=192, spp=16, landmark_noise_px=0.5, offset_px=5)
+    return simulate_photo(head, np.random.default_rng(3), settings, yaw_deg=15.0, pitch_deg=0.0, roll_deg=0.0,
+                          name="known")
+
+
+def _short_config(**kw):
+    from pipeline.landmark_fit import LandmarkFitConfig, landmark_schedule
+    from pipeline.photo_fit import photo_schedule
+
+    base = FitPhotoConfig()
+    return FitPhotoConfig(landmarks=LandmarkFitConfig(lambda_m=base.landmarks.lambda_m,
+                                                      stages=landmark_schedule(20, 20, 30, 10, 30, 20)),
+                          stages=photo_schedule(8, 8, 0, 8, 0), render_size=64, **kw)
+
+
+@pytest.fixture(scope="module")
+def known_fit(known_photo):
+    from pipeline.photo_fit import fit_photo
+
+    return fit_photo(known_photo.image, known_photo.landmarks2d, focal=known_photo.focal, config=_short_config())
+
+
+def test_a_synthetic_render_is_fitted_within_bounds(known_photo, known_fit):
+    """The open jaw is recovered by the expression, and the head is closer to the truth than the template."""
+    from landmarks.ibug68 import ibug68_embedding, landmark_positions
+    from pipeline.photo_eval import INNER_LANDMARKS, now_style_error
+    from pipeline.scan_fit import FACE_REGIONS
+    from rig.asset import load_asset
+    from rig.expressions import EXPRESSION_NAMES
+
+    asset = load_asset()
+    emb = ibug68_embedding(asset)
+
+    def lm3(v):
+        return landmark_positions(v, emb, asset.faces)[0][list(INNER_LANDMARKS)]
+
+    face = asset.region_mask(*FACE_REGIONS)
+    truth = known_photo.gt_vertices
+    fitted = now_style_error(known_fit.rig_vertices, truth, asset.faces, face, lm3(known_fit.rig_vertices), lm3(truth))
+    template = now_style_error(asset.vertices, truth, asset.faces, face, lm3(asset.vertices), lm3(truth))
+    jaw = known_fit.expressions[EXPRESSION_NAMES.index("jaw_open")]
+    assert abs(jaw - JAW_OPEN) < 0.25, f"jaw_open {jaw:.2f}, true {JAW_OPEN}"
+    assert fitted["vertex_mean_mm"] < 0.6 * template["vertex_mean_mm"], (fitted, template)
+    assert fitted["s2m_median_mm"] < 1.0
+    assert known_fit.error_px.mean() < 2.0
+    # the photometric stages ran, found the light on the camera's side and fit the face pixels
+    assert [s.name for s in known_fit.stages] == ["appearance", "photo joints", "photo expressions"]
+    assert known_fit.stages[-1].photo_end < 0.08  # mean residual, linear RGB
+    assert known_fit.light_direction_camera[2] > 0.25 and known_fit.ambient.min() >= 0
+    assert known_fit.albedo.min() >= 0 and known_fit.albedo.max() <= 1
+
+
+def test_outputs_reload_to_the_same_mesh(known_photo, known_fit, tmp_path):
+    import json
+
+    import trimesh
+
+    from pipeline.photo_outputs import OUTPUT_FILES, mesh_from_photo_params, write_photo_outputs
+    from rig.export import read_skinned_gltf
+
+    out = write_photo_outputs(tmp_path / "fit", known_photo.image, known_fit, config=_short_config(), spp=2)
+    assert sorted(p.name for p in out.iterdir()) == sorted(OUTPUT_FILES)
+    assert np.abs(mesh_from_photo_params(out / "params.json") - known_fit.rig_vertices).max() < 1e-3
+    # the camera frame: projecting the mesh with the params' camera puts the landmarks where the fit says
+    cam_points = mesh_from_photo_params(out / "params.json", frame="camera")
+    params = json.loads((out / "params.json").read_text())
+    f, (cx, cy) = params["camera"]["focal_px"], params["camera"]["principal_point_px"]
+    uv = cam_points[:, :2] / cam_points[:, 2:] * f + np.array([cx, cy])
+    assert uv.min() > -50 and uv.max() < known_photo.width + 50 and (cam_points[:, 2] > 0).all()
+    ply = trimesh.load(out / "mesh.ply", process=False)
+    assert np.abs(np.asarray(ply.vertices)[: len(known_fit.rig_vertices)] - known_fit.rig_vertices).max() < 1e-3
+    assert np.asarray(ply.visual.vertex_colors).shape[0] >= len(known_fit.rig_vertices)
+    gltf = read_skinned_gltf(out / "mesh.glb")
+    assert len(gltf["joint_names"]) == 52
+    report = json.loads((out / "report.json").read_text())
+    assert report["landmarks"]["nme_inter_ocular"] == pytest.approx(known_fit.nme)
+    from PIL import Image
+
+    assert Image.open(out / "overlay.png").size == (known_photo.width, known_photo.height)
+    with pytest.raises(FileExistsError, match="--force"):
+        write_photo_outputs(tmp_path / "fit", known_photo.image, known_fit)
