@@ -1,6 +1,6 @@
 """The ``jnr`` command line.
 
-    jnr demo [--out DIR]                       build, export and edit the rig on built-in input
+    jnr demo [--out DIR]                       the rig, and jnr fit on the astronaut and a synthetic photo
     jnr rig info [--json]                      sizes of the rig
     jnr rig build [--out FILE | --check]       regenerate the template asset from code
     jnr rig export --format obj|ply|gltf --out FILE [--params PARAMS.json]
@@ -177,7 +177,8 @@ def cmd_rig_edit(args: argparse.Namespace) -> int:
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
-    """Build the rig from code, check it against the committed asset, export it, edit it, picture it."""
+    """Build the rig from code and export/edit it; reconstruct the astronaut portrait and a synthetic photo
+    with known truth (the README's main job)."""
     import numpy as np
     import torch
 
@@ -189,7 +190,8 @@ def cmd_demo(args: argparse.Namespace) -> int:
     if out.exists() and not args.force:
         raise CliError(f"output folder {out} exists; pass --force to replace it")
     out.parent.mkdir(parents=True, exist_ok=True)
-    steps = ["build", "export", "edit", "picture"]
+    config = _load_fit_photo_config(args)
+    steps = ["build", "export", "edit", "picture", "astronaut fit", "synthetic photo", "synthetic fit"]
     from tqdm import tqdm
 
     bar = tqdm(total=len(steps), desc="jnr demo", unit="step", disable=args.quiet)
@@ -221,6 +223,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
         picture = np.concatenate([np.concatenate(tiles[:2], 1), np.concatenate(tiles[2:], 1)], 0)
         save_png(picture, stage / "edited.png")
         bar.update()
+        astronaut, synthetic = _demo_fits(stage, config, bar)
         bar.close()
         if out.exists():
             shutil.rmtree(out)
@@ -236,16 +239,69 @@ def cmd_demo(args: argparse.Namespace) -> int:
         "seed": args.seed,
         "edited_parameters": int((theta != 0).sum()),
         "edit_max_displacement_mm": float(np.linalg.norm(posed[1] - posed[0], axis=1).max()),
+        "astronaut": {k: v.replace(str(stage), str(out)) if isinstance(v, str) else v for k, v in astronaut.items()},
+        "synthetic": {k: v.replace(str(stage), str(out)) if isinstance(v, str) else v for k, v in synthetic.items()},
         "seconds": round(time.perf_counter() - t0, 2),
     }
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
-    print(f"jnr demo: wrote {out}/")
+    print(f"jnr demo: wrote {out}/ in {summary['seconds']:.0f} s")
     for name in sorted(p.name for p in out.iterdir()):
-        print(f"  {name}")
+        print(f"  {name}{'/' if (out / name).is_dir() else ''}")
     print(f"template rebuilt from code: largest difference to the committed asset {rebuild_diff:.2g} mm")
     print(f"edited head (seed {args.seed}): {summary['edited_parameters']} parameters, largest vertex move "
           f"{summary['edit_max_displacement_mm']:.1f} mm; picture: {out / 'edited.png'}")
+    print(f"astronaut portrait (scikit-image): landmark error {astronaut['mean_error_px']:.2f} px, NME "
+          f"{astronaut['nme']:.4f}, {astronaut['fit_seconds']:.1f} s; see {out / 'astronaut' / 'overlay.png'}")
+    print(f"synthetic photo of {synthetic['head']} (known truth): face scan-to-mesh median "
+          f"{synthetic['s2m_median_mm']:.2f} mm, mean {synthetic['s2m_mean_mm']:.2f} mm; true vertex error "
+          f"{synthetic['vertex_mean_mm']:.2f} mm (template {synthetic['template_vertex_mean_mm']:.2f} mm); "
+          f"landmark error {synthetic['mean_error_px']:.2f} px, {synthetic['fit_seconds']:.1f} s; "
+          f"see {out / 'synthetic' / 'overlay.png'}")
     return EXIT_OK
+
+
+DEMO_SYNTHETIC_HEAD = 21
+"""The held-out head of the demo's synthetic photo (the photo fit's defaults were chosen on heads 0-5)."""
+
+
+def _demo_fits(stage: Path, config, bar) -> tuple[dict, dict]:
+    """The demo's photo fits: the astronaut (detected landmarks) and a synthetic photo with known truth."""
+    from PIL import Image
+    from skimage import data
+
+    from landmarks.ibug68 import ibug68_embedding, landmark_positions
+    from pipeline.photo_eval import INNER_LANDMARKS, now_style_error
+    from pipeline.photo_outputs import mesh_from_photo_params
+    from pipeline.scan_fit import FACE_REGIONS
+    from pipeline.synthetic_photos import synthetic_photo, write_synthetic_photo
+    from rig.asset import load_asset
+
+    inputs = stage / "inputs"
+    inputs.mkdir()
+    Image.fromarray(data.astronaut()).save(inputs / "astronaut.png")
+    astronaut = fit_one_photo(inputs / "astronaut.png", stage / "astronaut", config=config, command="jnr demo")
+    bar.update()
+    photo = synthetic_photo(DEMO_SYNTHETIC_HEAD, expressive=True, seed=0)
+    truth_dir = write_synthetic_photo(photo, inputs / "synthetic")
+    bar.update()
+    synthetic = fit_one_photo(truth_dir / "photo.png", stage / "synthetic", config=config,
+                              landmarks=str(truth_dir / "landmarks.pts"), focal=photo.focal, command="jnr demo")
+    asset = load_asset()
+    embedding = ibug68_embedding(asset)
+
+    def inner(v):
+        return landmark_positions(v, embedding, asset.faces)[0][list(INNER_LANDMARKS)]
+
+    fitted = mesh_from_photo_params(stage / "synthetic" / "params.json")
+    face = asset.region_mask(*FACE_REGIONS)
+    error = now_style_error(fitted, photo.gt_vertices, asset.faces, face, inner(fitted), inner(photo.gt_vertices))
+    template = now_style_error(asset.vertices, photo.gt_vertices, asset.faces, face, inner(asset.vertices),
+                               inner(photo.gt_vertices))
+    synthetic.update({"head": photo.name, "truth": str(truth_dir / "truth.ply"), **error,
+                      "template_vertex_mean_mm": template["vertex_mean_mm"],
+                      "template_s2m_median_mm": template["s2m_median_mm"]})
+    bar.update()
+    return astronaut, synthetic
 
 
 class _StageBars:
@@ -706,15 +762,21 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
 
-    demo = sub.add_parser("demo", help="build, export and edit the rig on built-in input (the README's main job)",
+    demo = sub.add_parser("demo", help="the README's main job on built-in input: the rig, and two photo fits",
                           description="Rebuild the template from code and compare it with the committed asset, "
-                                      "export it as OBJ/PLY/glTF, make a randomly edited head and a picture of both.")
+                                      "export it as OBJ/PLY/glTF, make a randomly edited head and a picture of both; "
+                                      "then reconstruct the astronaut portrait that scikit-image ships and a "
+                                      "synthetic photo of a held-out head with known truth (jnr fit), and print "
+                                      "where the outputs are and the errors.")
     demo.add_argument("--out", default="out/demo", help="output folder (default: out/demo)")
     demo.add_argument("--force", action="store_true", help="replace the output folder if it exists")
     demo.add_argument("--seed", type=int, default=7, help="seed of the random edit (default: 7)")
     demo.add_argument("--spread", type=float, default=0.3,
                       help="random edit strength, a fraction of each parameter's range (default: 0.3)")
     demo.add_argument("--spp", type=int, default=32, help="samples per pixel of the picture (default: 32)")
+    demo.add_argument("--landmarks-only", action="store_true", help="fit the photos without the photometric stages")
+    demo.add_argument("--config", help="YAML overriding the photo-fitting settings (configs/fit_photo.yaml)")
+    demo.add_argument("--set", action="append", metavar="KEY=VALUE", help="override one photo-fitting setting")
     demo.add_argument("--quiet", action="store_true", help="no progress bar")
     demo.set_defaults(func=cmd_demo)
 
@@ -731,7 +793,7 @@ def build_parser() -> argparse.ArgumentParser:
                "(rig space, mm, +Y up, vertex colours = albedo), mesh.glb (skinned glTF), params.json (joints "
                "by name, Z, expressions, camera, pose, light), overlay.png, render.png, landmarks.pts, "
                "report.json (landmark error in px and NME, losses per stage, timings).\nLandmarks: --landmarks "
-               "FILE (.pts 1-based as in iBUG 300-W, .json {\"landmarks\": [[x, y], ...]} or .csv x,y; 0-based "
+               "FILE (.pts 1-based as in iBUG 300-W, .json {\"landmarks\": [[x, y], ...]} or .csv index,x,y; 0-based "
                "OpenCV pixels) skips detection.\nSchedule and settings: configs/fit_photo.yaml (--config) and "
                "--set KEY=VALUE (nested: --set landmarks.lambda_m=0.5).\nTry it: jnr fit photo.jpg --out out/photo")
     fit.add_argument("photos", nargs="+", metavar="PHOTO", help="image file(s) or folder(s) of images")

@@ -6,7 +6,10 @@ target='drjit')`` function is the PyTorch boundary; gradients reach vertices (in
 silhouettes, via ``direct_projective``: ``sppc`` continuous samples, ``sppp`` primary-visibility
 samples, ``sppi=0``: shadow-boundary gradients are ignored), albedo and light intensities.
 Coverage mask, depth, normals and region ids come from a non-differentiable ray cast through pixel
-centres.
+centres. The ambient term is the mesh's own emission with an emitter sampling weight of 0: next-event
+estimation always samples the directional light (otherwise half the shadow rays would go to random
+points of the head, a large noise on the face's shading) and the emission is only seen by camera rays
+(and by the few BSDF rays that hit the head itself, in concave places).
 
 Meshes whose vertices are split along UV seams make open boundaries that projective integrators
 treat as silhouettes (mitsuba3 #1648); the renderer therefore never passes UVs and welds coincident

@@ -104,7 +104,7 @@ def test_rig_build_check_matches_committed_asset(capsys, tmp_path):
 
 def test_demo_writes_everything(capsys, tmp_path):
     out = tmp_path / "demo"
-    code, stdout, err = run(capsys, "demo", "--out", str(out), "--spp", "2", "--quiet")
+    code, stdout, err = run(capsys, "demo", "--out", str(out), "--spp", "2", "--quiet", *_fast()[:-1])
     assert code == 0, err
     for name in ("template.obj", "template.ply", "template.glb", "edited.obj", "edited.glb", "edited.png",
                  "edited_params.json", "summary.json"):
@@ -112,6 +112,11 @@ def test_demo_writes_everything(capsys, tmp_path):
     summary = json.loads((out / "summary.json").read_text())
     assert summary["rebuild_max_difference_mm"] <= 1e-6
     assert summary["edit_max_displacement_mm"] > 1.0
+    for fit in ("astronaut", "synthetic"):
+        assert (out / fit / "overlay.png").stat().st_size > 0 and (out / fit / "params.json").is_file()
+    assert summary["astronaut"]["nme"] < 0.2  # 5 landmark steps here; the full fit reaches 0.03
+    assert 0 < summary["synthetic"]["s2m_median_mm"] < 2.0 and (out / "inputs" / "synthetic" / "truth.ply").is_file()
+    assert "astronaut portrait" in stdout and "known truth" in stdout
     code, _, err = run(capsys, "demo", "--out", str(out), "--quiet")
     assert code == 2 and "--force" in err
 
