@@ -684,13 +684,9 @@ def cmd_data_scan(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-def cmd_eval_scans(args: argparse.Namespace) -> int:
-    """``jnr eval scans``: fit-scan vs trimesh's nricp_amberg on simulated scans of held-out heads."""
-    from pipeline.scan_eval import evaluate_scans
-
-    if args.out:
-        _check_output(Path(args.out), args.force)
-    config = _load_fit_scan_config(args, seed_is_fit_seed=False)
+def _run_evaluation(args: argparse.Namespace, label: str, evaluate) -> int:
+    """Shared by the ``jnr eval`` commands over synthetic data: a progress bar over the ``jnr`` records,
+    the Markdown table (or ``--json``), and ``--out``."""
     total = args.neutral + args.expressive
     bars = _StageBars(args.quiet)
     done = []
@@ -698,11 +694,10 @@ def cmd_eval_scans(args: argparse.Namespace) -> int:
     def progress(record) -> None:
         if record.method == "jnr":
             done.append(record)
-            bars("simulated scans", len(done), total)
+            bars(label, len(done), total)
 
     try:
-        result = evaluate_scans(args.neutral, args.expressive, seed=args.seed or 0, config=config,
-                                baseline=not args.no_baseline, progress=progress)
+        result = evaluate(progress)
     except ValueError as exc:
         raise CliError(str(exc)) from None
     finally:
@@ -714,6 +709,18 @@ def cmd_eval_scans(args: argparse.Namespace) -> int:
         Path(args.out).write_text(text + "\n")
     print(text if args.json else result.table_markdown())
     return EXIT_OK
+
+
+def cmd_eval_scans(args: argparse.Namespace) -> int:
+    """``jnr eval scans``: fit-scan vs trimesh's nricp_amberg on simulated scans of held-out heads."""
+    from pipeline.scan_eval import evaluate_scans
+
+    if args.out:
+        _check_output(Path(args.out), args.force)
+    config = _load_fit_scan_config(args, seed_is_fit_seed=False)
+    return _run_evaluation(args, "simulated scans", lambda progress: evaluate_scans(
+        args.neutral, args.expressive, seed=args.seed or 0, config=config, baseline=not args.no_baseline,
+        progress=progress))
 
 
 def cmd_eval_photos(args: argparse.Namespace) -> int:
@@ -723,29 +730,8 @@ def cmd_eval_photos(args: argparse.Namespace) -> int:
     if args.out:
         _check_output(Path(args.out), args.force)
     config = _load_fit_photo_config(args)
-    total = args.neutral + args.expressive
-    bars = _StageBars(args.quiet)
-    done = []
-
-    def progress(record) -> None:
-        if record.method == "jnr":
-            done.append(record)
-            bars("synthetic photos", len(done), total)
-
-    try:
-        result = evaluate_photos(args.neutral, args.expressive, first=args.first, seed=args.seed, config=config,
-                                 progress=progress)
-    except ValueError as exc:
-        raise CliError(str(exc)) from None
-    finally:
-        bars.close()
-    payload = {"summary": result.summary(), "records": [r.__dict__ for r in result.records],
-               "settings": result.settings}
-    text = json.dumps(payload, indent=2, default=float)
-    if args.out:
-        Path(args.out).write_text(text + "\n")
-    print(text if args.json else result.table_markdown())
-    return EXIT_OK
+    return _run_evaluation(args, "synthetic photos", lambda progress: evaluate_photos(
+        args.neutral, args.expressive, first=args.first, seed=args.seed, config=config, progress=progress))
 
 
 # ----------------------------------------------------------------------------------------------------

@@ -35,6 +35,7 @@ import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import ClassVar
 
 import numpy as np
 import torch
@@ -57,7 +58,7 @@ from .landmark_fit import (
 )
 from .photo_camera import camera_direction_to_rig, default_focal, make_camera
 from .rig_state import FREE_GROUPS
-from .scan_fit import FACE_REGIONS
+from .scan_fit import FACE_REGIONS, Stage
 
 PHOTO_GROUPS = FREE_GROUPS + ("albedo", "light")
 
@@ -74,23 +75,11 @@ farther from the template than the synthetic population."""
 
 
 @dataclass(frozen=True)
-class PhotoStage:
-    """One stage of the photometric schedule."""
+class PhotoStage(Stage):
+    """One stage of the photometric schedule: ``free`` is a subset of ``pose``, ``joints``, ``latent``,
+    ``expressions``, ``albedo``, ``light``."""
 
-    name: str
-    """Label in reports and progress bars."""
-    free: tuple[str, ...]
-    """What is optimised: a subset of ``pose``, ``joints``, ``latent``, ``expressions``, ``albedo``, ``light``."""
-    iterations: int
-    """Adam steps."""
-
-    def __post_init__(self) -> None:
-        bad = [f for f in self.free if f not in PHOTO_GROUPS]
-        if bad or not self.free:
-            raise ValueError(f"stage {self.name!r}: free must be a non-empty subset of {list(PHOTO_GROUPS)}, "
-                             f"got {list(self.free)}")
-        if self.iterations < 0:
-            raise ValueError(f"stage {self.name!r}: iterations must be >= 0, got {self.iterations}")
+    groups: ClassVar[tuple[str, ...]] = PHOTO_GROUPS
 
 
 def photo_schedule(appearance_iterations: int = 25, joint_iterations: int = 30, latent_iterations: int = 15,

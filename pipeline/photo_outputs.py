@@ -26,8 +26,6 @@ file                   contents
 from __future__ import annotations
 
 import json
-import shutil
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -41,9 +39,10 @@ from rig.parameters import theta_to_params
 
 from .colour import linear_to_srgb
 from .config import config_to_dict
+from .files import json_safe, staged_folder
 from .photo_camera import camera_from_head_pose
 from .photo_fit import FitPhotoConfig, PhotoFit
-from .scan_outputs import _finite, rig_vertices_from_params
+from .scan_outputs import rig_vertices_from_params
 
 PARAMS_FORMAT = "jnr-photo-params/1"
 OUTPUT_FILES = ("mesh.obj", "mesh.ply", "mesh.glb", "params.json", "overlay.png", "render.png", "landmarks.pts",
@@ -174,7 +173,7 @@ def report_payload(fit: PhotoFit, *, config: FitPhotoConfig | None = None, extra
         "config": config_to_dict(config) if config is not None else None,
     }
     report.update(extra or {})
-    return _finite(report)
+    return json_safe(report)
 
 
 def write_photo_outputs(out_dir: str | Path, photo: np.ndarray, fit: PhotoFit, *,
@@ -199,10 +198,8 @@ def write_photo_outputs(out_dir: str | Path, photo: np.ndarray, fit: PhotoFit, *
     from rig.expressions import ExpressionModel
 
     out_dir = Path(out_dir)
-    if out_dir.exists() and not force:
+    if out_dir.exists() and not force:  # before the rendering below
         raise FileExistsError(f"output folder {out_dir} exists; pass --force to replace it")
-    if not out_dir.parent.is_dir():
-        raise FileNotFoundError(f"the parent folder of {out_dir} does not exist")
     asset = load_asset()
     colours = np.clip(np.round(linear_to_srgb(fit.albedo) * 255.0), 0, 255).astype(np.uint8)
     render, mask = render_fit(fit, spp=spp)
@@ -213,8 +210,7 @@ def write_photo_outputs(out_dir: str | Path, photo: np.ndarray, fit: PhotoFit, *
         weights = load_neural(rig)[0](torch.as_tensor(fit.z)[None])[0].numpy()
         tau = rig.channel_transforms(torch.as_tensor(fit.theta)[None])[0].numpy()
 
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", suffix=".tmp", dir=out_dir.parent))
-    try:
+    with staged_folder(out_dir, force) as tmp:
         export_mesh(tmp / "mesh.obj", fit.rig_vertices, asset.faces, face_uvs=asset.face_uvs, vertex_colors=colours)
         export_mesh(tmp / "mesh.ply", fit.rig_vertices, asset.faces, vertex_colors=colours)
         export_skinned_gltf(tmp / "mesh.glb", rest, asset.faces, joint_names=list(asset.joint_names),
@@ -226,10 +222,4 @@ def write_photo_outputs(out_dir: str | Path, photo: np.ndarray, fit: PhotoFit, *
         write_landmarks(tmp / "landmarks.pts", fit.landmarks2d)
         report = report_payload(fit, config=config, extra=extra)
         (tmp / "report.json").write_text(json.dumps(report, indent=2) + "\n")
-        if out_dir.exists():
-            shutil.rmtree(out_dir) if out_dir.is_dir() else out_dir.unlink()
-        tmp.rename(out_dir)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     return out_dir

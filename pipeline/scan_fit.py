@@ -34,8 +34,9 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from typing import Callable, Mapping
+from typing import ClassVar
 
 import numpy as np
 import torch
@@ -48,9 +49,15 @@ from rig.neural import LATENT, NeuralSkinning, load_neural
 from rig.parameters import NUM_PARAMETERS
 
 from .pointcloud import CloudError, PointCloud, boundary_mask, estimate_normals
+from .registration import (
+    MeshDistance,
+    RigidAlignment,
+    closest_on_one_ring,
+    incident_faces,
+    rigid_prealign,
+    vertex_normals,
+)
 from .rig_state import FREE_GROUPS, RigState
-from .registration import (MeshDistance, RigidAlignment, closest_on_one_ring, incident_faces, rigid_prealign,
-                           vertex_normals)
 
 FACE_REGIONS = ("forehead", "brows", "eyelids", "nose", "cheeks", "lips", "chin")
 
@@ -66,10 +73,13 @@ class Stage:
     iterations: int
     """Adam steps."""
 
+    groups: ClassVar[tuple[str, ...]] = FREE_GROUPS
+    """What ``free`` may name (a subclass may allow more)."""
+
     def __post_init__(self) -> None:
-        bad = [f for f in self.free if f not in FREE_GROUPS]
+        bad = [f for f in self.free if f not in self.groups]
         if bad or not self.free:
-            raise ValueError(f"stage {self.name!r}: free must be a non-empty subset of {list(FREE_GROUPS)}, "
+            raise ValueError(f"stage {self.name!r}: free must be a non-empty subset of {list(self.groups)}, "
                              f"got {list(self.free)}")
         if self.iterations < 0:
             raise ValueError(f"stage {self.name!r}: iterations must be >= 0, got {self.iterations}")

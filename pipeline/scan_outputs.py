@@ -21,9 +21,6 @@ file                   contents
 from __future__ import annotations
 
 import json
-import math
-import shutil
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -36,6 +33,7 @@ from rig.neural import LATENT, load_neural
 from rig.parameters import params_to_theta, theta_to_params
 
 from .config import config_to_dict
+from .files import json_safe, staged_folder
 from .pointcloud import PointCloud, error_colors, to_rig_frame, write_point_cloud_ply
 from .scan_fit import FitScanConfig, ScanFit
 
@@ -48,7 +46,7 @@ def distance_stats(distances: np.ndarray) -> dict:
     d = np.asarray(distances, float)
     return {"median_mm": float(np.median(d)), "mean_mm": float(d.mean()), "std_mm": float(d.std()),
             "p90_mm": float(np.percentile(d, 90)), "within_2mm": float((d <= 2).mean()),
-            "within_5mm": float((d <= 5).mean()), "points": int(len(d))}
+            "within_5mm": float((d <= 5).mean()), "points": len(d)}
 
 
 def params_payload(fit: ScanFit, cloud: PointCloud, frame: str) -> dict:
@@ -144,17 +142,12 @@ def write_scan_outputs(out_dir: str | Path, cloud: PointCloud, fit: ScanFit, dis
     import trimesh
 
     out_dir = Path(out_dir)
-    if out_dir.exists() and not force:
-        raise FileExistsError(f"output folder {out_dir} exists; pass --force to replace it")
-    if not out_dir.parent.is_dir():
-        raise FileNotFoundError(f"the parent folder of {out_dir} does not exist")
     faces = load_asset().faces
 
     def back(points: np.ndarray) -> np.ndarray:
         return to_rig_frame(np.asarray(points, float), frame) / cloud.scale_to_mm
 
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", suffix=".tmp", dir=out_dir.parent))
-    try:
+    with staged_folder(out_dir, force) as tmp:
         mesh = trimesh.Trimesh(back(fit.vertices), faces, process=False)
         mesh.export(tmp / "mesh.ply")
         mesh.export(tmp / "mesh.obj")
@@ -163,7 +156,7 @@ def write_scan_outputs(out_dir: str | Path, cloud: PointCloud, fit: ScanFit, dis
         write_point_cloud_ply(tmp / "cloud_error.ply", back(cloud.points), colors=error_colors(distances, vmax),
                               scalars={"error_mm": np.asarray(distances, np.float32)})
         report = {
-            "input": {"path": cloud.path, "points": int(len(cloud.points)), "units": cloud.units,
+            "input": {"path": cloud.path, "points": len(cloud.points), "units": cloud.units,
                       "scale_to_mm": cloud.scale_to_mm, "frame": frame, "had_normals": cloud.normals is not None},
             "scan_to_mesh": distance_stats(distances),
             "error_colour_scale_mm": [0.0, vmax],
@@ -174,22 +167,5 @@ def write_scan_outputs(out_dir: str | Path, cloud: PointCloud, fit: ScanFit, dis
             "config": config_to_dict(config) if config is not None else None,
         }
         report.update(extra or {})
-        (tmp / "report.json").write_text(json.dumps(_finite(report), indent=2) + "\n")
-        if out_dir.exists():
-            shutil.rmtree(out_dir) if out_dir.is_dir() else out_dir.unlink()
-        tmp.rename(out_dir)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
+        (tmp / "report.json").write_text(json.dumps(json_safe(report), indent=2) + "\n")
     return out_dir
-
-
-def _finite(obj):
-    """JSON has no NaN/inf: write them as null."""
-    if isinstance(obj, float):
-        return obj if math.isfinite(obj) else None
-    if isinstance(obj, dict):
-        return {k: _finite(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_finite(v) for v in obj]
-    return obj
