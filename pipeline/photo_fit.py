@@ -24,6 +24,10 @@
      camera-side hemisphere by linear least squares (ambient and irradiance per channel) on the
      ray-cast normals; ambient and irradiance are then optimised with the rest.
 
+Measured on synthetic photos (``benchmarks/bench_fit_photo.py``, README): the photometric stages
+leave the face geometry where the landmark fit put it (within +-0.06 mm of its error) and fit albedo and
+light; freer geometry in them made the geometry worse, since a photo's light is never exactly this model.
+
 The renderer's world is the OpenCV camera frame of the photo (the model moves rig-space vertices
 there, as for the landmarks); the light is reported in rig space as well
 (:func:`pipeline.photo_camera.camera_direction_to_rig`).
