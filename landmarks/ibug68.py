@@ -34,7 +34,7 @@ import numpy as np
 import torch
 
 from rig.asset import RigAsset, cached_per_asset, load_asset
-from rig.geometry import barycentric, closest_points_on_triangles, vertex_normals
+from rig.geometry import barycentric, closest_points_on_triangles
 from rig.lbs import ShapeError
 
 IBUG68_NAMES: tuple[str, ...] = (
@@ -421,6 +421,46 @@ def contour_candidates(asset: RigAsset | None = None) -> tuple[np.ndarray, ...]:
     return _contour(load_asset() if asset is None else asset).candidates
 
 
+@dataclass(frozen=True)
+class _ContourLines:
+    vertices: np.ndarray  # (C,) all candidate vertices, landmark after landmark (front -> back)
+    bounds: tuple[tuple[int, int], ...]  # per contour landmark: its slice of ``vertices`` (empty: the chin)
+    faces: np.ndarray  # (G, 3) the faces incident to a candidate, in mesh order
+    corner_slot: np.ndarray  # slot in ``vertices`` of each kept corner of ``faces`` (raveled)
+    corner_keep: np.ndarray  # which raveled corners of ``faces`` are candidates
+
+
+def _build_lines(data: _ContourData, faces: np.ndarray) -> _ContourLines:
+    verts = np.concatenate([np.asarray(c, np.int64) for c in data.candidates])
+    sizes = np.cumsum([0] + [len(c) for c in data.candidates])
+    bounds = tuple((int(a), int(b)) for a, b in zip(sizes[:-1], sizes[1:]))
+    incident = np.flatnonzero(np.isin(faces, verts).any(1))
+    sub = faces[incident]
+    # a vertex may sit on two lines: every occurrence gets its own slot (with the same normal)
+    slot_of: dict[int, list[int]] = {}
+    for i, vid in enumerate(verts):
+        slot_of.setdefault(int(vid), []).append(i)
+    corners, slots = [], []
+    for j, vid in enumerate(sub.ravel()):
+        for slot in slot_of.get(int(vid), ()):
+            corners.append(j)
+            slots.append(slot)
+    order = np.argsort(np.asarray(slots), kind="stable")  # per slot, its corners in mesh order
+    return _ContourLines(verts, bounds, sub, np.asarray(slots, np.int64)[order], np.asarray(corners, np.int64)[order])
+
+
+@cached_per_asset
+def _asset_lines(asset: RigAsset) -> _ContourLines:
+    return _build_lines(_contour(asset), np.asarray(asset.faces, np.int64))
+
+
+def _contour_lines(asset: RigAsset, faces: np.ndarray) -> _ContourLines:
+    """The candidate lines of :func:`contour_candidates` flattened, with their incident faces."""
+    if faces.shape == asset.faces.shape and np.array_equal(faces, asset.faces):
+        return _asset_lines(asset)
+    return _build_lines(_contour(asset), faces)
+
+
 def contour_landmarks(vertices: torch.Tensor, faces, camera_center, asset: RigAsset | None = None
                       ) -> torch.Tensor:
     """Dynamic jaw contour (landmarks 0-16) as seen from a camera, for turned heads.
@@ -445,26 +485,24 @@ def contour_landmarks(vertices: torch.Tensor, faces, camera_center, asset: RigAs
     cam = torch.as_tensor(camera_center, dtype=vertices.dtype, device=vertices.device)
     if cam.shape != (3,):
         raise ShapeError(f"contour_landmarks: camera_center must have shape (3,), got {tuple(cam.shape)}")
-    faces_t = torch.as_tensor(np.asarray(faces.cpu() if isinstance(faces, torch.Tensor) else faces),
-                              dtype=torch.long, device=vertices.device)
+    faces_np = np.asarray(faces.cpu() if isinstance(faces, torch.Tensor) else faces, dtype=np.int64)
     data = _contour(asset)
-    normals = torch.as_tensor(vertex_normals(vertices.detach().cpu().double().numpy(), faces_t.cpu().numpy()),
-                              dtype=vertices.dtype, device=vertices.device)
-    picked = []
-    for k in range(17):
-        cand = data.candidates[k]
-        if len(cand) == 0:
-            picked.append(int(data.vertex_ids[k]))
-            continue
-        idx = torch.as_tensor(cand, device=vertices.device)
-        to_cam = cam - vertices.detach()[idx]
-        to_cam = to_cam / to_cam.norm(dim=-1, keepdim=True)
-        facing = (normals[idx] * to_cam).sum(-1)
-        score = torch.where(facing > 0, facing, torch.full_like(facing, torch.inf))
-        if torch.isinf(score).all():  # the whole line faces away: keep the static landmark
-            picked.append(int(data.vertex_ids[k]))
-        else:
-            picked.append(int(cand[int(torch.argmin(score))]))
+    lines = _contour_lines(asset, faces_np)
+    v = vertices.detach().cpu().double().numpy()
+    # area-weighted normals of the candidate vertices only, from their incident faces (= vertex_normals there)
+    tri = v[lines.faces]
+    fn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    n = np.stack([np.bincount(lines.corner_slot, weights=np.repeat(fn[:, c], 3)[lines.corner_keep],
+                              minlength=len(lines.vertices)) for c in range(3)], 1)
+    n /= np.linalg.norm(n, axis=1, keepdims=True).clip(1e-12)
+    to_cam = np.asarray(cam.detach().cpu().double().numpy()) - v[lines.vertices]
+    to_cam /= np.linalg.norm(to_cam, axis=1, keepdims=True).clip(1e-12)
+    facing = (n * to_cam).sum(1)
+    score = np.where(facing > 0, facing, np.inf)
+    picked = [int(i) for i in data.vertex_ids]  # the chin, and any line that faces away: the static landmark
+    for k, (lo, hi) in enumerate(lines.bounds):
+        if hi > lo and np.isfinite(score[lo:hi]).any():
+            picked[k] = int(lines.vertices[lo + int(np.argmin(score[lo:hi]))])
     out = vertices[torch.as_tensor(picked, device=vertices.device)]
-    static = landmark_positions(vertices, ibug68_embedding(asset), faces_t.cpu().numpy())[0, CHIN]
+    static = landmark_positions(vertices, ibug68_embedding(asset), faces_np)[0, CHIN]
     return torch.cat([out[:CHIN], static[None], out[CHIN + 1:]])

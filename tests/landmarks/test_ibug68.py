@@ -134,6 +134,28 @@ def test_contour_far_side_moves_towards_visible_silhouette(asset, pts):
     np.testing.assert_allclose(other[::-1][far] * [-1, 1, 1], p[far], atol=1.0)
 
 
+@pytest.mark.parametrize("yaw", [-35.0, -10.0, 0.0, 20.0, 40.0])
+def test_contour_pick_equals_a_naive_search(asset, yaw):
+    """The picked vertex per line is the naive choice: full-mesh vertex normals, smallest positive n . view."""
+    from rig.geometry import vertex_normals
+
+    rng = np.random.default_rng(int(yaw) + 50)
+    v = asset.vertices + rng.normal(0.0, 0.3, asset.vertices.shape)  # a slightly bumpy head
+    cam = np.array(_yaw_camera(yaw))
+    out = contour_landmarks(torch.tensor(v), asset.faces, cam, asset).numpy()
+    n = vertex_normals(v, asset.faces)
+    static = landmark_positions(v, ibug68_embedding(asset), asset.faces)[0]
+    for k, line in enumerate(contour_candidates(asset)):
+        if k == CHIN:
+            np.testing.assert_array_equal(out[k], static[CHIN])
+            continue
+        view = (cam - v[line]) / np.linalg.norm(cam - v[line], axis=1, keepdims=True)
+        facing = (n[line] * view).sum(1)
+        if (facing > 0).any():
+            expected = line[np.argmin(np.where(facing > 0, facing, np.inf))]
+            np.testing.assert_array_equal(out[k], v[expected])
+
+
 def test_contour_checks_shapes(asset):
     with pytest.raises(ShapeError, match="camera_center"):
         contour_landmarks(torch.tensor(asset.vertices), asset.faces, [0.0, 1.0], asset)
