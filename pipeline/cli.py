@@ -269,10 +269,8 @@ def _demo_fits(stage: Path, config, bar) -> tuple[dict, dict]:
     from PIL import Image
     from skimage import data
 
-    from landmarks.ibug68 import ibug68_embedding, landmark_positions
-    from pipeline.photo_eval import INNER_LANDMARKS, now_style_error
+    from pipeline.photo_eval import face_error
     from pipeline.photo_outputs import mesh_from_photo_params
-    from pipeline.scan_fit import FACE_REGIONS
     from pipeline.synthetic_photos import synthetic_photo, write_synthetic_photo
     from rig.asset import load_asset
 
@@ -286,17 +284,9 @@ def _demo_fits(stage: Path, config, bar) -> tuple[dict, dict]:
     bar.update()
     synthetic = fit_one_photo(truth_dir / "photo.png", stage / "synthetic", config=config,
                               landmarks=str(truth_dir / "landmarks.pts"), focal=photo.focal, command="jnr demo")
-    asset = load_asset()
-    embedding = ibug68_embedding(asset)
-
-    def inner(v):
-        return landmark_positions(v, embedding, asset.faces)[0][list(INNER_LANDMARKS)]
-
     fitted = mesh_from_photo_params(stage / "synthetic" / "params.json")
-    face = asset.region_mask(*FACE_REGIONS)
-    error = now_style_error(fitted, photo.gt_vertices, asset.faces, face, inner(fitted), inner(photo.gt_vertices))
-    template = now_style_error(asset.vertices, photo.gt_vertices, asset.faces, face, inner(asset.vertices),
-                               inner(photo.gt_vertices))
+    error = face_error(fitted, photo.gt_vertices)
+    template = face_error(load_asset().vertices, photo.gt_vertices)
     synthetic.update({"head": photo.name, "truth": str(truth_dir / "truth.ply"), **error,
                       "template_vertex_mean_mm": template["vertex_mean_mm"],
                       "template_s2m_median_mm": template["s2m_median_mm"]})

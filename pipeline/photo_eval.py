@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from rig.asset import load_asset
+from rig.expressions import EXPRESSION_NAMES
 
 from .photo_fit import FitPhotoConfig, fit_photo
 from .registration import MeshDistance, umeyama
@@ -86,13 +87,13 @@ class PhotoEvaluation:
         """The summary as a Markdown table (mean +- sd over photos)."""
         lines = ["| photos | method | n | s2m median mm | s2m mean mm | s2m std mm | vertex mean mm | landmarks px | seconds |",
                  "|---|---|---|---|---|---|---|---|---|"]
-        for row in self.summary():
-            def pm(m: str, digits: int = 2) -> str:
-                return f"{row[m]:.{digits}f} ± {row[m + '_sd']:.{digits}f}"
+        def pm(row: dict, m: str, digits: int = 2) -> str:
+            return f"{row[m]:.{digits}f} ± {row[m + '_sd']:.{digits}f}"
 
-            lines.append(f"| {row['kind']} | {row['method']} | {row['photos']} | {pm('s2m_median_mm')} | "
-                         f"{pm('s2m_mean_mm')} | {pm('s2m_std_mm')} | {pm('vertex_mean_mm')} | "
-                         f"{pm('landmark_error_px')} | {pm('seconds', 1)} |")
+        for r in self.summary():
+            lines.append(f"| {r['kind']} | {r['method']} | {r['photos']} | {pm(r, 's2m_median_mm')} | "
+                         f"{pm(r, 's2m_mean_mm')} | {pm(r, 's2m_std_mm')} | {pm(r, 'vertex_mean_mm')} | "
+                         f"{pm(r, 'landmark_error_px')} | {pm(r, 'seconds', 1)} |")
         return "\n".join(lines)
 
 
@@ -126,6 +127,21 @@ def now_style_error(fitted: np.ndarray, truth: np.ndarray, faces: np.ndarray, fa
             "vertex_mean_mm": float(vertex.mean()), "scale": float(s)}
 
 
+def face_error(fitted: np.ndarray, truth: np.ndarray, asset=None) -> dict:
+    """:func:`now_style_error` of a fitted head against the true head (both template topology, mm): aligned
+    on the inner landmarks (:data:`INNER_LANDMARKS`), scored over the face regions
+    (:data:`pipeline.scan_fit.FACE_REGIONS`)."""
+    from landmarks.ibug68 import ibug68_embedding, landmark_positions
+
+    asset = load_asset() if asset is None else asset
+    embedding = ibug68_embedding(asset)
+
+    def inner(v: np.ndarray) -> np.ndarray:
+        return landmark_positions(v, embedding, asset.faces)[0][list(INNER_LANDMARKS)]
+
+    return now_style_error(fitted, truth, asset.faces, asset.region_mask(*FACE_REGIONS), inner(fitted), inner(truth))
+
+
 def evaluate_photos(n_neutral: int = 5, n_expressive: int = 5, *, first: int = 0, seed: int = 0,
                     config: FitPhotoConfig | None = None, settings=None,
                     progress: Callable[[PhotoRecord], None] | None = None) -> PhotoEvaluation:
@@ -144,12 +160,11 @@ def evaluate_photos(n_neutral: int = 5, n_expressive: int = 5, *, first: int = 0
     Returns:
         :class:`PhotoEvaluation` with records for ``jnr``, ``landmarks`` and ``template`` per photo.
     """
-    import torch
-
-    from landmarks.ibug68 import ibug68_embedding, landmark_positions
     from rig.model import JointRig
-    from rig.neural import load_neural
+    from rig.neural import LATENT, load_neural
+    from rig.parameters import NUM_PARAMETERS
 
+    from .rig_state import head_vertices
     from .synthetic_photos import PhotoSettings, synthetic_photo
 
     for name, value in (("first", first), ("n_neutral", n_neutral), ("n_expressive", n_expressive)):
@@ -161,19 +176,9 @@ def evaluate_photos(n_neutral: int = 5, n_expressive: int = 5, *, first: int = 0
     config = config or FitPhotoConfig()
     settings = settings or PhotoSettings()
     asset = load_asset()
-    faces = asset.faces
-    face_vertices = asset.region_mask(*FACE_REGIONS)
-    embedding = ibug68_embedding(asset)
-    inner = list(INNER_LANDMARKS)
     rig = JointRig()
     neural, _ = load_neural(rig)
-
-    def landmarks3d(v: np.ndarray) -> np.ndarray:
-        return landmark_positions(v, embedding, faces)[0][inner]
-
-    with torch.no_grad():
-        template = rig(torch.zeros(1, rig.num_parameters), weights=neural(torch.zeros(1, 50))[0]).vertices[0]
-    template = template.double().numpy()
+    template = head_vertices(rig, neural, np.zeros(NUM_PARAMETERS), np.zeros(LATENT), np.zeros(len(EXPRESSION_NAMES)))
     records: list[PhotoRecord] = []
 
     def add(**fields) -> None:
@@ -187,7 +192,6 @@ def evaluate_photos(n_neutral: int = 5, n_expressive: int = 5, *, first: int = 0
             photo = synthetic_photo(index, expressive=kind == "expressive", seed=scan_seed(seed, "photo-" + kind, index),
                                     settings=settings)
             truth = photo.gt_vertices
-            true_lm = landmarks3d(truth)
             t0 = time.perf_counter()
             fit = fit_photo(photo.image, photo.landmarks2d, focal=photo.focal, config=config, rig=rig, neural=neural)
             seconds = time.perf_counter() - t0
@@ -195,25 +199,12 @@ def evaluate_photos(n_neutral: int = 5, n_expressive: int = 5, *, first: int = 0
             lfit = fit.landmark_fit
             for method, vertices, lm_px, secs in (
                     ("jnr", fit.rig_vertices, float(fit.error_px.mean()), seconds),
-                    ("landmarks", _landmark_fit_vertices(lfit, rig, neural), float(lfit.error_px.mean()), lfit.seconds),
+                    ("landmarks", head_vertices(rig, neural, lfit.theta, lfit.z, lfit.expressions),
+                     float(lfit.error_px.mean()), lfit.seconds),
                     ("template", template, math.nan, 0.0)):
-                err = now_style_error(vertices, truth, faces, face_vertices, landmarks3d(vertices), true_lm)
+                err = face_error(vertices, truth, asset)
                 add(**common, method=method, s2m_median_mm=err["s2m_median_mm"], s2m_mean_mm=err["s2m_mean_mm"],
                     s2m_std_mm=err["s2m_std_mm"], vertex_mean_mm=err["vertex_mean_mm"], landmark_error_px=lm_px,
                     seconds=secs)
     return PhotoEvaluation(records, settings={"first": first, "n_neutral": n_neutral, "n_expressive": n_expressive, "seed": seed,
                                               "photo_settings": dict(settings.__dict__)})
-
-
-def _landmark_fit_vertices(lfit, rig, neural) -> np.ndarray:
-    """The rig-space head of a landmark-only fit."""
-    import torch
-
-    from rig.expressions import ExpressionModel
-
-    dtype = rig.template.dtype
-    with torch.no_grad():
-        rest = ExpressionModel(rig.asset, dtype=dtype).vertices(torch.as_tensor(lfit.expressions, dtype=dtype)[None])[0]
-        w = neural(torch.as_tensor(lfit.z, dtype=dtype)[None])[0]
-        v = rig(torch.as_tensor(lfit.theta, dtype=dtype)[None], weights=w, vertices=rest).vertices[0]
-    return v.double().numpy()

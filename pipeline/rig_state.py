@@ -82,3 +82,16 @@ class RigState:
         """Project the expression coefficients back into their limits (in place)."""
         with torch.no_grad():
             self.c.copy_(torch.maximum(torch.minimum(self.c, self.c_high), self.c_low))
+
+
+def head_vertices(rig: JointRig, neural: NeuralSkinning | None, theta, z, expressions) -> np.ndarray:
+    """``(V, 3)`` float64 rig-space head (mm) of fitted parameters: joint channels ``theta (P,)``, latent
+    ``z (50,)`` (ignored without ``neural``: the rig's own weights) and expression coefficients ``(E,)``."""
+    dtype = rig.template.dtype
+    with torch.no_grad():
+        c = torch.as_tensor(np.asarray(expressions, np.float64), dtype=dtype)[None]
+        rest = ExpressionModel(rig.asset, dtype=dtype).vertices(c)[0]
+        weights = rig.dense_weights() if neural is None else neural(
+            torch.as_tensor(np.asarray(z, np.float64), dtype=dtype)[None])[0]
+        theta = torch.as_tensor(np.asarray(theta, np.float64), dtype=dtype)[None]
+        return rig(theta, weights=weights, vertices=rest).vertices[0].double().numpy()

@@ -27,7 +27,7 @@ import numpy as np
 import torch
 
 from rig.asset import load_asset
-from rig.expressions import EXPRESSION_NAMES, ExpressionModel, coefficients_from_dict
+from rig.expressions import EXPRESSION_NAMES, coefficients_from_dict
 from rig.model import JointRig
 from rig.neural import LATENT, load_neural
 from rig.parameters import params_to_theta, theta_to_params
@@ -35,6 +35,7 @@ from rig.parameters import params_to_theta, theta_to_params
 from .config import config_to_dict
 from .files import json_safe, staged_folder
 from .pointcloud import PointCloud, error_colors, to_rig_frame, write_point_cloud_ply
+from .rig_state import head_vertices
 from .scan_fit import FitScanConfig, ScanFit
 
 PARAMS_FORMAT = "jnr-scan-params/1"
@@ -114,15 +115,12 @@ def rig_vertices_from_params(params: dict, *, rig: JointRig | None = None, use_n
     if missing:
         raise ValueError(f"parameter file lacks {missing}")
     rig = rig or JointRig()
-    theta = params_to_theta(params["joints"])[None].to(rig.template.dtype)
-    c = coefficients_from_dict(params["expressions"], dtype=rig.template.dtype)[None]
-    z = torch.as_tensor(params["latent_z"], dtype=rig.template.dtype)[None]
-    if z.shape != (1, LATENT):
-        raise ValueError(f"latent_z must have {LATENT} values, got {z.shape[1]}")
-    with torch.no_grad():
-        rest = ExpressionModel(rig.asset, dtype=rig.template.dtype).vertices(c)[0]
-        weights = load_neural(rig)[0](z)[0] if use_neural else rig.dense_weights()
-        return rig(theta, weights=weights, vertices=rest).vertices[0].numpy().astype(np.float64)
+    theta = params_to_theta(params["joints"], dtype=torch.float64)
+    c = coefficients_from_dict(params["expressions"], dtype=torch.float64)
+    z = np.asarray(params["latent_z"], np.float64)
+    if z.shape != (LATENT,):
+        raise ValueError(f"latent_z must have {LATENT} values, got {z.size}")
+    return head_vertices(rig, load_neural(rig)[0] if use_neural else None, theta.numpy(), z, c.numpy())
 
 
 def write_scan_outputs(out_dir: str | Path, cloud: PointCloud, fit: ScanFit, distances: np.ndarray, *,

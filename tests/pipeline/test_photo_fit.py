@@ -161,22 +161,14 @@ def known_fit(known_photo):
 
 def test_a_synthetic_render_is_fitted_within_bounds(known_photo, known_fit):
     """The open jaw is recovered by the expression, and the head is closer to the truth than the template."""
-    from landmarks.ibug68 import ibug68_embedding, landmark_positions
-    from pipeline.photo_eval import INNER_LANDMARKS, now_style_error
-    from pipeline.scan_fit import FACE_REGIONS
+    from pipeline.photo_eval import face_error
     from rig.asset import load_asset
     from rig.expressions import EXPRESSION_NAMES
 
     asset = load_asset()
-    emb = ibug68_embedding(asset)
-
-    def lm3(v):
-        return landmark_positions(v, emb, asset.faces)[0][list(INNER_LANDMARKS)]
-
-    face = asset.region_mask(*FACE_REGIONS)
     truth = known_photo.gt_vertices
-    fitted = now_style_error(known_fit.rig_vertices, truth, asset.faces, face, lm3(known_fit.rig_vertices), lm3(truth))
-    template = now_style_error(asset.vertices, truth, asset.faces, face, lm3(asset.vertices), lm3(truth))
+    fitted = face_error(known_fit.rig_vertices, truth, asset)
+    template = face_error(asset.vertices, truth, asset)
     jaw = known_fit.expressions[EXPRESSION_NAMES.index("jaw_open")]
     assert abs(jaw - JAW_OPEN) < 0.25, f"jaw_open {jaw:.2f}, true {JAW_OPEN}"
     assert fitted["vertex_mean_mm"] < 0.6 * template["vertex_mean_mm"], (fitted, template)
@@ -194,7 +186,11 @@ def test_outputs_reload_to_the_same_mesh(known_photo, known_fit, tmp_path):
 
     import trimesh
 
-    from pipeline.photo_outputs import OUTPUT_FILES, mesh_from_photo_params, write_photo_outputs
+    from pipeline.photo_outputs import (
+        OUTPUT_FILES,
+        mesh_from_photo_params,
+        write_photo_outputs,
+    )
     from rig.export import read_skinned_gltf
 
     out = write_photo_outputs(tmp_path / "fit", known_photo.image, known_fit, config=_short_config(), spp=2)
