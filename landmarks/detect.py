@@ -57,28 +57,137 @@ class FaceDetection:
         return float(max(right - left, 0.0) * max(bottom - top, 0.0))
 
 
-def load_image(path: str | Path) -> np.ndarray:
-    """Read an image file as an ``(H, W, 3)`` uint8 RGB array.
+MAX_IMAGE_PIXELS = 120_000_000
+"""Larger images (width x height) are refused with one line before they are decoded (a 10000 x 12000
+photo is accepted). Pillow's own guard would raise a multi-line ``DecompressionBombError``."""
+WORKING_MAX_SIDE = 2048
+"""Photos whose longer side exceeds this are fitted at a reduced size: decoded shrunk by a power of two
+``k`` (JPEG: by the decoder itself, ``Image.draft``, so a 10000 x 10000 JPEG never exists in memory at
+full size), so that the longer side is at most this. A face large enough to need more pixels than this
+for 68 landmarks does not exist in a photo of that size."""
 
-    The EXIF orientation is applied (``ImageOps.exif_transpose``), so the array is upright as a viewer
-    shows it; grayscale, palette, CMYK and RGBA images are converted to RGB (alpha is dropped).
+
+@dataclass(frozen=True)
+class LoadedImage:
+    """A photo as the fit sees it: possibly reduced by an integer factor ``k`` from the file.
+
+    Working pixel ``(x, y)`` (0-based, OpenCV) covers the file's ``k x k`` block whose centre is
+    ``(k x + (k - 1) / 2, k y + (k - 1) / 2)`` in the file's 0-based pixels (:meth:`to_original`)."""
+
+    image: np.ndarray
+    """``(h, w, 3)`` uint8 RGB, upright (EXIF orientation applied)."""
+    factor: int
+    """``k``: 1 when the photo is used at its own size."""
+    original_size: tuple[int, int]
+    """``(W, H)`` of the upright photo in the file, pixels."""
+
+    def to_original(self, points: np.ndarray) -> np.ndarray:
+        """``(*, 2)`` working pixels -> the file's pixels (0-based OpenCV)."""
+        return np.asarray(points, float) * self.factor + (self.factor - 1) / 2.0
+
+    def to_working(self, points: np.ndarray) -> np.ndarray:
+        """``(*, 2)`` the file's pixels -> working pixels (0-based OpenCV)."""
+        return (np.asarray(points, float) - (self.factor - 1) / 2.0) / self.factor
+
+
+def _reason(exc: Exception) -> str:
+    text = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+    return text.replace("cannot identify image file", "not an image file or a corrupt one")
+
+
+class _open_unguarded:
+    """``Image.open`` without Pillow's decompression-bomb guard (our own limit is checked instead)."""
+
+    def __init__(self, image_module, path: Path) -> None:
+        self.module, self.path = image_module, path
+
+    def __enter__(self):
+        import warnings
+
+        saved = self.module.MAX_IMAGE_PIXELS
+        self.module.MAX_IMAGE_PIXELS = None
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", self.module.DecompressionBombWarning)
+                self.img = self.module.open(self.path)
+        finally:
+            self.module.MAX_IMAGE_PIXELS = saved
+        return self.img
+
+    def __exit__(self, *exc) -> None:
+        self.img.close()
+
+
+def load_working_image(path: str | Path, max_side: int = WORKING_MAX_SIDE,
+                       max_pixels: int = MAX_IMAGE_PIXELS) -> LoadedImage:
+    """Read a photo for fitting: upright RGB, reduced by a power of two when its longer side exceeds
+    ``max_side`` (see :data:`WORKING_MAX_SIDE`), refused above ``max_pixels``.
+
+    Grayscale, palette, CMYK, 16-bit and RGBA images are converted to RGB (alpha dropped); an animated
+    image gives its first frame.
+
+    Returns:
+        :class:`LoadedImage`.
 
     Raises:
         FileNotFoundError: ``path`` does not exist.
-        DetectionError: the file exists but cannot be decoded as an image.
+        DetectionError: not a readable image, or more than ``max_pixels`` pixels (one line).
+
+    Example:
+        >>> photo = load_working_image("big.jpg")  # doctest: +SKIP
+        >>> photo.image.shape, photo.factor, photo.original_size  # doctest: +SKIP
+        ((1250, 1250, 3), 8, (10000, 10000))
     """
     from PIL import Image, ImageOps, UnidentifiedImageError
 
     path = Path(path)
     if not path.is_file():
-        raise FileNotFoundError(f"load_image: image file not found: {path}")
+        raise FileNotFoundError(f"image file not found: {path}")
     try:
-        with Image.open(path) as img:
+        with _open_unguarded(Image, path) as img:
+            width, height = img.size
+            if width * height > max_pixels:
+                raise DetectionError(
+                    f"image {path} is {width} x {height} = {width * height / 1e6:.0f} megapixels; jnr reads photos "
+                    f"up to {max_pixels / 1e6:.0f} megapixels: downscale it first")
+            k = 1
+            while max(width, height) > max_side * k:
+                k *= 2
+            if k > 1 and img.format == "JPEG":
+                img.draft("RGB", (-(-width // k), -(-height // k)))  # decoder-side 1/2, 1/4, 1/8 scaling
+            done = max(1, round(width / img.size[0]))  # what the decoder already reduced
+            img = img.convert("RGB") if img.mode != "RGB" else img
+            img.load()
+            rotated = img.getexif().get(0x0112, 1) in (5, 6, 7, 8)  # after load: PNG keeps EXIF after IDAT
+            if k > done:
+                img = img.reduce(k // done)
             img = ImageOps.exif_transpose(img)
-            rgb = np.asarray(img.convert("RGB"), dtype=np.uint8)
-    except (UnidentifiedImageError, OSError, SyntaxError, ValueError) as exc:
-        raise DetectionError(f"load_image: cannot read image {path}: {exc}") from None
-    return np.ascontiguousarray(rgb)
+            rgb = np.asarray(img, dtype=np.uint8)
+    except DetectionError:
+        raise
+    except (UnidentifiedImageError, OSError, SyntaxError, ValueError, EOFError) as exc:
+        raise DetectionError(f"cannot read image {path}: {_reason(exc)}") from None
+    except MemoryError:
+        raise DetectionError(f"image {path} is too large to decode in the available memory") from None
+    original = (height, width) if rotated else (width, height)
+    if rgb.ndim != 3 or rgb.shape[0] == 0 or rgb.shape[1] == 0:
+        raise DetectionError(f"cannot read image {path}: it has no pixels")
+    return LoadedImage(image=np.ascontiguousarray(rgb), factor=k, original_size=original)
+
+
+def load_image(path: str | Path) -> np.ndarray:
+    """Read an image file at its full size as an ``(H, W, 3)`` uint8 RGB array.
+
+    The EXIF orientation is applied (``ImageOps.exif_transpose``), so the array is upright as a viewer
+    shows it; grayscale, palette, CMYK and RGBA images are converted to RGB (alpha is dropped). For
+    fitting, :func:`load_working_image` reads large photos at a reduced size.
+
+    Raises:
+        FileNotFoundError: ``path`` does not exist.
+        DetectionError: the file cannot be decoded as an image, or has more than
+            :data:`MAX_IMAGE_PIXELS` pixels.
+    """
+    return load_working_image(path, max_side=1 << 30).image
 
 
 def shape_predictor_path() -> Path:

@@ -24,10 +24,10 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import math
 import os
 import shutil
 import sys
-import tempfile
 import time
 from pathlib import Path
 
@@ -49,35 +49,79 @@ class CliError(Exception):
 # helpers
 # ----------------------------------------------------------------------------------------------------
 
-def _check_output(path: Path, force: bool) -> None:
-    if path.exists() and not force:
-        raise CliError(f"output {path} exists; pass --force to overwrite it")
-    if not path.parent.exists():
-        raise CliError(f"output folder {path.parent} does not exist")
+def _check_output(path: Path, force: bool, inputs=()) -> None:
+    """Refuse an output file before any work (see :func:`pipeline.files.check_output`)."""
+    from pipeline.files import OutputError, check_output
+
+    try:
+        check_output(path, force=force, inputs=[p for p in inputs if p], kind="file")
+    except OutputError as exc:
+        raise CliError(str(exc)) from None
+
+
+MESH_SUFFIXES = {"obj": (".obj",), "ply": (".ply",), "gltf": (".glb", ".gltf")}
 
 
 def _format_for(path: Path, explicit: str | None) -> str:
-    if explicit:
-        return explicit
+    """The mesh format of an output: from ``--format`` (which must agree with the suffix) or the suffix."""
     suffix = path.suffix.lower()
-    for name, ext in (("obj", ".obj"), ("ply", ".ply"), ("gltf", ".glb"), ("gltf", ".gltf")):
-        if suffix == ext:
+    if explicit:
+        if suffix not in MESH_SUFFIXES[explicit]:
+            raise CliError(f"--format {explicit} writes {' or '.join(MESH_SUFFIXES[explicit])} files, but --out is "
+                           f"{path}; change the suffix or the format")
+        return explicit
+    for name, suffixes in MESH_SUFFIXES.items():
+        if suffix in suffixes:
             return name
     raise CliError(f"cannot tell the mesh format of {path}: use .obj, .ply, .glb or .gltf, or pass --format")
 
 
-def _load_theta(params: str | None, clamp: bool):
+FIT_PARAMS_KEYS = {"joints", "latent_z", "expressions"}
+PARAMS_FILE_KEYS = {"joints", "units", "format"}
+
+
+def _load_edit_params(params: str | None, clamp: bool) -> tuple[object, tuple | None]:
+    """A parameter file for ``rig export/edit``: ``(theta (P,) float64, None)`` for joint parameters, or
+    ``(None, arrays)`` for the ``params.json`` of a fit, whose joints, latent Z and expressions are all
+    used (``arrays``: :func:`pipeline.scan_outputs.head_arrays_from_params`).
+
+    Raises:
+        CliError / ParameterError: unreadable file, unknown keys, a fit file with ``--clamp``.
+    """
     import torch
 
-    from rig.parameters import NUM_PARAMETERS, load_params_json
+    from rig.parameters import NUM_PARAMETERS, ParameterError, load_params_json
 
     if params is None:
-        return torch.zeros(NUM_PARAMETERS, dtype=torch.float64)
-    return load_params_json(params, clamp=clamp).double()
+        return torch.zeros(NUM_PARAMETERS, dtype=torch.float64), None
+    path = Path(params)
+    try:
+        data = json.loads(path.read_text()) if path.is_file() else None
+    except (json.JSONDecodeError, UnicodeDecodeError):
+        data = None  # load_params_json reports it
+    if isinstance(data, dict) and (FIT_PARAMS_KEYS - {"joints"}) & set(data):
+        missing = sorted(FIT_PARAMS_KEYS - set(data))
+        if missing:
+            raise ParameterError(f"{path}: a fit's parameter file needs {sorted(FIT_PARAMS_KEYS)}; {missing} missing")
+        if clamp:
+            raise CliError(f"{path} is the parameter file of a fit; --clamp applies to joint parameters only")
+        from pipeline.scan_outputs import head_arrays_from_params
+
+        try:
+            return None, head_arrays_from_params(data)
+        except (ValueError, TypeError) as exc:
+            raise ParameterError(f"{path}: {exc}") from None
+    if isinstance(data, dict) and isinstance(data.get("joints"), dict):
+        unknown = sorted(set(data) - PARAMS_FILE_KEYS)
+        if unknown:
+            raise ParameterError(f"{path}: unknown key(s) {unknown}; a parameter file holds {sorted(PARAMS_FILE_KEYS)} "
+                                 f"(or a fit's {sorted(FIT_PARAMS_KEYS)})")
+    return load_params_json(path, clamp=clamp).double(), None
 
 
-def _write_head(path: Path, fmt: str, theta, rig=None) -> None:
-    """Write the rig posed by ``theta (P,)`` as OBJ/PLY (posed vertices) or skinned glTF (posable joints)."""
+def _write_head(path: Path, fmt: str, theta, rig=None, fit_arrays: tuple | None = None) -> None:
+    """Write the rig posed by ``theta (P,)`` as OBJ/PLY (posed vertices) or skinned glTF (posable joints);
+    with ``fit_arrays`` (of a fit's ``params.json``, :func:`_load_edit_params`), the fitted head."""
     import torch
 
     from rig.export import export_mesh, export_skinned_gltf
@@ -85,16 +129,31 @@ def _write_head(path: Path, fmt: str, theta, rig=None) -> None:
 
     rig = rig or JointRig(dtype=torch.float64)
     asset = rig.asset
-    with torch.no_grad():
-        out = rig(theta[None])
+    if fit_arrays is not None:
+        posed, rest, weights, tau = fit_arrays
+    else:
+        with torch.no_grad():
+            posed = rig(theta[None]).vertices[0].numpy()
+            tau = rig.channel_transforms(theta[None])[0].numpy()
+        rest, weights = asset.vertices, asset.weights
     if fmt == "gltf":
-        tau = rig.channel_transforms(theta[None])[0].numpy()
-        export_skinned_gltf(path, asset.vertices, asset.faces, joint_names=list(asset.joint_names),
-                            parents=asset.parents, joint_positions=asset.joint_positions, weights=asset.weights,
+        export_skinned_gltf(path, rest, asset.faces, joint_names=list(asset.joint_names),
+                            parents=asset.parents, joint_positions=asset.joint_positions, weights=weights,
                             face_uvs=asset.face_uvs, joint_transforms=tau)
     else:
-        export_mesh(path, out.vertices[0].numpy(), asset.faces, face_uvs=asset.face_uvs if fmt == "obj" else None,
+        export_mesh(path, posed, asset.faces, face_uvs=asset.face_uvs if fmt == "obj" else None,
                     file_format=fmt)
+
+
+def _write_output_file(out: Path, force: bool, inputs, write) -> None:
+    """``write(tmp_path)`` into a staged file that replaces ``out`` atomically when it succeeds."""
+    from pipeline.files import OutputError, staged_file
+
+    try:
+        with staged_file(out, force, inputs=[p for p in inputs if p]) as tmp:
+            write(tmp)
+    except OutputError as exc:
+        raise CliError(str(exc)) from None
 
 
 # ----------------------------------------------------------------------------------------------------
@@ -140,6 +199,9 @@ def cmd_rig_build(args: argparse.Namespace) -> int:
     from rig.asset import DEFAULT_ASSET, build_asset, read_asset, save_asset
 
     t0 = time.perf_counter()
+    out = Path(args.out) if args.out else DEFAULT_ASSET
+    if not args.check:
+        _check_output(out, args.force or (args.out is None))
     log.info("generating the template head, joints and weights")
     asset = build_asset()
     if args.check:
@@ -150,8 +212,6 @@ def cmd_rig_build(args: argparse.Namespace) -> int:
         print(f"rebuilt in {time.perf_counter() - t0:.1f} s; largest vertex difference {diff:.3g} mm; "
               f"{'identical' if same else 'DIFFERENT'}")
         return EXIT_OK if same else EXIT_FAILURE
-    out = Path(args.out) if args.out else DEFAULT_ASSET
-    _check_output(out, args.force or (args.out is None))
     save_asset(asset, out)
     print(f"wrote {out} ({len(asset.vertices)} vertices, {len(asset.faces)} faces) in {time.perf_counter() - t0:.1f} s")
     return EXIT_OK
@@ -159,9 +219,10 @@ def cmd_rig_build(args: argparse.Namespace) -> int:
 
 def cmd_rig_export(args: argparse.Namespace) -> int:
     out = Path(args.out) if args.out else Path(f"jnr_rig{MESH_FORMATS[args.format]}")
-    _check_output(out, args.force)
-    theta = _load_theta(args.params, args.clamp)
-    _write_head(out, args.format, theta)
+    fmt = _format_for(out, args.format)
+    _check_output(out, args.force, inputs=[args.params])
+    theta, fit_arrays = _load_edit_params(args.params, args.clamp)
+    _write_output_file(out, args.force, [args.params], lambda tmp: _write_head(tmp, fmt, theta, fit_arrays=fit_arrays))
     print(f"wrote {out}")
     return EXIT_OK
 
@@ -169,10 +230,10 @@ def cmd_rig_export(args: argparse.Namespace) -> int:
 def cmd_rig_edit(args: argparse.Namespace) -> int:
     out = Path(args.out)
     fmt = _format_for(out, args.format)
-    _check_output(out, args.force)
-    theta = _load_theta(args.params, args.clamp)
-    _write_head(out, fmt, theta)
-    print(f"wrote {out}")
+    _check_output(out, args.force, inputs=[args.params])
+    theta, fit_arrays = _load_edit_params(args.params, args.clamp)
+    _write_output_file(out, args.force, [args.params], lambda tmp: _write_head(tmp, fmt, theta, fit_arrays=fit_arrays))
+    print(f"wrote {out}" + (" (the fitted head: joints, latent Z and expressions, rig space, mm)" if fit_arrays else ""))
     return EXIT_OK
 
 
@@ -182,68 +243,70 @@ def cmd_demo(args: argparse.Namespace) -> int:
     import numpy as np
     import torch
 
+    from pipeline.files import OutputError, check_output, staged_folder
     from rig.asset import build_asset, load_asset
     from rig.model import JointRig
     from rig.parameters import random_theta, save_params_json
 
     out = Path(args.out)
-    if out.exists() and not args.force:
-        raise CliError(f"output folder {out} exists; pass --force to replace it")
-    out.parent.mkdir(parents=True, exist_ok=True)
     config = _load_fit_photo_config(args)
+    try:
+        if not out.parent.exists():
+            out.parent.mkdir(parents=True)  # the README's command writes out/demo in a fresh clone
+        check_output(out, force=args.force, kind="folder")
+    except OutputError as exc:
+        raise CliError(str(exc)) from None
     steps = ["build", "export", "edit", "picture", "astronaut fit", "synthetic photo", "synthetic fit"]
     from tqdm import tqdm
 
     bar = tqdm(total=len(steps), desc="jnr demo", unit="step", disable=args.quiet)
-    stage = Path(tempfile.mkdtemp(prefix=".jnr-demo-", dir=out.parent))
     try:
-        t0 = time.perf_counter()
-        built = build_asset()
-        committed = load_asset()
-        rebuild_diff = float(np.abs(built.vertices - committed.vertices).max())
-        bar.update()
-        rig = JointRig(committed, dtype=torch.float64)
-        zero = torch.zeros(rig.num_parameters, dtype=torch.float64)
-        for fmt, ext in MESH_FORMATS.items():
-            _write_head(stage / f"template{ext}", fmt, zero, rig)
-        bar.update()
-        gen = torch.Generator().manual_seed(args.seed)
-        theta = random_theta(gen, 1, spread=args.spread, dtype=torch.float64)[0]
-        save_params_json(theta, stage / "edited_params.json")
-        for fmt, ext in (("obj", ".obj"), ("gltf", ".glb")):
-            _write_head(stage / f"edited{ext}", fmt, theta, rig)
-        bar.update()
-        from render.preview import render_preview, save_png
+        with staged_folder(out, args.force, marker={"command": "jnr demo"}) as stage:
+            t0 = time.perf_counter()
+            built = build_asset()
+            committed = load_asset()
+            rebuild_diff = float(np.abs(built.vertices - committed.vertices).max())
+            bar.update()
+            rig = JointRig(committed, dtype=torch.float64)
+            zero = torch.zeros(rig.num_parameters, dtype=torch.float64)
+            for fmt, ext in MESH_FORMATS.items():
+                _write_head(stage / f"template{ext}", fmt, zero, rig)
+            bar.update()
+            gen = torch.Generator().manual_seed(args.seed)
+            theta = random_theta(gen, 1, spread=args.spread, dtype=torch.float64)[0]
+            save_params_json(theta, stage / "edited_params.json")
+            for fmt, ext in (("obj", ".obj"), ("gltf", ".glb")):
+                _write_head(stage / f"edited{ext}", fmt, theta, rig)
+            bar.update()
+            from render.preview import render_preview, save_png
 
-        with torch.no_grad():
-            posed = rig(torch.stack([zero, theta])).vertices.numpy()
-        faces = committed.faces
-        tiles = [render_preview(v, faces, view=view, size=(360, 440), spp=args.spp, distance=700.0,
-                                target=(0.0, -20.0, 20.0)) for v in posed for view in ("front", "three_quarter")]
-        picture = np.concatenate([np.concatenate(tiles[:2], 1), np.concatenate(tiles[2:], 1)], 0)
-        save_png(picture, stage / "edited.png")
-        bar.update()
-        astronaut, synthetic = _demo_fits(stage, config, bar)
+            with torch.no_grad():
+                posed = rig(torch.stack([zero, theta])).vertices.numpy()
+            faces = committed.faces
+            tiles = [render_preview(v, faces, view=view, size=(360, 440), spp=args.spp, distance=700.0,
+                                    target=(0.0, -20.0, 20.0)) for v in posed for view in ("front", "three_quarter")]
+            picture = np.concatenate([np.concatenate(tiles[:2], 1), np.concatenate(tiles[2:], 1)], 0)
+            save_png(picture, stage / "edited.png")
+            bar.update()
+            astronaut, synthetic = _demo_fits(stage, config, bar)
+            summary = {
+                "output": str(out),
+                "rig": rig_info(),
+                "rebuild_max_difference_mm": rebuild_diff,
+                "seed": args.seed,
+                "edited_parameters": int((theta != 0).sum()),
+                "edit_max_displacement_mm": float(np.linalg.norm(posed[1] - posed[0], axis=1).max()),
+                "astronaut": {k: v.replace(str(stage), str(out)) if isinstance(v, str) else v
+                              for k, v in astronaut.items()},
+                "synthetic": {k: v.replace(str(stage), str(out)) if isinstance(v, str) else v
+                              for k, v in synthetic.items()},
+                "seconds": round(time.perf_counter() - t0, 2),
+            }
+            (stage / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    except OutputError as exc:
+        raise CliError(str(exc)) from None
+    finally:
         bar.close()
-        if out.exists():
-            shutil.rmtree(out)
-        os.replace(stage, out)
-    except BaseException:
-        bar.close()
-        shutil.rmtree(stage, ignore_errors=True)
-        raise
-    summary = {
-        "output": str(out),
-        "rig": rig_info(),
-        "rebuild_max_difference_mm": rebuild_diff,
-        "seed": args.seed,
-        "edited_parameters": int((theta != 0).sum()),
-        "edit_max_displacement_mm": float(np.linalg.norm(posed[1] - posed[0], axis=1).max()),
-        "astronaut": {k: v.replace(str(stage), str(out)) if isinstance(v, str) else v for k, v in astronaut.items()},
-        "synthetic": {k: v.replace(str(stage), str(out)) if isinstance(v, str) else v for k, v in synthetic.items()},
-        "seconds": round(time.perf_counter() - t0, 2),
-    }
-    (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     print(f"jnr demo: wrote {out}/ in {summary['seconds']:.0f} s")
     for name in sorted(p.name for p in out.iterdir()):
         print(f"  {name}{'/' if (out / name).is_dir() else ''}")
@@ -319,18 +382,20 @@ class _StageBars:
 
 
 def cmd_data_synth(args: argparse.Namespace) -> int:
-    from rig.population import write_population
+    from pipeline.files import OutputError, staged_folder
+    from rig.population import MANIFEST_NAME, write_population
 
     out = Path(args.out)
     bars = _StageBars(args.quiet)
     try:
-        manifest = write_population(out, seed=args.seed, splits=tuple(args.splits), file_format=args.format,
-                                    overwrite=args.force, progress=lambda d, t: bars("synthesising heads", d, t))
-    except FileExistsError:
-        raise CliError(f"output folder {out} exists and is not empty; pass --force to replace it") from None
+        with staged_folder(out, args.force, marker={"command": "jnr data synth"}) as tmp:
+            write_population(tmp, seed=args.seed, splits=tuple(args.splits), file_format=args.format,
+                             overwrite=True, progress=lambda d, t: bars("synthesising heads", d, t))
+    except OutputError as exc:
+        raise CliError(str(exc)) from None
     finally:
         bars.close()
-    print(f"wrote {manifest}")
+    print(f"wrote {out / MANIFEST_NAME}")
     return EXIT_OK
 
 
@@ -368,6 +433,8 @@ def cmd_train(args: argparse.Namespace) -> int:
 def cmd_eval_capacity(args: argparse.Namespace) -> int:
     from pipeline.evaluate import CapacitySettings, evaluate_capacity
 
+    if args.out:
+        _check_output(Path(args.out), args.force)
     settings = CapacitySettings(joint_iterations=args.joint_iterations, z_iterations=args.z_iterations,
                                 cycles=args.cycles, seed=args.seed)
     bars = _StageBars(args.quiet)
@@ -378,9 +445,7 @@ def cmd_eval_capacity(args: argparse.Namespace) -> int:
         bars.close()
     text = json.dumps(result, indent=2)
     if args.out:
-        out = Path(args.out)
-        _check_output(out, args.force)
-        out.write_text(text + "\n")
+        _write_output_file(Path(args.out), args.force, (), lambda tmp: tmp.write_text(text + "\n"))
     if args.json:
         print(text)
     else:
@@ -412,6 +477,7 @@ def cmd_fit_scan(args: argparse.Namespace) -> int:
     import numpy as np
 
     from landmarks.points3d import LandmarkError
+    from pipeline.files import OutputError, check_output
     from pipeline.pointcloud import (
         CloudError,
         read_landmarks3d,
@@ -423,10 +489,11 @@ def cmd_fit_scan(args: argparse.Namespace) -> int:
     from rig.asset import load_asset
 
     out = Path(args.out)
-    if out.exists() and not args.force:
-        raise CliError(f"output folder {out} exists; pass --force to replace it")
-    if not out.parent.is_dir():
-        raise CliError(f"the parent folder of {out} does not exist")
+    inputs = [p for p in (args.cloud, args.landmarks, args.config) if p]
+    try:
+        check_output(out, force=args.force, inputs=inputs)
+    except OutputError as exc:
+        raise CliError(str(exc)) from None
     config = _load_fit_scan_config(args)
     t0 = time.perf_counter()
     try:
@@ -446,9 +513,12 @@ def cmd_fit_scan(args: argparse.Namespace) -> int:
     except FloatingPointError as exc:
         raise CliError(str(exc), EXIT_FAILURE) from None
     distances = scan_to_mesh(cloud.points, fit.vertices, load_asset().faces)
-    write_scan_outputs(out, cloud, fit, distances, frame=args.frame, config=config, force=args.force,
-                       extra={"command": "jnr " + " ".join(sys.argv[1:]) if sys.argv[1:] else "jnr fit-scan",
-                              "wall_seconds": time.perf_counter() - t0})
+    try:
+        write_scan_outputs(out, cloud, fit, distances, frame=args.frame, config=config, force=args.force,
+                           extra={"command": "jnr " + " ".join(sys.argv[1:]) if sys.argv[1:] else "jnr fit-scan",
+                                  "wall_seconds": time.perf_counter() - t0}, inputs=tuple(inputs))
+    except OutputError as exc:
+        raise CliError(str(exc)) from None
     print(f"fitted {len(cloud.points)} points ({cloud.units}) in {fit.timings['total']:.1f} s; "
           f"scan-to-mesh median {np.median(distances):.2f} mm, mean {distances.mean():.2f} mm, "
           f"std {distances.std():.2f} mm")
@@ -456,24 +526,31 @@ def cmd_fit_scan(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp")
+IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp", ".gif", ".tif", ".tiff", ".webp", ".ppm", ".pgm", ".pnm")
+"""What ``jnr fit`` reads as photos, named directly or found in a folder (the same rule for both)."""
 
 
-def _photo_inputs(items: list[str]) -> list[Path]:
-    """Image files named directly, or found (non-recursively, sorted) in named folders."""
+def _photo_inputs(items: list[str]) -> tuple[list[Path], list[Path]]:
+    """``(photos, folders)``: image files named directly, or found (non-recursively, sorted) in named
+    folders; a file is a photo when its suffix is one of :data:`IMAGE_SUFFIXES`."""
     photos: list[Path] = []
+    folders: list[Path] = []
+    supported = ", ".join(IMAGE_SUFFIXES)
     for item in items:
         path = Path(item)
         if path.is_dir():
             found = sorted(p for p in path.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
             if not found:
-                raise CliError(f"folder {path} holds no images ({', '.join(IMAGE_SUFFIXES)})")
+                raise CliError(f"folder {path} holds no images ({supported})")
             photos.extend(found)
+            folders.append(path)
         elif path.is_file():
+            if path.suffix.lower() not in IMAGE_SUFFIXES:
+                raise CliError(f"{path} is not a photo jnr reads (the file name must end in one of {supported})")
             photos.append(path)
         else:
             raise CliError(f"image file not found: {path}")
-    return photos
+    return photos, folders
 
 
 LANDMARK_SUFFIXES = (".pts", ".json", ".csv")
@@ -504,82 +581,147 @@ def _load_fit_photo_config(args: argparse.Namespace):
 
 def fit_one_photo(photo_path: str | Path, out: str | Path, *, config=None, landmarks: str | None = None,
                   face: int | None = None, focal: float | None = None, force: bool = False,
-                  progress=None, command: str = "jnr fit") -> dict:
+                  progress=None, command: str = "jnr fit", inputs: tuple = ()) -> dict:
     """Detect (or read) the landmarks of one photo, fit it and write its output folder.
 
+    Everything that can be checked cheaply is checked before the fit: the output path (not an input,
+    not the working directory, writable; an existing one only with ``force`` and only if jnr wrote
+    it), the image (readable, at most :data:`landmarks.detect.MAX_IMAGE_PIXELS`), ``focal`` (within
+    :data:`pipeline.photo_camera.FOCAL_RANGE` times the longer side), the landmarks (a readable file
+    with 68 points, in or near the image, a face-like and not mirrored configuration). Photos longer
+    than :data:`landmarks.detect.WORKING_MAX_SIDE` are fitted reduced by a power of two; the outputs
+    give the camera and landmarks in the photo's own pixels.
+
+    Args:
+        inputs: more input paths the output must not be, contain or lie in (e.g. the photo's folder).
+
     Returns:
-        A summary dict (output folder, landmark error, timings).
+        A summary dict (output folder, landmark error in the photo's pixels, timings).
 
     Raises:
-        CliError: unreadable image, no face / bad ``face`` index, bad landmarks file, bad focal,
-            existing output without ``force`` (exit status 2); a diverged fit (1).
+        CliError: any of the above (exit status 2, nothing written); a diverged fit (1).
     """
-    from landmarks.detect import DetectionError, detect_landmarks, load_image
+    from landmarks.detect import DetectionError, detect_landmarks, load_working_image
     from landmarks.formats import LandmarkFileError, read_landmarks
+    from landmarks.plausibility import LandmarkPlausibilityError, check_landmarks_2d
+    from pipeline.files import OutputError, check_output
+    from pipeline.photo_camera import check_focal
     from pipeline.photo_fit import FitPhotoConfig, fit_photo
     from pipeline.photo_outputs import write_photo_outputs
     from rig.lbs import ShapeError
 
     t0 = time.perf_counter()
     photo_path, out = Path(photo_path), Path(out)
-    if out.exists() and not force:
-        raise CliError(f"output folder {out} exists; pass --force to replace it")
-    if not out.parent.is_dir():
-        raise CliError(f"the parent folder of {out} does not exist")
-    if focal is not None and not (focal > 0 and focal < 1e6):
-        raise CliError(f"--focal must be a focal length in pixels > 0, got {focal}")
+    if face is not None and landmarks:
+        raise CliError("--face picks one of the faces the detector finds; it cannot be used with --landmarks")
+    landmarks_path = _sidecar_landmarks(photo_path) if landmarks == "auto" else (Path(landmarks) if landmarks else None)
+    all_inputs = [photo_path, *([landmarks_path] if landmarks_path else []), *inputs]
     config = config or FitPhotoConfig()
     try:
-        image = load_image(photo_path)
-        detection = None
-        if landmarks == "auto":
-            landmarks = _sidecar_landmarks(photo_path)
-        if landmarks:
-            points = read_landmarks(landmarks)
-            source = {"landmarks": str(landmarks)}
+        check_output(out, force=force, inputs=all_inputs)
+        photo = load_working_image(photo_path)
+        width, height = photo.original_size
+        if focal is not None:
+            check_focal(focal, width, height)
+        if landmarks_path:
+            points = read_landmarks(landmarks_path)
+            check_landmarks_2d(points, width, height, source=str(landmarks_path))
+            points = photo.to_working(points)
+            source = {"landmarks": str(landmarks_path)}
         else:
-            detection = detect_landmarks(image, face=face)
+            detection = detect_landmarks(photo.image, face=face)
             points = detection.landmarks
-            source = {"landmarks": "dlib 68-point detector", "face_box": detection.box.tolist(),
-                      "face_score": detection.score, "face_index": 0 if face is None else face}
-        fit = fit_photo(image, points, focal=focal, config=config, progress=progress)
-    except (DetectionError, LandmarkFileError, ShapeError) as exc:
+            source = {"landmarks": "dlib 68-point detector", "face_box": photo.to_original(
+                detection.box.reshape(2, 2)).reshape(-1).tolist(), "face_score": detection.score,
+                      "face_index": 0 if face is None else face}
+    except (OutputError, LandmarkFileError, LandmarkPlausibilityError) as exc:
+        raise CliError(str(exc)) from None
+    except DetectionError as exc:
+        message = str(exc)
+        raise CliError(message if str(photo_path) in message else f"{photo_path}: {message}") from None
+    except ValueError as exc:  # the focal
+        raise CliError(str(exc)) from None
+    k = photo.factor
+    try:
+        fit = fit_photo(photo.image, points, focal=None if focal is None else focal / k, config=config,
+                        progress=progress)
+    except (DetectionError, ShapeError) as exc:
         raise CliError(f"{photo_path}: {exc}") from None
     except FloatingPointError as exc:
         raise CliError(f"{photo_path}: {exc}", EXIT_FAILURE) from None
     except ValueError as exc:
         raise CliError(f"{photo_path}: {exc}") from None
-    extra = {"input": {"photo": str(photo_path), "width": fit.width, "height": fit.height,
-                       "focal_px": fit.focal, "focal_source": "--focal" if focal else "default 1.4 * max(W, H)",
+    extra = {"input": {"photo": str(photo_path), "width": width, "height": height,
+                       "fitted_width": fit.width, "fitted_height": fit.height, "reduction": k,
+                       "focal_px": fit.focal * k, "focal_source": "--focal" if focal else "default 1.4 * max(W, H)",
                        **source},
              "command": command}
-    write_photo_outputs(out, image, fit, config=config, force=force, extra=extra)
-    return {"photo": str(photo_path), "output": str(out), "mean_error_px": float(fit.error_px.mean()),
+    try:
+        write_photo_outputs(out, photo.image, fit, config=config, force=force, extra=extra, inputs=all_inputs,
+                            image_factor=k, original_size=photo.original_size)
+    except OutputError as exc:
+        raise CliError(str(exc)) from None
+    return {"photo": str(photo_path), "output": str(out), "mean_error_px": float(fit.error_px.mean()) * k,
             "nme": float(fit.nme), "seconds": time.perf_counter() - t0, "fit_seconds": fit.timings["total"]}
 
 
 def _fit_worker(task: tuple) -> tuple[str, dict | None, str | None, int]:
     """One photo in a worker process: ``(photo, summary, error message, exit code)``."""
-    photo, out, config, landmarks, focal, force, threads, command = task
+    photo, out, config, landmarks, focal, force, threads, command, inputs = task
     import torch
+
+    from pipeline.signals import worker_task
 
     torch.set_num_threads(threads)
     try:
-        return photo, fit_one_photo(photo, out, config=config, landmarks=landmarks, focal=focal, force=force,
-                                    command=command), None, 0
+        with worker_task():
+            return photo, fit_one_photo(photo, out, config=config, landmarks=landmarks, focal=focal, force=force,
+                                        command=command, inputs=inputs), None, 0
     except CliError as exc:
         return photo, None, str(exc), exc.code
     except Exception as exc:  # noqa: BLE001 - reported per photo; the batch goes on
         return photo, None, f"{photo}: {type(exc).__name__}: {exc}", EXIT_FAILURE
 
 
+def _run_workers(tasks: list[tuple], jobs: int, bar) -> list[tuple]:
+    """Fit ``tasks`` in ``jobs`` spawned processes that die with this one: on an interrupt or SIGTERM here
+    they are terminated (and remove their staged outputs) before the exception goes on."""
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+
+    from pipeline.signals import stop_children, worker_init
+
+    results = []
+    pool = ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("spawn"), initializer=worker_init,
+                               initargs=(os.getpid(),))
+    try:
+        futures = [pool.submit(_fit_worker, t) for t in tasks]
+        for future in as_completed(futures):
+            results.append(future.result())
+            bar.update()
+    except BaseException:
+        pool.shutdown(wait=False, cancel_futures=True)
+        stop_children()
+        raise
+    pool.shutdown()
+    return results
+
+
 def cmd_fit(args: argparse.Namespace) -> int:
     """``jnr fit PHOTO... --out DIR``: single-photo reconstruction (see pipeline.photo_fit)."""
-    photos = _photo_inputs(args.photos)
+    from pipeline.files import OutputError, check_output, make_output_folder
+
+    if args.jobs is not None and args.jobs < 1:
+        raise CliError(f"--jobs must be at least 1, got {args.jobs}")
+    if args.focal is not None and not math.isfinite(args.focal):
+        raise CliError(f"--focal must be a number of pixels, got {args.focal}")
+    if args.face is not None and args.landmarks:
+        raise CliError("--face picks one of the faces the detector finds; it cannot be used with --landmarks")
+    photos, folders = _photo_inputs(args.photos)
     config = _load_fit_photo_config(args)
     out = Path(args.out)
     command = "jnr " + " ".join(sys.argv[1:]) if sys.argv[1:] else "jnr fit"
-    if len(photos) == 1 and not Path(args.photos[0]).is_dir():
+    if len(photos) == 1 and not folders:
         bars = _StageBars(args.quiet)
         try:
             summary = fit_one_photo(photos[0], out, config=config, landmarks=args.landmarks, face=args.face,
@@ -597,18 +739,21 @@ def cmd_fit(args: argparse.Namespace) -> int:
                        "(a .pts/.json/.csv file beside each photo) or detection")
     stems = [p.stem for p in photos]
     names = [s if stems.count(s) == 1 else f"{s}_{i}" for i, s in enumerate(stems)]
-    if out.exists() and not out.is_dir():
-        raise CliError(f"--out {out} exists and is not a folder")
-    clashes = [n for n in names if (out / n).exists()]
-    if clashes and not args.force:
-        raise CliError(f"output folder(s) {', '.join(str(out / n) for n in clashes[:3])} exist; pass --force "
-                       "to replace them")
-    if not out.parent.is_dir():
-        raise CliError(f"the parent folder of {out} does not exist")
-    out.mkdir(exist_ok=True)
+    inputs = [str(p) for p in (*photos, *folders)]
+    try:
+        created = make_output_folder(out, inputs=inputs)
+        try:
+            for n in names:
+                check_output(out / n, force=args.force, inputs=inputs)
+        except OutputError:
+            if created:
+                shutil.rmtree(out, ignore_errors=True)
+            raise
+    except OutputError as exc:
+        raise CliError(str(exc)) from None
     jobs = max(1, min(args.jobs or (os.cpu_count() or 1), len(photos)))
     threads = max(1, (os.cpu_count() or 1) // jobs)
-    tasks = [(str(p), str(out / n), config, args.landmarks, args.focal, args.force, threads, command)
+    tasks = [(str(p), str(out / n), config, args.landmarks, args.focal, args.force, threads, command, tuple(inputs))
              for p, n in zip(photos, names)]
     from tqdm import tqdm
 
@@ -620,16 +765,11 @@ def cmd_fit(args: argparse.Namespace) -> int:
                 results.append(_fit_worker(task))
                 bar.update()
         else:
-            import multiprocessing
-            from concurrent.futures import ProcessPoolExecutor, as_completed
-
-            with ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("spawn")) as pool:
-                futures = [pool.submit(_fit_worker, t) for t in tasks]
-                for future in as_completed(futures):
-                    results.append(future.result())
-                    bar.update()
+            results = _run_workers(tasks, jobs, bar)
     finally:
         bar.close()
+        if created and not any(r[1] for r in results):
+            shutil.rmtree(out, ignore_errors=True)  # nothing of ours in it
     results.sort(key=lambda r: [str(p) for p in photos].index(r[0]))
     failed = [r for r in results if r[2] is not None]
     for photo, summary, _, _ in results:
@@ -666,10 +806,11 @@ def cmd_data_scan(args: argparse.Namespace) -> int:
     camera = DepthCamera(640, 576, 504.0, 504.0, 320.0, 288.0) if args.hires else DepthCamera()
     asset = load_asset()
     scan = simulate_scan(vertices, asset.faces, rng=np.random.default_rng(args.seed), camera=camera)
-    write_point_cloud_ply(out, scan.points, normals=scan.normals)
     import trimesh
 
-    trimesh.Trimesh(scan.gt_vertices, asset.faces, process=False).export(truth)
+    _write_output_file(out, args.force, (), lambda tmp: write_point_cloud_ply(tmp, scan.points, normals=scan.normals))
+    _write_output_file(truth, args.force, (), lambda tmp: trimesh.Trimesh(scan.gt_vertices, asset.faces,
+                                                                           process=False).export(tmp))
     print(f"wrote {out} ({len(scan.points)} points, mm, +Y up) and the true head {truth}")
     return EXIT_OK
 
@@ -696,7 +837,7 @@ def _run_evaluation(args: argparse.Namespace, label: str, evaluate) -> int:
                "settings": result.settings}
     text = json.dumps(payload, indent=2, default=float)
     if args.out:
-        Path(args.out).write_text(text + "\n")
+        _write_output_file(Path(args.out), args.force, (), lambda tmp: tmp.write_text(text + "\n"))
     print(text if args.json else result.table_markdown())
     return EXIT_OK
 
@@ -764,8 +905,15 @@ def build_parser() -> argparse.ArgumentParser:
                     "landmarks (dlib), place a pinhole camera (--focal, default 1.4 x the image's larger side) "
                     "by solvePnP, fit the landmarks, then alternate joint / latent / expression stages with a "
                     "robust photometric loss on the face pixels (Mitsuba 3 on the CPU) and the landmarks.",
-        epilog="Inputs: one or more image files (.jpg .png .bmp .tif .webp) or folders of them. Several photos are "
-               "fitted in parallel processes (--jobs); each gets OUT/<name>/.\nOutputs: mesh.obj, mesh.ply "
+        epilog="Inputs: one or more image files (.jpg .jpeg .png .bmp .gif .tif .tiff .webp .ppm .pgm .pnm) or "
+               "folders of them. Several photos are fitted in parallel processes (--jobs); each gets "
+               "OUT/<name>/.\nLimits: images up to 120 megapixels; photos longer than 2048 px are fitted reduced "
+               "by a power of two (camera and landmarks are still written in the photo's pixels); --focal within "
+               "0.25-25 x the longer side; landmark files must look like a face in iBUG-68 order, in or near the "
+               "image, not mirrored.\nSafety: --out must not be, contain or lie in an input or the working "
+               "directory; --force replaces only a folder jnr wrote (it holds a .jnr-output file); outputs are "
+               "moved into place atomically, and nothing is left behind on an error, Ctrl-C or SIGTERM.\n"
+               "Outputs: mesh.obj, mesh.ply "
                "(rig space, mm, +Y up, vertex colours = albedo), mesh.glb (skinned glTF), params.json (joints "
                "by name, Z, expressions, camera, pose, light), overlay.png, render.png, landmarks.pts, "
                "report.json (landmark error in px and NME, losses per stage, timings).\nLandmarks: --landmarks "
@@ -777,13 +925,13 @@ def build_parser() -> argparse.ArgumentParser:
     fit.add_argument("--landmarks", metavar="FILE|auto",
                      help="68 landmarks file (.pts, .json, .csv) instead of detection (one photo); 'auto': the "
                           "file with the photo's name beside each photo (face.png -> face.pts), as in iBUG 300-W")
-    fit.add_argument("--face", type=int, help="which detected face, 0 = the largest (default: 0)")
+    fit.add_argument("--face", type=int, help="which detected face, 0 = the largest (default: 0; not with --landmarks)")
     fit.add_argument("--focal", type=float, help="focal length in pixels (default: 1.4 x max(width, height))")
     fit.add_argument("--landmarks-only", action="store_true", help="skip the photometric stages (~2 s a photo)")
     fit.add_argument("--config", help="YAML overriding the fitting settings (e.g. configs/fit_photo.yaml)")
     fit.add_argument("--set", action="append", metavar="KEY=VALUE", help="override one setting (repeatable)")
     fit.add_argument("--jobs", type=int, help="parallel processes for several photos (default: the CPU count)")
-    fit.add_argument("--force", action="store_true", help="replace output folders that exist")
+    fit.add_argument("--force", action="store_true", help="replace output folders that exist (only jnr's own)")
     fit.add_argument("--quiet", action="store_true", help="no progress bars")
     fit.set_defaults(func=cmd_fit)
 
@@ -955,28 +1103,61 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _format_warning(message, category, filename, lineno, line=None) -> str:
+    """Warnings as one line for users: no Python file, line number or source line."""
+    return f"warning: {message}"
+
+
 def main(argv: list[str] | None = None) -> int:
+    import signal
+    import threading
+    import warnings
+
+    from pipeline.signals import Terminated, terminate_as_exception
+
     parser = build_parser()
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, format="jnr: %(message)s")
     logging.captureWarnings(True)
+    warnings.formatwarning = _format_warning
+    from pipeline.files import OutputError
+    from render.backend import LLVMError
     from rig.asset import AssetError
     from rig.parameters import ParameterError
 
+    main_thread = threading.current_thread() is threading.main_thread()
+    previous = signal.getsignal(signal.SIGTERM) if main_thread else None
+    if main_thread:
+        terminate_as_exception()
     try:
         return args.func(args)
     except CliError as exc:
         print(f"jnr: error: {exc}", file=sys.stderr)
         return exc.code
-    except (ParameterError, FileNotFoundError, FileExistsError, IsADirectoryError) as exc:
-        print(f"jnr: error: {exc}", file=sys.stderr)
+    except (OutputError, ParameterError, FileNotFoundError, FileExistsError, IsADirectoryError,
+            NotADirectoryError, PermissionError) as exc:
+        print(f"jnr: error: {_one_line(exc)}", file=sys.stderr)
         return EXIT_USAGE
-    except (AssetError, OSError, ValueError) as exc:
-        print(f"jnr: error: {exc}", file=sys.stderr)
+    except (AssetError, LLVMError, OSError, ValueError) as exc:
+        print(f"jnr: error: {_one_line(exc)}", file=sys.stderr)
         return EXIT_FAILURE
     except KeyboardInterrupt:
-        print("jnr: interrupted", file=sys.stderr)
+        print("jnr: interrupted; nothing half-written was left behind", file=sys.stderr)
         return 130
+    except Terminated:
+        print("jnr: terminated (SIGTERM); nothing half-written was left behind", file=sys.stderr)
+        return 143
+    finally:
+        if main_thread:
+            signal.signal(signal.SIGTERM, previous if previous is not None else signal.SIG_DFL)
+
+
+def _one_line(exc: BaseException) -> str:
+    """An exception's message on one line (OSError: strerror and the file)."""
+    if isinstance(exc, OSError) and exc.strerror and exc.filename:
+        return f"{exc.filename}: {exc.strerror}"
+    text = " ".join(str(exc).split())
+    return text or type(exc).__name__
 
 
 if __name__ == "__main__":

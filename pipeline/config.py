@@ -8,6 +8,7 @@ same way.
 from __future__ import annotations
 
 import dataclasses
+import math
 import typing
 from pathlib import Path
 from typing import Any, TypeVar
@@ -72,6 +73,8 @@ def _coerce(hint, value, where: str):
             number = hint(value)
         except (TypeError, ValueError):
             raise ConfigError(f"{where}: expected {hint.__name__}, got {value!r}") from None
+        if not math.isfinite(number):
+            raise ConfigError(f"{where}: expected a finite number, got {value!r}")
         if hint is int and isinstance(value, float) and not value.is_integer():
             raise ConfigError(f"{where}: expected an integer, got {value!r}")
         return number
@@ -91,7 +94,10 @@ def parse_overrides(items: list[str] | None) -> dict:
         if "=" not in item:
             raise ConfigError(f"--set expects KEY=VALUE, got {item!r}")
         key, value = item.split("=", 1)
-        out[key.strip()] = yaml.safe_load(value)
+        try:
+            out[key.strip()] = yaml.safe_load(value)
+        except yaml.YAMLError as exc:
+            raise ConfigError(f"--set {item}: the value is not valid YAML ({_yaml_problem(exc)})") from None
     return out
 
 
@@ -113,7 +119,9 @@ def load_config(cls: type[T], path: str | Path | None = None, overrides: dict | 
         try:
             data = yaml.safe_load(path.read_text())
         except yaml.YAMLError as exc:
-            raise ConfigError(f"{path}: not valid YAML ({exc})") from exc
+            raise ConfigError(f"{path}: not valid YAML ({_yaml_problem(exc)})") from None
+        except UnicodeDecodeError:
+            raise ConfigError(f"{path}: not a text (YAML) file") from None
         data = data or {}
         if not isinstance(data, dict):
             raise ConfigError(f"{path}: expected a mapping of {cls.__name__} fields")
@@ -130,6 +138,13 @@ def load_config(cls: type[T], path: str | Path | None = None, overrides: dict | 
             node = child
         node[leaf] = value
     return _build(cls, values, cls.__name__ if path is None else str(path))
+
+
+def _yaml_problem(exc) -> str:
+    """A YAML error in one line: what and where (line, column; 1-based)."""
+    problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+    mark = getattr(exc, "problem_mark", None)
+    return f"{problem} at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else problem
 
 
 def config_to_dict(config) -> dict:

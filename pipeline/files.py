@@ -1,38 +1,336 @@
-"""Output folders written all at once, and JSON without NaN: shared by ``jnr fit`` and ``jnr fit-scan``."""
+"""Writing outputs without ever losing a user's file; JSON without NaN.
+
+Every output of the ``jnr`` commands goes through this module:
+
+* :func:`check_output` refuses, before any work is done, an output path that is, contains or lies
+  inside one of the command's inputs, or is (or contains) the working directory; an existing output
+  without ``force``; with ``force``, an existing folder that jnr did not write (it has no
+  :data:`OUTPUT_MARKER` file) or a folder where a file is expected; a parent folder that does not
+  exist, is not writable or has less than :data:`MIN_FREE_BYTES` free. Messages name the user's path.
+* :func:`staged_folder` / :func:`staged_file` write into a hidden temporary folder/file beside the
+  output and move it into place in one atomic step at the end: ``renameat2(RENAME_NOREPLACE)`` when
+  nothing may be replaced (a target that appeared meanwhile, e.g. from a second ``jnr`` process with
+  the same ``--out``, is refused, not overwritten) and ``RENAME_EXCHANGE`` (swap, then delete the old
+  one) with ``force``. On any error or signal (SIGINT, SIGTERM: see :func:`pipeline.signals`) the
+  temporary is removed and the old output is untouched.
+* Outputs get the user's umask permissions (``mkdtemp``/``mkstemp`` make 0700/0600).
+"""
 
 from __future__ import annotations
 
+import ctypes
+import ctypes.util
+import errno
+import json
 import math
+import os
 import shutil
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
+OUTPUT_MARKER = ".jnr-output"
+"""The file that marks a folder written by jnr; ``--force`` replaces only folders that hold it."""
+MIN_FREE_BYTES = 64 * 1024 * 1024
+"""An output's folder must have this much free space before a fit starts (its outputs are a few MB)."""
 
-@contextmanager
-def staged_folder(out_dir: str | Path, force: bool = False) -> Iterator[Path]:
-    """Write an output folder atomically: yields a temporary folder beside ``out_dir``; when the block
-    ends without an error it replaces ``out_dir``, otherwise it is removed and nothing is left behind.
+
+class OutputError(ValueError):
+    """An output path jnr refuses to write (message names the path and why); exit status 2."""
+
+
+class OutputExistsError(OutputError, FileExistsError):
+    """The output exists (and ``force`` was not given), or appeared while jnr was writing it."""
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+def _resolved(path: str | Path) -> Path:
+    return Path(os.path.realpath(os.path.abspath(os.fspath(path))))
+
+
+def _inside(child: Path, parent: Path) -> bool:
+    """``child`` is ``parent`` or lies below it (both resolved)."""
+    return child == parent or parent in child.parents
+
+
+def _check_paths(out: Path, inputs: Iterable[str | Path], option: str) -> None:
+    """Refuse an output that is, contains or lies inside an input, or is/contains the working directory."""
+    real = _resolved(out)
+    cwd = _resolved(Path.cwd())
+    if _inside(cwd, real):
+        what = "is" if real == cwd else "contains"
+        raise OutputError(f"{option} {out} {what} the working directory; choose a new folder for the output")
+    for item in inputs:
+        source = _resolved(item)
+        if real == source:
+            raise OutputError(f"{option} {out} is the input {item}; choose another output path")
+        if _inside(source, real):
+            raise OutputError(f"{option} {out} contains the input {item}; choose another output path")
+        if Path(item).is_dir() and _inside(real, source):
+            raise OutputError(f"{option} {out} lies inside the input folder {item}; choose another output path")
+
+
+def check_output(out: str | Path, *, force: bool = False, inputs: Iterable[str | Path] = (),
+                 kind: str = "folder", option: str = "--out") -> Path:
+    """Check an output path before any work is done (module docstring); returns it as given.
+
+    Args:
+        out: the output folder (``kind="folder"``) or file (``kind="file"``).
+        force: an existing output may be replaced (a folder only if jnr wrote it).
+        inputs: the command's input files and folders.
+        option: how the user named the output, for messages.
 
     Raises:
-        FileExistsError: ``out_dir`` exists and ``force`` is false.
-        FileNotFoundError: the parent folder of ``out_dir`` does not exist.
+        OutputError: the output is refused (one line that says why).
+    """
+    if kind not in ("folder", "file"):
+        raise ValueError(f"check_output: kind must be 'folder' or 'file', got {kind!r}")
+    out = Path(out)
+    _check_paths(out, inputs, option)
+    if out.is_symlink() or out.exists():
+        if not force:
+            noun = "folder" if out.is_dir() else "file"
+            raise OutputExistsError(f"output {noun} {out} exists; pass --force to replace it")
+        if kind == "folder":
+            if not out.is_dir() or out.is_symlink():
+                raise OutputError(f"{option} {out} exists and is not a folder; jnr will not replace it")
+            if not (out / OUTPUT_MARKER).is_file():
+                raise OutputError(f"{option} {out} is a folder jnr did not write (no {OUTPUT_MARKER} file in it); "
+                                  "--force replaces only jnr's own outputs: remove it yourself or choose another")
+        elif out.is_dir() or not out.is_file():
+            raise OutputError(f"{option} {out} exists and is not a regular file; jnr will not replace it")
+    parent = out.parent if str(out.parent) else Path(".")
+    if not parent.is_dir():
+        raise OutputError(f"the folder of {option} {out} does not exist ({parent})")
+    check_writable(parent, what=f"{option} {out}")
+    return out
+
+
+def check_writable(folder: str | Path, *, what: str | None = None, free_bytes: int = MIN_FREE_BYTES) -> None:
+    """Prove that files can be created in ``folder`` (creates and removes a hidden temporary folder,
+    which also works as root and on read-only or virtual file systems) and that it has ``free_bytes``.
+
+    Raises:
+        OutputError: not writable, or too little free space.
+    """
+    folder = Path(folder)
+    what = what or str(folder)
+    try:
+        probe = tempfile.mkdtemp(prefix=".jnr-probe-", dir=folder)
+        os.rmdir(probe)
+    except OSError as exc:
+        raise OutputError(f"cannot write {what}: {exc.strerror or exc} ({folder})") from None
+    try:
+        free = shutil.disk_usage(folder).free
+    except OSError:
+        return
+    if free < free_bytes:
+        raise OutputError(f"cannot write {what}: only {free / 2**20:.0f} MB free in {folder} "
+                          f"(jnr needs {free_bytes / 2**20:.0f} MB)")
+
+
+# ---------------------------------------------------------------------------------------- atomic renames
+
+_RENAME_NOREPLACE, _RENAME_EXCHANGE = 1, 2
+_AT_FDCWD = -100
+
+
+def _renameat2():
+    """libc's ``renameat2`` (Linux, glibc >= 2.28), or None."""
+    if not hasattr(_renameat2, "fn"):
+        fn = None
+        try:
+            libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
+            fn = libc.renameat2
+            fn.argtypes = [ctypes.c_int, ctypes.c_char_p, ctypes.c_int, ctypes.c_char_p, ctypes.c_uint]
+            fn.restype = ctypes.c_int
+        except (OSError, AttributeError):
+            fn = None
+        _renameat2.fn = fn
+    return _renameat2.fn
+
+
+def _rename(src: Path, dst: Path, flags: int) -> None:
+    fn = _renameat2()
+    if fn is None:
+        raise OSError(errno.ENOSYS, "renameat2 is not available")
+    if fn(_AT_FDCWD, os.fsencode(src), _AT_FDCWD, os.fsencode(dst), flags) != 0:
+        code = ctypes.get_errno()
+        raise OSError(code, os.strerror(code), str(dst))
+
+
+def _move_into_place(tmp: Path, out: Path, force: bool, kind: str) -> None:
+    """Atomically move ``tmp`` to ``out``; never replaces something that is not allowed to be replaced."""
+    appeared = OutputExistsError(f"output {out} appeared while jnr was writing it (another process?); "
+                           "it was not replaced and nothing was written")
+    exists = out.is_symlink() or out.exists()
+    if exists and not force:
+        raise appeared
+    if exists:
+        if kind == "folder" and not (out.is_dir() and (out / OUTPUT_MARKER).is_file()):
+            raise OutputError(f"output {out} changed while jnr was writing it and is no longer a jnr output "
+                              "folder; it was not replaced")
+        try:
+            _rename(tmp, out, _RENAME_EXCHANGE)  # tmp now holds the old output
+        except OSError as exc:
+            if exc.errno not in (errno.ENOSYS, errno.EINVAL, errno.ENOENT):
+                raise
+            if exc.errno == errno.ENOENT:  # removed meanwhile: a plain no-replace move
+                return _move_into_place(tmp, out, force=False, kind=kind)
+            # No exchange here: move the old one aside, then the new one in.
+            aside = Path(tempfile.mkdtemp(prefix=f".{out.name}.old.", dir=out.parent))
+            os.rename(out, aside / "old")
+            try:
+                os.rename(tmp, out)
+            except BaseException:
+                os.rename(aside / "old", out)
+                shutil.rmtree(aside, ignore_errors=True)
+                raise
+            shutil.rmtree(aside, ignore_errors=True)
+            return None
+        shutil.rmtree(tmp, ignore_errors=True) if tmp.is_dir() else tmp.unlink(missing_ok=True)
+        return None
+    try:
+        _rename(tmp, out, _RENAME_NOREPLACE)
+    except OSError as exc:
+        if exc.errno == errno.EEXIST:
+            raise appeared from None
+        if exc.errno not in (errno.ENOSYS, errno.EINVAL):
+            raise
+        # No renameat2 (or a file system without it): link() for files fails on an existing target;
+        # rename() of a folder fails on a non-empty one.
+        if kind == "file":
+            try:
+                os.link(tmp, out)
+            except FileExistsError:
+                raise appeared from None
+            os.unlink(tmp)
+        else:
+            if out.exists():
+                raise appeared from None
+            os.rename(tmp, out)
+    return None
+
+
+def _remove(path: Path) -> None:
+    if path.is_dir() and not path.is_symlink():
+        shutil.rmtree(path, ignore_errors=True)
+    elif path.exists() or path.is_symlink():
+        path.unlink(missing_ok=True)
+
+
+def _write_error(exc: OSError, out: Path) -> OutputError:
+    """An OSError while writing, reported with the user's path instead of the temporary one (our own
+    :class:`OutputExistsError`, also an OSError, is passed on as it is)."""
+    if isinstance(exc, OutputError):
+        return exc
+    return OutputError(f"cannot write {out}: {exc.strerror or exc}")
+
+
+@contextmanager
+def staged_folder(out_dir: str | Path, force: bool = False, *, inputs: Iterable[str | Path] = (),
+                  marker: dict | None = None) -> Iterator[Path]:
+    """Write an output folder atomically (module docstring).
+
+    Yields a hidden temporary folder beside ``out_dir``; when the block ends without an error the
+    :data:`OUTPUT_MARKER` file is added and the folder is moved into place atomically; on an error, a
+    signal or an interrupt it is removed and nothing is left behind.
+
+    Args:
+        out_dir: the output folder.
+        force: replace an existing jnr output folder.
+        inputs: the command's inputs (an output that is, contains or lies in one is refused).
+        marker: what to record in the marker file (e.g. the command).
+
+    Raises:
+        OutputError: the output is refused (:func:`check_output`), appeared meanwhile, or cannot be
+            written (the message names ``out_dir``, not the temporary folder).
     """
     out_dir = Path(out_dir)
-    if out_dir.exists() and not force:
-        raise FileExistsError(f"output folder {out_dir} exists; pass --force to replace it")
-    if not out_dir.parent.is_dir():
-        raise FileNotFoundError(f"the parent folder of {out_dir} does not exist")
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", suffix=".tmp", dir=out_dir.parent))
+    check_output(out_dir, force=force, inputs=inputs, kind="folder")
     try:
-        yield tmp
-        if out_dir.exists():
-            shutil.rmtree(out_dir) if out_dir.is_dir() else out_dir.unlink()
-        tmp.rename(out_dir)
+        tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", suffix=".tmp", dir=out_dir.parent))
+    except OSError as exc:
+        raise _write_error(exc, out_dir) from None
+    try:
+        try:
+            yield tmp
+            (tmp / OUTPUT_MARKER).write_text(json.dumps({"written_by": "jnr", **(marker or {})}) + "\n")
+            os.chmod(tmp, 0o777 & ~_umask())
+        except OSError as exc:
+            raise _write_error(exc, out_dir) from None
+        try:
+            _move_into_place(tmp, out_dir, force, "folder")
+        except OSError as exc:
+            raise _write_error(exc, out_dir) from None
     except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
+        _remove(tmp)
         raise
+
+
+@contextmanager
+def staged_file(out: str | Path, force: bool = False, *, inputs: Iterable[str | Path] = ()) -> Iterator[Path]:
+    """Write one output file atomically: yields a hidden temporary path beside ``out`` with the same
+    suffix (writers pick the format from it); moved into place when the block succeeds (refusing a
+    file that appeared meanwhile unless ``force``), removed otherwise.
+
+    Raises:
+        OutputError: as :func:`staged_folder`.
+    """
+    out = Path(out)
+    check_output(out, force=force, inputs=inputs, kind="file")
+    try:
+        fd, name = tempfile.mkstemp(prefix=f".{out.stem}.", suffix=f".tmp{out.suffix}", dir=out.parent)
+        os.close(fd)
+    except OSError as exc:
+        raise _write_error(exc, out) from None
+    tmp = Path(name)
+    try:
+        try:
+            yield tmp
+            os.chmod(tmp, 0o666 & ~_umask())
+            _move_into_place(tmp, out, force, "file")
+        except OSError as exc:
+            raise _write_error(exc, out) from None
+    except BaseException:
+        _remove(tmp)
+        raise
+
+
+def make_output_folder(out: str | Path, *, inputs: Iterable[str | Path] = ()) -> bool:
+    """Create the folder that holds several outputs (``jnr fit FOLDER --out DIR``); an existing folder
+    is kept as it is (its sub-folders are checked one by one). It is not marked as a jnr output, so
+    that ``--force`` never replaces it as a whole. Returns whether it was created (so that an empty one
+    can be removed if every fit fails).
+
+    Raises:
+        OutputError: ``out`` is refused or exists and is not a folder.
+    """
+    out = Path(out)
+    _check_paths(out, inputs, "--out")
+    existed = out.exists() or out.is_symlink()
+    if existed and not out.is_dir():
+        raise OutputError(f"--out {out} exists and is not a folder")
+    if existed:
+        check_writable(out, what=f"--out {out}")
+        return False
+    parent = out.parent if str(out.parent) else Path(".")
+    if not parent.is_dir():
+        raise OutputError(f"the folder of --out {out} does not exist ({parent})")
+    check_writable(parent, what=f"--out {out}")
+    try:
+        out.mkdir()
+    except FileExistsError:
+        return False
+    except OSError as exc:
+        raise _write_error(exc, out) from None
+    return True
 
 
 def json_safe(obj):

@@ -20,6 +20,8 @@ the only place where the axis flip :data:`RIG_TO_OPENCV` is applied (:func:`came
 
 from __future__ import annotations
 
+import math
+
 import cv2
 import numpy as np
 import torch
@@ -34,6 +36,38 @@ the camera: the camera looks along rig -Z, so y and z flip."""
 
 DEFAULT_DISTANCE_MM = 600.0
 """Initial camera-to-head distance of the iterative PnP (a portrait at arm's length)."""
+
+
+FOCAL_RANGE = (0.25, 25.0)
+"""Accepted focal lengths, as multiples of the photo's longer side: a horizontal field of view from about
+127 degrees (wider than any rectilinear phone or DSLR lens; fisheye photos are not pinhole images) down
+to about 2.3 degrees (an 800 mm lens on full frame). A focal outside it is a mistake (``--focal 1`` puts
+the head ~150 m away), not a camera."""
+
+
+def check_focal(focal: float, width: int, height: int) -> float:
+    """Check a focal length in pixels against :data:`FOCAL_RANGE` for a ``width x height`` photo.
+
+    Returns:
+        ``focal`` as a float.
+
+    Raises:
+        ValueError: not a finite number in the range; the message gives the range in pixels.
+
+    Example:
+        >>> check_focal(896.0, 640, 480)
+        896.0
+    """
+    low, high = (r * float(max(width, height)) for r in FOCAL_RANGE)
+    try:
+        value = float(focal)
+    except (TypeError, ValueError):
+        raise ValueError(f"--focal must be a number of pixels, got {focal!r}") from None
+    if not (math.isfinite(value) and low <= value <= high):
+        raise ValueError(f"--focal {focal:g} px is outside {low:g}-{high:g} px, the range jnr accepts for this "
+                         f"{width} x {height} photo ({FOCAL_RANGE[0]:g}-{FOCAL_RANGE[1]:g} x its longer side; the "
+                         f"default is 1.4 x)")
+    return value
 
 
 def default_focal(width: int, height: int) -> float:

@@ -60,7 +60,7 @@ from .landmark_fit import (
     landmark_errors,
     rig_prior,
 )
-from .photo_camera import camera_direction_to_rig, default_focal, make_camera
+from .photo_camera import camera_direction_to_rig, check_focal, default_focal, make_camera
 from .rig_state import FREE_GROUPS
 from .scan_fit import FACE_REGIONS, Stage
 
@@ -370,7 +370,7 @@ def fit_photo(image, landmarks2d, *, focal: float | None = None, config: FitPhot
     photo = _check_image(image)
     lm = _check_landmarks(landmarks2d)
     height, width = photo.shape[:2]
-    focal = default_focal(width, height) if focal is None else float(focal)
+    focal = default_focal(width, height) if focal is None else check_focal(focal, width, height)
     rig = rig or JointRig()
     if config.landmarks.use_neural and neural is None:
         neural, _ = load_neural(rig)

@@ -39,7 +39,7 @@ from rig.parameters import theta_to_params
 
 from .colour import linear_to_srgb
 from .config import config_to_dict
-from .files import json_safe, staged_folder
+from .files import check_output, json_safe, staged_folder
 from .photo_camera import camera_from_head_pose
 from .photo_fit import FitPhotoConfig, PhotoFit
 from .scan_outputs import rig_vertices_from_params
@@ -51,10 +51,12 @@ INPUT_COLOUR = (40, 220, 60)
 FIT_COLOUR = (235, 40, 40)
 
 
-def params_payload(fit: PhotoFit) -> dict:
-    """The ``params.json`` content of a fit."""
+def params_payload(fit: PhotoFit, image_factor: int = 1, original_size: tuple[int, int] | None = None) -> dict:
+    """The ``params.json`` content of a fit; the camera in the photo file's pixels when the fit ran on
+    the photo reduced by ``image_factor`` (working pixel ``x`` is file pixel ``f x + (f - 1) / 2``)."""
     from scipy.spatial.transform import Rotation
 
+    f = int(image_factor)
     k = fit.camera.intrinsics[0].double().numpy()
     return {
         "format": PARAMS_FORMAT,
@@ -64,8 +66,10 @@ def params_payload(fit: PhotoFit) -> dict:
         "expressions": {n: float(c) for n, c in zip(EXPRESSION_NAMES, fit.expressions)},
         "camera": {
             "description": "pinhole, OpenCV axes (x right, y down, z forward); x_cam = extrinsics @ [x_rig, 1]",
-            "width": int(fit.width), "height": int(fit.height), "focal_px": float(fit.focal),
-            "principal_point_px": [float(k[0, 2]), float(k[1, 2])],
+            "width": int(original_size[0] if original_size else fit.width),
+            "height": int(original_size[1] if original_size else fit.height), "focal_px": float(fit.focal) * f,
+            "principal_point_px": [float(k[0, 2]) * f + (f - 1) / 2, float(k[1, 2]) * f + (f - 1) / 2],
+            "fitted_at_reduction": f,
             "extrinsics_rig_to_camera": camera_from_head_pose(fit.rotation, fit.translation).tolist(),
         },
         "pose": {
@@ -156,14 +160,18 @@ def _save_png(image: np.ndarray, path: Path) -> None:
     Image.fromarray(np.ascontiguousarray(image)).save(path)
 
 
-def report_payload(fit: PhotoFit, *, config: FitPhotoConfig | None = None, extra: dict | None = None) -> dict:
-    """The ``report.json`` content of a fit (without the input description, see ``extra``)."""
+def report_payload(fit: PhotoFit, *, config: FitPhotoConfig | None = None, extra: dict | None = None,
+                   image_factor: int = 1) -> dict:
+    """The ``report.json`` content of a fit (without the input description, see ``extra``); pixel errors
+    in the photo file's pixels (the fit's ones times ``image_factor``)."""
     lfit = fit.landmark_fit
+    f = float(image_factor)
     report = {
         "landmarks": {
-            "mean_error_px": float(fit.error_px.mean()), "median_error_px": float(np.median(fit.error_px)),
-            "max_error_px": float(fit.error_px.max()), "nme_inter_ocular": float(fit.nme),
-            "landmark_fit_mean_error_px": float(lfit.error_px.mean()), "landmark_fit_nme": float(lfit.nme),
+            "mean_error_px": f * float(fit.error_px.mean()), "median_error_px": f * float(np.median(fit.error_px)),
+            "max_error_px": f * float(fit.error_px.max()), "nme_inter_ocular": float(fit.nme),
+            "landmark_fit_mean_error_px": f * float(lfit.error_px.mean()), "landmark_fit_nme": float(lfit.nme),
+            "fitted_at_reduction": int(image_factor),
         },
         "landmark_stages": lfit.losses,
         "photometric_stages": [dict(s.__dict__, free=list(s.free), light_direction_camera=list(s.light_direction_camera))
@@ -178,7 +186,8 @@ def report_payload(fit: PhotoFit, *, config: FitPhotoConfig | None = None, extra
 
 def write_photo_outputs(out_dir: str | Path, photo: np.ndarray, fit: PhotoFit, *,
                         config: FitPhotoConfig | None = None, force: bool = False, extra: dict | None = None,
-                        spp: int = 16) -> Path:
+                        spp: int = 16, inputs: tuple = (), image_factor: int = 1,
+                        original_size: tuple[int, int] | None = None) -> Path:
     """Write the output folder of a fit (see the module docstring) atomically.
 
     Args:
@@ -188,18 +197,23 @@ def write_photo_outputs(out_dir: str | Path, photo: np.ndarray, fit: PhotoFit, *
         config: the settings used (recorded in ``report.json``).
         extra: more entries for ``report.json`` (e.g. the input file, the detection).
         spp: samples per pixel of ``render.png`` / ``overlay.png``.
+        inputs: the command's input files (an output that is, contains or lies in one is refused).
+        image_factor: ``k`` when the photo was fitted reduced by ``k``
+            (:class:`landmarks.detect.LoadedImage`): ``params.json``'s camera, ``landmarks.pts`` and the
+            pixel errors of ``report.json`` are given in the photo file's pixels; ``overlay.png`` and
+            ``render.png`` are at the reduced size.
+        original_size: ``(W, H)`` of the photo file (default: the fitted image's size).
 
     Raises:
-        FileExistsError: ``out_dir`` exists and ``force`` is false.
-        FileNotFoundError: the parent folder does not exist.
+        pipeline.files.OutputError: ``out_dir`` is refused (exists without ``force``, not jnr's, an
+            input; :class:`~pipeline.files.OutputExistsError` when it exists) or cannot be written.
     """
     from landmarks.formats import write_landmarks
     from rig.export import export_mesh, export_skinned_gltf
     from rig.expressions import ExpressionModel
 
     out_dir = Path(out_dir)
-    if out_dir.exists() and not force:  # before the rendering below
-        raise FileExistsError(f"output folder {out_dir} exists; pass --force to replace it")
+    check_output(out_dir, force=force, inputs=inputs)  # before the rendering below
     asset = load_asset()
     colours = np.clip(np.round(linear_to_srgb(fit.albedo) * 255.0), 0, 255).astype(np.uint8)
     render, mask = render_fit(fit, spp=spp)
@@ -210,16 +224,17 @@ def write_photo_outputs(out_dir: str | Path, photo: np.ndarray, fit: PhotoFit, *
         weights = load_neural(rig)[0](torch.as_tensor(fit.z)[None])[0].numpy()
         tau = rig.channel_transforms(torch.as_tensor(fit.theta)[None])[0].numpy()
 
-    with staged_folder(out_dir, force) as tmp:
+    with staged_folder(out_dir, force, inputs=inputs, marker={"command": (extra or {}).get("command")}) as tmp:
         export_mesh(tmp / "mesh.obj", fit.rig_vertices, asset.faces, face_uvs=asset.face_uvs, vertex_colors=colours)
         export_mesh(tmp / "mesh.ply", fit.rig_vertices, asset.faces, vertex_colors=colours)
         export_skinned_gltf(tmp / "mesh.glb", rest, asset.faces, joint_names=list(asset.joint_names),
                             parents=asset.parents, joint_positions=asset.joint_positions, weights=weights,
                             face_uvs=asset.face_uvs, vertex_colors=colours, joint_transforms=tau)
-        (tmp / "params.json").write_text(json.dumps(params_payload(fit), indent=2) + "\n")
+        (tmp / "params.json").write_text(json.dumps(params_payload(fit, image_factor, original_size), indent=2) + "\n")
         _save_png(np.clip(np.round(linear_to_srgb(render) * 255), 0, 255).astype(np.uint8), tmp / "render.png")
         _save_png(overlay_image(photo, render, mask, fit.landmarks2d, fit.landmarks_px), tmp / "overlay.png")
-        write_landmarks(tmp / "landmarks.pts", fit.landmarks2d)
-        report = report_payload(fit, config=config, extra=extra)
+        k = image_factor
+        write_landmarks(tmp / "landmarks.pts", np.asarray(fit.landmarks2d, float) * k + (k - 1) / 2)
+        report = report_payload(fit, config=config, extra=extra, image_factor=k)
         (tmp / "report.json").write_text(json.dumps(report, indent=2) + "\n")
     return out_dir

@@ -123,9 +123,32 @@ def rig_vertices_from_params(params: dict, *, rig: JointRig | None = None, use_n
     return head_vertices(rig, load_neural(rig)[0] if use_neural else None, theta.numpy(), z, c.numpy())
 
 
+def head_arrays_from_params(params: dict, *, rig: JointRig | None = None
+                            ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """What a fit's head is made of, from its ``params.json``: ``(posed (V, 3) mm, rest (V, 3) mm with the
+    expressions applied, skinning weights (V, J) of its latent Z, joint channel transforms (J, 4, 4))``;
+    skinning ``rest`` with ``weights`` and the transforms gives ``posed`` (as the skinned glTF does).
+
+    Raises:
+        ValueError: as :func:`rig_vertices_from_params`.
+    """
+    from rig.expressions import ExpressionModel
+
+    rig = rig if rig is not None and rig.template.dtype == torch.float64 else JointRig(dtype=torch.float64)
+    posed = rig_vertices_from_params(params, rig=rig)
+    theta = params_to_theta(params["joints"], dtype=torch.float64)
+    c = coefficients_from_dict(params["expressions"], dtype=torch.float64)
+    z = torch.as_tensor(np.asarray(params["latent_z"], np.float64))
+    with torch.no_grad():
+        rest = ExpressionModel(rig.asset, dtype=torch.float64).vertices(c[None])[0].numpy()
+        weights = load_neural(rig)[0](z[None])[0].numpy()
+        tau = rig.channel_transforms(theta[None])[0].numpy()
+    return posed, rest, weights, tau
+
+
 def write_scan_outputs(out_dir: str | Path, cloud: PointCloud, fit: ScanFit, distances: np.ndarray, *,
                        frame: str = "y-up", config: FitScanConfig | None = None, force: bool = False,
-                       extra: dict | None = None) -> Path:
+                       extra: dict | None = None, inputs: tuple = ()) -> Path:
     """Write the output folder of a fit (see the module docstring) atomically.
 
     Args:
@@ -133,9 +156,11 @@ def write_scan_outputs(out_dir: str | Path, cloud: PointCloud, fit: ScanFit, dis
         cloud: the fitted cloud (rig frame, mm); frame: the input's frame (``y-up`` or ``opencv``).
         distances: ``(N,)`` distance of every cloud point to the fitted mesh, mm.
         extra: more entries for ``report.json`` (e.g. the command line).
+        inputs: the command's input files (an output that is, contains or lies in one is refused).
 
     Raises:
-        FileExistsError: ``out_dir`` exists and ``force`` is false.
+        pipeline.files.OutputError: ``out_dir`` is refused (exists without ``force``, not jnr's, an input)
+            or cannot be written.
     """
     import trimesh
 
@@ -145,7 +170,7 @@ def write_scan_outputs(out_dir: str | Path, cloud: PointCloud, fit: ScanFit, dis
     def back(points: np.ndarray) -> np.ndarray:
         return to_rig_frame(np.asarray(points, float), frame) / cloud.scale_to_mm
 
-    with staged_folder(out_dir, force) as tmp:
+    with staged_folder(out_dir, force, inputs=inputs, marker={"command": (extra or {}).get("command")}) as tmp:
         mesh = trimesh.Trimesh(back(fit.vertices), faces, process=False)
         mesh.export(tmp / "mesh.ply")
         mesh.export(tmp / "mesh.obj")

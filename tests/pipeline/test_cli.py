@@ -6,6 +6,7 @@ import torch
 import trimesh
 
 from pipeline.cli import main
+from tests.pipeline.conftest import fast_fit_args
 from rig.export import read_skinned_gltf
 from rig.parameters import params_to_theta
 
@@ -125,27 +126,8 @@ def test_demo_writes_everything(capsys, tmp_path):
 # jnr fit PHOTO
 # ----------------------------------------------------------------------------------------------------
 
-@pytest.fixture(scope="module")
-def photo_dir(tmp_path_factory):
-    """Two small synthetic photos with their landmarks beside them (face.png + face.pts), one corrupt file."""
-    import shutil
-
-    from pipeline.synthetic_photos import PhotoSettings, synthetic_photo, write_synthetic_photo
-
-    root = tmp_path_factory.mktemp("photos")
-    settings = PhotoSettings(width=128, height=128, spp=4, offset_px=4)
-    for i in (0, 1):
-        src = write_synthetic_photo(synthetic_photo(i, seed=5, settings=settings), root / f"src{i}")
-        shutil.copy(src / "photo.png", root / f"face{i}.png")
-        shutil.copy(src / "landmarks.pts", root / f"face{i}.pts")
-        shutil.rmtree(src)
-    return root
-
-
 def _fast(*extra):
-    """Settings that keep a CLI fit to a few seconds."""
-    return ["--landmarks-only", "--set", "landmarks.stages=[{name: a, free: [pose, joints], iterations: 5}]",
-            "--quiet", *extra]
+    return fast_fit_args(*extra)
 
 
 def test_fit_one_photo_with_a_landmarks_file(capsys, tmp_path, photo_dir):

@@ -194,7 +194,9 @@ def test_outputs_reload_to_the_same_mesh(known_photo, known_fit, tmp_path):
     from rig.export import read_skinned_gltf
 
     out = write_photo_outputs(tmp_path / "fit", known_photo.image, known_fit, config=_short_config(), spp=2)
-    assert sorted(p.name for p in out.iterdir()) == sorted(OUTPUT_FILES)
+    from pipeline.files import OUTPUT_MARKER
+
+    assert sorted(p.name for p in out.iterdir()) == sorted((*OUTPUT_FILES, OUTPUT_MARKER))
     assert np.abs(mesh_from_photo_params(out / "params.json") - known_fit.rig_vertices).max() < 1e-3
     # the camera frame: projecting the mesh with the params' camera puts the landmarks where the fit says
     cam_points = mesh_from_photo_params(out / "params.json", frame="camera")

@@ -1,0 +1,98 @@
+"""SIGTERM handled like Ctrl-C, and worker processes that die with their parent.
+
+SIGINT raises :class:`KeyboardInterrupt`; :func:`terminate_as_exception` makes SIGTERM raise
+:class:`Terminated`, so the same ``try/finally`` blocks (the staged output folders of
+:mod:`pipeline.files`) clean up in both cases. Worker processes (``jnr fit FOLDER --jobs N``) call
+:func:`worker_init`: they get SIGTERM when their parent dies (Linux ``PR_SET_PDEATHSIG``), and the
+parent terminates them when it is interrupted (:func:`stop_children`).
+"""
+
+from __future__ import annotations
+
+import ctypes
+import ctypes.util
+import os
+import signal
+import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
+
+_PR_SET_PDEATHSIG = 1
+
+
+class Terminated(BaseException):
+    """Raised in the main thread by SIGTERM (a BaseException, so ``except Exception`` does not swallow it)."""
+
+
+def _raise_terminated(signum, frame) -> None:
+    # A second SIGTERM must not interrupt the clean-up the first one started.
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    raise Terminated(f"terminated by signal {signum}")
+
+
+def terminate_as_exception() -> None:
+    """Make SIGTERM raise :class:`Terminated` in the main thread (call from the main thread)."""
+    signal.signal(signal.SIGTERM, _raise_terminated)
+
+
+_in_task = False
+_is_worker = False
+
+
+def _worker_sigterm(signum, frame) -> None:
+    if not _in_task:
+        os._exit(128 + signum)  # idle: nothing to clean up
+    _raise_terminated(signum, frame)
+
+
+@contextmanager
+def worker_task() -> Iterator[None]:
+    """Run one task in a worker: SIGTERM raises :class:`Terminated` inside it (the task's ``finally`` and
+    staged outputs clean up), then the worker process exits (a process pool would otherwise catch the
+    exception as the task's result and wait for more work, outliving its parent)."""
+    global _in_task
+    if not _is_worker:  # in the main process Terminated goes on to the command's own handling
+        yield
+        return
+    _in_task = True
+    try:
+        yield
+    except Terminated:
+        os._exit(143)
+    finally:
+        _in_task = False
+
+
+def worker_init(parent_pid: int) -> None:
+    """Initialiser of a worker process: SIGTERM ends it (inside :func:`worker_task`, after the task's
+    clean-up), SIGINT is left to the parent (which stops the workers), and the worker gets SIGTERM as
+    soon as its parent dies, even by SIGKILL (Linux)."""
+    global _is_worker
+    _is_worker = True
+    signal.signal(signal.SIGTERM, _worker_sigterm)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if sys.platform.startswith("linux"):
+        try:
+            libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
+            libc.prctl(_PR_SET_PDEATHSIG, signal.SIGTERM, 0, 0, 0)
+        except (OSError, AttributeError):
+            pass
+    if os.getppid() != parent_pid:  # the parent died before prctl took effect
+        os.kill(os.getpid(), signal.SIGTERM)
+
+
+def stop_children(timeout: float = 10.0) -> None:
+    """Terminate this process's multiprocessing children (SIGTERM, so they clean up), then kill the
+    ones still alive after ``timeout`` seconds."""
+    import multiprocessing
+    import time
+
+    children = multiprocessing.active_children()
+    for child in children:
+        child.terminate()
+    deadline = time.monotonic() + timeout
+    for child in children:
+        child.join(max(0.0, deadline - time.monotonic()))
+        if child.is_alive():
+            child.kill()
+            child.join(1.0)
