@@ -505,7 +505,7 @@ def cmd_fit_scan(args: argparse.Namespace) -> int:
                          for k, v in raw.items()}
         bars = _StageBars(args.quiet)
         try:
-            fit = fit_scan(cloud, config, landmarks=landmarks, progress=bars)
+            fit = fit_scan(cloud, config, landmarks=landmarks, progress=bars, landmarks_source=str(args.landmarks))
         finally:
             bars.close()
     except (CloudError, LandmarkError) as exc:
@@ -519,7 +519,9 @@ def cmd_fit_scan(args: argparse.Namespace) -> int:
                                   "wall_seconds": time.perf_counter() - t0}, inputs=tuple(inputs))
     except OutputError as exc:
         raise CliError(str(exc)) from None
-    print(f"fitted {len(cloud.points)} points ({cloud.units}) in {fit.timings['total']:.1f} s; "
+    used = (f"{len(cloud.points)} points (a random subsample of its {cloud.input_points})"
+            if cloud.input_points > len(cloud.points) else f"{len(cloud.points)} points")
+    print(f"fitted {used} ({cloud.units}) in {fit.timings['total']:.1f} s; "
           f"scan-to-mesh median {np.median(distances):.2f} mm, mean {distances.mean():.2f} mm, "
           f"std {distances.std():.2f} mm")
     print(f"wrote {out}/: mesh.ply, mesh.obj, params.json, cloud_error.ply, report.json")
@@ -1119,7 +1121,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, format="jnr: %(message)s")
     logging.captureWarnings(True)
-    warnings.formatwarning = _format_warning
+    saved_format, warnings.formatwarning = warnings.formatwarning, _format_warning
     from pipeline.files import OutputError
     from render.backend import LLVMError
     from rig.asset import AssetError
@@ -1148,6 +1150,7 @@ def main(argv: list[str] | None = None) -> int:
         print("jnr: terminated (SIGTERM); nothing half-written was left behind", file=sys.stderr)
         return 143
     finally:
+        warnings.formatwarning = saved_format
         if main_thread:
             signal.signal(signal.SIGTERM, previous if previous is not None else signal.SIG_DFL)
 

@@ -234,6 +234,21 @@ def _write_error(exc: OSError, out: Path) -> OutputError:
 
 
 @contextmanager
+def _staged(out: Path, tmp: Path, finish) -> Iterator[Path]:
+    """Yield ``tmp``; then ``finish(tmp)`` (which moves it into place). Any error, signal or interrupt
+    removes ``tmp``; an OSError is reported with the user's path ``out``."""
+    try:
+        try:
+            yield tmp
+            finish(tmp)
+        except OSError as exc:
+            raise _write_error(exc, out) from None
+    except BaseException:
+        _remove(tmp)
+        raise
+
+
+@contextmanager
 def staged_folder(out_dir: str | Path, force: bool = False, *, inputs: Iterable[str | Path] = (),
                   marker: dict | None = None) -> Iterator[Path]:
     """Write an output folder atomically (module docstring).
@@ -258,20 +273,14 @@ def staged_folder(out_dir: str | Path, force: bool = False, *, inputs: Iterable[
         tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", suffix=".tmp", dir=out_dir.parent))
     except OSError as exc:
         raise _write_error(exc, out_dir) from None
-    try:
-        try:
-            yield tmp
-            (tmp / OUTPUT_MARKER).write_text(json.dumps({"written_by": "jnr", **(marker or {})}) + "\n")
-            os.chmod(tmp, 0o777 & ~_umask())
-        except OSError as exc:
-            raise _write_error(exc, out_dir) from None
-        try:
-            _move_into_place(tmp, out_dir, force, "folder")
-        except OSError as exc:
-            raise _write_error(exc, out_dir) from None
-    except BaseException:
-        _remove(tmp)
-        raise
+
+    def finish(tmp: Path) -> None:
+        (tmp / OUTPUT_MARKER).write_text(json.dumps({"written_by": "jnr", **(marker or {})}) + "\n")
+        os.chmod(tmp, 0o777 & ~_umask())
+        _move_into_place(tmp, out_dir, force, "folder")
+
+    with _staged(out_dir, tmp, finish) as staged:
+        yield staged
 
 
 @contextmanager
@@ -290,17 +299,13 @@ def staged_file(out: str | Path, force: bool = False, *, inputs: Iterable[str | 
         os.close(fd)
     except OSError as exc:
         raise _write_error(exc, out) from None
-    tmp = Path(name)
-    try:
-        try:
-            yield tmp
-            os.chmod(tmp, 0o666 & ~_umask())
-            _move_into_place(tmp, out, force, "file")
-        except OSError as exc:
-            raise _write_error(exc, out) from None
-    except BaseException:
-        _remove(tmp)
-        raise
+
+    def finish(tmp: Path) -> None:
+        os.chmod(tmp, 0o666 & ~_umask())
+        _move_into_place(tmp, out, force, "file")
+
+    with _staged(out, Path(name), finish) as staged:
+        yield staged
 
 
 def make_output_folder(out: str | Path, *, inputs: Iterable[str | Path] = ()) -> bool:

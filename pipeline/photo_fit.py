@@ -60,7 +60,12 @@ from .landmark_fit import (
     landmark_errors,
     rig_prior,
 )
-from .photo_camera import camera_direction_to_rig, check_focal, default_focal, make_camera
+from .photo_camera import (
+    camera_direction_to_rig,
+    check_focal,
+    default_focal,
+    make_camera,
+)
 from .rig_state import FREE_GROUPS
 from .scan_fit import FACE_REGIONS, Stage
 

@@ -5,7 +5,10 @@ NICP, and a regulariser L_m (eq. 4) that diminishes while the correspondences co
 (joints, then the neural-skinning latent Z, 2 cycles) and expressions alternate (2 cycles). Here:
 
 1. **Rigid pre-alignment** (:func:`pipeline.registration.rigid_prealign`): a multi-hypothesis trimmed
-   ICP (every yaw, a few pitches) or the similarity of the 3D landmarks, with a scale.
+   ICP (every yaw, a few pitches) or the similarity of the 3D landmarks, with a scale. Landmarks are
+   first checked (:func:`landmarks.points3d.check_landmarks_3d`); a cloud of which less than
+   ``min_inlier_fraction`` lies near the aligned head is rejected as not a head before the per-point
+   work of the fit (the scan border). Large clouds arrive subsampled (:func:`pipeline.pointcloud.validate_points`).
 2. **Stages** (:class:`Stage`): each optimises some of ``pose`` (rotation + translation in the cloud
    frame), ``joints`` (the 105 channels), ``latent`` (Z) and ``expressions`` (24 coefficients) with
    Adam, rebuilding correspondences every ``correspondence_every`` iterations:
@@ -267,20 +270,16 @@ class _Model(RigState):
         return float(self.log_scale.detach().exp())
 
 
-def _prepare_cloud(cloud: PointCloud, config: FitScanConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Points, unit normals (estimated when missing) and the scan-border mask of the cloud."""
-    points = cloud.points
-    normals = cloud.normals
-    if normals is None:
-        normals = estimate_normals(points, k=config.normals_k)
-    border = boundary_mask(points, k=config.boundary_k)
-    return points, normals, border
+def _cloud_normals(cloud: PointCloud, config: FitScanConfig) -> np.ndarray:
+    """``(N, 3)`` unit normals of the cloud: its own, or estimated (PCA over ``normals_k`` neighbours)."""
+    return cloud.normals if cloud.normals is not None else estimate_normals(cloud.points, k=config.normals_k)
 
 
 def fit_scan(cloud: PointCloud, config: FitScanConfig | None = None, *,
              landmarks: Mapping[str, np.ndarray] | None = None, rig: JointRig | None = None,
              neural: NeuralSkinning | None = None, expressions: ExpressionModel | None = None,
-             progress: Callable[[str, int, int], None] | None = None) -> ScanFit:
+             progress: Callable[[str, int, int], None] | None = None,
+             landmarks_source: str = "--landmarks") -> ScanFit:
     """Fit the rig (pose, joints, Z, expressions) to a point cloud.
 
     Args:
@@ -290,12 +289,17 @@ def fit_scan(cloud: PointCloud, config: FitScanConfig | None = None, *,
             (:data:`landmarks.points3d.LANDMARK_NAMES_3D`); they replace the rigid search and add a term.
         rig, neural, expressions: the models (default: the committed rig and learned skinning, float32).
         progress: called as ``progress(stage_name, iteration, iterations)``.
+        landmarks_source: how error messages name the landmarks (e.g. their file).
 
     Returns:
         :class:`ScanFit`.
 
     Raises:
-        CloudError: the cloud does not look like a head after the rigid pre-alignment.
+        CloudError: the cloud does not look like a head after the rigid pre-alignment (tested before
+            the per-point work only the fit needs).
+        LandmarkError: unknown or too few landmarks, or landmarks that fail
+            :func:`landmarks.points3d.check_landmarks_3d` (coincident, not head-sized, not face-like or
+            mirrored, turned away from the scanner, off the cloud); checked before the pre-alignment.
     """
     config = config or FitScanConfig()
     t_start = time.perf_counter()
@@ -310,33 +314,42 @@ def fit_scan(cloud: PointCloud, config: FitScanConfig | None = None, *,
     faces = asset.faces
     rng = np.random.default_rng(config.seed)
 
-    points, normals, border = _prepare_cloud(cloud, config)
-    lm_ids = lm_pos = None
-    if landmarks:
-        from landmarks.points3d import match_landmarks
-
-        lm_ids, lm_pos, _ = match_landmarks(landmarks, asset)
+    points = cloud.points
     face_mask = asset.region_mask(*FACE_REGIONS)
     with torch.no_grad():
         start_vertices = (neural.rig(torch.zeros(1, NUM_PARAMETERS, dtype=dtype), weights=neural(
             torch.zeros(1, LATENT, dtype=dtype))[0]).vertices[0].numpy() if neural is not None else asset.vertices)
+    lm_ids = lm_pos = None
+    if landmarks:
+        from landmarks.points3d import check_landmarks_3d, match_landmarks
+
+        lm_ids, lm_pos, lm_names = match_landmarks(landmarks, asset)
+    # The not-a-head test (the pre-alignment's inlier fraction) comes before the per-point work only
+    # the fit needs (the scan border); the pre-alignment needs the normals.
+    normals = _cloud_normals(cloud, config)
+    # A single-view scan's normals face its sensor: their mean is the viewing direction (None for a
+    # cloud all around the head). Model -> cloud pairs only come from vertices facing the sensor.
+    mean_normal = normals.mean(0)
+    view_dir = mean_normal / np.linalg.norm(mean_normal) if np.linalg.norm(mean_normal) > 0.3 else None
+    if lm_ids is not None:
+        check_landmarks_3d(lm_pos, lm_names, reference=start_vertices[lm_ids], cloud=points, view_direction=view_dir,
+                           source=landmarks_source)
     align = rigid_prealign(points, normals, start_vertices, faces, face_mask=face_mask, seed=config.seed,
                            yaw_step_deg=config.prealign_yaw_step_deg, with_scale=config.prealign_scale,
                            landmarks=None if lm_ids is None else (start_vertices[lm_ids], lm_pos),
                            )
     if align.inlier_fraction < config.min_inlier_fraction:
+        sampled = (f" (a random {len(points)} of its {cloud.input_points})"
+                   if cloud.input_points > len(points) else "")
         raise CloudError(f"the cloud does not look like a head: after the best rigid alignment only "
-                         f"{100 * align.inlier_fraction:.0f} % of its points lie within 8 mm of the head model "
-                         f"(need {100 * config.min_inlier_fraction:.0f} %)")
+                         f"{100 * align.inlier_fraction:.0f} % of its points{sampled} lie within 8 mm of the head "
+                         f"model (need {100 * config.min_inlier_fraction:.0f} %)")
+    border = boundary_mask(points, k=config.boundary_k)
     t_prealign = time.perf_counter() - t_start
 
     sub = np.sort(rng.choice(len(points), size=config.max_cloud_points, replace=False)) \
         if len(points) > config.max_cloud_points else np.arange(len(points))
     p_sub, n_sub = points[sub], normals[sub]
-    # A single-view scan's normals face its sensor: their mean is the viewing direction (None for a
-    # cloud all around the head). Model -> cloud pairs only come from vertices facing the sensor.
-    mean_normal = normals.mean(0)
-    view_dir = mean_normal / np.linalg.norm(mean_normal) if np.linalg.norm(mean_normal) > 0.3 else None
     cloud_tree = cKDTree(points)
     P_sub = torch.as_tensor(p_sub, dtype=dtype)
     P_all = torch.as_tensor(points, dtype=dtype)

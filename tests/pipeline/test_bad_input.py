@@ -88,11 +88,11 @@ def test_force_never_deletes_inputs_or_other_files(capsys, tmp_path, sb, monkeyp
         out = tmp_path / "mine"
         out.mkdir()
         (out / "thesis.tex").write_text("years of work")
-    before, before_out = tree_digest(tmp_path), None
+    before = tree_digest(tmp_path)
     code, _, err = run(capsys, "fit", photo, "--landmarks", sb / "obama.pts", "--out", out, "--force", *fast_fit_args())
     assert code == 2
     one_line_error(err, fragment)
-    assert tree_digest(tmp_path) == before and before_out is None
+    assert tree_digest(tmp_path) == before
     assert not leftovers(tmp_path)
 
 
@@ -513,3 +513,21 @@ def test_warnings_are_one_line_without_python_source(tmp_path):
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("jnr: warning: ") and "clamped" in lines[0], proc.stderr
     assert ".py" not in proc.stderr
+
+
+def test_fit_scan_refuses_coincident_3d_landmarks_naming_the_file(capsys, tmp_path):
+    """Three coincident 3D landmarks (median 10.35 mm instead of 0.70 when they were accepted)."""
+    code, _, err = run(capsys, "data", "scan", "--out", tmp_path / "scan.ply", "--head", "3")
+    assert code == 0, err
+    from pipeline.pointcloud import read_point_cloud
+
+    nose = read_point_cloud(tmp_path / "scan.ply").points.mean(0).tolist()
+    bad = tmp_path / "landmarks.json"
+    bad.write_text(json.dumps({"nose_tip": nose, "chin": nose, "left_eye_outer": nose}))
+    before = tree_digest(tmp_path)
+    code, _, err = run(capsys, "fit-scan", tmp_path / "scan.ply", "--landmarks", bad, "--out", tmp_path / "o",
+                       "--quiet")
+    assert code == 2
+    one_line_error(err, f"{bad}: ")
+    assert "apart" in err or "size" in err
+    assert tree_digest(tmp_path) == before and not leftovers(tmp_path) and not (tmp_path / "o").exists()

@@ -7,9 +7,9 @@ import pytest
 import trimesh
 from trimesh.exchange.ply import export_ply, load_ply
 
-from pipeline.pointcloud import (CloudError, PointCloud, boundary_mask, error_colors, estimate_normals,
-                                 read_landmarks3d, read_point_cloud, to_rig_frame, validate_points,
-                                 write_point_cloud_ply)
+from pipeline.pointcloud import (LARGE_CLOUD_POINTS, SUBSAMPLE_POINTS, CloudError, PointCloud, boundary_mask,
+                                 count_distinct, error_colors, estimate_normals, read_landmarks3d, read_point_cloud,
+                                 to_rig_frame, validate_points, write_point_cloud_ply)
 
 SEMI_AXES_MM = np.array([75.0, 110.0, 90.0])  # a head-sized ellipsoid, 150 x 220 x 180 mm
 
@@ -460,3 +460,63 @@ def test_read_landmarks3d_bad_files(tmp_path, text, message):
 def test_read_landmarks3d_missing_file(tmp_path):
     with pytest.raises(FileNotFoundError):
         read_landmarks3d(tmp_path / "none.json")
+
+
+# ------------------------------------------------------------------------------------ large clouds
+
+
+def test_count_distinct_equals_np_unique(rng):
+    points = np.round(rng.normal(size=(3000, 3)), 1)
+    points[:10] = [0.0, -0.0, 1.0]
+    assert count_distinct(points) == len(np.unique(points, axis=0))
+    assert count_distinct(points[:1]) == 1
+
+
+def test_clouds_up_to_the_threshold_are_kept_as_given(ellipsoid):
+    points, normals = ellipsoid
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no subsampling warning
+        kept = validate_points(points, normals, large_cloud_points=len(points))
+    np.testing.assert_array_equal(kept.points, points)
+    assert kept.input_points == len(points)
+    assert PointCloud(points, None, "", "mm", 1.0).input_points == len(points)  # old constructors still work
+    with pytest.warns(UserWarning, match=f"{len(points)} points: kept a random 1000 of them"):
+        reduced = validate_points(points, normals, large_cloud_points=len(points) - 1, subsample_points=1000,
+                                  min_points=100)
+    assert reduced.input_points == len(points) and len(reduced.points) == 1000
+    with pytest.raises(CloudError, match="subsample_points"):
+        validate_points(points, large_cloud_points=10, subsample_points=0)
+    assert LARGE_CLOUD_POINTS == 200_000 and SUBSAMPLE_POINTS == 50_000  # as documented
+
+
+@pytest.mark.parametrize("ext", [".npy", ".ply"])
+def test_a_million_point_file_is_subsampled_uniformly_in_file_order(tmp_path, ellipsoid, rng, ext):
+    points, normals = ellipsoid
+    n = 1_200_000
+    pick = rng.integers(len(points), size=n)
+    dense = (points[pick] + rng.normal(0.0, 1.0, (n, 3))) / 1000.0  # metres: the units are found on all points
+    stray = rng.random(n) < 0.02  # 2 % outliers, 50 mm out
+    dense[stray] *= 1.0 + 50.0 / np.linalg.norm(dense[stray] * 1000.0, axis=1, keepdims=True)
+    path = tmp_path / f"dense{ext}"
+    if ext == ".npy":
+        np.save(path, np.hstack([dense, normals[pick]]))
+    else:
+        write_point_cloud_ply(path, dense, normals=normals[pick])
+        dense = dense.astype(np.float32).astype(np.float64)
+    with pytest.warns(UserWarning, match="1200000 points: kept a random 50000 of them"):
+        cloud = read_point_cloud(path)
+    assert cloud.input_points == n and len(cloud.points) == SUBSAMPLE_POINTS and cloud.units == "m"
+    # a subset of the file's rows, in file order, with their own normals
+    rows = {tuple(p): i for i, p in enumerate(np.round(dense * 1000.0, 6))}
+    index = np.array([rows[tuple(p)] for p in np.round(cloud.points, 6)])
+    assert (np.diff(index) > 0).all()
+    np.testing.assert_allclose(cloud.normals, normals[pick[index]], atol=1e-6)
+    assert abs(stray[index].mean() - 0.02) < 0.003  # the share of outliers is kept
+    np.testing.assert_array_equal(read_point_cloud(path).points, cloud.points)  # seeded: the same every time
+
+
+def test_large_cloud_with_few_distinct_points_is_rejected_from_the_subsample(ellipsoid):
+    points, _ = ellipsoid
+    repeated = np.tile(points[:300], (LARGE_CLOUD_POINTS // 300 + 1, 1))
+    with pytest.raises(CloudError, match="has 300 distinct points among 50000 drawn at random from its 200100"):
+        validate_points(repeated)

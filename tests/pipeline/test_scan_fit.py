@@ -1,6 +1,7 @@
 """Point-cloud fitting: known rig poses recovered from their own simulated scans, outputs, bad input."""
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -228,3 +229,87 @@ def test_cli_eval_scans(tmp_path, capsys):
     assert json.loads((tmp_path / "e.json").read_text()) == data
     assert main(["eval", "scans", "--neutral", "-1", "--quiet"]) == 2
     assert "error" in capsys.readouterr().err
+
+
+# ------------------------------------------------------------------------------------ large clouds
+
+
+def test_cli_fit_scan_subsamples_a_dense_scan_and_fits_it(scan_file, asset):
+    """1.2 M points (a simulated scan, jittered copies): subsampled right after reading, so the fit, the
+    error map and the report all see the same 50 000 points."""
+    import trimesh
+
+    from pipeline.pointcloud import SUBSAMPLE_POINTS
+
+    raw = trimesh.load(scan_file / "scan.ply", process=False)
+    base = np.asarray(raw.vertices, float)
+    base_n = np.stack([np.asarray(raw.metadata["_ply_raw"]["vertex"]["data"][c], float) for c in ("nx", "ny", "nz")], 1)
+    n = 1_200_000
+    pick = np.arange(n) % len(base)
+    dense = base[pick] + np.random.default_rng(0).normal(0.0, 0.5, (n, 3))
+    path = scan_file / "dense.ply"
+    write_point_cloud_ply(path, dense, normals=base_n[pick])
+    out = scan_file / "fit_dense"
+    assert main(["fit-scan", str(path), "--out", str(out), "--config", str(scan_file / "short.yaml"), "--quiet"]) == 0
+    cloud = read_point_cloud(path)
+    assert cloud.input_points == n and len(cloud.points) == SUBSAMPLE_POINTS
+    report = json.loads((out / "report.json").read_text())
+    assert report["input"]["points"] == report["scan_to_mesh"]["points"] == SUBSAMPLE_POINTS
+    assert 0 < report["scan_to_mesh"]["median_mm"] < 3.0
+    error_map = trimesh.load(out / "cloud_error.ply", process=False).vertices
+    np.testing.assert_allclose(error_map, cloud.points, atol=1e-4)  # float32 PLY
+
+
+def test_cli_rejects_two_million_random_points_as_not_a_head_from_a_subsample(tmp_path, capsys):
+    points = np.random.default_rng(0).uniform(-125.0, 125.0, (2_000_000, 3))  # head-sized in mm
+    code, err = _cli_error(tmp_path, capsys, "noise.npy", points)
+    assert code == 2 and re.search(r"does not look like a head: .* only \d+ % of its points \(a random 50000 of "
+                                   r"its 2000000\) lie within 8 mm", err), err
+
+
+# ------------------------------------------------------------------------------- implausible landmarks
+
+
+@pytest.fixture(scope="module")
+def landmark_scan(asset):
+    """A simulated scan (mm, y-up) of a held-out head and its true landmarks."""
+    from landmarks.points3d import landmark_vertices
+    from rig.expressive import expressive_split
+
+    scan = simulate_scan(expressive_split("heldout", n=2).vertices[1], asset.faces, rng=21)
+    ids = landmark_vertices(asset)
+    return scan, {name: scan.gt_vertices[i] for name, i in ids.items()}
+
+
+@pytest.mark.parametrize("case, message", [
+    ("coincident", "'left_eye_outer' and 'left_eye_inner' are 0 mm apart"),
+    ("mirrored", "look mirrored"),
+    ("metres", r"0\.001 x the size of the template's"),
+    ("far", "mm from the nearest cloud point"),
+])
+def test_fit_scan_rejects_implausible_landmarks_before_fitting(landmark_scan, rig32, case, message):
+    from landmarks.points3d import LandmarkError
+
+    scan, marks = landmark_scan
+    if case == "coincident":  # the user's report: three identical points (median 10.35 mm instead of 0.70)
+        marks = {name: marks["nose_tip"] for name in ("left_eye_outer", "left_eye_inner", "mouth_left")}
+    elif case == "mirrored":  # left and right labels swapped
+        swap = {"left": "right", "right": "left"}
+        marks = {"_".join(swap.get(w, w) for w in name.split("_")): p for name, p in marks.items()}
+    elif case == "metres":
+        marks = {name: p / 1000.0 for name, p in marks.items()}
+    else:  # the landmarks of a scan taken 10 cm closer to the camera
+        marks = {name: p + [0.0, 0.0, 100.0] for name, p in marks.items()}
+    cloud = validate_points(scan.points, scan.normals)
+    with pytest.raises(LandmarkError, match=message):
+        fit_scan(cloud, FitScanConfig(stages=()), landmarks=marks, rig=rig32)
+
+
+def test_cli_rejects_coincident_landmarks_with_one_line(landmark_scan, tmp_path, capsys):
+    scan, marks = landmark_scan
+    np.save(tmp_path / "scan.npy", np.c_[scan.points, scan.normals])
+    (tmp_path / "marks.json").write_text(json.dumps({"landmarks": {n: marks["chin"].tolist() for n in
+                                                                   ("nose_tip", "mouth_left", "chin")}}))
+    code, err = _cli_error(tmp_path, capsys, "scan.npy", np.c_[scan.points, scan.normals],
+                           ("--landmarks", str(tmp_path / "marks.json")))
+    assert code == 2 and "are 0 mm apart" in err and len(err.strip().splitlines()) == 1
