@@ -4,8 +4,8 @@ Every output of the ``jnr`` commands goes through this module:
 
 * :func:`check_output` refuses, before any work is done, an output path that is, contains or lies
   inside one of the command's inputs, or is (or contains) the working directory; an existing output
-  without ``force``; with ``force``, an existing folder that jnr did not write (it has no
-  :data:`OUTPUT_MARKER` file) or a folder where a file is expected; a parent folder that does not
+  without ``force``; with ``force``, an existing folder that jnr did not write (:func:`is_jnr_output`:
+  it has no :data:`OUTPUT_MARKER` file) or a folder where a file is expected; a parent folder that does not
   exist, is not writable or has less than :data:`MIN_FREE_BYTES` free. Messages name the user's path.
 * :func:`staged_folder` / :func:`staged_file` write into a hidden temporary folder/file beside the
   output and move it into place in one atomic step at the end: ``renameat2(RENAME_NOREPLACE)`` when
@@ -34,6 +34,34 @@ OUTPUT_MARKER = ".jnr-output"
 """The file that marks a folder written by jnr; ``--force`` replaces only folders that hold it."""
 MIN_FREE_BYTES = 64 * 1024 * 1024
 """An output's folder must have this much free space before a fit starts (its outputs are a few MB)."""
+
+
+LEGACY_OUTPUT_FILES = frozenset({
+    "mesh.obj", "mesh.ply", "mesh.glb", "params.json", "overlay.png", "render.png", "landmarks.pts", "report.json",
+    "cloud_error.ply", "template.obj", "template.ply", "template.glb", "edited.obj", "edited.glb", "edited.png",
+    "edited_params.json", "summary.json", "astronaut", "synthetic", "inputs"})
+"""What the output folders of jnr versions before :data:`OUTPUT_MARKER` held (``jnr fit``, ``fit-scan``,
+``demo``); see :func:`is_jnr_output`."""
+
+
+def is_jnr_output(folder: str | Path) -> bool:
+    """Whether ``folder`` is an output folder jnr wrote: it holds :data:`OUTPUT_MARKER`, or (written before
+    the marker existed) nothing but jnr's own output names and a ``params.json`` in a jnr format or the
+    demo's ``summary.json``."""
+    folder = Path(folder)
+    if (folder / OUTPUT_MARKER).is_file():
+        return True
+    try:
+        names = {p.name for p in folder.iterdir()}
+        if not names or not names <= LEGACY_OUTPUT_FILES:
+            return False
+        if "params.json" in names:
+            return str(json.loads((folder / "params.json").read_text()).get("format", "")).startswith("jnr-")
+        if "summary.json" in names:
+            return "rebuild_max_difference_mm" in json.loads((folder / "summary.json").read_text())
+    except (OSError, ValueError, AttributeError):
+        return False
+    return False
 
 
 class OutputError(ValueError):
@@ -100,7 +128,7 @@ def check_output(out: str | Path, *, force: bool = False, inputs: Iterable[str |
         if kind == "folder":
             if not out.is_dir() or out.is_symlink():
                 raise OutputError(f"{option} {out} exists and is not a folder; jnr will not replace it")
-            if not (out / OUTPUT_MARKER).is_file():
+            if not is_jnr_output(out):
                 raise OutputError(f"{option} {out} is a folder jnr did not write (no {OUTPUT_MARKER} file in it); "
                                   "--force replaces only jnr's own outputs: remove it yourself or choose another")
         elif out.is_dir() or not out.is_file():
@@ -173,7 +201,7 @@ def _move_into_place(tmp: Path, out: Path, force: bool, kind: str) -> None:
     if exists and not force:
         raise appeared
     if exists:
-        if kind == "folder" and not (out.is_dir() and (out / OUTPUT_MARKER).is_file()):
+        if kind == "folder" and not (out.is_dir() and is_jnr_output(out)):
             raise OutputError(f"output {out} changed while jnr was writing it and is no longer a jnr output "
                               "folder; it was not replaced")
         try:

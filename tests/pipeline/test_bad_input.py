@@ -531,3 +531,24 @@ def test_fit_scan_refuses_coincident_3d_landmarks_naming_the_file(capsys, tmp_pa
     one_line_error(err, f"{bad}: ")
     assert "apart" in err or "size" in err
     assert tree_digest(tmp_path) == before and not leftovers(tmp_path) and not (tmp_path / "o").exists()
+
+
+def test_outputs_of_jnr_before_the_marker_are_recognised_and_nothing_else(tmp_path):
+    from pipeline.files import is_jnr_output
+
+    old = tmp_path / "old_fit"
+    old.mkdir()
+    (old / "params.json").write_text(json.dumps({"format": "jnr-photo-params/1"}))
+    (old / "report.json").write_text("{}")
+    assert is_jnr_output(old)
+    with staged_folder(old, force=True) as tmp:
+        (tmp / "report.json").write_text("{}")
+    assert (old / OUTPUT_MARKER).is_file()
+    mixed = tmp_path / "mixed"
+    mixed.mkdir()
+    (mixed / "params.json").write_text(json.dumps({"format": "jnr-photo-params/1"}))
+    (mixed / "obama.jpg").write_bytes(b"user photo")
+    other = tmp_path / "other"
+    other.mkdir()
+    (other / "params.json").write_text(json.dumps({"format": "someone-else"}))
+    assert not is_jnr_output(mixed) and not is_jnr_output(other) and not is_jnr_output(tmp_path / "nope")
