@@ -25,6 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
+from rig.errors import InputError
+
 NUM_LANDMARKS = 68
 PREDICTOR_FILE = "shape_predictor_68_face_landmarks.dat"
 DEFAULT_MIN_SCORE = 0.5
@@ -35,7 +37,7 @@ suit scores 0.12 with a box as large as the face's (so sorting by area alone cou
 faces usually score above 1. Lower it (e.g. 0 or -0.2) for hard photos, at the cost of false positives."""
 
 
-class DetectionError(ValueError):
+class DetectionError(InputError):
     """No face found, an unreadable image, or bad arguments to the detector."""
 
 

@@ -25,11 +25,13 @@ from pathlib import Path
 
 import numpy as np
 
+from rig.errors import InputError
+
 NUM_LANDMARKS = 68
 FORMATS = (".pts", ".json", ".csv")
 
 
-class LandmarkFileError(ValueError):
+class LandmarkFileError(InputError):
     """A landmark file is malformed (wrong count, non-finite or unparsable values, bad structure)."""
 
 

@@ -67,6 +67,7 @@ import numpy as np
 
 from landmarks.ibug68 import JAW_CONTOUR, ibug68_embedding, landmark_positions
 from rig.asset import load_asset
+from rig.errors import InputError
 
 NUM_LANDMARKS = 68
 RIGHT_EYE_OUTER = 36
@@ -127,7 +128,7 @@ Negatives, on 1000 of those faces: 68 uniform random points in the face's boundi
 their originals (a reflection is affine), which is why check 6 exists."""
 
 
-class LandmarkPlausibilityError(ValueError):
+class LandmarkPlausibilityError(InputError):
     """The 2D landmarks are not a plausible face in the image (one line, prefixed with the source)."""
 
 

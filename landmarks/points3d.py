@@ -26,6 +26,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from rig.asset import RigAsset, load_asset
+from rig.errors import InputError
 
 LANDMARK_NAMES_3D: tuple[str, ...] = (
     "left_eye_outer", "left_eye_inner", "right_eye_inner", "right_eye_outer",
@@ -33,7 +34,7 @@ LANDMARK_NAMES_3D: tuple[str, ...] = (
 )
 
 
-class LandmarkError(ValueError):
+class LandmarkError(InputError):
     """Unknown landmark names, too few landmarks, or landmarks that are not a plausible face on the cloud."""
 
 

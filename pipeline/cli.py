@@ -14,9 +14,10 @@
     jnr eval scans [--neutral N --expressive N]  fit-scan vs nricp_amberg on simulated depth scans
     jnr eval photos [--neutral N --expressive N] jnr fit on synthetic renders with known truth
 
-Errors in the input (missing or malformed files, unknown parameter names, values outside limits,
-existing outputs without ``--force``) end with a one-line message on stderr and exit status 2; an
-error while writing, 1. Nothing half-written is left behind.
+Errors in the input (:class:`rig.errors.InputError` and its subclasses: missing or malformed files,
+unknown parameter names, values outside limits, refused outputs) end with a one-line message on
+stderr and exit status 2; a broken installation (:class:`rig.errors.SetupError`, render's
+``LLVMError``), an error while writing or a diverged fit, 1. Nothing half-written is left behind.
 """
 
 from __future__ import annotations
@@ -31,13 +32,15 @@ import sys
 import time
 from pathlib import Path
 
+from rig.errors import JnrError
+
 log = logging.getLogger("jnr")
 
 EXIT_OK, EXIT_FAILURE, EXIT_USAGE = 0, 1, 2
 MESH_FORMATS = {"obj": ".obj", "ply": ".ply", "gltf": ".glb"}
 
 
-class CliError(Exception):
+class CliError(JnrError):
     """An error to report to the user in one line (exit status ``code``)."""
 
     def __init__(self, message: str, code: int = EXIT_USAGE) -> None:
@@ -1122,10 +1125,8 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, format="jnr: %(message)s")
     logging.captureWarnings(True)
     saved_format, warnings.formatwarning = warnings.formatwarning, _format_warning
-    from pipeline.files import OutputError
     from render.backend import LLVMError
-    from rig.asset import AssetError
-    from rig.parameters import ParameterError
+    from rig.errors import InputError, JnrError
 
     main_thread = threading.current_thread() is threading.main_thread()
     previous = signal.getsignal(signal.SIGTERM) if main_thread else None
@@ -1136,11 +1137,11 @@ def main(argv: list[str] | None = None) -> int:
     except CliError as exc:
         print(f"jnr: error: {exc}", file=sys.stderr)
         return exc.code
-    except (OutputError, ParameterError, FileNotFoundError, FileExistsError, IsADirectoryError,
-            NotADirectoryError, PermissionError) as exc:
+    except (InputError, FileNotFoundError, FileExistsError, IsADirectoryError, NotADirectoryError,
+            PermissionError) as exc:
         print(f"jnr: error: {_one_line(exc)}", file=sys.stderr)
         return EXIT_USAGE
-    except (AssetError, LLVMError, OSError, ValueError) as exc:
+    except (JnrError, LLVMError, OSError, ValueError) as exc:
         print(f"jnr: error: {_one_line(exc)}", file=sys.stderr)
         return EXIT_FAILURE
     except KeyboardInterrupt:

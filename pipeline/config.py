@@ -13,10 +13,12 @@ import typing
 from pathlib import Path
 from typing import Any, TypeVar
 
+from rig.errors import InputError
+
 T = TypeVar("T")
 
 
-class ConfigError(ValueError):
+class ConfigError(InputError):
     """A configuration file or override that does not match the typed defaults."""
 
 

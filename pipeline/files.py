@@ -30,6 +30,8 @@ from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
+from rig.errors import InputError
+
 OUTPUT_MARKER = ".jnr-output"
 """The file that marks a folder written by jnr; ``--force`` replaces only folders that hold it."""
 MIN_FREE_BYTES = 64 * 1024 * 1024
@@ -64,7 +66,7 @@ def is_jnr_output(folder: str | Path) -> bool:
     return False
 
 
-class OutputError(ValueError):
+class OutputError(InputError):
     """An output path jnr refuses to write (message names the path and why); exit status 2."""
 
 

@@ -34,6 +34,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from rig.asset import write_bytes_atomic
+from rig.errors import InputError
 
 SUPPORTED_EXTENSIONS = (".ply", ".obj", ".xyz", ".txt", ".csv", ".npy")
 UNITS = ("auto", "mm", "cm", "m")
@@ -54,7 +55,7 @@ SUBSAMPLE_SEED = 0
 """Seed of that subsample (the same file always gives the same cloud)."""
 
 
-class CloudError(ValueError):
+class CloudError(InputError):
     """Bad point-cloud input (message says what and how to fix)."""
 
 

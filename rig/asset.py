@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .errors import SetupError
 from .joints import JOINT_NAMES, JOINTS, PARENTS
 from .template import REGION_NAMES, TEMPLATE_VERSION, build_template
 from .weights import SkinningLayout, initial_weights
@@ -42,7 +43,7 @@ ASSET_DIR = Path(__file__).resolve().parent / "assets"
 DEFAULT_ASSET = ASSET_DIR / f"jnr_rig_v{TEMPLATE_VERSION}.npz"
 
 
-class AssetError(RuntimeError):
+class AssetError(SetupError):
     """The rig asset is missing, corrupt or of another version."""
 
 

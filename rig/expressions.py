@@ -80,6 +80,7 @@ from scipy.interpolate import CubicSpline, PchipInterpolator
 from torch import nn
 
 from .asset import RigAsset, cached_per_asset, load_asset
+from .errors import InputError
 from .population import _bump, _capsule_bump, _ramp, _smoothed_normals, _unit
 from .template import EYE_CENTER
 
@@ -165,7 +166,7 @@ MIRROR_PERMUTATION = _mirror_permutation()
 """``(E,)`` index map: ``c_mirrored = c[..., MIRROR_PERMUTATION]`` swaps every left/right pair."""
 
 
-class ExpressionError(ValueError):
+class ExpressionError(InputError):
     """Unknown expression name or a coefficient outside its limits."""
 
 

@@ -11,11 +11,8 @@ import math
 
 import torch
 
+from .errors import ShapeError  # noqa: F401 - re-exported: rig.lbs.ShapeError
 from .joints import CHANNEL_KINDS, ROTATE, SCALE_AXES, TRANSLATE, UNIFORM_SCALE
-
-
-class ShapeError(ValueError):
-    """A tensor argument has the wrong shape."""
 
 
 def _check(cond: bool, func: str, arg: str, expected: str, got: object) -> None:

@@ -16,10 +16,11 @@ from pathlib import Path
 
 import torch
 
+from .errors import InputError
 from .joints import JOINT_INDEX, JOINT_MIRROR, JOINTS, mirror_joint_name
 
 
-class ParameterError(ValueError):
+class ParameterError(InputError):
     """An unknown parameter name or a value outside the parameter's limits."""
 
 

@@ -1,0 +1,37 @@
+"""The errors jnr raises on purpose, under one base, so callers (and the ``jnr`` command line) can tell
+a user's bad input from a broken installation without listing every class.
+
+=======================  =========================================================================
+class                    meaning
+=======================  =========================================================================
+:class:`JnrError`        base of all of them
+:class:`InputError`      the input is wrong: a file, an argument, a setting (also a ``ValueError``);
+                         the command line ends with one line and exit status 2
+:class:`SetupError`      the installation is wrong: a missing or corrupt asset, a missing library
+                         (also a ``RuntimeError``); exit status 1
+=======================  =========================================================================
+
+Every package's own error class derives from one of these (``render`` imports nothing of jnr, so its
+``LLVMError`` is a plain ``RuntimeError`` that the command line maps to exit status 1 by name).
+"""
+
+from __future__ import annotations
+
+
+class JnrError(Exception):
+    """Base of the errors jnr raises on purpose."""
+
+
+class InputError(JnrError, ValueError):
+    """Bad input (a file, an argument, a setting); the message says what and how to fix it."""
+
+
+class SetupError(JnrError, RuntimeError):
+    """A broken installation (asset, library); the message says what is missing."""
+
+
+class ShapeError(InputError):
+    """A tensor or array argument has the wrong shape (message: function, argument, expected, got)."""
+
+
+__all__ = ["JnrError", "InputError", "SetupError", "ShapeError"]
