@@ -34,7 +34,7 @@ import numpy as np
 import torch
 
 from rig.asset import RigAsset, cached_per_asset, load_asset
-from rig.geometry import barycentric, closest_points_on_triangles
+from rig.geometry import barycentric, closest_points_on_triangles, face_edges
 from rig.lbs import ShapeError
 
 IBUG68_NAMES: tuple[str, ...] = (
@@ -153,7 +153,7 @@ def _split_loop(vertices: np.ndarray, loop: np.ndarray, a: int, b: int) -> tuple
 
 def _boundary_loops(faces: np.ndarray) -> list[np.ndarray]:
     """Closed boundary loops (vertex ids) of a face patch."""
-    edges = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), 1)
+    edges = np.sort(face_edges(faces), 1)
     uniq, counts = np.unique(edges, axis=0, return_counts=True)
     boundary = uniq[counts == 1]
     nbrs: dict[int, list[int]] = {}

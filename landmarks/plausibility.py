@@ -68,6 +68,7 @@ import numpy as np
 from landmarks.ibug68 import JAW_CONTOUR, ibug68_embedding, landmark_positions
 from rig.asset import load_asset
 from rig.errors import InputError
+from rig.geometry import RIG_TO_OPENCV
 
 NUM_LANDMARKS = 68
 RIGHT_EYE_OUTER = 36
@@ -159,7 +160,7 @@ def _reference() -> np.ndarray:
     asset = load_asset()
     points3d = landmark_positions(asset.vertices, ibug68_embedding(asset), asset.faces)[0]  # (68, 3) rig, mm
     # Frontal view in camera axes: rig +X (subject's left) -> x right, +Y (up) -> y down, +Z -> towards the camera.
-    ref = points3d * np.array([1.0, -1.0, -1.0])
+    ref = points3d @ RIG_TO_OPENCV.T
     ref -= ref.mean(axis=0)
     ref /= np.sqrt((ref[:, :2] ** 2).sum(axis=1).mean())
     ref.flags.writeable = False

@@ -137,7 +137,7 @@ class PosedRig(RigState):
                  rotation: np.ndarray, translation: np.ndarray) -> None:
         super().__init__(rig, neural, expressions, rotation)
         dtype = rig.template.dtype
-        self.flip = torch.as_tensor(RIG_TO_OPENCV, dtype=dtype)
+        self.flip = torch.tensor(RIG_TO_OPENCV, dtype=dtype)
         self.translation = torch.tensor(translation, dtype=dtype, requires_grad=True)
 
     def to_camera(self, points: torch.Tensor, free: tuple[str, ...] = ()) -> torch.Tensor:

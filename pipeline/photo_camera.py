@@ -28,11 +28,10 @@ import torch
 from kornia.geometry.camera import PinholeCamera
 
 from landmarks.ibug68 import JAW_CONTOUR
+from rig.geometry import (
+    RIG_TO_OPENCV,  # the one definition (rig axes -> OpenCV axes), used here
+)
 from rig.lbs import ShapeError
-
-RIG_TO_OPENCV = np.diag([1.0, -1.0, -1.0])
-"""Rig axes (+Y up, +Z out of the face) -> OpenCV camera axes (y down, z forward) for a head that faces
-the camera: the camera looks along rig -Z, so y and z flip."""
 
 DEFAULT_DISTANCE_MM = 600.0
 """Initial camera-to-head distance of the iterative PnP (a portrait at arm's length)."""

@@ -46,6 +46,7 @@ import torch
 from kornia.geometry.camera import PinholeCamera
 
 from rig.expressions import ExpressionModel
+from rig.geometry import mesh_edges
 from rig.model import JointRig
 from rig.neural import NeuralSkinning, load_neural
 
@@ -344,11 +345,6 @@ def _fit_light(albedo_img: np.ndarray, normals: np.ndarray, target: np.ndarray, 
     return best[1], best[2], best[3]
 
 
-def _edges(faces: np.ndarray) -> np.ndarray:
-    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
-    return np.unique(np.sort(e, 1), axis=0)
-
-
 def fit_photo(image, landmarks2d, *, focal: float | None = None, config: FitPhotoConfig | None = None,
               rig: JointRig | None = None, neural: NeuralSkinning | None = None,
               progress: Callable[[str, int, int], None] | None = None) -> PhotoFit:
@@ -479,7 +475,7 @@ def _photometric_stages(photo: np.ndarray, crop: Crop, focal: float, model: Pose
     ambient = torch.full((3,), 1.0, dtype=dtype, requires_grad=True)
     irradiance = torch.zeros(3, dtype=dtype, requires_grad=True)
     direction = np.array([0.0, 0.0, 1.0])
-    edges = torch.as_tensor(_edges(asset.faces))
+    edges = torch.as_tensor(mesh_edges(asset.faces))
     mirror = torch.as_tensor(np.asarray(asset.mirror, np.int64))
     candidates = _hemisphere(config.light_directions)
 

@@ -11,9 +11,13 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.spatial import cKDTree
-from scipy.spatial.transform import Rotation
 
-from rig.geometry import barycentric, closest_points_on_triangles, vertex_normals
+from rig.geometry import (
+    barycentric,
+    closest_points_on_triangles,
+    head_rotation,
+    vertex_normals,
+)
 
 
 # ----------------------------------------------------------------------------------------------------
@@ -292,7 +296,7 @@ def rigid_prealign(cloud: np.ndarray, cloud_normals: np.ndarray | None, model_ve
         for yaw in yaws:
             for pitch in pitches_deg:
                 for roll in rolls_deg:
-                    rot = Rotation.from_euler("yxz", [yaw, pitch, roll], degrees=True).as_matrix()
+                    rot = head_rotation(yaw, pitch, roll)
                     face_dir = rot @ np.array([0.0, 0.0, 1.0])
                     if mean_n is not None and face_dir @ mean_n < facing_min:
                         continue  # the face would point (nearly) away from the viewer

@@ -35,13 +35,13 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from scipy.spatial.transform import Rotation
 
 from landmarks.ibug68 import contour_landmarks, ibug68_embedding, landmark_positions
 from pipeline.colour import linear_to_srgb, srgb_to_linear
 from pipeline.photo_camera import RIG_TO_OPENCV, camera_center_in_rig, make_camera
 from render.reference import ReferenceLight, render_reference
 from rig.asset import RigAsset, cached_per_asset, load_asset
+from rig.geometry import head_rotation
 
 __all__ = [
     "HAIR_COLOURS_SRGB",
@@ -484,18 +484,6 @@ def synthetic_background(rng: np.random.Generator | int, width: int, height: int
 # ----------------------------------------------------------------------------------------------------
 # Photos
 # ----------------------------------------------------------------------------------------------------
-
-def head_rotation(yaw_deg: float, pitch_deg: float, roll_deg: float) -> np.ndarray:
-    """``(3, 3)`` head rotation ``R_z(roll) R_x(pitch) R_y(yaw)`` in rig axes (degrees; as
-    :mod:`pipeline.synthetic_scans`). Positive yaw turns the face (+Z) towards +X (the subject's left,
-    the image's right); positive pitch tips it down; positive roll turns +X towards +Y.
-
-    Example:
-        >>> np.round(head_rotation(90.0, 0.0, 0.0) @ [0.0, 0.0, 1.0], 6)
-        array([1., 0., 0.])
-    """
-    return Rotation.from_euler("yxz", [yaw_deg, pitch_deg, roll_deg], degrees=True).as_matrix()
-
 
 def _draw(value, bounds, rng: np.random.Generator, name: str) -> float:
     draw = float(rng.uniform(*bounds))  # always drawn, so the stream does not depend on the overrides

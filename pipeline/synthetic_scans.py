@@ -18,11 +18,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial.transform import Rotation
+
+from rig.geometry import RIG_TO_OPENCV, head_rotation
 
 __all__ = ["DepthCamera", "ScanSettings", "SyntheticScan", "render_depth", "simulate_scan", "WORLD_TO_CAMERA"]
 
-WORLD_TO_CAMERA = np.diag([1.0, -1.0, -1.0])
+WORLD_TO_CAMERA = RIG_TO_OPENCV
 """Rotation from world axes (+Y up, camera looking along -Z) to the OpenCV camera axes (a proper rotation)."""
 
 _NEAR_MM = 1.0
@@ -213,11 +214,6 @@ def _rays(camera: DepthCamera, u: np.ndarray, v: np.ndarray) -> np.ndarray:
 # Scan simulation
 # ----------------------------------------------------------------------------------------------------
 
-def _rotation(yaw_deg: float, pitch_deg: float, roll_deg: float) -> np.ndarray:
-    """``R = R_z(roll) R_x(pitch) R_y(yaw)`` (yaw about +Y: positive turns the face towards +X)."""
-    return Rotation.from_euler("yxz", [yaw_deg, pitch_deg, roll_deg], degrees=True).as_matrix()
-
-
 def _angle(value, rng_range, rng: np.random.Generator, name: str) -> float:
     lo, hi = rng_range
     if lo > hi:
@@ -332,7 +328,7 @@ def simulate_scan(vertices: np.ndarray, faces: np.ndarray, *, rng: np.random.Gen
     yaw = _angle(yaw_deg, s.yaw_deg_range, rng, "yaw_deg")
     pitch = _angle(pitch_deg, s.pitch_deg_range, rng, "pitch_deg")
     roll = _angle(roll_deg, s.roll_deg_range, rng, "roll_deg")
-    rotation = _rotation(yaw, pitch, roll)
+    rotation = head_rotation(yaw, pitch, roll)
     translation = rng.uniform(-s.max_offset_mm, s.max_offset_mm, size=3)
     world = v @ rotation.T + translation
 

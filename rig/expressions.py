@@ -81,6 +81,7 @@ from torch import nn
 
 from .asset import RigAsset, cached_per_asset, load_asset
 from .errors import InputError
+from .geometry import face_edges
 from .population import _bump, _capsule_bump, _ramp, _smoothed_normals, _unit
 from .template import EYE_CENTER
 
@@ -303,7 +304,7 @@ def _laplace_extend(asset: RigAsset, field: np.ndarray, inner: np.ndarray) -> np
     boundary (uniform graph Laplacian over the mesh edges)."""
     f = asset.faces
     n = len(asset.vertices)
-    edges = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+    edges = face_edges(f)
     adj = sp.coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(n, n)).tocsr()
     adj = ((adj + adj.T) > 0).astype(float)
     lap = sp.diags(np.asarray(adj.sum(axis=1)).ravel()) - adj

@@ -1,9 +1,51 @@
-"""Triangle-mesh geometry shared by the packages: vertex normals, closest points on triangles, barycentric
-coordinates. Pure numpy; millimetres in, millimetres out."""
+"""Geometry shared by the packages: mesh edges, vertex normals, closest points on triangles, barycentric
+coordinates, the head rotation convention and the rig -> OpenCV axis flip. Pure numpy; millimetres in,
+millimetres out."""
 
 from __future__ import annotations
 
 import numpy as np
+
+RIG_TO_OPENCV = np.diag([1.0, -1.0, -1.0])
+RIG_TO_OPENCV.flags.writeable = False
+"""``(3, 3)`` axis flip from the rig frame (+X the subject's left, +Y up, +Z out of the face) to OpenCV
+camera axes (x right, y down, z forward) for a camera looking at the face; the one definition
+(:mod:`pipeline.photo_camera` holds the camera conversions built on it)."""
+
+
+def head_rotation(yaw_deg: float, pitch_deg: float, roll_deg: float) -> np.ndarray:
+    """``(3, 3)`` head rotation ``R_z(roll) R_x(pitch) R_y(yaw)`` in rig axes (degrees). Positive yaw turns
+    the face (+Z) towards +X (the subject's left, the image's right); positive pitch tips it down;
+    positive roll turns +X towards +Y.
+
+    Example:
+        >>> np.round(head_rotation(90.0, 0.0, 0.0) @ [0.0, 0.0, 1.0], 6)
+        array([1., 0., 0.])
+    """
+    from scipy.spatial.transform import Rotation
+
+    return Rotation.from_euler("yxz", [yaw_deg, pitch_deg, roll_deg], degrees=True).as_matrix()
+
+
+def face_edges(faces: np.ndarray) -> np.ndarray:
+    """``(3F, 2)`` the directed edges of every triangle, ``(a, b), (b, c), (c, a)`` stacked by corner
+    pair (all ``(a, b)`` first), each interior edge twice (once per side)."""
+    f = np.asarray(faces)
+    return np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+
+
+def mesh_edges(faces: np.ndarray) -> np.ndarray:
+    """``(E, 2)`` the undirected edges of a triangle mesh, each once as ``(low, high)`` vertex ids, sorted.
+
+    Example:
+        >>> mesh_edges(np.array([[0, 1, 2], [2, 1, 3]]))
+        array([[0, 1],
+               [0, 2],
+               [1, 2],
+               [1, 3],
+               [2, 3]])
+    """
+    return np.unique(np.sort(face_edges(faces), axis=1), axis=0)
 
 
 def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:

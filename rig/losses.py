@@ -10,6 +10,7 @@ import numpy as np
 import scipy.sparse as sp
 import torch
 
+from .geometry import mesh_edges
 from .lbs import ShapeError
 
 LAMBDA_M = 0.03
@@ -49,8 +50,7 @@ def limit_loss(theta: torch.Tensor, low: torch.Tensor, high: torch.Tensor, num_j
 
 def uniform_laplacian(faces: np.ndarray, num_vertices: int) -> torch.Tensor:
     """Sparse ``(V, V)`` graph Laplacian ``L = I - D^-1 A`` of the mesh (float64 COO tensor)."""
-    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
-    e = np.unique(np.sort(e, axis=1), axis=0)
+    e = mesh_edges(faces)
     a = sp.coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(num_vertices, num_vertices))
     a = (a + a.T).tocsr()
     deg = np.asarray(a.sum(axis=1)).ravel()

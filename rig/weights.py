@@ -21,6 +21,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import dijkstra
 
+from .geometry import mesh_edges
 from .joints import JOINT_INDEX, JOINT_MIRROR, JOINT_NAMES, JOINTS, PARENTS
 from .template import REGION_NAMES, TemplateMesh
 
@@ -109,8 +110,7 @@ def influence_of(joint: str) -> Influence:
 
 def edge_graph(vertices: np.ndarray, faces: np.ndarray) -> sp.csr_matrix:
     """Sparse ``(V, V)`` matrix of mesh edge lengths in mm (symmetric)."""
-    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
-    e = np.unique(np.sort(e, axis=1), axis=0)
+    e = mesh_edges(faces)
     length = np.linalg.norm(vertices[e[:, 0]] - vertices[e[:, 1]], axis=1)
     n = len(vertices)
     g = sp.coo_matrix((length, (e[:, 0], e[:, 1])), shape=(n, n))
