@@ -81,8 +81,8 @@ from torch import nn
 
 from .asset import RigAsset, cached_per_asset, load_asset
 from .errors import InputError
+from .fields import bump, capsule_bump, ramp, smoothed_normals, unit
 from .geometry import face_edges
-from .population import _bump, _capsule_bump, _ramp, _smoothed_normals, _unit
 from .template import EYE_CENTER
 
 __all__ = [
@@ -290,11 +290,11 @@ def _lid_field(asset: RigAsset, eye: _Eye, lid: str, fraction: float, falloff: f
     y_mid = 0.5 * (y_up + y_lo)
     if lid == "upper":
         side = v[:, 1] >= y_mid
-        w = 1.0 - _ramp(v[:, 1] - y_up, 0.0, falloff)
+        w = 1.0 - ramp(v[:, 1] - y_up, 0.0, falloff)
     else:
         side = v[:, 1] < y_mid
-        w = 1.0 - _ramp(y_lo - v[:, 1], 0.0, falloff)
-    w = w * side * _ramp(v[:, 2], 35.0, 50.0) * ~asset.region_mask("eyeballs")
+        w = 1.0 - ramp(y_lo - v[:, 1], 0.0, falloff)
+    w = w * side * ramp(v[:, 2], 35.0, 50.0) * ~asset.region_mask("eyeballs")
     field = _rot_x(q, angle_of(s)) - q + residual_of(s)
     return w[:, None] * field
 
@@ -320,7 +320,7 @@ def _laplace_extend(asset: RigAsset, field: np.ndarray, inner: np.ndarray) -> np
 
 def _tangent(normals: np.ndarray, direction) -> np.ndarray:
     """``direction`` projected onto the tangent planes of the (smoothed) normal field, unit length."""
-    d = _unit(direction)
+    d = unit(direction)
     n = normals / np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-9)
     t = d[None, :] - (n @ d)[:, None] * n
     return t / np.maximum(np.linalg.norm(t, axis=1, keepdims=True), 1e-9)
@@ -347,12 +347,12 @@ def _jaw_weight(asset: RigAsset, mouth: _Mouth) -> np.ndarray:
     v = asset.vertices
     x, y, z = v.T
     ys = mouth.slit(x)
-    a_s = 1.0 - _ramp(y - ys, -25.0, 25.0)  # smooth: 1 well below the mouth line, 0 well above
-    m = 1.0 - _ramp(np.abs(x), 10.0, mouth.x_corner)  # 1 where the slit opens fully, 0 at the corners
+    a_s = 1.0 - ramp(y - ys, -25.0, 25.0)  # smooth: 1 well below the mouth line, 0 well above
+    m = 1.0 - ramp(np.abs(x), 10.0, mouth.x_corner)  # 1 where the slit opens fully, 0 at the corners
     lower = y < ys
     w = np.where(lower, 1.0 - (1.0 - a_s) * (1.0 - m), a_s * (1.0 - m))
     # Not the back of the head and neck, nor the throat below the jaw line (the chin's front keeps 1).
-    w = w * _ramp(z, -25.0, 5.0) * (1.0 - _ramp(y, -100.0, -135.0) * (1.0 - _ramp(z, 55.0, 80.0)))
+    w = w * ramp(z, -25.0, 5.0) * (1.0 - ramp(y, -100.0, -135.0) * (1.0 - ramp(z, 55.0, 80.0)))
     w = np.where(asset.region_mask("eyeballs"), 0.0, w)
     inner = asset.region_mask("mouth_interior")
     w = _laplace_extend(asset, w, inner)
@@ -377,38 +377,38 @@ def build_expression_basis(asset: RigAsset | None = None) -> np.ndarray:
     asset = load_asset() if asset is None else asset
     v = asset.vertices
     x, y, z = v.T
-    normals = _smoothed_normals(asset)
+    normals = smoothed_normals(asset)
     mouth = _mouth(asset)
     eye = _left_eye(asset)
     eyeballs = asset.region_mask("eyeballs")
     inner_mouth = asset.region_mask("mouth_interior")
     ys = mouth.slit(x)
     lower_side = y < ys
-    lip_core = 1.0 - _ramp(np.abs(x), mouth.x_corner - 10.0, mouth.x_corner)  # 0 at and beyond the corners
+    lip_core = 1.0 - ramp(np.abs(x), mouth.x_corner - 10.0, mouth.x_corner)  # 0 at and beyond the corners
 
     fields: dict[str, np.ndarray] = {}
 
     # Brows (left).
-    brow = _capsule_bump(v, (20, 26, 88), (44, 26, 74), 17.0) * _ramp(z, 40.0, 55.0)
+    brow = capsule_bump(v, (20, 26, 88), (44, 26, 74), 17.0) * ramp(z, 40.0, 55.0)
     fields["brow_raise_left"] = _normalise(brow[:, None] * _tangent(normals, (0, 1, 0)), 6.0)
-    brow_l = _capsule_bump(v, (14, 22, 88), (40, 23, 78), 15.0) * _ramp(z, 40.0, 55.0)
+    brow_l = capsule_bump(v, (14, 22, 88), (40, 23, 78), 15.0) * ramp(z, 40.0, 55.0)
     fields["brow_lower_left"] = _normalise(brow_l[:, None] * _tangent(normals, (-0.45, -1, 0)), 4.0)
-    inner_brow = _bump(v, (16, 24, 88), (15, 16, 18))
+    inner_brow = bump(v, (16, 24, 88), (15, 16, 18))
     f = inner_brow[:, None] * _tangent(normals, (0, 1, 0))
     fields["brow_inner_up"] = _normalise(f + _mirror(asset, f), 5.0)
 
     # Eyes (left).
     fields["eye_blink_left"] = _lid_field(asset, eye, "upper", 1.0, 10.0)
-    cheek_up = _bump(v, (36, -12, 68), (22, 14, 20))[:, None] * _unit((0, 1, 0.2)) * 2.0
+    cheek_up = bump(v, (36, -12, 68), (22, 14, 20))[:, None] * unit((0, 1, 0.2)) * 2.0
     fields["eye_squint_left"] = (_lid_field(asset, eye, "lower", 0.30, 9.0) +
                                  _lid_field(asset, eye, "upper", 0.15, 9.0) + cheek_up)
     fields["eye_wide_left"] = (_lid_field(asset, eye, "upper", -0.25, 12.0) +
                                _lid_field(asset, eye, "lower", -0.06, 8.0))
 
     # Cheeks, nose.
-    cheek = _bump(v, (46, -44, 64), (24, 24, 22))[:, None] * normals
+    cheek = bump(v, (46, -44, 64), (24, 24, 22))[:, None] * normals
     fields["cheek_puff"] = _normalise(cheek + _mirror(asset, cheek), 6.0)
-    ala = _bump(v, (14, -44, 92), (11, 12, 12))[:, None] * _unit((0.15, 1, 0.25))
+    ala = bump(v, (14, -44, 92), (11, 12, 12))[:, None] * unit((0.15, 1, 0.25))
     fields["nose_sneer"] = _normalise(ala + _mirror(asset, ala), 3.5)
 
     # Jaw.
@@ -416,25 +416,25 @@ def build_expression_basis(asset: RigAsset | None = None) -> np.ndarray:
 
     # Mouth corners (left): both lips near the corner move together, so no slit split is needed.
     corner = np.array([mouth.x_corner, mouth.y_corner - 1.0, 80.0])
-    smile = _bump(v, corner + (2, 2, -2), (22, 22, 22))[:, None] * _unit((0.35, 0.75, -0.55))
-    smile += 0.4 * _bump(v, (42, -40, 68), (20, 20, 20))[:, None] * _unit((0.1, 1.0, 0.3))  # cheek bunches
+    smile = bump(v, corner + (2, 2, -2), (22, 22, 22))[:, None] * unit((0.35, 0.75, -0.55))
+    smile += 0.4 * bump(v, (42, -40, 68), (20, 20, 20))[:, None] * unit((0.1, 1.0, 0.3))  # cheek bunches
     fields["mouth_smile_left"] = _normalise(smile, 8.0)
-    frown = _bump(v, corner + (1, -3, -1), (18, 20, 18))[:, None] * _unit((0.1, -1, -0.1))
+    frown = bump(v, corner + (1, -3, -1), (18, 20, 18))[:, None] * unit((0.1, -1, -0.1))
     fields["mouth_frown_left"] = _normalise(frown, 5.0)
-    stretch = _bump(v, corner + (3, -1, -2), (20, 18, 18))[:, None] * _unit((1, -0.2, -0.45))
+    stretch = bump(v, corner + (3, -1, -2), (20, 18, 18))[:, None] * unit((1, -0.2, -0.45))
     fields["mouth_stretch_left"] = _normalise(stretch, 6.0)
 
     # Lips (midline).
-    lips = _bump(v, (0, -72, 84), (30, 17, 20))
+    lips = bump(v, (0, -72, 84), (30, 17, 20))
     toward_mid = np.stack([-x / mouth.x_corner, np.zeros_like(x), np.zeros_like(x)], axis=1)
     pucker = lips[:, None] * (np.array([0.0, 0.0, 1.0]) + 0.4 * toward_mid)
     fields["mouth_pucker"] = _normalise(pucker, 7.0)
     press = lips[:, None] * np.stack([np.zeros_like(x), -0.3 * (y - ys), np.full_like(x, -3.0)], axis=1)
     fields["lips_press"] = _normalise(press, 3.5)
-    up = (~lower_side) * lip_core * _bump(v, (0, -68, 88), (26, 13, 18))
-    fields["upper_lip_up"] = _normalise(up[:, None] * _unit((0, 1, 0.35)), 4.0)
-    down = lower_side * lip_core * _bump(v, (0, -77, 88), (26, 14, 18))
-    fields["lower_lip_down"] = _normalise(down[:, None] * _unit((0, -1, 0.45)), 4.0)
+    up = (~lower_side) * lip_core * bump(v, (0, -68, 88), (26, 13, 18))
+    fields["upper_lip_up"] = _normalise(up[:, None] * unit((0, 1, 0.35)), 4.0)
+    down = lower_side * lip_core * bump(v, (0, -77, 88), (26, 14, 18))
+    fields["lower_lip_down"] = _normalise(down[:, None] * unit((0, -1, 0.45)), 4.0)
 
     basis = np.zeros((len(EXPRESSION_NAMES), len(v), 3))
     peaks = {"mouth_pucker": 7.0, "lips_press": 3.5}  # renormalised after the mouth-interior extension

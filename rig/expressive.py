@@ -64,7 +64,8 @@ from scipy.interpolate import CubicSpline
 
 from .asset import RigAsset, cached_per_asset, load_asset
 from .expressions import _laplace_extend, _left_eye, _mouth
-from .population import SPLIT_SIZES, _check_seed, _check_split, _smoothed_normals, population_split
+from .fields import smoothed_normals
+from .population import SPLIT_SIZES, check_seed, check_split, population_split
 
 __all__ = [
     "EXPRESSIVE_FEATURE_NAMES", "EXPRESSIVE_LIMITS", "JAW_HINGE", "JAW_DROP_DEG", "JAW_GLIDE_MM", "LID_MEET_FRACTION", "LID_CLEARANCE_MM",
@@ -208,7 +209,7 @@ def _lid_blend(asset: RigAsset) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 def _build(asset: RigAsset) -> _Fields:
     v = asset.vertices
     x, y, z = v.T
-    normals = _smoothed_normals(asset, radius=14.0)
+    normals = smoothed_normals(asset, radius=14.0)
     normals_u = normals / np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-9)
     mouth = _mouth(asset)
     ys = mouth.slit(x)
@@ -411,7 +412,7 @@ class ExpressiveHeads:
 def expressive_seeds(name: str = "heldout", seed: int = 0) -> np.ndarray:
     """Per-head expression seeds ``(n,)`` int64 from ``SeedSequence([seed, crc32("expressive-" + name)])``:
     a stream independent of the identity seeds."""
-    name, seed = _check_split(name), _check_seed(seed)
+    name, seed = check_split(name), check_seed(seed)
     ss = np.random.SeedSequence([seed, zlib.crc32(("expressive-" + name).encode("utf-8"))])
     return ss.generate_state(SPLIT_SIZES[name], dtype=np.uint32).astype(np.int64)
 

@@ -67,10 +67,10 @@ from pathlib import Path
 from typing import Callable, Iterable
 
 import numpy as np
-from scipy.spatial import cKDTree
 from scipy.special import ndtr, ndtri
 
 from .asset import RigAsset, cached_per_asset, load_asset
+from .fields import bump, capsule_bump, ramp, smoothed_normals, unit
 
 GENERATOR_VERSION = 1
 SPLIT_SIZES: dict[str, int] = {"train": 85, "val": 2, "test": 7, "heldout": 100}
@@ -87,61 +87,6 @@ COORDINATES = {
 _MIRROR_X = np.array([-1.0, 1.0, 1.0])
 
 
-# ----------------------------------------------------------------------------------------------------
-# Smooth building blocks (functions of 3D position, so every field is an ambient, smooth field)
-# ----------------------------------------------------------------------------------------------------
-
-def _bump(p: np.ndarray, center, radii) -> np.ndarray:
-    """Compact smooth bump ``(1 - t^2)^3`` of the ellipsoidal distance ``t``; ``(V, 3)`` mm -> ``(V,)``."""
-    t2 = (((p - np.asarray(center, float)) / np.asarray(radii, float)) ** 2).sum(axis=-1)
-    return np.where(t2 < 1.0, (1.0 - np.minimum(t2, 1.0)) ** 3, 0.0)
-
-
-def _capsule_bump(p: np.ndarray, a, b, radius: float) -> np.ndarray:
-    """Compact smooth bump of the distance to the segment ``a``-``b`` (mm), zero beyond ``radius``."""
-    a, b = np.asarray(a, float), np.asarray(b, float)
-    ab = b - a
-    s = np.clip(((p - a) @ ab) / (ab @ ab), 0.0, 1.0)
-    t2 = (np.linalg.norm(p - a - s[:, None] * ab, axis=1) / radius) ** 2
-    return np.where(t2 < 1.0, (1.0 - np.minimum(t2, 1.0)) ** 3, 0.0)
-
-
-def _ramp(x: np.ndarray, e0: float, e1: float) -> np.ndarray:
-    """Quintic smootherstep: 0 at ``x = e0``, 1 at ``x = e1`` (``e1 < e0`` ramps the other way). C2."""
-    t = np.clip((x - e0) / (e1 - e0), 0.0, 1.0)
-    return t * t * t * (t * (6.0 * t - 15.0) + 10.0)
-
-
-def _unit(v) -> np.ndarray:
-    v = np.asarray(v, float)
-    return v / np.linalg.norm(v)
-
-
-def _smoothed_normals(asset: RigAsset, radius: float = 12.0) -> np.ndarray:
-    """A smooth ambient direction field near the skin, evaluated at the vertices, ``(V, 3)``.
-
-    Kernel-weighted (``(1 - (d/radius)^2)^3``, area-weighted) average of the outward normals of the skin
-    faces (eyeball and mouth-interior faces excluded), divided by the total weight plus a small constant:
-    about unit length on smooth skin, shorter where normals disagree (thin parts) and fading to zero away
-    from the skin, so it stays smooth everywhere (the eyeballs and mouth interior get their surroundings'
-    direction).
-    """
-    v, f = asset.vertices, asset.faces
-    inner = asset.region_mask("eyeballs", "mouth_interior")
-    skin_faces = f[~inner[f].any(axis=1)]
-    tri = v[skin_faces]
-    cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])  # |cross| = 2 * area, outward
-    centroids = tri.mean(axis=1)
-    dist = cKDTree(v).sparse_distance_matrix(cKDTree(centroids), radius, output_type="coo_matrix")
-    k = (1.0 - (dist.data / radius) ** 2) ** 3
-    num = np.zeros_like(v)
-    for axis in range(3):
-        np.add.at(num[:, axis], dist.row, k * cross[dist.col, axis])
-    den = np.zeros(len(v))
-    np.add.at(den, dist.row, k * np.linalg.norm(cross[dist.col], axis=1))
-    return num / (den + 0.05 * np.median(den[den > 0]))[:, None]
-
-
 @dataclass(frozen=True)
 class _Context:
     p: np.ndarray  # (V, 3) template vertices, mm
@@ -155,65 +100,65 @@ class _Context:
 
 def _rotation_field(p: np.ndarray, weight: np.ndarray, pivot, axis) -> np.ndarray:
     """Linearised rotation per radian about ``axis`` through ``pivot``, faded by ``weight``."""
-    return weight[:, None] * np.cross(_unit(axis), p - np.asarray(pivot, float))
+    return weight[:, None] * np.cross(unit(axis), p - np.asarray(pivot, float))
 
 
 def _nose_length(c: _Context) -> np.ndarray:
-    return _bump(c.p, (0, -40, 104), (20, 24, 24))[:, None] * _unit((0, -0.2, 1))
+    return bump(c.p, (0, -40, 104), (20, 24, 24))[:, None] * unit((0, -0.2, 1))
 
 
 def _nose_width(c: _Context) -> np.ndarray:
-    return _bump(c.p, (14, -42, 92), (13, 16, 16))[:, None] * np.array([1.0, 0, 0])
+    return bump(c.p, (14, -42, 92), (13, 16, 16))[:, None] * np.array([1.0, 0, 0])
 
 
 def _nose_hump(c: _Context) -> np.ndarray:
-    return _bump(c.p, (0, -8, 96), (12, 14, 14))[:, None] * _unit((0, 0.4, 0.92))
+    return bump(c.p, (0, -8, 96), (12, 14, 14))[:, None] * unit((0, 0.4, 0.92))
 
 
 def _nostril_flare(c: _Context) -> np.ndarray:
     center = np.array([8.0, -49.0, 97.0])
-    return _bump(c.p, center, (14, 12, 14))[:, None] * (c.p - center) * np.array([1.0, 0.3, 1.0])
+    return bump(c.p, center, (14, 12, 14))[:, None] * (c.p - center) * np.array([1.0, 0.3, 1.0])
 
 
 def _lip_volume_upper(c: _Context) -> np.ndarray:
-    return _bump(c.p, (0, -69, 88), (28, 10, 16))[:, None] * c.normals
+    return bump(c.p, (0, -69, 88), (28, 10, 16))[:, None] * c.normals
 
 
 def _lip_volume_lower(c: _Context) -> np.ndarray:
-    return _bump(c.p, (0, -81, 86), (28, 10, 16))[:, None] * c.normals
+    return bump(c.p, (0, -81, 86), (28, 10, 16))[:, None] * c.normals
 
 
 def _mouth_width(c: _Context) -> np.ndarray:
-    return _bump(c.p, (23, -75, 78), (12, 12, 14))[:, None] * _unit((1, 0, -0.5))
+    return bump(c.p, (23, -75, 78), (12, 12, 14))[:, None] * unit((1, 0, -0.5))
 
 
 def _cheek_fullness(c: _Context) -> np.ndarray:
-    return _bump(c.p, (46, -40, 64), (24, 26, 24))[:, None] * c.normals
+    return bump(c.p, (46, -40, 64), (24, 26, 24))[:, None] * c.normals
 
 
 def _cheekbone(c: _Context) -> np.ndarray:
-    return _bump(c.p, (50, -14, 62), (18, 14, 18))[:, None] * c.normals
+    return bump(c.p, (50, -14, 62), (18, 14, 18))[:, None] * c.normals
 
 
 def _brow_ridge(c: _Context) -> np.ndarray:
-    return _capsule_bump(c.p, (8, 28, 82), (50, 24, 66), 16.0)[:, None] * c.normals
+    return capsule_bump(c.p, (8, 28, 82), (50, 24, 66), 16.0)[:, None] * c.normals
 
 
 def _chin_projection(c: _Context) -> np.ndarray:
-    return _bump(c.p, (0, -102, 80), (30, 20, 24))[:, None] * _unit((0, -0.25, 1))
+    return bump(c.p, (0, -102, 80), (30, 20, 24))[:, None] * unit((0, -0.25, 1))
 
 
 def _chin_width(c: _Context) -> np.ndarray:
-    return _bump(c.p, (17, -102, 74), (16, 16, 18))[:, None] * np.array([1.0, 0, 0])
+    return bump(c.p, (17, -102, 74), (16, 16, 18))[:, None] * np.array([1.0, 0, 0])
 
 
 def _jaw_angle_width(c: _Context) -> np.ndarray:
-    return _bump(c.p, (54, -78, 12), (22, 28, 28))[:, None] * np.array([1.0, 0, 0])
+    return bump(c.p, (54, -78, 12), (22, 28, 28))[:, None] * np.array([1.0, 0, 0])
 
 
 def _forehead_slope(c: _Context) -> np.ndarray:
     # Positive: the forehead slopes back (rotation about -X through a pivot behind the brows).
-    return _rotation_field(c.p, _bump(c.p, (0, 62, 70), (80, 48, 48)), (0, 28, 70), (-1, 0, 0))
+    return _rotation_field(c.p, bump(c.p, (0, 62, 70), (80, 48, 48)), (0, 28, 70), (-1, 0, 0))
 
 
 # The ear (left): the template's ear disc (tilted back 12 degrees) reaches from y ~ -41 to +25 and
@@ -236,7 +181,7 @@ def _ear_weight(p: np.ndarray) -> np.ndarray:
     base = 0.5 * (cranium + 64.0 + np.sqrt((cranium - 64.0) ** 2 + 4.0))  # smooth max(cranium, 64)
     ly, lz = _ear_frame(p)
     rho = np.sqrt((ly / 34.0) ** 2 + (lz / 21.0) ** 2)
-    return _ramp(p[:, 0] - base, 0.0, 9.0) * (1.0 - _ramp(rho, 1.0, 1.5))
+    return ramp(p[:, 0] - base, 0.0, 9.0) * (1.0 - ramp(rho, 1.0, 1.5))
 
 
 def _ear_size(c: _Context) -> np.ndarray:
@@ -257,42 +202,42 @@ def _ear_shape(c: _Context) -> np.ndarray:
 
 def _eye_size(c: _Context) -> np.ndarray:
     center = np.array([33.0, 5.0, 66.0])
-    return _bump(c.p, center, (22, 18, 26))[:, None] * (c.p - center) * np.array([1.0, 1.0, 0.0])
+    return bump(c.p, center, (22, 18, 26))[:, None] * (c.p - center) * np.array([1.0, 1.0, 0.0])
 
 
 def _eye_spacing(c: _Context) -> np.ndarray:
-    return _bump(c.p, (33, 5, 64), (26, 20, 28))[:, None] * np.array([1.0, 0, 0])
+    return bump(c.p, (33, 5, 64), (26, 20, 28))[:, None] * np.array([1.0, 0, 0])
 
 
 def _skull_width(c: _Context) -> np.ndarray:
-    return _bump(c.p, (72, 35, -15), (45, 60, 70))[:, None] * np.array([1.0, 0, 0])
+    return bump(c.p, (72, 35, -15), (45, 60, 70))[:, None] * np.array([1.0, 0, 0])
 
 
 def _occiput_projection(c: _Context) -> np.ndarray:
-    return _bump(c.p, (0, 25, -110), (70, 70, 45))[:, None] * _unit((0, 0.1, -1))
+    return bump(c.p, (0, 25, -110), (70, 70, 45))[:, None] * unit((0, 0.1, -1))
 
 
 def _face_length(c: _Context) -> np.ndarray:
     # Positive: a longer mid-face; everything below the eyes moves down, fading in under the nose, out
     # towards the back of the jaw, the ears and down the neck.
     x, y, z = c.p.T
-    w = _ramp(y, 8.0, -55.0) * _ramp(z, -30.0, 30.0) * (1.0 - _ramp(y, -120.0, -165.0)) * \
-        (1.0 - _ramp(x * x, 45.0 ** 2, 70.0 ** 2))
+    w = ramp(y, 8.0, -55.0) * ramp(z, -30.0, 30.0) * (1.0 - ramp(y, -120.0, -165.0)) * \
+        (1.0 - ramp(x * x, 45.0 ** 2, 70.0 ** 2))
     return w[:, None] * np.array([0.0, -1.0, 0.0])
 
 
 def _nose_deviation(c: _Context) -> np.ndarray:
-    return _bump(c.p, (0, -30, 100), (22, 30, 30))[:, None] * np.array([1.0, 0, 0])
+    return bump(c.p, (0, -30, 100), (22, 30, 30))[:, None] * np.array([1.0, 0, 0])
 
 
 def _jaw_shift(c: _Context) -> np.ndarray:
     x, y, z = c.p.T
-    w = _ramp(y, -50.0, -95.0) * _ramp(z, -20.0, 40.0) * (1.0 - _ramp(y, -125.0, -170.0))
+    w = ramp(y, -50.0, -95.0) * ramp(z, -20.0, 40.0) * (1.0 - ramp(y, -125.0, -170.0))
     return w[:, None] * np.array([1.0, 0, 0])
 
 
 def _face_mask(p: np.ndarray) -> np.ndarray:
-    return _bump(p, (0, -20, 50), (100, 110, 80))
+    return bump(p, (0, -20, 50), (100, 110, 80))
 
 
 def _face_roll(c: _Context) -> np.ndarray:
@@ -305,7 +250,7 @@ def _face_yaw(c: _Context) -> np.ndarray:
 
 def _normal_bump(center, radius: float) -> Callable[[_Context], np.ndarray]:
     def field(c: _Context) -> np.ndarray:
-        return _bump(c.p, center, (radius, radius, radius))[:, None] * c.normals
+        return bump(c.p, center, (radius, radius, radius))[:, None] * c.normals
     return field
 
 
@@ -388,15 +333,15 @@ _PAIRED_ASYM_FRACTION = 0.25
 def _feature_table() -> tuple[tuple[Feature, Callable[[_Context], np.ndarray], str], ...]:
     """All features in basis order: symmetric ones, paired partners, then the global asymmetric modes."""
     main, partners, asym = [], [], []
-    for name, builder, kind, unit, low, high, sd, p_active, desc in _SPECS:
+    for name, builder, kind, unit_name, low, high, sd, p_active, desc in _SPECS:
         sd = 0.5 * max(abs(low), abs(high)) if sd is None else sd
         if kind == "asym":
-            asym.append((Feature(name, unit, low, high, sd, p_active, "antisymmetric", desc), builder, kind))
+            asym.append((Feature(name, unit_name, low, high, sd, p_active, "antisymmetric", desc), builder, kind))
             continue
-        main.append((Feature(name, unit, low, high, sd, p_active, "symmetric", desc), builder, kind))
+        main.append((Feature(name, unit_name, low, high, sd, p_active, "symmetric", desc), builder, kind))
         if kind == "paired":
             span = _PAIRED_ASYM_FRACTION * max(abs(low), abs(high))
-            partners.append((Feature(f"asym_{name}", unit, -span, span, 0.5 * span, 1.0, "antisymmetric",
+            partners.append((Feature(f"asym_{name}", unit_name, -span, span, 0.5 * span, 1.0, "antisymmetric",
                                      f"left side gets {name} + a, right side {name} - a"), builder, "paired_asym"))
     return tuple(main + partners + asym)
 
@@ -441,7 +386,7 @@ def _mirror(field: np.ndarray, mirror: np.ndarray) -> np.ndarray:
 
 def build_basis(asset: RigAsset) -> FeatureBasis:
     """Compute every feature's unit field on ``asset``'s template (no caching; see :func:`feature_basis`)."""
-    ctx = _Context(p=np.asarray(asset.vertices, float), normals=_smoothed_normals(asset))
+    ctx = _Context(p=np.asarray(asset.vertices, float), normals=smoothed_normals(asset))
     m = asset.mirror
     fields = np.zeros((len(_TABLE), len(ctx.p), 3))
     paired_scale: dict[str, float] = {}
@@ -580,13 +525,13 @@ class Population:
         return len(self.names)
 
 
-def _check_seed(seed) -> int:
+def check_seed(seed) -> int:
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
     return int(seed)
 
 
-def _check_split(name) -> str:
+def check_split(name) -> str:
     if name not in SPLIT_SIZES:
         raise ValueError(f"unknown split {name!r}; splits are {list(SPLIT_SIZES)}")
     return name
@@ -594,7 +539,7 @@ def _check_split(name) -> str:
 
 def split_seeds(name: str, seed: int = 0) -> np.ndarray:
     """Per-head integer seeds of a split, ``(n,)`` int64, from ``SeedSequence([seed, crc32(name)])``."""
-    name, seed = _check_split(name), _check_seed(seed)
+    name, seed = check_split(name), check_seed(seed)
     ss = np.random.SeedSequence([seed, zlib.crc32(name.encode("utf-8"))])
     return ss.generate_state(SPLIT_SIZES[name], dtype=np.uint32).astype(np.int64)
 
@@ -649,7 +594,7 @@ def _check_splits(splits) -> tuple[str, ...]:
     if not splits:
         raise ValueError("splits must name at least one split")
     for s in splits:
-        _check_split(s)
+        check_split(s)
     if len(set(splits)) != len(splits):
         raise ValueError(f"splits contains duplicates: {list(splits)}")
     return splits
@@ -691,7 +636,7 @@ def write_population(out_dir: str | os.PathLike, seed: int = 0,
         Path of the written ``manifest.json``.
     """
     out_dir = Path(out_dir)
-    seed = _check_seed(seed)
+    seed = check_seed(seed)
     splits = _check_splits(splits)
     if file_format not in FILE_FORMATS:
         raise ValueError(f"file_format must be one of {FILE_FORMATS}, got {file_format!r}")
