@@ -33,7 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from rig.asset import write_bytes_atomic
+from rig.atomic import write_bytes_atomic
 from rig.errors import InputError
 
 SUPPORTED_EXTENSIONS = (".ply", ".obj", ".xyz", ".txt", ".csv", ".npy")
@@ -550,7 +550,7 @@ def write_point_cloud_ply(path, points, *, colors=None, normals=None,
     header = ["ply", "format binary_little_endian 1.0", "comment written by jnr (pipeline.pointcloud)",
               f"element vertex {n}"] + [f"property {ply_type[dtype]} {name}" for name, dtype, _ in fields]
     header = ("\n".join(header + ["end_header"]) + "\n").encode("ascii")
-    write_bytes_atomic(os.fspath(path), header + vertex.tobytes())
+    write_bytes_atomic(os.fspath(path), header + vertex.tobytes(), make_parents=True)
 
 
 # Blue → light blue → pale yellow → orange → red (ColorBrewer RdYlBu, reversed): even lightness steps

@@ -10,14 +10,13 @@ from __future__ import annotations
 
 import functools
 import io
-import os
-import tempfile
 import weakref
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from .atomic import write_bytes_atomic
 from .errors import SetupError
 from .joints import JOINT_NAMES, JOINTS, PARENTS
 from .template import REGION_NAMES, TEMPLATE_VERSION, build_template
@@ -124,32 +123,12 @@ def save_asset(asset: RigAsset, path: str | Path) -> None:
     write_npz_atomic(path, arrays)
 
 
-def write_bytes_atomic(path: str | Path, payload: bytes) -> None:
-    """Write ``payload`` through a temporary file in the same folder (then ``os.replace``), so no
-    half-written file is ever left at ``path``; the file gets the usual (umask) permissions."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(payload)
-            fh.flush()
-            os.fsync(fh.fileno())
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600 files
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-
-
 def write_npz_atomic(path: str | Path, arrays: dict[str, np.ndarray]) -> None:
-    """``np.savez_compressed`` written atomically (:func:`write_bytes_atomic`)."""
+    """``np.savez_compressed`` written atomically (:func:`rig.atomic.write_bytes_atomic`; missing parent
+    folders are created)."""
     buffer = io.BytesIO()
     np.savez_compressed(buffer, **arrays)
-    write_bytes_atomic(path, buffer.getvalue())
+    write_bytes_atomic(path, buffer.getvalue(), make_parents=True)
 
 
 def read_asset(path: str | Path) -> RigAsset:

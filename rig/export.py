@@ -25,14 +25,15 @@ from __future__ import annotations
 
 import base64
 import os
-import secrets
 from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 import pygltflib
 import trimesh
+from scipy.spatial.transform import Rotation
+
+from .atomic import write_bytes_atomic
 
 __all__ = ["export_mesh", "export_skinned_gltf", "read_skinned_gltf"]
 
@@ -299,38 +300,6 @@ def _node_local_matrix(node: pygltflib.Node) -> np.ndarray:
 
 
 # ----------------------------------------------------------------------------------------------
-# atomic writing
-# ----------------------------------------------------------------------------------------------
-
-
-def _atomic_write(path: Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` via a temporary file in the same directory and ``os.replace``."""
-    directory = path.parent
-    for _ in range(100):
-        tmp = directory / f".{path.name}.{secrets.token_hex(6)}.tmp"
-        try:
-            # os.open with mode 0o666 honours the umask (unlike tempfile.mkstemp's 0o600).
-            fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_BINARY", 0), 0o666)
-        except FileExistsError:
-            continue
-        break
-    else:  # pragma: no cover - 100 collisions of a 48-bit random name
-        raise FileExistsError(f"could not create a temporary file next to {str(path)!r}")
-    try:
-        with os.fdopen(fd, "wb") as handle:
-            handle.write(data)
-            handle.flush()
-            os.fsync(handle.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
-        raise
-
-
-# ----------------------------------------------------------------------------------------------
 # OBJ / PLY
 # ----------------------------------------------------------------------------------------------
 
@@ -460,7 +429,7 @@ def export_mesh(
         data = text.encode("utf-8")
     else:
         data = _ply_bytes(v, f, uvs, colors)
-    _atomic_write(path, data)
+    write_bytes_atomic(path, data)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -795,7 +764,7 @@ def export_skinned_gltf(
         data = b"".join(gltf.save_to_bytes())
     else:
         data = gltf.gltf_to_json().encode("utf-8")
-    _atomic_write(path, data)
+    write_bytes_atomic(path, data)
 
 
 # ----------------------------------------------------------------------------------------------
