@@ -535,7 +535,7 @@ IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp", ".gif", ".tif", ".tiff", ".we
 """What ``jnr fit`` reads as photos, named directly or found in a folder (the same rule for both)."""
 
 
-def _photo_inputs(items: list[str]) -> tuple[list[Path], list[Path]]:
+def photo_inputs(items: list[str]) -> tuple[list[Path], list[Path]]:
     """``(photos, folders)``: image files named directly, or found (non-recursively, sorted) in named
     folders; a file is a photo when its suffix is one of :data:`IMAGE_SUFFIXES`."""
     photos: list[Path] = []
@@ -722,7 +722,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
         raise CliError(f"--focal must be a number of pixels, got {args.focal}")
     if args.face is not None and args.landmarks:
         raise CliError("--face picks one of the faces the detector finds; it cannot be used with --landmarks")
-    photos, folders = _photo_inputs(args.photos)
+    photos, folders = photo_inputs(args.photos)
     config = _load_fit_photo_config(args)
     out = Path(args.out)
     command = "jnr " + " ".join(sys.argv[1:]) if sys.argv[1:] else "jnr fit"

@@ -311,7 +311,7 @@ def _check_image(image) -> np.ndarray:
     return img
 
 
-def _hemisphere(n: int) -> np.ndarray:
+def hemisphere_directions(n: int) -> np.ndarray:
     """``(n, 3)`` light travel directions (camera frame, OpenCV) spread over the cap ``z >= 0.25``: light
     coming from the camera's side of the face."""
     i = np.arange(n) + 0.5
@@ -321,7 +321,7 @@ def _hemisphere(n: int) -> np.ndarray:
     return np.stack([r * np.cos(phi), r * np.sin(phi), z], 1)
 
 
-def _fit_light(albedo_img: np.ndarray, normals: np.ndarray, target: np.ndarray, directions: np.ndarray
+def fit_light(albedo_img: np.ndarray, normals: np.ndarray, target: np.ndarray, directions: np.ndarray
                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per-pixel ``target ~ albedo (ambient + irradiance / pi * max(0, n . -d))``: the best ``d`` of
     ``directions`` and its non-negative ambient/irradiance (linear least squares per channel).
@@ -477,7 +477,7 @@ def _photometric_stages(photo: np.ndarray, crop: Crop, focal: float, model: Pose
     direction = np.array([0.0, 0.0, 1.0])
     edges = torch.as_tensor(mesh_edges(asset.faces))
     mirror = torch.as_tensor(np.asarray(asset.mirror, np.int64))
-    candidates = _hemisphere(config.light_directions)
+    candidates = hemisphere_directions(config.light_directions)
 
     lrs = {"joints": [(model.theta_n, config.lr_joints)], "latent": [(model.z, config.lr_latent)],
            "expressions": [(model.c, config.lr_expressions)],
@@ -515,7 +515,7 @@ def _photometric_stages(photo: np.ndarray, crop: Crop, focal: float, model: Pose
                                        Lighting(torch.ones(3), torch.zeros(3), torch.as_tensor(direction, dtype=dtype)),
                                        aovs=True)
                 m = face_mask(flat.region_ids) > 0
-                direction, amb, irr = _fit_light(flat.image[m].double().numpy(), flat.normals[m].double().numpy(),
+                direction, amb, irr = fit_light(flat.image[m].double().numpy(), flat.normals[m].double().numpy(),
                                                  target[m].double().numpy(), candidates)
                 if stage is config.stages[0] or not reports:
                     ambient.copy_(torch.as_tensor(amb, dtype=dtype))

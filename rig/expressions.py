@@ -176,7 +176,9 @@ class ExpressionError(InputError):
 # ----------------------------------------------------------------------------------------------------
 
 @dataclass(frozen=True)
-class _Mouth:
+class MouthGeometry:
+    """The template's mouth slit: the upper and lower lip-rim heights as functions of x and the corners."""
+
     y_up: PchipInterpolator  # upper rim height y(x), mm (clamped to the corners beyond them)
     y_lo: PchipInterpolator
     x_corner: float
@@ -190,7 +192,8 @@ class _Mouth:
         return 0.5 * (self.y_up(xc) + self.y_lo(xc))
 
 
-def _mouth(asset: RigAsset) -> _Mouth:
+def mouth_geometry(asset: RigAsset) -> MouthGeometry:
+    """The :class:`MouthGeometry` of the asset's lip loop (mm, rig frame)."""
     loop = np.asarray(asset.mouth_loop)
     v = asset.vertices
     n = len(loop)
@@ -206,11 +209,13 @@ def _mouth(asset: RigAsset) -> _Mouth:
         order = np.argsort(x)
         return PchipInterpolator(x[order], y[order])
 
-    return _Mouth(profile(upper), profile(lower), xc, yc, upper, lower)
+    return MouthGeometry(profile(upper), profile(lower), xc, yc, upper, lower)
 
 
 @dataclass(frozen=True)
-class _Eye:
+class EyeGeometry:
+    """The template's left eye opening: eyeball centre, corners and the rim vertices column by column."""
+
     center: np.ndarray  # eyeball centre, mm
     x_inner: float  # x of the corner nearer the midline
     x_outer: float
@@ -228,7 +233,8 @@ class _Eye:
         return np.interp(x, xs, ys)  # clamped to the corner heights beyond the corners
 
 
-def _left_eye(asset: RigAsset) -> _Eye:
+def left_eye_geometry(asset: RigAsset) -> EyeGeometry:
+    """The :class:`EyeGeometry` of the asset's left (+X) eyelid loop (mm, rig frame)."""
     v = asset.vertices
     loop = np.asarray(asset.eye_loops[0])
     if v[loop, 0].mean() <= 0:
@@ -240,8 +246,8 @@ def _left_eye(asset: RigAsset) -> _Eye:
     lower = lower[np.argmin(np.abs(v[lower, 0][None, :] - v[upper, 0][:, None]), axis=1)]
     corners = loop[[0, half]]
     corners = corners[np.argsort(v[corners, 0])]
-    return _Eye(np.asarray(EYE_CENTER, float), float(v[corners[0], 0]), float(v[corners[1], 0]),
-                upper, lower, corners)
+    return EyeGeometry(np.asarray(EYE_CENTER, float), float(v[corners[0], 0]), float(v[corners[1], 0]),
+                       upper, lower, corners)
 
 
 def _rot_x(q: np.ndarray, angle: np.ndarray) -> np.ndarray:
@@ -268,7 +274,7 @@ def _profile(s_knots: np.ndarray, values: np.ndarray):
     return f
 
 
-def _lid_field(asset: RigAsset, eye: _Eye, lid: str, fraction: float, falloff: float) -> np.ndarray:
+def _lid_field(asset: RigAsset, eye: EyeGeometry, lid: str, fraction: float, falloff: float) -> np.ndarray:
     """Left-eye lid motion, ``(V, 3)`` mm: the ``lid`` ("upper"/"lower") rim moves ``fraction`` of the
     way to the other rim (rotation about the eyeball's x axis plus an interpolated correction); the
     rest of that lid follows, fading over ``falloff`` mm away from the rim. The other lid, the eyeballs
@@ -299,7 +305,7 @@ def _lid_field(asset: RigAsset, eye: _Eye, lid: str, fraction: float, falloff: f
     return w[:, None] * field
 
 
-def _laplace_extend(asset: RigAsset, field: np.ndarray, inner: np.ndarray) -> np.ndarray:
+def harmonic_extension(asset: RigAsset, field: np.ndarray, inner: np.ndarray) -> np.ndarray:
     """Replace ``field`` on the ``inner`` vertices by the harmonic extension of its values on their
     boundary (uniform graph Laplacian over the mesh edges)."""
     f = asset.faces
@@ -342,7 +348,7 @@ def _symmetrise(asset: RigAsset, field: np.ndarray) -> np.ndarray:
 # The shapes (left-side ones; the right ones are mirrored)
 # ----------------------------------------------------------------------------------------------------
 
-def _jaw_weight(asset: RigAsset, mouth: _Mouth) -> np.ndarray:
+def _jaw_weight(asset: RigAsset, mouth: MouthGeometry) -> np.ndarray:
     """``(V,)`` weight of the jaw rotation (see the module docstring)."""
     v = asset.vertices
     x, y, z = v.T
@@ -355,7 +361,7 @@ def _jaw_weight(asset: RigAsset, mouth: _Mouth) -> np.ndarray:
     w = w * ramp(z, -25.0, 5.0) * (1.0 - ramp(y, -100.0, -135.0) * (1.0 - ramp(z, 55.0, 80.0)))
     w = np.where(asset.region_mask("eyeballs"), 0.0, w)
     inner = asset.region_mask("mouth_interior")
-    w = _laplace_extend(asset, w, inner)
+    w = harmonic_extension(asset, w, inner)
     return 0.5 * (w + w[asset.mirror])
 
 
@@ -378,8 +384,8 @@ def build_expression_basis(asset: RigAsset | None = None) -> np.ndarray:
     v = asset.vertices
     x, y, z = v.T
     normals = smoothed_normals(asset)
-    mouth = _mouth(asset)
-    eye = _left_eye(asset)
+    mouth = mouth_geometry(asset)
+    eye = left_eye_geometry(asset)
     eyeballs = asset.region_mask("eyeballs")
     inner_mouth = asset.region_mask("mouth_interior")
     ys = mouth.slit(x)
@@ -445,7 +451,7 @@ def build_expression_basis(asset: RigAsset | None = None) -> np.ndarray:
         f = fields[name]
         f = np.where(eyeballs[:, None], 0.0, f)
         if name != "jaw_open":  # (its weight is already extended over the mouth interior)
-            f = _laplace_extend(asset, f, inner_mouth)
+            f = harmonic_extension(asset, f, inner_mouth)
         if spec.side == "center":
             f = _symmetrise(asset, f)
         if name in peaks:
@@ -458,7 +464,7 @@ def build_expression_basis(asset: RigAsset | None = None) -> np.ndarray:
 
 @cached_per_asset
 def _cached(asset: RigAsset) -> tuple[np.ndarray, np.ndarray]:
-    return build_expression_basis(asset), _jaw_weight(asset, _mouth(asset))
+    return build_expression_basis(asset), _jaw_weight(asset, mouth_geometry(asset))
 
 
 def peak_displacements(asset: RigAsset | None = None) -> dict[str, float]:

@@ -63,7 +63,7 @@ import numpy as np
 from scipy.interpolate import CubicSpline
 
 from .asset import RigAsset, cached_per_asset, load_asset
-from .expressions import _laplace_extend, _left_eye, _mouth
+from .expressions import harmonic_extension, left_eye_geometry, mouth_geometry
 from .fields import smoothed_normals
 from .population import SPLIT_SIZES, check_seed, check_split, population_split
 
@@ -164,7 +164,7 @@ class _Fields:
 def _jaw_weight(asset: RigAsset) -> np.ndarray:
     v = asset.vertices
     x, y, z = v.T
-    mouth = _mouth(asset)
+    mouth = mouth_geometry(asset)
     dy = y - mouth.slit(x)
     a = 1.0 - _cinf_step(dy, -34.0, 20.0)  # 1 well below the mouth line, 0 well above
     g = np.exp(-0.5 * (x / (0.45 * mouth.x_corner)) ** 2) * (1.0 - _cinf_step(np.abs(x), 0.55 * mouth.x_corner,
@@ -173,7 +173,7 @@ def _jaw_weight(asset: RigAsset) -> np.ndarray:
     w = w * _cinf_step(z, -35.0, 10.0)  # not the back of the neck
     w = w * (1.0 - _cinf_step(-y, 92.0, 135.0) * (1.0 - _cinf_step(z, 35.0, 80.0)))  # throat fades
     w = np.where(asset.region_mask("eyeballs", "ears", "scalp"), 0.0, w)
-    w = _laplace_extend(asset, w, asset.region_mask("mouth_interior"))
+    w = harmonic_extension(asset, w, asset.region_mask("mouth_interior"))
     return 0.5 * (w + w[asset.mirror])
 
 
@@ -186,7 +186,7 @@ def _lid_blend(asset: RigAsset) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     The returned field already carries the side's factor (``f`` or ``-(1 - f)``).
     """
     v = asset.vertices
-    eye = _left_eye(asset)
+    eye = left_eye_geometry(asset)
     x, y, z = v.T
     xs = np.concatenate([[eye.x_inner], v[eye.upper, 0], [eye.x_outer]])
     d = np.concatenate([np.zeros((1, 3)), v[eye.lower] - v[eye.upper], np.zeros((1, 3))])
@@ -211,7 +211,7 @@ def _build(asset: RigAsset) -> _Fields:
     x, y, z = v.T
     normals = smoothed_normals(asset, radius=14.0)
     normals_u = normals / np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-9)
-    mouth = _mouth(asset)
+    mouth = mouth_geometry(asset)
     ys = mouth.slit(x)
     corner = np.array([mouth.x_corner, mouth.y_corner, 80.0])
     gate = _lip_gate(x, mouth.x_corner)
@@ -257,7 +257,7 @@ def _build(asset: RigAsset) -> _Fields:
     linear = np.zeros((len(EXPRESSIVE_FEATURE_NAMES), len(v), 3))
     for name, f in fields.items():
         f = np.where(eyeballs[:, None], 0.0, f)
-        f = _laplace_extend(asset, f, interior)
+        f = harmonic_extension(asset, f, interior)
         if not name.endswith("_l"):
             f = 0.5 * (f + _mirrored(asset, f))
         f = _peak(f, _PEAKS[name])

@@ -19,7 +19,14 @@ import pytest
 import trimesh
 
 from pipeline.cli import main
-from pipeline.files import OUTPUT_MARKER, OutputError, OutputExistsError, check_output, staged_file, staged_folder
+from pipeline.files import (
+    OUTPUT_MARKER,
+    OutputError,
+    OutputExistsError,
+    check_output,
+    staged_file,
+    staged_folder,
+)
 from tests.pipeline.conftest import fast_fit_args
 
 REPO = Path(__file__).resolve().parents[2]
@@ -495,14 +502,14 @@ def test_a_yaml_syntax_error_is_one_line_with_the_file(capsys, tmp_path, sb):
 def test_gif_files_are_photos_alone_and_in_folders(tmp_path):
     from PIL import Image
 
-    from pipeline.cli import CliError, _photo_inputs
+    from pipeline.cli import CliError, photo_inputs
 
     Image.fromarray(np.zeros((8, 8, 3), np.uint8)).save(tmp_path / "a.gif")
-    assert _photo_inputs([str(tmp_path / "a.gif")]) == ([tmp_path / "a.gif"], [])
-    assert _photo_inputs([str(tmp_path)]) == ([tmp_path / "a.gif"], [tmp_path])
+    assert photo_inputs([str(tmp_path / "a.gif")]) == ([tmp_path / "a.gif"], [])
+    assert photo_inputs([str(tmp_path)]) == ([tmp_path / "a.gif"], [tmp_path])
     (tmp_path / "b.xyz").write_text("1 2 3\n")
     with pytest.raises(CliError, match="not a photo jnr reads"):
-        _photo_inputs([str(tmp_path / "b.xyz")])
+        photo_inputs([str(tmp_path / "b.xyz")])
 
 
 def test_warnings_are_one_line_without_python_source(tmp_path):

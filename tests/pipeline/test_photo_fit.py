@@ -17,9 +17,9 @@ from pipeline.photo_fit import (
     Crop,
     FitPhotoConfig,
     PhotoStage,
-    _fit_light,
-    _hemisphere,
     face_crop,
+    fit_light,
+    hemisphere_directions,
 )
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -65,17 +65,17 @@ class TestLight:
         n[:, 2] = -np.abs(n[:, 2])  # normals facing the camera (OpenCV: towards -z)
         n /= np.linalg.norm(n, axis=1, keepdims=True)
         albedo = rng.uniform(0.2, 0.8, size=(4000, 3))
-        candidates = _hemisphere(64)
+        candidates = hemisphere_directions(64)
         true_d = candidates[17]
         amb, irr = np.array([0.3, 0.25, 0.2]), np.array([2.0, 1.8, 1.5])
         cos = np.clip(-(n @ true_d), 0, None)[:, None] / np.pi
         target = albedo * (amb + irr * cos)
-        d, a, i = _fit_light(albedo, n, target, candidates)
+        d, a, i = fit_light(albedo, n, target, candidates)
         assert np.allclose(d, true_d)
         assert np.allclose(a, amb, atol=1e-6) and np.allclose(i, irr, atol=1e-5)
 
     def test_hemisphere_directions_come_from_the_camera_side(self):
-        d = _hemisphere(64)
+        d = hemisphere_directions(64)
         assert d.shape == (64, 3) and np.allclose(np.linalg.norm(d, axis=1), 1.0)
         assert d[:, 2].min() >= 0.25 - 1e-9
 

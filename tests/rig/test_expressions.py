@@ -7,8 +7,15 @@ import pytest
 import torch
 
 from rig.expressions import (
-    EXPRESSION_NAMES, EXPRESSIONS, ExpressionError, ExpressionModel, build_expression_basis,
-    coefficients_from_dict, expression_limits, mirror_coefficients, peak_displacements,
+    EXPRESSION_NAMES,
+    EXPRESSIONS,
+    ExpressionError,
+    ExpressionModel,
+    build_expression_basis,
+    coefficients_from_dict,
+    expression_limits,
+    mirror_coefficients,
+    peak_displacements,
 )
 from rig.model import JointRig
 

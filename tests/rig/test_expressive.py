@@ -5,10 +5,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rig.expressions import _left_eye, build_expression_basis
+from rig.expressions import build_expression_basis, left_eye_geometry
 from rig.expressive import (
-    EXPRESSIVE_FEATURE_NAMES, EXPRESSIVE_LIMITS, ExpressiveHeads, expressive_offsets, expressive_peaks,
-    expressive_split, sample_expression_coefficients,
+    EXPRESSIVE_FEATURE_NAMES,
+    EXPRESSIVE_LIMITS,
+    ExpressiveHeads,
+    expressive_offsets,
+    expressive_peaks,
+    expressive_split,
+    sample_expression_coefficients,
 )
 from rig.population import population_split
 
@@ -136,7 +141,7 @@ def test_jaw_opens_mouth(asset):
 
 
 def test_eye_close(asset):
-    eye = _left_eye(asset)
+    eye = left_eye_geometry(asset)
     c = np.zeros(F)
     c[EXPRESSIVE_FEATURE_NAMES.index("eye_close_l")] = 1.0
     v = asset.vertices + expressive_offsets(c, asset)
