@@ -53,13 +53,11 @@ class CliError(JnrError):
 # ----------------------------------------------------------------------------------------------------
 
 def _check_output(path: Path, force: bool, inputs=()) -> None:
-    """Refuse an output file before any work (see :func:`pipeline.files.check_output`)."""
-    from pipeline.files import OutputError, check_output
+    """Refuse an output file before any work (:func:`pipeline.files.check_output`; its
+    :class:`~pipeline.files.OutputError` is an InputError, which :func:`main` reports with exit 2)."""
+    from pipeline.files import check_output
 
-    try:
-        check_output(path, force=force, inputs=[p for p in inputs if p], kind="file")
-    except OutputError as exc:
-        raise CliError(str(exc)) from None
+    check_output(path, force=force, inputs=[p for p in inputs if p], kind="file")
 
 
 MESH_SUFFIXES = {"obj": (".obj",), "ply": (".ply",), "gltf": (".glb", ".gltf")}
@@ -150,13 +148,10 @@ def _write_head(path: Path, fmt: str, theta, rig=None, fit_arrays: tuple | None 
 
 def _write_output_file(out: Path, force: bool, inputs, write) -> None:
     """``write(tmp_path)`` into a staged file that replaces ``out`` atomically when it succeeds."""
-    from pipeline.files import OutputError, staged_file
+    from pipeline.files import staged_file
 
-    try:
-        with staged_file(out, force, inputs=[p for p in inputs if p]) as tmp:
-            write(tmp)
-    except OutputError as exc:
-        raise CliError(str(exc)) from None
+    with staged_file(out, force, inputs=[p for p in inputs if p]) as tmp:
+        write(tmp)
 
 
 # ----------------------------------------------------------------------------------------------------
@@ -221,16 +216,14 @@ def cmd_rig_build(args: argparse.Namespace) -> int:
 
 
 def cmd_rig_export(args: argparse.Namespace) -> int:
-    out = Path(args.out) if args.out else Path(f"jnr_rig{MESH_FORMATS[args.format]}")
-    fmt = _format_for(out, args.format)
-    _check_output(out, args.force, inputs=[args.params])
-    theta, fit_arrays = _load_edit_params(args.params, args.clamp)
-    _write_output_file(out, args.force, [args.params], lambda tmp: _write_head(tmp, fmt, theta, fit_arrays=fit_arrays))
-    print(f"wrote {out}")
-    return EXIT_OK
+    """``jnr rig export``: :func:`cmd_rig_edit` with an optional parameter file and a default output."""
+    args.out = args.out or f"jnr_rig{MESH_FORMATS[args.format]}"
+    return cmd_rig_edit(args)
 
 
 def cmd_rig_edit(args: argparse.Namespace) -> int:
+    """``jnr rig edit`` / ``export``: the rig posed by a parameter file (or a fit's params.json), written
+    atomically."""
     out = Path(args.out)
     fmt = _format_for(out, args.format)
     _check_output(out, args.force, inputs=[args.params])
@@ -246,19 +239,16 @@ def cmd_demo(args: argparse.Namespace) -> int:
     import numpy as np
     import torch
 
-    from pipeline.files import OutputError, check_output, staged_folder
+    from pipeline.files import check_output, staged_folder
     from rig.asset import build_asset, load_asset
     from rig.model import JointRig
     from rig.parameters import random_theta, save_params_json
 
     out = Path(args.out)
     config = _load_fit_photo_config(args)
-    try:
-        if not out.parent.exists():
-            out.parent.mkdir(parents=True)  # the README's command writes out/demo in a fresh clone
-        check_output(out, force=args.force, kind="folder")
-    except OutputError as exc:
-        raise CliError(str(exc)) from None
+    if not out.parent.exists():
+        out.parent.mkdir(parents=True)  # the README's command writes out/demo in a fresh clone
+    check_output(out, force=args.force, kind="folder")
     steps = ["build", "export", "edit", "picture", "astronaut fit", "synthetic photo", "synthetic fit"]
     from tqdm import tqdm
 
@@ -306,8 +296,6 @@ def cmd_demo(args: argparse.Namespace) -> int:
                 "seconds": round(time.perf_counter() - t0, 2),
             }
             (stage / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
-    except OutputError as exc:
-        raise CliError(str(exc)) from None
     finally:
         bar.close()
     print(f"jnr demo: wrote {out}/ in {summary['seconds']:.0f} s")
@@ -385,7 +373,7 @@ class _StageBars:
 
 
 def cmd_data_synth(args: argparse.Namespace) -> int:
-    from pipeline.files import OutputError, staged_folder
+    from pipeline.files import staged_folder
     from rig.population import MANIFEST_NAME, write_population
 
     out = Path(args.out)
@@ -394,8 +382,6 @@ def cmd_data_synth(args: argparse.Namespace) -> int:
         with staged_folder(out, args.force, marker={"command": "jnr data synth"}) as tmp:
             write_population(tmp, seed=args.seed, splits=tuple(args.splits), file_format=args.format,
                              overwrite=True, progress=lambda d, t: bars("synthesising heads", d, t))
-    except OutputError as exc:
-        raise CliError(str(exc)) from None
     finally:
         bars.close()
     print(f"wrote {out / MANIFEST_NAME}")
@@ -480,7 +466,7 @@ def cmd_fit_scan(args: argparse.Namespace) -> int:
     import numpy as np
 
     from landmarks.points3d import LandmarkError
-    from pipeline.files import OutputError, check_output
+    from pipeline.files import check_output
     from pipeline.pointcloud import (
         CloudError,
         read_landmarks3d,
@@ -493,10 +479,7 @@ def cmd_fit_scan(args: argparse.Namespace) -> int:
 
     out = Path(args.out)
     inputs = [p for p in (args.cloud, args.landmarks, args.config) if p]
-    try:
-        check_output(out, force=args.force, inputs=inputs)
-    except OutputError as exc:
-        raise CliError(str(exc)) from None
+    check_output(out, force=args.force, inputs=inputs)
     config = _load_fit_scan_config(args)
     t0 = time.perf_counter()
     try:
@@ -516,12 +499,9 @@ def cmd_fit_scan(args: argparse.Namespace) -> int:
     except FloatingPointError as exc:
         raise CliError(str(exc), EXIT_FAILURE) from None
     distances = scan_to_mesh(cloud.points, fit.vertices, load_asset().faces)
-    try:
-        write_scan_outputs(out, cloud, fit, distances, frame=args.frame, config=config, force=args.force,
-                           extra={"command": "jnr " + " ".join(sys.argv[1:]) if sys.argv[1:] else "jnr fit-scan",
-                                  "wall_seconds": time.perf_counter() - t0}, inputs=tuple(inputs))
-    except OutputError as exc:
-        raise CliError(str(exc)) from None
+    write_scan_outputs(out, cloud, fit, distances, frame=args.frame, config=config, force=args.force,
+                       extra={"command": "jnr " + " ".join(sys.argv[1:]) if sys.argv[1:] else "jnr fit-scan",
+                              "wall_seconds": time.perf_counter() - t0}, inputs=tuple(inputs))
     used = (f"{len(cloud.points)} points (a random subsample of its {cloud.input_points})"
             if cloud.input_points > len(cloud.points) else f"{len(cloud.points)} points")
     print(f"fitted {used} ({cloud.units}) in {fit.timings['total']:.1f} s; "
@@ -607,13 +587,12 @@ def fit_one_photo(photo_path: str | Path, out: str | Path, *, config=None, landm
         CliError: any of the above (exit status 2, nothing written); a diverged fit (1).
     """
     from landmarks.detect import DetectionError, detect_landmarks, load_working_image
-    from landmarks.formats import LandmarkFileError, read_landmarks
-    from landmarks.plausibility import LandmarkPlausibilityError, check_landmarks_2d
-    from pipeline.files import OutputError, check_output
+    from landmarks.formats import read_landmarks
+    from landmarks.plausibility import check_landmarks_2d
+    from pipeline.files import check_output
     from pipeline.photo_camera import check_focal
     from pipeline.photo_fit import FitPhotoConfig, fit_photo
     from pipeline.photo_outputs import write_photo_outputs
-    from rig.lbs import ShapeError
 
     t0 = time.perf_counter()
     photo_path, out = Path(photo_path), Path(out)
@@ -639,33 +618,24 @@ def fit_one_photo(photo_path: str | Path, out: str | Path, *, config=None, landm
             source = {"landmarks": "dlib 68-point detector", "face_box": photo.to_original(
                 detection.box.reshape(2, 2)).reshape(-1).tolist(), "face_score": detection.score,
                       "face_index": 0 if face is None else face}
-    except (OutputError, LandmarkFileError, LandmarkPlausibilityError) as exc:
-        raise CliError(str(exc)) from None
-    except DetectionError as exc:
+    except DetectionError as exc:  # name the photo (the other InputErrors name their file or option)
         message = str(exc)
         raise CliError(message if str(photo_path) in message else f"{photo_path}: {message}") from None
-    except ValueError as exc:  # the focal
-        raise CliError(str(exc)) from None
     k = photo.factor
     try:
         fit = fit_photo(photo.image, points, focal=None if focal is None else focal / k, config=config,
                         progress=progress)
-    except (DetectionError, ShapeError) as exc:
-        raise CliError(f"{photo_path}: {exc}") from None
-    except FloatingPointError as exc:
+    except FloatingPointError as exc:  # a diverged fit
         raise CliError(f"{photo_path}: {exc}", EXIT_FAILURE) from None
-    except ValueError as exc:
+    except ValueError as exc:  # bad image or landmarks for the fit (InputError and plain ValueError)
         raise CliError(f"{photo_path}: {exc}") from None
     extra = {"input": {"photo": str(photo_path), "width": width, "height": height,
                        "fitted_width": fit.width, "fitted_height": fit.height, "reduction": k,
                        "focal_px": fit.focal * k, "focal_source": "--focal" if focal else "default 1.4 * max(W, H)",
                        **source},
              "command": command}
-    try:
-        write_photo_outputs(out, photo.image, fit, config=config, force=force, extra=extra, inputs=all_inputs,
-                            image_factor=k, original_size=photo.original_size)
-    except OutputError as exc:
-        raise CliError(str(exc)) from None
+    write_photo_outputs(out, photo.image, fit, config=config, force=force, extra=extra, inputs=all_inputs,
+                        image_factor=k, original_size=photo.original_size)
     return {"photo": str(photo_path), "output": str(out), "mean_error_px": float(fit.error_px.mean()) * k,
             "nme": float(fit.nme), "seconds": time.perf_counter() - t0, "fit_seconds": fit.timings["total"]}
 
@@ -676,6 +646,7 @@ def _fit_worker(task: tuple) -> tuple[str, dict | None, str | None, int]:
     import torch
 
     from pipeline.signals import worker_task
+    from rig.errors import InputError
 
     torch.set_num_threads(threads)
     try:
@@ -684,6 +655,8 @@ def _fit_worker(task: tuple) -> tuple[str, dict | None, str | None, int]:
                                         command=command, inputs=inputs), None, 0
     except CliError as exc:
         return photo, None, str(exc), exc.code
+    except InputError as exc:
+        return photo, None, str(exc), EXIT_USAGE
     except Exception as exc:  # noqa: BLE001 - reported per photo; the batch goes on
         return photo, None, f"{photo}: {type(exc).__name__}: {exc}", EXIT_FAILURE
 
@@ -720,8 +693,6 @@ def cmd_fit(args: argparse.Namespace) -> int:
         raise CliError(f"--jobs must be at least 1, got {args.jobs}")
     if args.focal is not None and not math.isfinite(args.focal):
         raise CliError(f"--focal must be a number of pixels, got {args.focal}")
-    if args.face is not None and args.landmarks:
-        raise CliError("--face picks one of the faces the detector finds; it cannot be used with --landmarks")
     photos, folders = photo_inputs(args.photos)
     config = _load_fit_photo_config(args)
     out = Path(args.out)
@@ -745,17 +716,14 @@ def cmd_fit(args: argparse.Namespace) -> int:
     stems = [p.stem for p in photos]
     names = [s if stems.count(s) == 1 else f"{s}_{i}" for i, s in enumerate(stems)]
     inputs = [str(p) for p in (*photos, *folders)]
+    created = make_output_folder(out, inputs=inputs)
     try:
-        created = make_output_folder(out, inputs=inputs)
-        try:
-            for n in names:
-                check_output(out / n, force=args.force, inputs=inputs)
-        except OutputError:
-            if created:
-                shutil.rmtree(out, ignore_errors=True)
-            raise
-    except OutputError as exc:
-        raise CliError(str(exc)) from None
+        for n in names:
+            check_output(out / n, force=args.force, inputs=inputs)
+    except OutputError:
+        if created:
+            shutil.rmtree(out, ignore_errors=True)
+        raise
     jobs = max(1, min(args.jobs or (os.cpu_count() or 1), len(photos)))
     threads = max(1, (os.cpu_count() or 1) // jobs)
     tasks = [(str(p), str(out / n), config, args.landmarks, args.focal, args.force, threads, command, tuple(inputs))

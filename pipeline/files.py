@@ -135,11 +135,15 @@ def check_output(out: str | Path, *, force: bool = False, inputs: Iterable[str |
                                   "--force replaces only jnr's own outputs: remove it yourself or choose another")
         elif out.is_dir() or not out.is_file():
             raise OutputError(f"{option} {out} exists and is not a regular file; jnr will not replace it")
-    parent = out.parent if str(out.parent) else Path(".")
-    if not parent.is_dir():
-        raise OutputError(f"the folder of {option} {out} does not exist ({parent})")
-    check_writable(parent, what=f"{option} {out}")
+    _check_parent(out, option)
     return out
+
+
+def _check_parent(out: Path, option: str) -> None:
+    """The folder that will hold ``out`` exists and is writable (:func:`check_writable`)."""
+    if not out.parent.is_dir():
+        raise OutputError(f"the folder of {option} {out} does not exist ({out.parent})")
+    check_writable(out.parent, what=f"{option} {out}")
 
 
 def check_writable(folder: str | Path, *, what: str | None = None, free_bytes: int = MIN_FREE_BYTES) -> None:
@@ -355,10 +359,7 @@ def make_output_folder(out: str | Path, *, inputs: Iterable[str | Path] = ()) ->
     if existed:
         check_writable(out, what=f"--out {out}")
         return False
-    parent = out.parent if str(out.parent) else Path(".")
-    if not parent.is_dir():
-        raise OutputError(f"the folder of --out {out} does not exist ({parent})")
-    check_writable(parent, what=f"--out {out}")
+    _check_parent(out, "--out")
     try:
         out.mkdir()
     except FileExistsError:

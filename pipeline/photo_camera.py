@@ -28,6 +28,7 @@ import torch
 from kornia.geometry.camera import PinholeCamera
 
 from landmarks.ibug68 import JAW_CONTOUR
+from rig.errors import InputError
 from rig.geometry import (
     RIG_TO_OPENCV,  # the one definition (rig axes -> OpenCV axes), used here
 )
@@ -51,7 +52,8 @@ def check_focal(focal: float, width: int, height: int) -> float:
         ``focal`` as a float.
 
     Raises:
-        ValueError: not a finite number in the range; the message gives the range in pixels.
+        rig.errors.InputError: not a finite number in the range (a ValueError); the message gives the
+            range in pixels.
 
     Example:
         >>> check_focal(896.0, 640, 480)
@@ -61,9 +63,9 @@ def check_focal(focal: float, width: int, height: int) -> float:
     try:
         value = float(focal)
     except (TypeError, ValueError):
-        raise ValueError(f"--focal must be a number of pixels, got {focal!r}") from None
+        raise InputError(f"--focal must be a number of pixels, got {focal!r}") from None
     if not (math.isfinite(value) and low <= value <= high):
-        raise ValueError(f"--focal {focal:g} px is outside {low:g}-{high:g} px, the range jnr accepts for this "
+        raise InputError(f"--focal {focal:g} px is outside {low:g}-{high:g} px, the range jnr accepts for this "
                          f"{width} x {height} photo ({FOCAL_RANGE[0]:g}-{FOCAL_RANGE[1]:g} x its longer side; the "
                          f"default is 1.4 x)")
     return value
