@@ -3,12 +3,12 @@
     .venv/bin/python benchmarks/bench_fit_photo.py [--neutral 5] [--expressive 5] [--first 20] [--seed 0]
                                                    [--json FILE]
 
-One 384x384 photo per head (pipeline.synthetic_photos: yaw within +-30 deg, pitch +-10, roll +-5,
+One 384x384 photo per head (pipeline.synthetic.photos: yaw within +-30 deg, pitch +-10, roll +-5,
 path-traced with a point light and a constant environment at 64 spp, random skin tone, hair colour
 and background), the projected true landmarks + 1 px Gaussian noise, the true focal length. Every
 fit is aligned to the true head by a similarity transform on the 51 inner landmarks, refined by
 similarity ICP; then the face-region scan-to-mesh distance (median, mean, std per photo) and the
-true vertex error are computed (pipeline.photo_eval). Rows: the full fit (``jnr``), its landmark-only
+true vertex error are computed (pipeline.evaluation.photos). Rows: the full fit (``jnr``), its landmark-only
 stage (``landmarks``, seconds = that stage alone) and the unfitted template (``template``), mean ±
 sd over photos. Heads from 20 on by default: the fit's defaults were chosen on heads 0-5.
 """
@@ -29,7 +29,7 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from pipeline.photo_eval import evaluate_photos  # noqa: E402
+from pipeline.evaluation.photos import evaluate_photos
 
 
 def main() -> None:

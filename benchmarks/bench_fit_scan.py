@@ -27,8 +27,8 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from pipeline.scan_eval import evaluate_scans  # noqa: E402
-from pipeline.synthetic_scans import DepthCamera  # noqa: E402
+from pipeline.evaluation.scans import evaluate_scans
+from pipeline.synthetic.scans import DepthCamera
 
 HIRES = DepthCamera(640, 576, 504.0, 504.0, 320.0, 288.0)
 

@@ -9,7 +9,7 @@ Each case writes one temporary input file and runs the command line on it in a s
 (``jnr fit-scan CLOUD --out TMPDIR --quiet`` for the clouds), reporting its exit status, wall seconds
 and peak resident memory (GNU time's ``%M`` of that command, see :func:`run_command`). The cases:
 
-- ``head``: a simulated 640x576 depth scan of a held-out head (``pipeline.synthetic_scans``, with
+- ``head``: a simulated 640x576 depth scan of a held-out head (``pipeline.synthetic.scans``, with
   normals, ~15-20k points) densified to N points by jittered copies (0.5 mm Gaussian), binary PLY
   with the normals; a dense scan, expected to be fitted (exit 0).
 - ``head_xyz``: the same points without normals (``jnr fit-scan`` estimates them).
@@ -46,7 +46,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from pipeline.pointcloud import write_point_cloud_ply
+from pipeline.scan.pointcloud import write_point_cloud_ply
 
 
 @dataclass(frozen=True)
@@ -70,9 +70,9 @@ class Record:
 
 def _head_scan_points() -> tuple[np.ndarray, np.ndarray]:
     """``(M, 3)`` points and normals (mm, +Y up) of one simulated 640x576 scan of held-out head 0."""
-    from pipeline.synthetic_scans import DepthCamera, simulate_scan
+    from pipeline.synthetic.expressive import expressive_split
+    from pipeline.synthetic.scans import DepthCamera, simulate_scan
     from rig.asset import load_asset
-    from rig.expressive import expressive_split
 
     asset = load_asset()
     head = expressive_split("heldout", n=1).vertices[0]

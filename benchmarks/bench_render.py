@@ -42,9 +42,9 @@ def main(argv=None) -> None:
     parser.add_argument("--warmup", type=int, default=3)
     args = parser.parse_args(argv)
 
-    from rig.asset import load_asset
     from render.lighting import Lighting
     from render.renderer import DifferentiableRenderer
+    from rig.asset import load_asset
 
     asset = load_asset()
     V = asset.vertices.astype(np.float32)

@@ -50,8 +50,8 @@ def main() -> None:
     coeffs = torch.randn(args.batch, n_basis, generator=g)
 
     with torch.inference_mode():
-        rig_fn = lambda: rig(theta).vertices  # noqa: E731
-        flame_fn = lambda: torch.addmm(mean, coeffs, basis).view(args.batch, n_vertices, 3)  # noqa: E731
+        rig_fn = lambda: rig(theta).vertices
+        flame_fn = lambda: torch.addmm(mean, coeffs, basis).view(args.batch, n_vertices, 3)
         # Interleave the two so that machine noise hits both alike.
         rig_t, flame_t = [], []
         for _ in range(5):

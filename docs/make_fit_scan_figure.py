@@ -1,12 +1,12 @@
 """Render a simulated scan's ground truth, the jnr fit and the nricp_amberg baseline into ``docs/fit_scan.png``.
 
 One held-out expressive head (``expressive_split("heldout", n=2)``, head 1) is scanned by
-:func:`pipeline.synthetic_scans.simulate_scan` (seed ``scan_seed(0, "expressive", 1)``), fitted with
-:func:`pipeline.scan_fit.fit_scan` and with :func:`pipeline.baseline.nricp_baseline` (started from the
+:func:`pipeline.synthetic.scans.simulate_scan` (seed ``scan_seed(0, "expressive", 1)``), fitted with
+:func:`pipeline.scan.fit.fit_scan` and with :func:`pipeline.scan.baseline.nricp_baseline` (started from the
 same rigid pre-alignment). Every mesh is taken back to rig space with the scan's *true* pose, so a pose
 error shows up as error too. Three panels (front and three-quarter view each): the ground truth in skin
 tone, then each fit coloured by its per-vertex distance to the truth on one 0-5 mm scale; the labels
-give the mean distance over the face regions (:data:`pipeline.scan_fit.FACE_REGIONS`). Each rendered
+give the mean distance over the face regions (:data:`pipeline.scan.fit.FACE_REGIONS`). Each rendered
 tile gets a 3 x 3 median filter (less sampling grain, and a PNG under 300 KB). Takes about a minute.
 Run from the repository root::
 
@@ -25,14 +25,14 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from pipeline.baseline import nricp_baseline  # noqa: E402
-from pipeline.pointcloud import error_colors, validate_points  # noqa: E402
-from pipeline.registration import invert_similarity  # noqa: E402
-from pipeline.scan_eval import scan_seed  # noqa: E402
-from pipeline.scan_fit import FACE_REGIONS, fit_scan  # noqa: E402
-from pipeline.synthetic_scans import simulate_scan  # noqa: E402
+from pipeline.scan.baseline import nricp_baseline  # noqa: E402
+from pipeline.scan.pointcloud import error_colors, validate_points  # noqa: E402
+from pipeline.scan.registration import invert_similarity  # noqa: E402
+from pipeline.evaluation.scans import scan_seed  # noqa: E402
+from pipeline.scan.fit import FACE_REGIONS, fit_scan  # noqa: E402
+from pipeline.synthetic.scans import simulate_scan  # noqa: E402
 from rig.asset import load_asset  # noqa: E402
-from rig.expressive import expressive_split  # noqa: E402
+from pipeline.synthetic.expressive import expressive_split  # noqa: E402
 
 VMAX_MM = 5.0
 TILE = (160, 280)  # width, height of one view in pixels

@@ -9,9 +9,8 @@ from __future__ import annotations
 import torch
 from kornia.geometry.camera import PinholeCamera
 
+from landmarks.ibug68 import JAW_CONTOUR
 from rig.lbs import ShapeError
-
-from .ibug68 import JAW_CONTOUR
 
 ROBUST_KINDS = ("huber", "l2")
 CONTOUR_WEIGHT = 0.5

@@ -88,10 +88,10 @@ def match_landmarks(points: Mapping[str, np.ndarray], asset: RigAsset | None = N
 # ------------------------------------------------------------------------------------------ plausibility
 #
 # The thresholds below were chosen from measurements of the 8 landmarks (and random subsets of 3-8) of
-# the 100 held-out synthetic heads (rig.expressive.expressive_split("heldout"), random expressions, and
+# the 100 held-out synthetic heads (pipeline.synthetic.expressive.expressive_split("heldout"), random expressions, and
 # their neutral versions) against the template's: each set scaled by U(0.8, 1.25), turned by a uniformly
 # random rotation, moved, with 0 or 3 mm Gaussian noise per coordinate (2600 sets per setting); and, for
-# the cloud checks, the true landmarks (3 mm noise) on 90 simulated scans (pipeline.synthetic_scans,
+# the cloud checks, the true landmarks (3 mm noise) on 90 simulated scans (pipeline.synthetic.scans,
 # default holes and outliers, 320x288 and 640x576 cameras, a third of the heads yawed up to +-80 deg,
 # stored or estimated normals; 61 landmark subsets per scan).
 
@@ -145,7 +145,7 @@ def fit_similarity(reference: np.ndarray, points: np.ndarray) -> tuple[float, np
 
     With ``A``, ``B`` the centred point sets, ``B^T A = U diag(d) V^T`` and ``sign = det U det V`` (the
     sign of ``det B^T A``, defined also for coplanar points where ``d3 = 0``), the best proper similarity
-    (Umeyama 1991, the same as :func:`pipeline.registration.umeyama`) is
+    (Umeyama 1991, the same as :func:`pipeline.scan.registration.umeyama`) is
     ``R = U diag(1, 1, sign) V^T``, ``s = (d1 + d2 + sign d3) / |A|^2``, leaving ``|B|^2 - s^2 |A|^2`` as
     the sum of squared residuals; the best improper one (``det R = -1``) has ``-sign d3`` instead.
 

@@ -84,7 +84,7 @@ PARAMS_FILE_KEYS = {"joints", "units", "format"}
 def _load_edit_params(params: str | None, clamp: bool) -> tuple[object, tuple | None]:
     """A parameter file for ``rig export/edit``: ``(theta (P,) float64, None)`` for joint parameters, or
     ``(None, arrays)`` for the ``params.json`` of a fit, whose joints, latent Z and expressions are all
-    used (``arrays``: :func:`pipeline.scan_outputs.head_arrays_from_params`).
+    used (``arrays``: :func:`pipeline.scan.outputs.head_arrays_from_params`).
 
     Raises:
         CliError / ParameterError: unreadable file, unknown keys, a fit file with ``--clamp``.
@@ -106,7 +106,7 @@ def _load_edit_params(params: str | None, clamp: bool) -> tuple[object, tuple | 
             raise ParameterError(f"{path}: a fit's parameter file needs {sorted(FIT_PARAMS_KEYS)}; {missing} missing")
         if clamp:
             raise CliError(f"{path} is the parameter file of a fit; --clamp applies to joint parameters only")
-        from pipeline.scan_outputs import head_arrays_from_params
+        from pipeline.scan.outputs import head_arrays_from_params
 
         try:
             return None, head_arrays_from_params(data)
@@ -125,7 +125,7 @@ def _write_head(path: Path, fmt: str, theta, rig=None, fit_arrays: tuple | None 
     with ``fit_arrays`` (of a fit's ``params.json``, :func:`_load_edit_params`), the fitted head."""
     import torch
 
-    from rig.export import export_mesh, export_skinned_gltf
+    from rig.io.export import export_mesh, export_skinned_gltf
     from rig.model import JointRig
 
     rig = rig or JointRig(dtype=torch.float64)
@@ -323,9 +323,9 @@ def _demo_fits(stage: Path, config, bar) -> tuple[dict, dict]:
     from PIL import Image
     from skimage import data
 
-    from pipeline.photo_eval import face_error
-    from pipeline.photo_outputs import mesh_from_photo_params
-    from pipeline.synthetic_photos import synthetic_photo, write_synthetic_photo
+    from pipeline.evaluation.photos import face_error
+    from pipeline.photo.outputs import mesh_from_photo_params
+    from pipeline.synthetic.photos import synthetic_photo, write_synthetic_photo
     from rig.asset import load_asset
 
     inputs = stage / "inputs"
@@ -374,7 +374,7 @@ class _StageBars:
 
 def cmd_data_synth(args: argparse.Namespace) -> int:
     from pipeline.files import staged_folder
-    from rig.population import MANIFEST_NAME, write_population
+    from pipeline.synthetic.population import MANIFEST_NAME, write_population
 
     out = Path(args.out)
     bars = _StageBars(args.quiet)
@@ -420,7 +420,7 @@ def cmd_train(args: argparse.Namespace) -> int:
 
 
 def cmd_eval_capacity(args: argparse.Namespace) -> int:
-    from pipeline.evaluate import CapacitySettings, evaluate_capacity
+    from pipeline.evaluation.capacity import CapacitySettings, evaluate_capacity
 
     if args.out:
         _check_output(Path(args.out), args.force)
@@ -450,7 +450,7 @@ def cmd_eval_capacity(args: argparse.Namespace) -> int:
 
 def _load_fit_scan_config(args: argparse.Namespace, seed_is_fit_seed: bool = True):
     from pipeline.config import ConfigError, load_config
-    from pipeline.scan_fit import FitScanConfig
+    from pipeline.scan.fit import FitScanConfig
 
     overrides = _parse_overrides(args.set)
     try:
@@ -462,19 +462,19 @@ def _load_fit_scan_config(args: argparse.Namespace, seed_is_fit_seed: bool = Tru
 
 
 def cmd_fit_scan(args: argparse.Namespace) -> int:
-    """``jnr fit-scan CLOUD --out DIR``: NICP fit of the rig to a point cloud (see pipeline.scan_fit)."""
+    """``jnr fit-scan CLOUD --out DIR``: NICP fit of the rig to a point cloud (see pipeline.scan.fit)."""
     import numpy as np
 
     from landmarks.points3d import LandmarkError
     from pipeline.files import check_output
-    from pipeline.pointcloud import (
+    from pipeline.scan.fit import fit_scan, scan_to_mesh
+    from pipeline.scan.outputs import write_scan_outputs
+    from pipeline.scan.pointcloud import (
         CloudError,
         read_landmarks3d,
         read_point_cloud,
         to_rig_frame,
     )
-    from pipeline.scan_fit import fit_scan, scan_to_mesh
-    from pipeline.scan_outputs import write_scan_outputs
     from rig.asset import load_asset
 
     out = Path(args.out)
@@ -553,7 +553,7 @@ def _sidecar_landmarks(photo: Path) -> Path:
 
 def _load_fit_photo_config(args: argparse.Namespace):
     from pipeline.config import ConfigError, load_config
-    from pipeline.photo_fit import FitPhotoConfig
+    from pipeline.photo.fit import FitPhotoConfig
 
     overrides = _parse_overrides(args.set)
     if args.landmarks_only:
@@ -572,7 +572,7 @@ def fit_one_photo(photo_path: str | Path, out: str | Path, *, config=None, landm
     Everything that can be checked cheaply is checked before the fit: the output path (not an input,
     not the working directory, writable; an existing one only with ``force`` and only if jnr wrote
     it), the image (readable, at most :data:`landmarks.detect.MAX_IMAGE_PIXELS`), ``focal`` (within
-    :data:`pipeline.photo_camera.FOCAL_RANGE` times the longer side), the landmarks (a readable file
+    :data:`pipeline.photo.camera.FOCAL_RANGE` times the longer side), the landmarks (a readable file
     with 68 points, in or near the image, a face-like and not mirrored configuration). Photos longer
     than :data:`landmarks.detect.WORKING_MAX_SIDE` are fitted reduced by a power of two; the outputs
     give the camera and landmarks in the photo's own pixels.
@@ -590,9 +590,9 @@ def fit_one_photo(photo_path: str | Path, out: str | Path, *, config=None, landm
     from landmarks.formats import read_landmarks
     from landmarks.plausibility import check_landmarks_2d
     from pipeline.files import check_output
-    from pipeline.photo_camera import check_focal
-    from pipeline.photo_fit import FitPhotoConfig, fit_photo
-    from pipeline.photo_outputs import write_photo_outputs
+    from pipeline.photo.camera import check_focal
+    from pipeline.photo.fit import FitPhotoConfig, fit_photo
+    from pipeline.photo.outputs import write_photo_outputs
 
     t0 = time.perf_counter()
     photo_path, out = Path(photo_path), Path(out)
@@ -686,7 +686,7 @@ def _run_workers(tasks: list[tuple], jobs: int, bar) -> list[tuple]:
 
 
 def cmd_fit(args: argparse.Namespace) -> int:
-    """``jnr fit PHOTO... --out DIR``: single-photo reconstruction (see pipeline.photo_fit)."""
+    """``jnr fit PHOTO... --out DIR``: single-photo reconstruction (see pipeline.photo.fit)."""
     from pipeline.files import OutputError, check_output, make_output_folder
 
     if args.jobs is not None and args.jobs < 1:
@@ -761,10 +761,10 @@ def cmd_data_scan(args: argparse.Namespace) -> int:
     """``jnr data scan --out FILE``: a simulated depth scan of a held-out synthetic head."""
     import numpy as np
 
-    from pipeline.pointcloud import write_point_cloud_ply
-    from pipeline.synthetic_scans import DepthCamera, simulate_scan
+    from pipeline.scan.pointcloud import write_point_cloud_ply
+    from pipeline.synthetic.expressive import expressive_split
+    from pipeline.synthetic.scans import DepthCamera, simulate_scan
     from rig.asset import load_asset
-    from rig.expressive import expressive_split
 
     out = Path(args.out)
     if out.suffix.lower() != ".ply":
@@ -817,7 +817,7 @@ def _run_evaluation(args: argparse.Namespace, label: str, evaluate) -> int:
 
 def cmd_eval_scans(args: argparse.Namespace) -> int:
     """``jnr eval scans``: fit-scan vs trimesh's nricp_amberg on simulated scans of held-out heads."""
-    from pipeline.scan_eval import evaluate_scans
+    from pipeline.evaluation.scans import evaluate_scans
 
     if args.out:
         _check_output(Path(args.out), args.force)
@@ -829,7 +829,7 @@ def cmd_eval_scans(args: argparse.Namespace) -> int:
 
 def cmd_eval_photos(args: argparse.Namespace) -> int:
     """``jnr eval photos``: the photo fit on synthetic renders of held-out heads (NoW-style errors)."""
-    from pipeline.photo_eval import evaluate_photos
+    from pipeline.evaluation.photos import evaluate_photos
 
     if args.out:
         _check_output(Path(args.out), args.force)

@@ -4,7 +4,7 @@
    intermediate parameter sets.
 2. Learn one global sparse symmetric linear weight matrix, alternating with refitting the joints.
 3. Synthesise skinning-weight training sets: saved and sparsely perturbed joint parameters, each with
-   the closed-form weights that best reproduce its head (:func:`rig.learn.solve_weights`).
+   the closed-form weights that best reproduce its head (:func:`rig.skinning.linear.solve_weights`).
 4. Neural skinning: auto-encoder, then WGAN-style fine-tuning of the decoder from noise.
 Artifacts: ``rig/assets/jnr_skinning_v1.npz`` (learned linear floats + decoder) and a training log.
 """
@@ -13,9 +13,9 @@ from __future__ import annotations
 
 import json
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Callable
 
 import torch
 
@@ -53,7 +53,7 @@ class TrainConfig:
 
 def load_config(path: str | Path | None, overrides: dict | None = None) -> TrainConfig:
     """Typed defaults, overridden by a YAML file and then by ``overrides``; unknown keys are errors."""
-    from .config import load_config as load_typed
+    from pipeline.config import load_config as load_typed
 
     return load_typed(TrainConfig, path, overrides)
 
@@ -70,7 +70,7 @@ class TrainReport:
 def perturb(theta: torch.Tensor, config: TrainConfig, gen: torch.Generator) -> torch.Tensor:
     """Sparsely perturbed copies: each channel, with probability ``perturb_probability``, moves by up to
     ``perturb_fraction`` of its range; ``(N, P) -> (copies * N, P)``."""
-    from rig.fitting import parameter_span
+    from rig.skinning.joint_fit import parameter_span
 
     span = parameter_span(theta.dtype)
     out = []
@@ -84,10 +84,18 @@ def perturb(theta: torch.Tensor, config: TrainConfig, gen: torch.Generator) -> t
 def train(config: TrainConfig, out_path: Path, *, log_path: Path | None = None,
           progress: Callable[[str, int, int], None] | None = None) -> TrainReport:
     """Run the whole training; write the artifact to ``out_path`` (and a JSON log)."""
-    from rig.learn import OrbitSystem, learn_linear_skinning, solve_weights
+    from pipeline.synthetic.population import population_split
     from rig.model import JointRig
-    from rig.neural import Critic, NeuralSkinning, SkinningDecoder, SkinningEncoder, save_neural, train_autoencoder, train_wgan
-    from rig.population import population_split
+    from rig.skinning.linear import OrbitSystem, learn_linear_skinning, solve_weights
+    from rig.skinning.neural import (
+        Critic,
+        NeuralSkinning,
+        SkinningDecoder,
+        SkinningEncoder,
+        save_neural,
+        train_autoencoder,
+        train_wgan,
+    )
 
     torch.manual_seed(config.seed)
     gen = torch.Generator().manual_seed(config.seed)

@@ -33,7 +33,7 @@ _STANDARD_LIB_DIRS = ("/lib", "/usr/lib", "/lib64", "/usr/lib64", "/usr/local/li
 _FIX = ("install a newer LLVM (Debian 12: `apt-get install -y libllvm19`) or point Dr.Jit at one with "
         "the environment variable DRJIT_LIBLLVM_PATH=/usr/lib/x86_64-linux-gnu/libLLVM-19.so")
 
-_checked: dict[str, "LLVMLibrary"] = {}
+_checked: dict[str, LLVMLibrary] = {}
 
 
 class LLVMError(RuntimeError):

@@ -35,7 +35,7 @@ class Lighting:
     direction: torch.Tensor
 
     @staticmethod
-    def default(dtype: torch.dtype = torch.float32) -> "Lighting":
+    def default(dtype: torch.dtype = torch.float32) -> Lighting:
         """A frontal key light from upper right and a soft fill, for a face looking along +Z."""
         return Lighting(ambient=torch.tensor([0.35, 0.35, 0.35], dtype=dtype),
                         irradiance=torch.tensor([2.0, 2.0, 2.0], dtype=dtype),

@@ -24,9 +24,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .backend import resolve_variant, use_variant
-from .camera import sensor_from_pinhole
-from .renderer import weld_vertices
+from render.backend import resolve_variant, use_variant
+from render.camera import sensor_from_pinhole
+from render.renderer import weld_vertices
 
 __all__ = ["ReferenceLight", "ReferenceRender", "render_reference"]
 
@@ -169,7 +169,7 @@ def render_reference(vertices, faces, albedo, camera, light: ReferenceLight, *, 
 
     Example:
         >>> import numpy as np, torch, trimesh
-        >>> from pipeline.photo_camera import make_camera
+        >>> from pipeline.photo.camera import make_camera
         >>> sphere = trimesh.creation.icosphere(subdivisions=2, radius=80.0)
         >>> cam = make_camera(64, 48, 90.0, translation=np.array([0.0, 0.0, 500.0]))
         >>> light = ReferenceLight((0.0, 300.0, 800.0), (1.5e6,) * 3, (0.2,) * 3)

@@ -24,9 +24,9 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from .backend import resolve_variant, use_variant
-from .camera import sensor_from_pinhole
-from .lighting import Lighting, check_lighting
+from render.backend import resolve_variant, use_variant
+from render.camera import sensor_from_pinhole
+from render.lighting import Lighting, check_lighting
 
 
 @dataclass(frozen=True)
@@ -66,7 +66,7 @@ def weld_vertices(vertices: np.ndarray, faces: np.ndarray, tol: float = 1e-5) ->
     rank = np.empty_like(order)
     rank[order] = np.arange(len(order))
     index = rank[index]
-    return index.astype(np.int64), index[np.asarray(faces)].astype(np.int32), int(len(first))
+    return index.astype(np.int64), index[np.asarray(faces)].astype(np.int32), len(first)
 
 
 class DifferentiableRenderer:

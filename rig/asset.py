@@ -16,11 +16,11 @@ from pathlib import Path
 
 import numpy as np
 
-from .atomic import write_bytes_atomic
-from .errors import SetupError
-from .joints import JOINT_NAMES, JOINTS, PARENTS
-from .template import REGION_NAMES, TEMPLATE_VERSION, build_template
-from .weights import SkinningLayout, initial_weights
+from rig.errors import SetupError
+from rig.io.atomic import write_bytes_atomic
+from rig.joints import JOINT_NAMES, JOINTS, PARENTS
+from rig.skinning.initial import SkinningLayout, initial_weights
+from rig.template import REGION_NAMES, TEMPLATE_VERSION, build_template
 
 
 def cached_per_asset(build):
@@ -124,7 +124,7 @@ def save_asset(asset: RigAsset, path: str | Path) -> None:
 
 
 def write_npz_atomic(path: str | Path, arrays: dict[str, np.ndarray]) -> None:
-    """``np.savez_compressed`` written atomically (:func:`rig.atomic.write_bytes_atomic`; missing parent
+    """``np.savez_compressed`` written atomically (:func:`rig.io.atomic.write_bytes_atomic`; missing parent
     folders are created)."""
     buffer = io.BytesIO()
     np.savez_compressed(buffer, **arrays)

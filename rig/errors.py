@@ -34,4 +34,4 @@ class ShapeError(InputError):
     """A tensor or array argument has the wrong shape (message: function, argument, expected, got)."""
 
 
-__all__ = ["JnrError", "InputError", "SetupError", "ShapeError"]
+__all__ = ["InputError", "JnrError", "SetupError", "ShapeError"]

@@ -2,7 +2,7 @@
 
 JNR (section 3.3) adds 24 of FaceWarehouse's expression blendshapes to the template before skinning.
 We have no FaceWarehouse, so this module sculpts its own 24 shapes from the template's regions, eye
-loops and mouth loop, in the style of :mod:`rig.population` (compact bumps, quintic ramps, smoothed
+loops and mouth loop, in the style of :mod:`pipeline.synthetic.population` (compact bumps, quintic ramps, smoothed
 normals). An expressive rest mesh is ``template + ExpressionModel()(c)``, which is then posed by
 ``JointRig.forward(theta, vertices=...)``.
 
@@ -69,8 +69,8 @@ from __future__ import annotations
 
 import math
 import warnings
+from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Mapping
 
 import numpy as np
 import scipy.sparse as sp
@@ -79,16 +79,25 @@ import torch
 from scipy.interpolate import CubicSpline, PchipInterpolator
 from torch import nn
 
-from .asset import RigAsset, cached_per_asset, load_asset
-from .errors import InputError
-from .fields import bump, capsule_bump, ramp, smoothed_normals, unit
-from .geometry import face_edges
-from .template import EYE_CENTER
+from rig.asset import RigAsset, cached_per_asset, load_asset
+from rig.errors import InputError
+from rig.fields import bump, capsule_bump, ramp, smoothed_normals, unit
+from rig.geometry import face_edges
+from rig.template import EYE_CENTER
 
 __all__ = [
-    "EXPRESSION_NAMES", "EXPRESSIONS", "ExpressionSpec", "ExpressionError", "ExpressionModel",
-    "build_expression_basis", "expression_limits", "mirror_coefficients", "coefficients_from_dict",
-    "peak_displacements", "JAW_PIVOT", "JAW_ANGLE_DEG",
+    "EXPRESSIONS",
+    "EXPRESSION_NAMES",
+    "JAW_ANGLE_DEG",
+    "JAW_PIVOT",
+    "ExpressionError",
+    "ExpressionModel",
+    "ExpressionSpec",
+    "build_expression_basis",
+    "coefficients_from_dict",
+    "expression_limits",
+    "mirror_coefficients",
+    "peak_displacements",
 ]
 
 _MIRROR_X = np.array([-1.0, 1.0, 1.0])

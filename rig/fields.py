@@ -1,6 +1,6 @@
 """Smooth building blocks of displacement fields on the head: compact bumps, ramps, a smoothed normal
 field. Functions of 3D position (mm), so every field built from them is an ambient, smooth field; used by
-the synthetic population (:mod:`rig.population`, :mod:`rig.expressive`) and the sculpted expression
+the synthetic population (:mod:`pipeline.synthetic.population`, :mod:`pipeline.synthetic.expressive`) and the sculpted expression
 shapes (:mod:`rig.expressions`)."""
 
 from __future__ import annotations
@@ -8,9 +8,9 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .asset import RigAsset
+from rig.asset import RigAsset
 
-__all__ = ["bump", "capsule_bump", "ramp", "unit", "smoothed_normals"]
+__all__ = ["bump", "capsule_bump", "ramp", "smoothed_normals", "unit"]
 
 
 def bump(p: np.ndarray, center, radii) -> np.ndarray:

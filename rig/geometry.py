@@ -10,7 +10,7 @@ RIG_TO_OPENCV = np.diag([1.0, -1.0, -1.0])
 RIG_TO_OPENCV.flags.writeable = False
 """``(3, 3)`` axis flip from the rig frame (+X the subject's left, +Y up, +Z out of the face) to OpenCV
 camera axes (x right, y down, z forward) for a camera looking at the face; the one definition
-(:mod:`pipeline.photo_camera` holds the camera conversions built on it)."""
+(:mod:`pipeline.photo.camera` holds the camera conversions built on it)."""
 
 
 def head_rotation(yaw_deg: float, pitch_deg: float, roll_deg: float) -> np.ndarray:

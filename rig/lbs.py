@@ -11,8 +11,8 @@ import math
 
 import torch
 
-from .errors import ShapeError  # noqa: F401 - re-exported: rig.lbs.ShapeError
-from .joints import CHANNEL_KINDS, ROTATE, SCALE_AXES, TRANSLATE, UNIFORM_SCALE
+from rig.errors import ShapeError
+from rig.joints import CHANNEL_KINDS, ROTATE, SCALE_AXES, TRANSLATE, UNIFORM_SCALE
 
 
 def _check(cond: bool, func: str, arg: str, expected: str, got: object) -> None:
@@ -208,5 +208,18 @@ def skin_vertices(vertices: torch.Tensor, weights: torch.Tensor, skinning: torch
     return skin_with_basis(basis, skinning)
 
 
-__all__ = ["ShapeError", "euler_to_matrix", "channels_to_trs", "local_transforms", "joint_world_transforms",
-           "hierarchy_levels", "skin_vertices", "skinning_basis", "skin_with_basis", "ROTATE", "TRANSLATE", "SCALE_AXES", "UNIFORM_SCALE"]
+__all__ = [
+    "ROTATE",
+    "SCALE_AXES",
+    "TRANSLATE",
+    "UNIFORM_SCALE",
+    "ShapeError",
+    "channels_to_trs",
+    "euler_to_matrix",
+    "hierarchy_levels",
+    "joint_world_transforms",
+    "local_transforms",
+    "skin_vertices",
+    "skin_with_basis",
+    "skinning_basis",
+]

@@ -10,8 +10,8 @@ import numpy as np
 import scipy.sparse as sp
 import torch
 
-from .geometry import mesh_edges
-from .lbs import ShapeError
+from rig.geometry import mesh_edges
+from rig.lbs import ShapeError
 
 LAMBDA_M = 0.03
 LAMBDA_X = 0.3

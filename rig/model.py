@@ -2,19 +2,26 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import warnings
+from dataclasses import dataclass
 
 import numpy as np
 import torch
 from torch import nn
 
-from .asset import RigAsset, load_asset
-from .joints import CHANNEL_KINDS
-from .lbs import (ShapeError, channels_to_trs, hierarchy_levels, joint_world_transforms, local_transforms,
-                  skin_vertices, skin_with_basis, skinning_basis)
-from .parameters import CHANNELS, NUM_PARAMETERS
+from rig.asset import RigAsset, load_asset
+from rig.joints import CHANNEL_KINDS
+from rig.lbs import (
+    ShapeError,
+    channels_to_trs,
+    hierarchy_levels,
+    joint_world_transforms,
+    local_transforms,
+    skin_vertices,
+    skin_with_basis,
+    skinning_basis,
+)
+from rig.parameters import CHANNELS, NUM_PARAMETERS
 
 
 @dataclass(frozen=True)
@@ -73,7 +80,7 @@ class JointRig(nn.Module):
     def laplacian(self) -> torch.Tensor:
         """Sparse ``(V, V)`` uniform Laplacian of the template (for L_p), built on first use."""
         if self._laplacian is None:
-            from .losses import uniform_laplacian
+            from rig.losses import uniform_laplacian
 
             self._laplacian = uniform_laplacian(self.asset.faces, self.num_vertices).to(self.template.dtype)
         return self._laplacian

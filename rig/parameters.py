@@ -16,8 +16,8 @@ from pathlib import Path
 
 import torch
 
-from .errors import InputError
-from .joints import JOINT_INDEX, JOINT_MIRROR, JOINTS, mirror_joint_name
+from rig.errors import InputError
+from rig.joints import JOINT_INDEX, JOINT_MIRROR, JOINTS, mirror_joint_name
 
 
 class ParameterError(InputError):
@@ -203,7 +203,19 @@ def random_theta(generator: torch.Generator, batch: int = 1, *, spread: float = 
 
 
 __all__ = [
-    "CHANNELS", "CHANNEL_INDEX", "NUM_PARAMETERS", "Channel", "ParameterError", "JOINT_INDEX", "JOINT_MIRROR",
-    "mirror_theta", "params_to_theta", "theta_to_params", "load_params_json", "save_params_json",
-    "theta_limits", "random_theta", "symmetric_groups",
+    "CHANNELS",
+    "CHANNEL_INDEX",
+    "JOINT_INDEX",
+    "JOINT_MIRROR",
+    "NUM_PARAMETERS",
+    "Channel",
+    "ParameterError",
+    "load_params_json",
+    "mirror_theta",
+    "params_to_theta",
+    "random_theta",
+    "save_params_json",
+    "symmetric_groups",
+    "theta_limits",
+    "theta_to_params",
 ]

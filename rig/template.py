@@ -261,7 +261,7 @@ def build_template() -> TemplateMesh:
     eye_cols = (col_near(np.array([18.5, 5.0, 72.0])), col_near(np.array([47.0, 6.0, 62.0])))
     mouth_row = row_near(np.array([0.0, -75.0, 92.0]))
     mouth_cols = (col_near(np.array([-24.0, -75.0, 80.0])), col_near(np.array([24.0, -75.0, 80.0])))
-    mirror_col = lambda j: (N_PHI - j) % N_PHI  # noqa: E731
+    mirror_col = lambda j: (N_PHI - j) % N_PHI
 
     # theta offsets that open the slits into almonds; rows near a slit follow it partly.
     offset = np.zeros((N_THETA, N_PHI, 2))  # [..., 0] above the cut / shared, [..., 1] the lower copy
@@ -277,7 +277,7 @@ def build_template() -> TemplateMesh:
         if kind == "eye":  # the upper lid arches higher towards the inner corner of each eye
             skew = -0.35 if pa > 0 else 0.35
         cols = np.arange(ja, jb + 1)
-        for k in range(0, falloff + 1):
+        for k in range(falloff + 1):
             f = 1.0 - k / (falloff + 1)
             offset[row - k, cols, 0] -= f * _almond(phi[cols], pa, pb, up, skew)
             offset[row + k, cols, 1 if k == 0 else 0] += f * _almond(phi[cols], pa, pb, down, -skew)

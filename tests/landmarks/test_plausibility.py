@@ -23,15 +23,15 @@ from landmarks.plausibility import (
     fit_affine_camera,
     reference_landmarks,
 )
-from pipeline.photo_camera import RIG_TO_OPENCV, camera_center_in_rig
-from pipeline.synthetic_photos import head_rotation
+from pipeline.photo.camera import RIG_TO_OPENCV, camera_center_in_rig
+from pipeline.synthetic.photos import head_rotation
+from pipeline.synthetic.population import population_split
 from rig.expressions import (
     EXPRESSION_NAMES,
     ExpressionModel,
     coefficients_from_dict,
     expression_limits,
 )
-from rig.population import population_split
 
 W = H = 640
 MIRROR = list(IBUG68_MIRROR)
@@ -41,7 +41,7 @@ MARGIN = 1.5
 
 class Views:
     """Synthetic 2D landmarks of rig heads: static embedding for 17-67, the silhouette for the jaw contour
-    (as :func:`pipeline.synthetic_photos.simulate_photo`), Gaussian pixel noise."""
+    (as :func:`pipeline.synthetic.photos.simulate_photo`), Gaussian pixel noise."""
 
     def __init__(self, asset):
         self.asset = asset

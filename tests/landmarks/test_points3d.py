@@ -12,7 +12,7 @@ from landmarks.points3d import (
     landmark_vertices,
     match_landmarks,
 )
-from pipeline.registration import apply_similarity, umeyama
+from pipeline.scan.registration import apply_similarity, umeyama
 
 GOLDEN = {"left_eye_outer": 1735, "left_eye_inner": 1727, "right_eye_inner": 1717, "right_eye_outer": 1709,
           "nose_tip": 2730, "mouth_left": 3576, "mouth_right": 3564, "chin": 4242}

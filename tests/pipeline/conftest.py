@@ -6,7 +6,11 @@ def photo_dir(tmp_path_factory):
     """Two small synthetic photos with their landmarks beside them (face.png + face.pts)."""
     import shutil
 
-    from pipeline.synthetic_photos import PhotoSettings, synthetic_photo, write_synthetic_photo
+    from pipeline.synthetic.photos import (
+        PhotoSettings,
+        synthetic_photo,
+        write_synthetic_photo,
+    )
 
     root = tmp_path_factory.mktemp("photos")
     settings = PhotoSettings(width=128, height=128, spp=4, offset_px=4)

@@ -151,16 +151,14 @@ def test_a_target_that_appears_while_writing_is_not_replaced(tmp_path):
     assert not leftovers(tmp_path / "fit") and [p.name for p in tmp_path.iterdir()] == ["fit"]
     # an empty folder that appeared (rename(2) would silently replace it) is refused too
     empty = tmp_path / "empty"
-    with pytest.raises(OutputExistsError):
-        with staged_folder(empty) as tmp:
-            empty.mkdir()
+    with pytest.raises(OutputExistsError), staged_folder(empty) as tmp:
+        empty.mkdir()
     assert list(empty.iterdir()) == []
     # the same for a single file
     target = tmp_path / "head.obj"
-    with pytest.raises(OutputExistsError):
-        with staged_file(target) as tmp:
-            tmp.write_text("new")
-            target.write_text("theirs")
+    with pytest.raises(OutputExistsError), staged_file(target) as tmp:
+        tmp.write_text("new")
+        target.write_text("theirs")
     assert target.read_text() == "theirs" and sorted(p.name for p in tmp_path.iterdir()) == ["empty", "fit",
                                                                                              "head.obj"]
 
@@ -312,17 +310,17 @@ def _wait_for(predicate, timeout: float = 60.0) -> None:
 SLOW_WRITER = """
 import sys, time
 from pathlib import Path
-import rig.export, rig.population
+import rig.io.export, pipeline.synthetic.population
 def slow_mesh(path, *a, **k):
     Path(path).write_text("partial")
     print("WRITING", flush=True)
     time.sleep(120)
-original = rig.population._mesh_bytes
+original = pipeline.synthetic.population._mesh_bytes
 def slow_bytes(*a, **k):
     print("WRITING", flush=True)
     time.sleep(120)
-rig.export.export_mesh = slow_mesh
-rig.population._mesh_bytes = slow_bytes
+rig.io.export.export_mesh = slow_mesh
+pipeline.synthetic.population._mesh_bytes = slow_bytes
 from pipeline.cli import main
 sys.exit(main(sys.argv[1:]))
 """
@@ -526,7 +524,7 @@ def test_fit_scan_refuses_coincident_3d_landmarks_naming_the_file(capsys, tmp_pa
     """Three coincident 3D landmarks (median 10.35 mm instead of 0.70 when they were accepted)."""
     code, _, err = run(capsys, "data", "scan", "--out", tmp_path / "scan.ply", "--head", "3")
     assert code == 0, err
-    from pipeline.pointcloud import read_point_cloud
+    from pipeline.scan.pointcloud import read_point_cloud
 
     nose = read_point_cloud(tmp_path / "scan.ply").points.mean(0).tolist()
     bad = tmp_path / "landmarks.json"

@@ -6,9 +6,9 @@ import torch
 import trimesh
 
 from pipeline.cli import main
-from tests.pipeline.conftest import fast_fit_args
-from rig.export import read_skinned_gltf
+from rig.io.export import read_skinned_gltf
 from rig.parameters import params_to_theta
+from tests.pipeline.conftest import fast_fit_args
 
 
 def run(capsys, *argv):
@@ -131,7 +131,7 @@ def _fast(*extra):
 
 
 def test_fit_one_photo_with_a_landmarks_file(capsys, tmp_path, photo_dir):
-    from pipeline.photo_outputs import mesh_from_photo_params
+    from pipeline.photo.outputs import mesh_from_photo_params
 
     out = tmp_path / "one"
     code, stdout, err = run(capsys, "fit", str(photo_dir / "face0.png"), "--landmarks", str(photo_dir / "face0.pts"),

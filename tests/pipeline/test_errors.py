@@ -9,7 +9,7 @@ from landmarks.points3d import LandmarkError
 from pipeline.cli import CliError
 from pipeline.config import ConfigError
 from pipeline.files import OutputError, OutputExistsError
-from pipeline.pointcloud import CloudError
+from pipeline.scan.pointcloud import CloudError
 from rig.asset import AssetError
 from rig.errors import InputError, JnrError, SetupError, ShapeError
 from rig.expressions import ExpressionError
@@ -33,7 +33,7 @@ def test_setup_and_cli_errors():
 
 def test_the_command_line_maps_errors_by_base_class(monkeypatch, capsys):
     """An InputError from anywhere is exit 2 and a SetupError exit 1, each one line (no list to forget)."""
-    import pipeline.cli as cli
+    from pipeline import cli
 
     for error, code in ((DetectionError("a.jpg: no face"), 2), (AssetError("asset missing"), 1)):
         def broken(args, error=error):

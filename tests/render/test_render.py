@@ -15,10 +15,10 @@ import torch
 pytest.importorskip("mitsuba")
 pytest.importorskip("kornia")
 
-from kornia.geometry.camera import PinholeCamera  # noqa: E402
+from kornia.geometry.camera import PinholeCamera
 
-from render import backend  # noqa: E402
-from render.lighting import Lighting  # noqa: E402
+from render import backend
+from render.lighting import Lighting
 
 W, H = 64, 48
 

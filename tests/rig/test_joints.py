@@ -4,8 +4,18 @@ import pytest
 import torch
 
 from rig.joints import JOINT_MIRROR, JOINT_NAMES, JOINTS, PARENTS, SCALE_FLOOR
-from rig.parameters import (CHANNELS, NUM_PARAMETERS, ParameterError, load_params_json, mirror_theta,
-                            params_to_theta, save_params_json, symmetric_groups, theta_limits, theta_to_params)
+from rig.parameters import (
+    CHANNELS,
+    NUM_PARAMETERS,
+    ParameterError,
+    load_params_json,
+    mirror_theta,
+    params_to_theta,
+    save_params_json,
+    symmetric_groups,
+    theta_limits,
+    theta_to_params,
+)
 
 
 def test_joint_table_golden_order():

@@ -3,7 +3,13 @@ import pytest
 import torch
 from scipy.spatial.transform import Rotation
 
-from rig.lbs import ShapeError, euler_to_matrix, joint_world_transforms, local_transforms, skin_vertices
+from rig.lbs import (
+    ShapeError,
+    euler_to_matrix,
+    joint_world_transforms,
+    local_transforms,
+    skin_vertices,
+)
 from rig.parameters import NUM_PARAMETERS, random_theta
 
 

@@ -1,8 +1,16 @@
 import numpy as np
 import torch
 
-from rig.losses import (LAMBDA_M, LAMBDA_P, LAMBDA_X, laplacian_loss, regularizer, rig_loss, uniform_laplacian,
-                        vertex_rmse)
+from rig.losses import (
+    LAMBDA_M,
+    LAMBDA_P,
+    LAMBDA_X,
+    laplacian_loss,
+    regularizer,
+    rig_loss,
+    uniform_laplacian,
+    vertex_rmse,
+)
 from rig.parameters import NUM_PARAMETERS, params_to_theta, theta_limits
 
 

@@ -1,0 +1,239 @@
+"""What ``jnr fit PHOTO`` writes, and reading its parameters back.
+
+The output folder (written to a temporary folder beside it, then moved into place, so a failure
+leaves nothing half-written):
+
+=====================  ===========================================================================
+file                   contents
+=====================  ===========================================================================
+``mesh.obj``           the fitted head in rig space (mm, +Y up, +Z out of the face), vertex colours
+                       = fitted albedo (sRGB), UVs
+``mesh.ply``           the same, binary PLY with vertex colours
+``mesh.glb``           skinned glTF 2.0: the fitted rest shape (expressions applied), the 52 joints
+                       posed by the fitted parameters, the fitted skinning weights, vertex colours
+``params.json``        joints by name (deg, mm, factor), latent Z, expressions by name, the camera
+                       (focal, principal point, image size, rig -> camera extrinsics), the head pose,
+                       the light (ambient, irradiance, direction in rig space and camera frame);
+                       its ``joints`` key is also a valid ``jnr rig edit`` parameter file
+``overlay.png``        the photo with the fitted head rendered over it (60 %), the input landmarks
+                       (green) and the fitted ones (red)
+``render.png``         the fitted head, albedo and light, rendered alone at the photo's size
+``landmarks.pts``      the 68 input landmarks (iBUG .pts, 1-based pixels)
+``report.json``        landmark error (px, NME), per-stage losses, timings, input, configuration
+=====================  ===========================================================================
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from pipeline.config import config_to_dict
+from pipeline.files import check_output, json_safe, staged_folder
+from pipeline.photo.camera import camera_from_head_pose
+from pipeline.photo.colour import linear_to_srgb
+from pipeline.photo.fit import FitPhotoConfig, PhotoFit
+from pipeline.scan.outputs import rig_vertices_from_params
+from rig.asset import load_asset
+from rig.expressions import EXPRESSION_NAMES
+from rig.model import JointRig
+from rig.parameters import theta_to_params
+from rig.skinning.neural import load_neural
+
+PARAMS_FORMAT = "jnr-photo-params/1"
+OUTPUT_FILES = ("mesh.obj", "mesh.ply", "mesh.glb", "params.json", "overlay.png", "render.png", "landmarks.pts",
+                "report.json")
+INPUT_COLOUR = (40, 220, 60)
+FIT_COLOUR = (235, 40, 40)
+
+
+def params_payload(fit: PhotoFit, image_factor: int = 1, original_size: tuple[int, int] | None = None) -> dict:
+    """The ``params.json`` content of a fit; the camera in the photo file's pixels when the fit ran on
+    the photo reduced by ``image_factor`` (working pixel ``x`` is file pixel ``f x + (f - 1) / 2``)."""
+    from scipy.spatial.transform import Rotation
+
+    f = int(image_factor)
+    k = fit.camera.intrinsics[0].double().numpy()
+    return {
+        "format": PARAMS_FORMAT,
+        "units": {"rotate": "deg", "translate": "mm", "scale": "factor", "pixels": "OpenCV, 0-based"},
+        "joints": theta_to_params(torch.as_tensor(fit.theta), include_rest=True),
+        "latent_z": [float(x) for x in fit.z],
+        "expressions": {n: float(c) for n, c in zip(EXPRESSION_NAMES, fit.expressions)},
+        "camera": {
+            "description": "pinhole, OpenCV axes (x right, y down, z forward); x_cam = extrinsics @ [x_rig, 1]",
+            "width": int(original_size[0] if original_size else fit.width),
+            "height": int(original_size[1] if original_size else fit.height), "focal_px": float(fit.focal) * f,
+            "principal_point_px": [float(k[0, 2]) * f + (f - 1) / 2, float(k[1, 2]) * f + (f - 1) / 2],
+            "fitted_at_reduction": f,
+            "extrinsics_rig_to_camera": camera_from_head_pose(fit.rotation, fit.translation).tolist(),
+        },
+        "pose": {
+            "description": "head pose: x_cam = RIG_TO_OPENCV @ R @ x_rig + t, RIG_TO_OPENCV = diag(1, -1, -1)",
+            "rotation_matrix": fit.rotation.tolist(),
+            "rotation_vector_rad": [float(x) for x in Rotation.from_matrix(fit.rotation).as_rotvec()],
+            "translation_mm": [float(x) for x in fit.translation],
+        },
+        "light": {
+            "model": "ambient + directional, Lambertian: a * ambient + a / pi * irradiance * max(0, n . -d)",
+            "ambient_rgb": [float(x) for x in fit.ambient],
+            "irradiance_rgb": [float(x) for x in fit.irradiance],
+            "direction_rig": [float(x) for x in fit.light_direction_rig],
+            "direction_camera": [float(x) for x in fit.light_direction_camera],
+        },
+        "albedo": "per-vertex linear RGB in mesh.ply / mesh.obj (sRGB-encoded there)",
+    }
+
+
+def mesh_from_photo_params(params: dict | str | Path, *, rig: JointRig | None = None, frame: str = "rig"
+                           ) -> np.ndarray:
+    """Rebuild the fitted head from a ``params.json`` (its dict or path).
+
+    Args:
+        frame: ``"rig"`` (rig space, as ``mesh.obj``) or ``"camera"`` (the photo camera's frame, mm).
+
+    Returns:
+        ``(V, 3)`` float64 vertices, mm.
+
+    Raises:
+        ValueError: not a ``jnr fit`` parameter file, or bad contents.
+    """
+    if not isinstance(params, dict):
+        params = json.loads(Path(params).read_text())
+    if params.get("format") != PARAMS_FORMAT:
+        raise ValueError(f"not a jnr fit parameter file (format {params.get('format')!r}, expected {PARAMS_FORMAT!r})")
+    if frame not in ("rig", "camera"):
+        raise ValueError(f"frame must be 'rig' or 'camera', got {frame!r}")
+    v = rig_vertices_from_params(params, rig=rig)
+    if frame == "camera":
+        e = np.asarray(params["camera"]["extrinsics_rig_to_camera"], float)
+        v = v @ e[:3, :3].T + e[:3, 3]
+    return v
+
+
+def render_fit(fit: PhotoFit, *, spp: int = 16, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """The fitted head rendered at the photo's size with its albedo and light.
+
+    Returns:
+        ``(image (H, W, 3) float32 linear RGB, coverage mask (H, W) float32)``.
+    """
+    from render.lighting import Lighting
+    from render.renderer import DifferentiableRenderer
+
+    asset = load_asset()
+    v = torch.as_tensor(fit.rig_vertices, dtype=torch.float32)
+    albedo = torch.as_tensor(fit.albedo, dtype=torch.float32)
+    light = Lighting(torch.as_tensor(fit.ambient, dtype=torch.float32),
+                     torch.as_tensor(fit.irradiance, dtype=torch.float32),
+                     torch.as_tensor(fit.light_direction_rig, dtype=torch.float32))
+    renderer = DifferentiableRenderer(v, asset.faces, albedo, fit.camera, light, spp=spp, seed=seed)
+    with torch.no_grad():
+        out = renderer.render(v, albedo, light, seed=seed)
+    return out.image.numpy(), out.mask.numpy()
+
+
+def overlay_image(photo: np.ndarray, render: np.ndarray, mask: np.ndarray, landmarks_in: np.ndarray,
+                  landmarks_fit: np.ndarray, alpha: float = 0.6) -> np.ndarray:
+    """``(H, W, 3)`` uint8: the render (linear RGB) blended over the photo (uint8 sRGB) where covered, with
+    the input landmarks as green dots and the fitted ones as red crosses."""
+    import cv2
+
+    rendered = (linear_to_srgb(render) * 255.0).astype(np.float32)
+    a = (alpha * np.clip(mask, 0, 1))[..., None]
+    out = np.ascontiguousarray(np.clip(photo.astype(np.float32) * (1 - a) + rendered * a, 0, 255).astype(np.uint8))
+    radius = max(1, round(max(photo.shape[:2]) / 300))
+    for x, y in np.asarray(landmarks_in, float):
+        cv2.circle(out, (round(x), round(y)), radius + 1, INPUT_COLOUR, -1, lineType=cv2.LINE_AA)
+    for x, y in np.asarray(landmarks_fit, float):
+        p = (round(x), round(y))
+        cv2.drawMarker(out, p, FIT_COLOUR, cv2.MARKER_CROSS, 3 * radius + 2, max(1, radius // 2 + 1), cv2.LINE_AA)
+    return out
+
+
+def _save_png(image: np.ndarray, path: Path) -> None:
+    from PIL import Image
+
+    Image.fromarray(np.ascontiguousarray(image)).save(path)
+
+
+def report_payload(fit: PhotoFit, *, config: FitPhotoConfig | None = None, extra: dict | None = None,
+                   image_factor: int = 1) -> dict:
+    """The ``report.json`` content of a fit (without the input description, see ``extra``); pixel errors
+    in the photo file's pixels (the fit's ones times ``image_factor``)."""
+    lfit = fit.landmark_fit
+    f = float(image_factor)
+    report = {
+        "landmarks": {
+            "mean_error_px": f * float(fit.error_px.mean()), "median_error_px": f * float(np.median(fit.error_px)),
+            "max_error_px": f * float(fit.error_px.max()), "nme_inter_ocular": float(fit.nme),
+            "landmark_fit_mean_error_px": f * float(lfit.error_px.mean()), "landmark_fit_nme": float(lfit.nme),
+            "fitted_at_reduction": int(image_factor),
+        },
+        "landmark_stages": lfit.losses,
+        "photometric_stages": [dict(s.__dict__, free=list(s.free), light_direction_camera=list(s.light_direction_camera))
+                               for s in fit.stages],
+        "crop": None if fit.crop is None else dict(fit.crop.__dict__),
+        "timings_s": fit.timings,
+        "config": config_to_dict(config) if config is not None else None,
+    }
+    report.update(extra or {})
+    return json_safe(report)
+
+
+def write_photo_outputs(out_dir: str | Path, photo: np.ndarray, fit: PhotoFit, *,
+                        config: FitPhotoConfig | None = None, force: bool = False, extra: dict | None = None,
+                        spp: int = 16, inputs: tuple = (), image_factor: int = 1,
+                        original_size: tuple[int, int] | None = None) -> Path:
+    """Write the output folder of a fit (see the module docstring) atomically.
+
+    Args:
+        out_dir: the folder; an existing one is replaced only with ``force``.
+        photo: ``(H, W, 3)`` uint8 sRGB, the fitted photo.
+        fit: the result of :func:`pipeline.photo.fit.fit_photo`.
+        config: the settings used (recorded in ``report.json``).
+        extra: more entries for ``report.json`` (e.g. the input file, the detection).
+        spp: samples per pixel of ``render.png`` / ``overlay.png``.
+        inputs: the command's input files (an output that is, contains or lies in one is refused).
+        image_factor: ``k`` when the photo was fitted reduced by ``k``
+            (:class:`landmarks.detect.LoadedImage`): ``params.json``'s camera, ``landmarks.pts`` and the
+            pixel errors of ``report.json`` are given in the photo file's pixels; ``overlay.png`` and
+            ``render.png`` are at the reduced size.
+        original_size: ``(W, H)`` of the photo file (default: the fitted image's size).
+
+    Raises:
+        pipeline.files.OutputError: ``out_dir`` is refused (exists without ``force``, not jnr's, an
+            input; :class:`~pipeline.files.OutputExistsError` when it exists) or cannot be written.
+    """
+    from landmarks.formats import write_landmarks
+    from rig.expressions import ExpressionModel
+    from rig.io.export import export_mesh, export_skinned_gltf
+
+    out_dir = Path(out_dir)
+    check_output(out_dir, force=force, inputs=inputs)  # before the rendering below
+    asset = load_asset()
+    colours = np.clip(np.round(linear_to_srgb(fit.albedo) * 255.0), 0, 255).astype(np.uint8)
+    render, mask = render_fit(fit, spp=spp)
+
+    rig = JointRig(asset, dtype=torch.float64)
+    with torch.no_grad():
+        rest = ExpressionModel(asset, dtype=torch.float64).vertices(torch.as_tensor(fit.expressions)[None])[0].numpy()
+        weights = load_neural(rig)[0](torch.as_tensor(fit.z)[None])[0].numpy()
+        tau = rig.channel_transforms(torch.as_tensor(fit.theta)[None])[0].numpy()
+
+    with staged_folder(out_dir, force, inputs=inputs, marker={"command": (extra or {}).get("command")}) as tmp:
+        export_mesh(tmp / "mesh.obj", fit.rig_vertices, asset.faces, face_uvs=asset.face_uvs, vertex_colors=colours)
+        export_mesh(tmp / "mesh.ply", fit.rig_vertices, asset.faces, vertex_colors=colours)
+        export_skinned_gltf(tmp / "mesh.glb", rest, asset.faces, joint_names=list(asset.joint_names),
+                            parents=asset.parents, joint_positions=asset.joint_positions, weights=weights,
+                            face_uvs=asset.face_uvs, vertex_colors=colours, joint_transforms=tau)
+        (tmp / "params.json").write_text(json.dumps(params_payload(fit, image_factor, original_size), indent=2) + "\n")
+        _save_png(np.clip(np.round(linear_to_srgb(render) * 255), 0, 255).astype(np.uint8), tmp / "render.png")
+        _save_png(overlay_image(photo, render, mask, fit.landmarks2d, fit.landmarks_px), tmp / "overlay.png")
+        k = image_factor
+        write_landmarks(tmp / "landmarks.pts", np.asarray(fit.landmarks2d, float) * k + (k - 1) / 2)
+        report = report_payload(fit, config=config, extra=extra, image_factor=k)
+        (tmp / "report.json").write_text(json.dumps(report, indent=2) + "\n")
+    return out_dir

@@ -1,0 +1,332 @@
+"""Geometry for registering the rig to point clouds: similarity transforms, exact point-to-mesh
+distances, vertex normals, and the robust rigid pre-alignment of a head mesh to a cloud.
+
+Conventions: millimetres; a similarity transform maps rig space to the cloud's frame as
+``x_cloud = scale * R @ x_rig + t``; every array is float64 numpy.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from rig.geometry import (
+    barycentric,
+    closest_points_on_triangles,
+    head_rotation,
+    vertex_normals,
+)
+
+# ----------------------------------------------------------------------------------------------------
+# Similarity transforms
+# ----------------------------------------------------------------------------------------------------
+
+def umeyama(source: np.ndarray, target: np.ndarray, weights: np.ndarray | None = None,
+            with_scale: bool = False) -> tuple[np.ndarray, np.ndarray, float]:
+    """Least-squares similarity ``target ~ scale * R @ source + t`` (Umeyama 1991, weighted).
+
+    Args:
+        source, target: ``(N, 3)`` corresponding points, mm (N >= 3, not collinear).
+        weights: optional ``(N,)`` non-negative weights.
+        with_scale: also estimate the scale (else 1).
+
+    Returns:
+        ``(R (3, 3), t (3,), scale)`` with ``det R = +1``.
+    """
+    source = np.asarray(source, float)
+    target = np.asarray(target, float)
+    if source.shape != target.shape or source.ndim != 2 or source.shape[1] != 3 or len(source) < 3:
+        raise ValueError(f"umeyama: source and target must both be (N >= 3, 3), got {source.shape} and {target.shape}")
+    w = np.ones(len(source)) if weights is None else np.asarray(weights, float)
+    w = w / max(w.sum(), 1e-300)
+    mu_s, mu_t = w @ source, w @ target
+    s0, t0 = source - mu_s, target - mu_t
+    cov = (t0 * w[:, None]).T @ s0
+    u, d, vt = np.linalg.svd(cov)
+    fix = np.eye(3)
+    fix[2, 2] = np.sign(np.linalg.det(u) * np.linalg.det(vt)) or 1.0
+    rot = u @ fix @ vt
+    scale = 1.0
+    if with_scale:
+        var = float(w @ (s0 ** 2).sum(1))
+        scale = float((d * np.diag(fix)).sum() / max(var, 1e-300))
+    return rot, mu_t - scale * rot @ mu_s, scale
+
+
+def apply_similarity(points: np.ndarray, rotation: np.ndarray, translation: np.ndarray, scale: float = 1.0) -> np.ndarray:
+    """``(N, 3) -> (N, 3)``: ``scale * R @ x + t``."""
+    return scale * np.asarray(points, float) @ np.asarray(rotation).T + np.asarray(translation)
+
+
+def invert_similarity(points: np.ndarray, rotation: np.ndarray, translation: np.ndarray, scale: float = 1.0) -> np.ndarray:
+    """Inverse of :func:`apply_similarity`: ``R.T @ (x - t) / scale``."""
+    return (np.asarray(points, float) - np.asarray(translation)) @ np.asarray(rotation) / scale
+
+
+# ----------------------------------------------------------------------------------------------------
+# Mesh geometry
+# ----------------------------------------------------------------------------------------------------
+
+def incident_faces(faces: np.ndarray, num_vertices: int) -> np.ndarray:
+    """``(V, W)`` ids of the faces around each vertex (padded with -1)."""
+    faces = np.asarray(faces, dtype=np.int64)
+    order = np.argsort(faces.ravel(), kind="stable")
+    vert_of = faces.ravel()[order]
+    counts = np.bincount(vert_of, minlength=num_vertices)
+    table = -np.ones((num_vertices, max(int(counts.max()), 1)), dtype=np.int64)
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    table[vert_of, np.arange(len(order)) - np.repeat(starts, counts)] = order // 3
+    return table
+
+
+def closest_on_one_ring(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray, incident: np.ndarray,
+                        nearest: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Closest surface points among the faces around each point's nearest vertex.
+
+    Args:
+        points: ``(N, 3)``; vertices: ``(V, 3)``; faces: ``(F, 3)``; incident: :func:`incident_faces`;
+        nearest: ``(N,)`` id of each point's nearest vertex.
+
+    Returns:
+        ``(face (N,), bary (N, 3), closest (N, 3))``: ``closest = sum_i bary_i * vertices[faces[face, i]]``.
+    """
+    cand = incident[nearest]  # (N, W), -1 padded (a few pole vertices make W large: work on the valid pairs)
+    rows, cols = np.nonzero(cand >= 0)
+    face_of = cand[rows, cols]
+    tri = vertices[faces[face_of]]  # (M, 3, 3)
+    q = closest_points_on_triangles(points[rows], tri[:, 0], tri[:, 1], tri[:, 2])
+    d2 = ((q - points[rows]) ** 2).sum(-1)
+    order = np.lexsort((d2, rows))  # by point, then by distance
+    first = order[np.r_[0, np.flatnonzero(np.diff(rows[order])) + 1]]
+    face = face_of[first]
+    closest = q[first]
+    t = vertices[faces[face]]
+    bary = np.clip(barycentric(closest, t[:, 0], t[:, 1], t[:, 2]), 0.0, 1.0)
+    bary /= bary.sum(1, keepdims=True)
+    return face, bary, closest
+
+
+class MeshDistance:
+    """Exact point-to-surface distances to a triangle mesh.
+
+    Triangles are grouped by their radius ``r`` (largest centroid-to-corner distance), with one KD-tree
+    of centroids per group. In each group the ``k`` triangles with the nearest centroids are tested
+    exactly; a triangle not tested is at least ``|p - c_k| - r_max`` away, so where that bound does not
+    beat the best distance found the group is searched again with 4 k (and so on). The result equals
+    the brute-force minimum over all triangles (tested against it).
+
+    Args:
+        vertices: ``(V, 3)`` mm; faces: ``(F, 3)``; k: nearest triangles per group in the first pass.
+    """
+
+    def __init__(self, vertices: np.ndarray, faces: np.ndarray, k: int = 12,
+                 radius_bins: tuple[float, ...] = (3.0, 6.0, 12.0, 24.0)) -> None:
+        self.vertices = np.asarray(vertices, float)
+        self.faces = np.asarray(faces, dtype=np.int64)
+        self._tri = self.vertices[self.faces]  # (F, 3, 3)
+        centroids = self._tri.mean(1)
+        radius = np.linalg.norm(self._tri - centroids[:, None], axis=-1).max(1)
+        group = np.searchsorted(np.asarray(radius_bins), radius)
+        self._groups = []
+        for g in np.unique(group):
+            ids = np.flatnonzero(group == g)
+            self._groups.append((ids, cKDTree(centroids[ids]), float(radius[ids].max())))
+        self.k = int(k)
+
+    def _closest(self, p: np.ndarray, cand: np.ndarray):
+        tri = self._tri[cand]  # (n, c, 3, 3)
+        q = closest_points_on_triangles(p[:, None, :], tri[..., 0, :], tri[..., 1, :], tri[..., 2, :])
+        d2 = ((q - p[:, None, :]) ** 2).sum(-1)
+        best = d2.argmin(1)
+        rows = np.arange(len(p))
+        return np.sqrt(d2[rows, best]), q[rows, best], cand[rows, best]
+
+    def query(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``points (N, 3)`` -> ``(distance (N,), closest (N, 3), face (N,))``, mm."""
+        points = np.asarray(points, float)
+        d = np.full(len(points), np.inf)
+        q = np.zeros((len(points), 3))
+        fc = np.zeros(len(points), dtype=np.int64)
+        for ids, tree, r_max in self._groups:
+            todo, k = np.arange(len(points)), min(self.k, len(ids))
+            while len(todo):
+                step = max(16, 100_000 // k)
+                unsure = []
+                for s in range(0, len(todo), step):
+                    rows = todo[s:s + step]
+                    dk, nn = tree.query(points[rows], k=k)
+                    dk, nn = dk.reshape(len(rows), -1), nn.reshape(len(rows), -1)
+                    di, qi, fi = self._closest(points[rows], ids[nn])
+                    better = di < d[rows]
+                    d[rows[better]], q[rows[better]], fc[rows[better]] = di[better], qi[better], fi[better]
+                    if k < len(ids):
+                        unsure.append(rows[dk[:, -1] - r_max < d[rows]])
+                todo = np.concatenate(unsure) if unsure else np.zeros(0, dtype=np.int64)
+                k = min(4 * k, len(ids))
+        return d, q, fc
+
+
+def brute_force_distance(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Reference point-to-mesh distance over every triangle, ``(N,)`` mm (slow; for tests)."""
+    v = np.asarray(vertices, float)
+    f = np.asarray(faces)
+    out = np.empty(len(points))
+    for i, p in enumerate(np.asarray(points, float)):
+        q = closest_points_on_triangles(p[None], v[f[:, 0]], v[f[:, 1]], v[f[:, 2]])
+        out[i] = np.sqrt(((q - p) ** 2).sum(-1).min())
+    return out
+
+
+# ----------------------------------------------------------------------------------------------------
+# Rigid pre-alignment
+# ----------------------------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class RigidAlignment:
+    """Result of :func:`rigid_prealign`: rig space -> cloud frame, ``x = scale * R @ x_rig + t``.
+
+    Attributes:
+        rotation: ``(3, 3)``; translation: ``(3,)`` mm; scale: unitless.
+        rms_mm: RMS distance of the inlier points (within ``inlier_mm``) after alignment.
+        inlier_fraction: fraction of (subsampled) cloud points within ``inlier_mm`` of the model.
+        hypotheses: number of initial orientations tried.
+        score: the truncated-quadratic score of the chosen hypothesis (lower is better), mm^2.
+    """
+
+    rotation: np.ndarray
+    translation: np.ndarray
+    scale: float
+    rms_mm: float
+    inlier_fraction: float
+    hypotheses: int
+    score: float
+
+
+def _trimmed_icp(cloud: np.ndarray, cloud_n: np.ndarray | None, tree: cKDTree, model_n: np.ndarray,
+                 model_v: np.ndarray, rot: np.ndarray, t: np.ndarray, scale: float, iterations: int,
+                 trim: float, with_scale: bool, scale_bounds: tuple[float, float],
+                 min_normal_dot: float) -> tuple[np.ndarray, np.ndarray, float, float]:
+    """Point-to-point trimmed ICP of the cloud onto the model; returns ``(R, t, scale, score)``."""
+    for it in range(iterations + 1):
+        q = invert_similarity(cloud, rot, t, scale)
+        d, j = tree.query(q)
+        ok = np.ones(len(q), bool)
+        if cloud_n is not None:
+            ok &= (cloud_n @ rot * model_n[j]).sum(1) >= min_normal_dot
+        score = float(np.mean(np.where(ok, np.minimum(d, 10.0) ** 2, 100.0)))
+        if it == iterations:
+            break
+        if ok.sum() < 10:
+            break
+        keep = ok & (d <= np.quantile(d[ok], trim))
+        r, tt, s = umeyama(model_v[j[keep]], cloud[keep], with_scale=with_scale)
+        if with_scale:
+            s = float(np.clip(s, *scale_bounds))
+            if not scale_bounds[0] < s < scale_bounds[1]:
+                tt = (cloud[keep] - s * model_v[j[keep]] @ r.T).mean(0)
+        rot, t, scale = r, tt, s
+    return rot, t, scale, score
+
+
+def rigid_prealign(cloud: np.ndarray, cloud_normals: np.ndarray | None, model_vertices: np.ndarray,
+                   model_faces: np.ndarray, *, face_mask: np.ndarray | None = None, seed: int = 0,
+                   yaw_step_deg: float = 20.0, pitches_deg: tuple[float, ...] = (-20.0, 0.0, 20.0),
+                   rolls_deg: tuple[float, ...] = (0.0,), coarse_points: int = 1500, coarse_iterations: int = 15,
+                   fine_points: int = 5000, fine_iterations: int = 40, trim: float = 0.8,
+                   with_scale: bool = True, scale_bounds: tuple[float, float] = (0.85, 1.2),
+                   inlier_mm: float = 8.0, landmarks: tuple[np.ndarray, np.ndarray] | None = None,
+                   vertical_shifts_mm: tuple[float, ...] = (0.0, -30.0, 30.0),
+                   facing_min: float = 0.3, refine_best: int = 3) -> RigidAlignment:
+    """Robust rigid (similarity) alignment of a head mesh to a partial scan.
+
+    Nothing is assumed about where the cloud is or which way the face points about the vertical: the
+    model is tried in every yaw (``yaw_step_deg`` apart, the whole circle) at a few pitches and rolls,
+    each hypothesis placed so that the centroid of the model part facing the viewer meets the cloud's
+    centroid and refined by trimmed ICP (normals must agree when the cloud has them); the best by a
+    truncated-quadratic score is refined on more points, with the scale if ``with_scale``. The cloud's
+    +Y is taken as roughly up (within the pitches and rolls tried). With ``landmarks`` (model points,
+    cloud points, each ``(L, 3)``, L >= 3) the landmarks' similarity replaces the search.
+
+    Args:
+        cloud: ``(N, 3)`` mm; cloud_normals: optional ``(N, 3)`` unit normals facing the viewer.
+        model_vertices: ``(V, 3)`` rig-space vertices; model_faces: ``(F, 3)``.
+        face_mask: optional ``(V,)`` bool of the face region (centroid fallback when the cloud has no
+            dominant viewing direction).
+        vertical_shifts_mm: offsets along the head's vertical axis tried when refining the best
+            hypotheses.
+        refine_best: how many of the best coarse hypotheses are refined.
+        facing_min: hypotheses whose face direction has a smaller cosine with the cloud's mean normal
+            (the viewing direction of a single-view scan) are skipped.
+
+    Returns:
+        :class:`RigidAlignment`.
+    """
+    rng = np.random.default_rng(seed)
+    cloud = np.asarray(cloud, float)
+    model_v = np.asarray(model_vertices, float)
+    model_n = vertex_normals(model_v, model_faces)
+    tree = cKDTree(model_v)
+
+    def pick(n: int) -> np.ndarray:
+        return np.sort(rng.choice(len(cloud), size=n, replace=False)) if len(cloud) > n else np.arange(len(cloud))
+
+    coarse = pick(coarse_points)
+    fine = pick(fine_points)
+    cn_all = None if cloud_normals is None else np.asarray(cloud_normals, float)
+    min_dot = 0.2
+    mean_n = None
+    if cn_all is not None:
+        m = cn_all.mean(0)
+        if np.linalg.norm(m) > 0.3:
+            mean_n = m / np.linalg.norm(m)
+    centroid = cloud.mean(0)
+    face_centroid = model_v[face_mask].mean(0) if face_mask is not None else model_v.mean(0)
+
+    candidates: list[tuple[np.ndarray, np.ndarray, float]] = []
+    if landmarks is not None:
+        src, dst = (np.asarray(a, float) for a in landmarks)
+        rot, t, s = umeyama(src, dst, with_scale=with_scale)
+        s = float(np.clip(s, *scale_bounds)) if with_scale else 1.0
+        candidates.append((rot, t, s))
+    else:
+        yaws = np.arange(0.0, 360.0, yaw_step_deg)
+        for yaw in yaws:
+            for pitch in pitches_deg:
+                for roll in rolls_deg:
+                    rot = head_rotation(yaw, pitch, roll)
+                    face_dir = rot @ np.array([0.0, 0.0, 1.0])
+                    if mean_n is not None and face_dir @ mean_n < facing_min:
+                        continue  # the face would point (nearly) away from the viewer
+                    if mean_n is not None:
+                        facing = (model_n @ (rot.T @ mean_n)) > 0.3
+                        c_model = model_v[facing].mean(0) if facing.sum() > 50 else face_centroid
+                    else:
+                        c_model = face_centroid
+                    candidates.append((rot, centroid - rot @ c_model, 1.0))
+    cn_coarse = None if cn_all is None else cn_all[coarse]
+    scored = []
+    for rot, t, s in candidates:
+        r, tt, ss, score = _trimmed_icp(cloud[coarse], cn_coarse, tree, model_n, model_v, rot, t, s,
+                                        coarse_iterations, trim, False, scale_bounds, min_dot)
+        scored.append((score, r, tt, ss))
+    scored.sort(key=lambda x: x[0])
+    cn_fine = None if cn_all is None else cn_all[fine]
+    best = None
+    # Refine the best few, each also shifted along the head's vertical axis (ICP on a partial face
+    # can settle with the face slid up or down by a feature, e.g. the chin matched to the mouth).
+    for score0, r, tt, ss in scored[:refine_best]:
+        for shift in vertical_shifts_mm:
+            r1, t1, s1, score = _trimmed_icp(cloud[fine], cn_fine, tree, model_n, model_v, r,
+                                             tt + shift * (r @ np.array([0.0, 1.0, 0.0])), ss,
+                                             fine_iterations, trim, with_scale, scale_bounds, min_dot)
+            if best is None or score < best[0]:
+                best = (score, r1, t1, s1)
+    score, rot, t, s = best
+    q = invert_similarity(cloud[fine], rot, t, s)
+    d, _ = tree.query(q)
+    d = d * s
+    inl = d <= inlier_mm
+    rms = float(np.sqrt(np.mean(d[inl] ** 2))) if inl.any() else float("inf")
+    return RigidAlignment(rot, t, float(s), rms, float(inl.mean()), len(candidates), float(score))

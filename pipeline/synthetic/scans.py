@@ -1,0 +1,404 @@
+"""Simulated single-view depth scans of a head mesh (an Azure Kinect / Kinect-like sensor).
+
+The head (rig space: mm, right-handed, +Y up, +Z out of the face) is placed by a random rigid
+transform, a pinhole depth camera is put ``distance_mm`` in front of it looking along world -Z, the
+mesh is rasterised with a numpy z-buffer (perspective-correct depth), the valid pixels are
+back-projected to 3D and corrupted like a time-of-flight sensor: axial noise growing with the square
+of the depth, lateral jitter, dropout at depth discontinuities and grazing angles, elliptical holes
+and flying pixels / stray points. The points come back in the WORLD frame (+Y up), the frame of the
+ground-truth vertices, so they are directly comparable.
+
+Camera frame: OpenCV (x right, y down, z forward), pixel centres at integer coordinates
+``(u, v) = (fx x / z + cx, fy y / z + cy)``. World -> camera: ``p_cam = diag(1, -1, -1) (p - c)`` with
+``c`` the camera position.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from rig.geometry import RIG_TO_OPENCV, head_rotation
+
+__all__ = ["WORLD_TO_CAMERA", "DepthCamera", "ScanSettings", "SyntheticScan", "render_depth", "simulate_scan"]
+
+WORLD_TO_CAMERA = RIG_TO_OPENCV
+"""Rotation from world axes (+Y up, camera looking along -Z) to the OpenCV camera axes (a proper rotation)."""
+
+_NEAR_MM = 1.0
+_CHUNK_PAIRS = 2_000_000
+
+
+@dataclass(frozen=True)
+class DepthCamera:
+    """Pinhole depth camera (Azure Kinect NFOV-binned-like), OpenCV convention.
+
+    Attributes:
+        width, height: image size, pixels.
+        fx, fy: focal lengths, pixels.
+        cx, cy: principal point, pixels.
+    """
+
+    width: int = 320
+    height: int = 288
+    fx: float = 252.0
+    fy: float = 252.0
+    cx: float = 160.0
+    cy: float = 144.0
+
+
+@dataclass(frozen=True)
+class ScanSettings:
+    """Placement and sensor model of :func:`simulate_scan`.
+
+    Attributes:
+        distance_mm: camera to the frontmost point of the head, along world Z, mm.
+        yaw_deg_range, pitch_deg_range, roll_deg_range: head rotation ranges (about world Y, X, Z), degrees.
+        max_offset_mm: the head's translation is uniform in ``[-max_offset_mm, max_offset_mm]`` per axis.
+        noise_mm_at_1m: axial noise sigma at 1 m; sigma(z) = max(noise_mm_at_1m (z / 1000)^2, noise_floor_mm).
+        noise_floor_mm: lower bound of the axial noise sigma, mm.
+        lateral_jitter_px: sigma of the per-pixel jitter of the ray (pixels).
+        hole_fraction: ``(low, high)``: the fraction of the face's pixels dropped by random elliptical holes
+            is drawn uniformly from this range.
+        edge_dropout: drop pixels next to depth discontinuities (> ``edge_jump_mm``) or the image's empty
+            background, and pixels seen at grazing angles (> ``grazing_deg``).
+        edge_jump_mm, grazing_deg: thresholds of ``edge_dropout``.
+        outlier_fraction: outliers added, as a fraction of the valid points (half flying pixels behind
+            valid pixels, half uniform in the head's bounding box grown by 30 mm).
+        normals: estimate per-point normals from the depth image.
+    """
+
+    distance_mm: float = 600.0
+    yaw_deg_range: tuple[float, float] = (-45.0, 45.0)
+    pitch_deg_range: tuple[float, float] = (-15.0, 15.0)
+    roll_deg_range: tuple[float, float] = (-10.0, 10.0)
+    max_offset_mm: float = 300.0
+    noise_mm_at_1m: float = 3.0
+    noise_floor_mm: float = 0.5
+    lateral_jitter_px: float = 0.3
+    hole_fraction: tuple[float, float] = (0.05, 0.3)
+    edge_dropout: bool = True
+    edge_jump_mm: float = 15.0
+    grazing_deg: float = 75.0
+    outlier_fraction: float = 0.01
+    normals: bool = True
+
+
+@dataclass(frozen=True)
+class SyntheticScan:
+    """One simulated depth scan.
+
+    Attributes:
+        points: ``(N, 3)`` float64 points, mm, world frame (+Y up, right-handed).
+        normals: ``(N, 3)`` unit normals towards the camera, or ``None``.
+        gt_vertices: ``(V, 3)`` the true head in the world frame, ``head @ rotation.T + translation``.
+        rotation: ``(3, 3)`` head rotation; translation: ``(3,)`` mm.
+        visible: ``(V,)`` bool, vertices seen by the camera (before holes and dropout).
+        hole_fraction: fraction of the face's (rendered) pixels removed by the holes.
+        camera_position: ``(3,)`` mm, world frame.
+        depth: ``(H, W)`` the final depth image before outliers (mm, ``inf`` where empty).
+    """
+
+    points: np.ndarray
+    normals: np.ndarray | None
+    gt_vertices: np.ndarray
+    rotation: np.ndarray
+    translation: np.ndarray
+    visible: np.ndarray
+    hole_fraction: float
+    camera_position: np.ndarray
+    depth: np.ndarray
+
+
+# ----------------------------------------------------------------------------------------------------
+# Rasterisation
+# ----------------------------------------------------------------------------------------------------
+
+def _check_mesh(vertices, faces, fn: str) -> tuple[np.ndarray, np.ndarray]:
+    v = np.asarray(vertices, dtype=float)
+    f = np.asarray(faces)
+    if v.ndim != 2 or v.shape[1] != 3 or len(v) == 0:
+        raise ValueError(f"{fn}: vertices must have shape (V, 3), got {v.shape}")
+    if f.ndim != 2 or f.shape[1] != 3 or not np.issubdtype(f.dtype, np.integer):
+        raise ValueError(f"{fn}: faces must be an integer array of shape (F, 3), got {f.shape} {f.dtype}")
+    if len(f) and (f.min() < 0 or f.max() >= len(v)):
+        raise ValueError(f"{fn}: face indices must be in [0, {len(v)}), got [{f.min()}, {f.max()}]")
+    if not np.isfinite(v).all():
+        raise ValueError(f"{fn}: vertices must be finite")
+    return v, f.astype(np.int64)
+
+
+def render_depth(vertices_cam: np.ndarray, faces: np.ndarray,
+                 camera: DepthCamera = DepthCamera()) -> tuple[np.ndarray, np.ndarray]:
+    """Z-buffer rasterisation of a triangle mesh.
+
+    Each pixel centre (integer ``(u, v)``) gets the nearest triangle that contains it (screen-space
+    barycentric test), its depth interpolated perspective-correctly (``1/z`` is linear on screen), so
+    the back-projected pixel lies exactly on the triangle. Triangles with a vertex nearer than 1 mm
+    are skipped.
+
+    Args:
+        vertices_cam: ``(V, 3)`` vertices in camera coordinates (OpenCV: x right, y down, z forward), mm.
+        faces: ``(F, 3)`` int triangle indices.
+        camera: intrinsics.
+
+    Returns:
+        ``depth`` ``(H, W)`` float64 z in mm (``inf`` where empty) and ``face_id`` ``(H, W)`` int64
+        (``-1`` where empty).
+    """
+    v, f = _check_mesh(vertices_cam, faces, "render_depth")
+    h, w = int(camera.height), int(camera.width)
+    depth = np.full(h * w, np.inf)
+    face_id = np.full(h * w, -1, dtype=np.int64)
+    z = v[:, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        uv = np.stack([camera.fx * v[:, 0] / z + camera.cx, camera.fy * v[:, 1] / z + camera.cy], axis=1)
+    keep = (z[f] > _NEAR_MM).all(axis=1)
+    fid = np.flatnonzero(keep)
+    t = uv[f[fid]]  # (F', 3, 2)
+    area = ((t[:, 1, 0] - t[:, 0, 0]) * (t[:, 2, 1] - t[:, 0, 1]) -
+            (t[:, 1, 1] - t[:, 0, 1]) * (t[:, 2, 0] - t[:, 0, 0]))
+    u0 = np.maximum(np.ceil(t[..., 0].min(axis=1)), 0).astype(np.int64)
+    u1 = np.minimum(np.floor(t[..., 0].max(axis=1)), w - 1).astype(np.int64)
+    v0 = np.maximum(np.ceil(t[..., 1].min(axis=1)), 0).astype(np.int64)
+    v1 = np.minimum(np.floor(t[..., 1].max(axis=1)), h - 1).astype(np.int64)
+    ok = (u1 >= u0) & (v1 >= v0) & (np.abs(area) > 1e-12)
+    fid, t, area, u0, u1, v0, v1 = fid[ok], t[ok], area[ok], u0[ok], u1[ok], v0[ok], v1[ok]
+    bw = u1 - u0 + 1
+    counts = bw * (v1 - v0 + 1)
+    inv_z = 1.0 / z[f[fid]]  # (F', 3)
+    bounds = np.searchsorted(np.cumsum(counts), np.arange(_CHUNK_PAIRS, counts.sum() + _CHUNK_PAIRS, _CHUNK_PAIRS))
+    start = 0
+    for stop in np.unique(np.append(np.minimum(bounds + 1, len(fid)), len(fid))):
+        if stop <= start:
+            continue
+        sl = slice(start, stop)
+        start = stop
+        c = counts[sl]
+        k = np.repeat(np.arange(len(c)), c)
+        local = np.arange(c.sum()) - np.repeat(np.cumsum(c) - c, c)
+        pu = u0[sl][k] + local % bw[sl][k]
+        pv = v0[sl][k] + local // bw[sl][k]
+        tk = t[sl][k]
+        a0, a1, a2 = tk[:, 0], tk[:, 1], tk[:, 2]
+
+        def edge(p, q):  # signed area of (p, q, pixel)
+            return (q[:, 0] - p[:, 0]) * (pv - p[:, 1]) - (q[:, 1] - p[:, 1]) * (pu - p[:, 0])
+
+        ar = area[sl][k]
+        b0, b1, b2 = edge(a1, a2) / ar, edge(a2, a0) / ar, edge(a0, a1) / ar
+        inside = (b0 >= -1e-12) & (b1 >= -1e-12) & (b2 >= -1e-12)
+        if not inside.any():
+            continue
+        iz = inv_z[sl][k[inside]]
+        d = 1.0 / (b0[inside] * iz[:, 0] + b1[inside] * iz[:, 1] + b2[inside] * iz[:, 2])
+        pix = pv[inside] * w + pu[inside]
+        ids = fid[sl][k[inside]]
+        order = np.lexsort((d, pix))
+        pix, d, ids = pix[order], d[order], ids[order]
+        first = np.r_[True, pix[1:] != pix[:-1]]
+        pix, d, ids = pix[first], d[first], ids[first]
+        better = d < depth[pix]
+        depth[pix[better]] = d[better]
+        face_id[pix[better]] = ids[better]
+    return depth.reshape(h, w), face_id.reshape(h, w)
+
+
+def _rays(camera: DepthCamera, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Camera-frame rays with ``z = 1`` through pixel coordinates ``u, v``, ``(..., 3)``."""
+    return np.stack([(u - camera.cx) / camera.fx, (v - camera.cy) / camera.fy, np.ones_like(u, dtype=float)], -1)
+
+
+# ----------------------------------------------------------------------------------------------------
+# Scan simulation
+# ----------------------------------------------------------------------------------------------------
+
+def _angle(value, rng_range, rng: np.random.Generator, name: str) -> float:
+    lo, hi = rng_range
+    if lo > hi:
+        raise ValueError(f"simulate_scan: {name} range must be (low, high), got {rng_range}")
+    draw = float(rng.uniform(lo, hi))  # always drawn, so the stream does not depend on the overrides
+    if value is None:
+        return draw
+    if not np.isfinite(value):
+        raise ValueError(f"simulate_scan: {name} must be finite, got {value}")
+    return float(value)
+
+
+def _edge_mask(depth: np.ndarray, jump_mm: float) -> np.ndarray:
+    """Pixels with a 4-neighbour that is empty or deeper/shallower by more than ``jump_mm``."""
+    pad = np.pad(depth, 1, constant_values=np.inf)
+    centre = pad[1:-1, 1:-1]
+    bad = np.zeros(depth.shape, bool)
+    for dy, dx in ((0, 1), (2, 1), (1, 0), (1, 2)):
+        nb = pad[dy:dy + depth.shape[0], dx:dx + depth.shape[1]]
+        with np.errstate(invalid="ignore"):
+            bad |= ~np.isfinite(nb) | (np.abs(nb - centre) > jump_mm)
+    return bad & np.isfinite(depth)
+
+
+def _holes(valid: np.ndarray, target: float, rng: np.random.Generator) -> np.ndarray:
+    """Random elliptical holes over ``valid`` pixels until about ``target`` of them are dropped."""
+    holes = np.zeros(valid.shape, bool)
+    n_valid = int(valid.sum())
+    if target <= 0.0 or n_valid == 0:
+        return holes
+    vv, uu = np.mgrid[0:valid.shape[0], 0:valid.shape[1]]
+    ys, xs = np.nonzero(valid)
+    for _ in range(40):
+        missing = target * n_valid - (holes & valid).sum()
+        if missing <= 0.02 * target * n_valid:
+            break
+        i = rng.integers(len(ys))
+        area = missing * rng.uniform(0.4, 1.0)
+        ratio = rng.uniform(1.0, 2.5)
+        a = np.sqrt(area * ratio / np.pi)
+        b = a / ratio
+        th = rng.uniform(0.0, np.pi)
+        du, dv = uu - xs[i], vv - ys[i]
+        p = du * np.cos(th) + dv * np.sin(th)
+        q = -du * np.sin(th) + dv * np.cos(th)
+        holes |= (p / a) ** 2 + (q / b) ** 2 <= 1.0
+    return holes
+
+
+def _depth_normals(points_img: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """Per-pixel normals ``(H, W, 3)`` (camera frame) from central (or one-sided) differences of the
+    back-projected image, oriented towards the camera; zero where no neighbours are valid."""
+    p = np.where(valid[..., None], points_img, np.nan)
+    pad = np.pad(p, ((1, 1), (1, 1), (0, 0)), constant_values=np.nan)
+
+    def diff(a, b):
+        d = a - b
+        return d
+
+    c = pad[1:-1, 1:-1]
+    right, left = pad[1:-1, 2:], pad[1:-1, :-2]
+    down, up = pad[2:, 1:-1], pad[:-2, 1:-1]
+    du = diff(right, left)
+    du = np.where(np.isnan(du), diff(right, c), du)
+    du = np.where(np.isnan(du), diff(c, left), du)
+    dv = diff(down, up)
+    dv = np.where(np.isnan(dv), diff(down, c), dv)
+    dv = np.where(np.isnan(dv), diff(c, up), dv)
+    n = np.cross(du, dv)
+    n = np.where(np.isnan(n), 0.0, n)
+    flip = (n * np.nan_to_num(c)).sum(-1) > 0  # towards the camera: n . p < 0
+    n = np.where(flip[..., None], -n, n)
+    norm = np.linalg.norm(n, axis=-1, keepdims=True)
+    return np.where(norm > 0, n / np.maximum(norm, 1e-12), 0.0)
+
+
+def simulate_scan(vertices: np.ndarray, faces: np.ndarray, *, rng: np.random.Generator | int,
+                  settings: ScanSettings = ScanSettings(), camera: DepthCamera = DepthCamera(),
+                  yaw_deg: float | None = None, pitch_deg: float | None = None,
+                  roll_deg: float | None = None) -> SyntheticScan:
+    """Simulate one depth scan of a head.
+
+    Args:
+        vertices: ``(V, 3)`` head vertices in rig space (mm, +Y up, +Z out of the face).
+        faces: ``(F, 3)`` int triangles.
+        rng: ``np.random.Generator`` or integer seed (all randomness comes from it).
+        settings: placement and sensor model.
+        camera: depth camera intrinsics.
+        yaw_deg, pitch_deg, roll_deg: fixed head rotation (degrees) instead of a random one.
+
+    Returns:
+        :class:`SyntheticScan` with points in the world frame (+Y up), the frame of ``gt_vertices``.
+
+    Raises:
+        ValueError: bad mesh, non-finite angles, bad ranges.
+
+    Example:
+        >>> from rig.asset import load_asset
+        >>> a = load_asset()
+        >>> scan = simulate_scan(a.vertices, a.faces, rng=0)
+        >>> scan.points.shape[1]
+        3
+    """
+    v, f = _check_mesh(vertices, faces, "simulate_scan")
+    rng = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
+    s = settings
+    lo_h, hi_h = s.hole_fraction
+    if not 0.0 <= lo_h <= hi_h < 1.0:
+        raise ValueError(f"simulate_scan: hole_fraction must be 0 <= low <= high < 1, got {s.hole_fraction}")
+    if s.distance_mm <= 0 or s.max_offset_mm < 0 or s.outlier_fraction < 0:
+        raise ValueError("simulate_scan: distance_mm must be > 0, max_offset_mm and outlier_fraction >= 0")
+    yaw = _angle(yaw_deg, s.yaw_deg_range, rng, "yaw_deg")
+    pitch = _angle(pitch_deg, s.pitch_deg_range, rng, "pitch_deg")
+    roll = _angle(roll_deg, s.roll_deg_range, rng, "roll_deg")
+    rotation = head_rotation(yaw, pitch, roll)
+    translation = rng.uniform(-s.max_offset_mm, s.max_offset_mm, size=3)
+    world = v @ rotation.T + translation
+
+    used = np.unique(f)
+    centre = world[used].mean(axis=0)
+    camera_position = np.array([centre[0], centre[1], world[used, 2].max() + s.distance_mm])
+    cam = (world - camera_position) @ WORLD_TO_CAMERA.T
+    depth, face_id = render_depth(cam, f, camera)
+    rendered = np.isfinite(depth)
+
+    # Visibility of the vertices (before dropout): in the image and not behind the z-buffer.
+    with np.errstate(divide="ignore", invalid="ignore"):
+        pu = np.rint(camera.fx * cam[:, 0] / cam[:, 2] + camera.cx).astype(np.int64)
+        pv = np.rint(camera.fy * cam[:, 1] / cam[:, 2] + camera.cy).astype(np.int64)
+    inside = (cam[:, 2] > _NEAR_MM) & (pu >= 0) & (pu < camera.width) & (pv >= 0) & (pv < camera.height)
+    visible = np.zeros(len(v), bool)
+    zb = depth[pv[inside], pu[inside]]
+    visible[inside] = cam[inside, 2] <= zb + 3.0
+    referenced = np.zeros(len(v), bool)
+    referenced[used] = True
+    visible &= referenced
+
+    valid = rendered.copy()
+    if s.edge_dropout:
+        vv, uu = np.nonzero(rendered)
+        tri = cam[f[face_id[vv, uu]]]
+        n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+        ray = _rays(camera, uu.astype(float), vv.astype(float))
+        cosang = np.abs((n * ray).sum(1)) / np.maximum(np.linalg.norm(n, axis=1) * np.linalg.norm(ray, axis=1), 1e-12)
+        grazing = np.zeros_like(rendered)
+        grazing[vv, uu] = cosang < np.cos(np.radians(s.grazing_deg))
+        valid &= ~(grazing | _edge_mask(depth, s.edge_jump_mm))
+    target = float(rng.uniform(lo_h, hi_h))
+    holes = _holes(rendered, target, rng)
+    hole_fraction = float((holes & rendered).sum() / max(rendered.sum(), 1))
+    valid &= ~holes
+
+    # Back-projection with lateral jitter and axial noise.
+    h, w = depth.shape
+    vv, uu = np.mgrid[0:h, 0:w].astype(float)
+    if s.lateral_jitter_px > 0:
+        uu = uu + rng.normal(0.0, s.lateral_jitter_px, size=uu.shape)
+        vv = vv + rng.normal(0.0, s.lateral_jitter_px, size=vv.shape)
+    z = np.where(valid, depth, np.inf)
+    sigma = np.maximum(s.noise_mm_at_1m * (np.where(valid, depth, 0.0) / 1000.0) ** 2, s.noise_floor_mm)
+    noise = rng.normal(0.0, 1.0, size=z.shape) * sigma
+    z = np.where(valid, z + noise, np.inf)
+    points_img = _rays(camera, uu, vv) * np.where(valid, z, 0.0)[..., None]
+    points = points_img[valid]
+    normals = _depth_normals(points_img, valid)[valid] if s.normals else None
+    if normals is not None:
+        fallback = np.linalg.norm(normals, axis=1) == 0
+        normals[fallback] = -points[fallback] / np.linalg.norm(points[fallback], axis=1, keepdims=True)
+
+    # Outliers: flying pixels behind valid pixels, and stray points around the head.
+    n_out = int(round(s.outlier_fraction * len(points)))
+    if n_out:
+        n_fly = n_out // 2
+        pick = rng.integers(len(points), size=n_fly)
+        fly = points[pick] * (1.0 + rng.uniform(0.02, 0.2, size=(n_fly, 1)))
+        lo, hi = cam[used].min(axis=0) - 30.0, cam[used].max(axis=0) + 30.0
+        stray = rng.uniform(lo, hi, size=(n_out - n_fly, 3))
+        extra = np.concatenate([fly, stray])
+        points = np.concatenate([points, extra])
+        if normals is not None:
+            normals = np.concatenate([normals, -extra / np.linalg.norm(extra, axis=1, keepdims=True)])
+
+    points_world = points @ WORLD_TO_CAMERA + camera_position  # WORLD_TO_CAMERA is its own inverse/transpose
+    normals_world = None if normals is None else normals @ WORLD_TO_CAMERA
+    final_depth = np.where(valid, z, np.inf)
+    return SyntheticScan(points=points_world, normals=normals_world, gt_vertices=world, rotation=rotation,
+                         translation=translation, visible=visible, hole_fraction=hole_fraction,
+                         camera_position=camera_position, depth=final_depth)

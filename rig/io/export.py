@@ -1,0 +1,961 @@
+"""Writing the face mesh and the skinned rig to files.
+
+* :func:`export_mesh` writes a triangle mesh as Wavefront OBJ or binary PLY through ``trimesh``.
+* :func:`export_skinned_gltf` writes the mesh, the joint hierarchy and the skinning weights as a
+  glTF 2.0 file (``.glb`` binary or ``.gltf`` JSON with an embedded data-URI buffer) through
+  ``pygltflib``.
+* :func:`read_skinned_gltf` reads such a glTF file back into numpy arrays (for tests and checks).
+
+Conventions: rig space is right-handed, +Y up, +Z forward out of the face, in millimetres; column
+vectors and 4x4 homogeneous matrices. glTF shares the axes but uses metres, so positions, node
+translations and inverse bind matrices are scaled by 0.001 on export (and by 1000 when read back).
+
+Face-varying texture coordinates (``face_uvs``, one UV per face corner, with a UV seam) cannot be
+stored per vertex without splitting the seam vertices. Every file keeps the ``V`` input vertices
+first, in their input order, and appends one duplicate per extra (vertex, UV) pair at the end;
+faces use the duplicates where needed. The map from every written vertex to its input vertex is
+``split_source`` (``split_source[:V] == arange(V)``).
+
+All files are written atomically: the data is encoded in memory, written to a temporary file in the
+destination directory and moved over the destination with :func:`os.replace`; on any error the
+temporary file is removed and an existing destination is left untouched.
+"""
+
+from __future__ import annotations
+
+import base64
+import os
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pygltflib
+import trimesh
+from scipy.spatial.transform import Rotation
+
+from rig.io.atomic import write_bytes_atomic
+
+__all__ = ["export_mesh", "export_skinned_gltf", "read_skinned_gltf"]
+
+MM_TO_M = 1e-3
+"""Scale from rig millimetres to glTF metres."""
+
+OBJ_DIGITS = 10
+"""Decimal places written for OBJ coordinates (fixed-point; 1e-10 mm for positions)."""
+
+MAX_INFLUENCES = 4
+"""Joint influences per vertex stored in glTF (``JOINTS_0`` / ``WEIGHTS_0``)."""
+
+WEIGHT_EPS = 1e-6
+"""Skinning weights at or below this are treated as zero."""
+
+MAX_DROPPED_WEIGHT = 1e-3
+"""Largest total weight per vertex that may be dropped when keeping the 4 largest influences."""
+
+GLTF_UNITS_NOTE = "metres (rig space is millimetres)"
+
+_EXTRAS_SOURCE_COUNT = "jnr_source_vertex_count"
+_EXTRAS_SPLIT_SOURCE = "jnr_split_source"
+
+# glTF constants.
+_FLOAT = pygltflib.FLOAT  # 5126
+_UNSIGNED_SHORT = pygltflib.UNSIGNED_SHORT  # 5123
+_UNSIGNED_INT = pygltflib.UNSIGNED_INT  # 5125
+_ARRAY_BUFFER = pygltflib.ARRAY_BUFFER  # 34962
+_ELEMENT_ARRAY_BUFFER = pygltflib.ELEMENT_ARRAY_BUFFER  # 34963
+_COMPONENT_DTYPES = {
+    pygltflib.BYTE: np.dtype("<i1"),
+    pygltflib.UNSIGNED_BYTE: np.dtype("<u1"),
+    pygltflib.SHORT: np.dtype("<i2"),
+    pygltflib.UNSIGNED_SHORT: np.dtype("<u2"),
+    pygltflib.UNSIGNED_INT: np.dtype("<u4"),
+    pygltflib.FLOAT: np.dtype("<f4"),
+}
+_TYPE_SHAPES = {
+    "SCALAR": (),
+    "VEC2": (2,),
+    "VEC3": (3,),
+    "VEC4": (4,),
+    "MAT2": (2, 2),
+    "MAT3": (3, 3),
+    "MAT4": (4, 4),
+}
+
+
+# ----------------------------------------------------------------------------------------------
+# argument checks
+# ----------------------------------------------------------------------------------------------
+
+
+def _shape_error(func: str, name: str, expected: str, got: Any) -> ValueError:
+    return ValueError(f"{func}: {name} must have shape {expected}, got {got}")
+
+
+def _check_mesh(
+    func: str,
+    vertices: Any,
+    faces: Any,
+    face_uvs: Any,
+    vertex_colors: Any,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """Validate and convert the mesh arguments shared by the exporters.
+
+    Returns float64 ``(V, 3)`` vertices, int64 ``(F, 3)`` faces, float64 ``(F, 3, 2)`` face UVs or
+    None and float64 ``(V, 3)`` colours in [0, 1] or None.
+    """
+    v = np.asarray(vertices)
+    if v.ndim != 2 or v.shape[1] != 3 or v.shape[0] == 0:
+        raise _shape_error(func, "vertices", "(V, 3) with V > 0", v.shape)
+    if not np.issubdtype(v.dtype, np.number) or np.issubdtype(v.dtype, np.complexfloating):
+        raise ValueError(f"{func}: vertices must be real numbers, got dtype {v.dtype}")
+    v = v.astype(np.float64)
+    if not np.isfinite(v).all():
+        raise ValueError(f"{func}: vertices contain NaN or infinite values")
+    n_vertices = v.shape[0]
+
+    f = np.asarray(faces)
+    if f.ndim != 2 or f.shape[1] != 3 or f.shape[0] == 0:
+        raise _shape_error(func, "faces", "(F, 3) with F > 0", f.shape)
+    if not np.issubdtype(f.dtype, np.integer):
+        raise ValueError(f"{func}: faces must be integer vertex indices, got dtype {f.dtype}")
+    f = f.astype(np.int64)
+    if f.min() < 0 or f.max() >= n_vertices:
+        raise ValueError(
+            f"{func}: faces index vertices out of range [0, {n_vertices}): "
+            f"min {f.min()}, max {f.max()}"
+        )
+
+    uv = None
+    if face_uvs is not None:
+        uv = np.asarray(face_uvs)
+        if uv.shape != (f.shape[0], 3, 2):
+            raise _shape_error(func, "face_uvs", f"(F, 3, 2) = ({f.shape[0]}, 3, 2)", uv.shape)
+        uv = uv.astype(np.float64) + 0.0  # + 0.0 turns -0.0 into 0.0 so equal UVs compare equal
+        if not np.isfinite(uv).all():
+            raise ValueError(f"{func}: face_uvs contain NaN or infinite values")
+
+    colors = None
+    if vertex_colors is not None:
+        c = np.asarray(vertex_colors)
+        if c.shape != (n_vertices, 3):
+            raise _shape_error(func, "vertex_colors", f"(V, 3) = ({n_vertices}, 3)", c.shape)
+        if c.dtype == np.uint8:
+            colors = c.astype(np.float64) / 255.0
+        elif np.issubdtype(c.dtype, np.floating):
+            colors = c.astype(np.float64)
+            if not np.isfinite(colors).all() or colors.min() < -1e-6 or colors.max() > 1 + 1e-6:
+                raise ValueError(
+                    f"{func}: float vertex_colors must lie in [0, 1], got range "
+                    f"[{np.nanmin(colors)}, {np.nanmax(colors)}]"
+                )
+            colors = np.clip(colors, 0.0, 1.0)
+        else:
+            raise ValueError(
+                f"{func}: vertex_colors must be float in [0, 1] or uint8, got dtype {c.dtype}"
+            )
+    return v, f, uv, colors
+
+
+def _resolve_format(func: str, path: Path, file_format: str | None, allowed: Sequence[str]) -> str:
+    if file_format is None:
+        fmt = path.suffix.lower().lstrip(".")
+        source = f"the suffix of {str(path)!r}"
+    else:
+        fmt = str(file_format).lower().lstrip(".")
+        source = f"file_format={file_format!r}"
+    if fmt not in allowed:
+        raise ValueError(
+            f"{func}: unsupported file format {fmt!r} (from {source}); expected one of "
+            + ", ".join(repr(a) for a in allowed)
+        )
+    return fmt
+
+
+def _colors_uint8(colors: np.ndarray) -> np.ndarray:
+    return np.round(np.clip(colors, 0.0, 1.0) * 255.0).astype(np.uint8)
+
+
+# ----------------------------------------------------------------------------------------------
+# geometry helpers
+# ----------------------------------------------------------------------------------------------
+
+
+def _split_uv_seams(
+    faces: np.ndarray, face_uvs: np.ndarray, n_vertices: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Turn face-varying UVs into per-vertex UVs by duplicating seam vertices.
+
+    Parameters
+    ----------
+    faces : (F, 3) int64
+    face_uvs : (F, 3, 2) float64
+        UV per face corner.
+    n_vertices : int
+        ``V``.
+
+    Returns
+    -------
+    split_faces : (F, 3) int64
+        Faces into the ``N = V + D`` split vertices.
+    uvs : (N, 2) float64
+        UV per split vertex; ``(0, 0)`` for vertices no face uses.
+    split_source : (N,) int64
+        Input vertex of each split vertex; ``split_source[:V] == arange(V)``.
+
+    Notes
+    -----
+    Each vertex keeps, in its original slot, the UV of its first corner in face order; every other
+    distinct UV (exact comparison) of that vertex gets a duplicate appended after the ``V`` input
+    vertices, ordered by source vertex, then by first use.
+    """
+    corner_vertex = faces.reshape(-1)
+    corner_uv = face_uvs.reshape(-1, 2)
+    keys = np.column_stack([corner_vertex.astype(np.float64), corner_uv])
+    _, first_corner, inverse = np.unique(keys, axis=0, return_index=True, return_inverse=True)
+    inverse = np.asarray(inverse).reshape(-1)
+    group_source = corner_vertex[first_corner]
+    order = np.lexsort((first_corner, group_source))  # by source vertex, then first use
+    sorted_source = group_source[order]
+    is_primary = np.ones(len(order), dtype=bool)
+    is_primary[1:] = sorted_source[1:] != sorted_source[:-1]
+
+    group_index = np.empty(len(order), dtype=np.int64)
+    group_index[order[is_primary]] = sorted_source[is_primary]
+    n_dup = int((~is_primary).sum())
+    group_index[order[~is_primary]] = n_vertices + np.arange(n_dup)
+
+    split_source = np.concatenate([np.arange(n_vertices), sorted_source[~is_primary]])
+    uvs = np.zeros((n_vertices + n_dup, 2), dtype=np.float64)
+    uvs[group_index] = corner_uv[first_corner]
+    split_faces = group_index[inverse].reshape(faces.shape)
+    return split_faces, uvs, split_source.astype(np.int64)
+
+
+def _vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Area-weighted unit vertex normals ``(V, 3)``; ``(0, 0, 1)`` where undefined."""
+    tri = vertices[faces]
+    face_cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])  # length = 2 * area
+    normals = np.zeros_like(vertices)
+    for corner in range(3):
+        np.add.at(normals, faces[:, corner], face_cross)
+    length = np.linalg.norm(normals, axis=1, keepdims=True)
+    good = length[:, 0] > 1e-12 * max(1.0, float(np.abs(vertices).max()) ** 2)
+    normals[good] /= length[good]
+    normals[~good] = (0.0, 0.0, 1.0)
+    return normals
+
+
+def _translation(t: np.ndarray) -> np.ndarray:
+    m = np.eye(4)
+    m[:3, 3] = t
+    return m
+
+
+def _matrix_to_quaternion(r: np.ndarray) -> np.ndarray:
+    """Unit quaternion ``(x, y, z, w)`` (glTF's order, scipy's too) of a 3x3 rotation matrix, ``w >= 0``."""
+    q = Rotation.from_matrix(r).as_quat()
+    return q if q[3] >= 0.0 else -q
+
+
+def _quaternion_to_matrix(q: Sequence[float]) -> np.ndarray:
+    return Rotation.from_quat(np.asarray(q, dtype=np.float64)).as_matrix()
+
+
+def _compose_trs(t: Sequence[float] | None, r: Sequence[float] | None, s: Sequence[float] | None):
+    m = np.eye(4)
+    rot = _quaternion_to_matrix(r) if r is not None else np.eye(3)
+    scale = np.asarray(s, dtype=np.float64) if s is not None else np.ones(3)
+    m[:3, :3] = rot * scale[None, :]
+    if t is not None:
+        m[:3, 3] = t
+    return m
+
+
+def _decompose_trs(m: np.ndarray, rtol: float = 1e-5):
+    """``(translation, rotation_xyzw, scale)`` with ``T @ R @ S == m``, or None.
+
+    None when the linear part has a shear, a reflection or a zero scale, i.e. differs from the
+    recomposed ``R @ S`` by more than ``rtol * max(1, max scale)`` (float32 round-off passes).
+    """
+    a = m[:3, :3]
+    scale = np.linalg.norm(a, axis=0)
+    if np.any(scale <= 1e-12 * max(1.0, float(scale.max()))):
+        return None
+    u, _, vt = np.linalg.svd(a / scale[None, :])
+    rot = u @ vt  # nearest rotation (or reflection) to the column-normalised matrix
+    if np.linalg.det(rot) <= 0.0:
+        return None
+    quat = _matrix_to_quaternion(rot)
+    recomposed = _compose_trs(m[:3, 3], quat, scale)
+    if not np.allclose(recomposed[:3, :3], a, rtol=0.0, atol=rtol * max(1.0, float(scale.max()))):
+        return None
+    return m[:3, 3].copy(), quat, scale
+
+
+def _node_local_matrix(node: pygltflib.Node) -> np.ndarray:
+    """Local 4x4 matrix of a glTF node (its ``matrix`` or its T @ R @ S), glTF units."""
+    if node.matrix is not None:
+        return np.asarray(node.matrix, dtype=np.float64).reshape(4, 4).T  # column-major storage
+    return _compose_trs(node.translation, node.rotation, node.scale)
+
+
+# ----------------------------------------------------------------------------------------------
+# OBJ / PLY
+# ----------------------------------------------------------------------------------------------
+
+
+def _obj_text_trimesh(vertices, faces, uvs, colors) -> str:
+    if uvs is not None:
+        visual = trimesh.visual.TextureVisuals(uv=uvs)
+    elif colors is not None:
+        visual = trimesh.visual.ColorVisuals(vertex_colors=_colors_uint8(colors))
+    else:
+        visual = None
+    mesh = trimesh.Trimesh(vertices=vertices, faces=faces, visual=visual, process=False, validate=False)
+    text = trimesh.exchange.obj.export_obj(
+        mesh,
+        include_normals=False,
+        include_color=colors is not None,
+        include_texture=uvs is not None,
+        return_texture=False,
+        write_texture=False,
+        digits=OBJ_DIGITS,
+        header="jnr",
+    )
+    # trimesh references a default (empty) material library that we do not write; drop the
+    # dangling ``mtllib`` / ``usemtl`` lines (the UVs are kept without them).
+    lines = [ln for ln in text.split("\n") if not ln.startswith(("mtllib ", "usemtl "))]
+    return "\n".join(lines)
+
+
+def _obj_text_uv_and_colors(vertices, faces, uvs, colors) -> str:
+    """OBJ text with ``v x y z r g b`` lines and UVs (trimesh's OBJ export holds one or the other)."""
+    fmt = f"{{:.{OBJ_DIGITS}f}}"
+    v_lines = [
+        "v " + " ".join(fmt.format(x) for x in row)
+        for row in np.column_stack([vertices, colors])
+    ]
+    vt_lines = ["vt " + " ".join(fmt.format(x) for x in row) for row in uvs]
+    f1 = faces + 1
+    f_lines = [f"f {a}/{a} {b}/{b} {c}/{c}" for a, b, c in f1]
+    return "\n".join(["# jnr", *v_lines, *vt_lines, *f_lines, "", ""])
+
+
+def _ply_bytes(vertices, faces, uvs, colors) -> bytes:
+    if uvs is not None:
+        mesh = trimesh.Trimesh(
+            vertices=vertices,
+            faces=faces,
+            visual=trimesh.visual.TextureVisuals(uv=uvs),
+            process=False,
+            validate=False,
+        )
+        if colors is not None:
+            # a texture visual holds no colours; write them as the standard uchar properties
+            c8 = _colors_uint8(colors)
+            for i, channel in enumerate(("red", "green", "blue")):
+                mesh.vertex_attributes[channel] = c8[:, i].copy()
+    else:
+        visual = None
+        if colors is not None:
+            visual = trimesh.visual.ColorVisuals(vertex_colors=_colors_uint8(colors))
+        mesh = trimesh.Trimesh(vertices=vertices, faces=faces, visual=visual, process=False, validate=False)
+    return trimesh.exchange.ply.export_ply(mesh, encoding="binary", vertex_normal=False)
+
+
+def export_mesh(
+    path: str | os.PathLike,
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    *,
+    face_uvs: np.ndarray | None = None,
+    vertex_colors: np.ndarray | None = None,
+    file_format: str | None = None,
+) -> None:
+    """Write a triangle mesh as Wavefront OBJ (text) or PLY (binary little-endian).
+
+    Written through ``trimesh`` with ``process=False``, so no vertex is merged or reordered: the
+    first ``V`` vertices of the file are ``vertices`` in order. When ``face_uvs`` has more than
+    one UV for a vertex (a UV seam), duplicates of that vertex are appended after the first ``V``
+    and faces use them where needed (see the module docstring); ``trimesh.load(path,
+    process=False)`` then returns ``V + D`` vertices whose first ``V`` are the input.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Destination file. Written atomically (temporary file in the same directory, then
+        ``os.replace``); its directory must exist.
+    vertices : (V, 3) float
+        Vertex positions in millimetres (written unchanged, in millimetres).
+    faces : (F, 3) int
+        Triangles as indices into ``vertices`` (counter-clockwise seen from outside).
+    face_uvs : (F, 3, 2) float, optional
+        Texture coordinates per face corner (face-varying, OBJ/OpenGL convention: v up).
+        OBJ: ``vt`` lines; PLY: per-vertex ``s``/``t`` properties.
+    vertex_colors : (V, 3) float in [0, 1] or uint8, optional
+        Per-vertex RGB. OBJ: ``v x y z r g b`` (floats in [0, 1]); PLY: uchar ``red``/``green``/
+        ``blue`` (plus ``alpha`` = 255 when no UVs are given).
+    file_format : {"obj", "ply"}, optional
+        Overrides the format inferred from the suffix of ``path``.
+
+    Raises
+    ------
+    ValueError
+        Unsupported format, or an argument with the wrong shape, dtype or range.
+
+    Notes
+    -----
+    OBJ coordinates are written with ``OBJ_DIGITS`` (10) decimal places. PLY stores positions as
+    float32 (about 1e-5 mm resolution at 100 mm). Vertices that no face uses are written, but
+    trimesh's OBJ loader drops them on reading.
+    """
+    func = "export_mesh"
+    path = Path(path)
+    fmt = _resolve_format(func, path, file_format, ("obj", "ply"))
+    v, f, uv, colors = _check_mesh(func, vertices, faces, face_uvs, vertex_colors)
+
+    if uv is not None:
+        f, uvs, source = _split_uv_seams(f, uv, v.shape[0])
+        v = v[source]
+        colors = colors[source] if colors is not None else None
+    else:
+        uvs = None
+
+    if fmt == "obj":
+        if uvs is not None and colors is not None:
+            text = _obj_text_uv_and_colors(v, f, uvs, colors)
+        else:
+            text = _obj_text_trimesh(v, f, uvs, colors)
+        data = text.encode("utf-8")
+    else:
+        data = _ply_bytes(v, f, uvs, colors)
+    write_bytes_atomic(path, data)
+
+
+# ----------------------------------------------------------------------------------------------
+# glTF
+# ----------------------------------------------------------------------------------------------
+
+
+class _BufferBuilder:
+    """Packs arrays into one binary buffer with one 4-byte-aligned bufferView per accessor."""
+
+    def __init__(self) -> None:
+        self.blob = bytearray()
+        self.buffer_views: list[pygltflib.BufferView] = []
+        self.accessors: list[pygltflib.Accessor] = []
+
+    def add(
+        self,
+        array: np.ndarray,
+        component_type: int,
+        accessor_type: str,
+        *,
+        target: int | None = None,
+        min_max: bool = False,
+        name: str | None = None,
+    ) -> int:
+        dtype = _COMPONENT_DTYPES[component_type]
+        data = np.ascontiguousarray(array, dtype=dtype)
+        count = data.shape[0]
+        offset = len(self.blob)
+        raw = data.tobytes()
+        self.blob.extend(raw)
+        self.blob.extend(b"\0" * (-len(raw) % 4))
+        self.buffer_views.append(
+            pygltflib.BufferView(buffer=0, byteOffset=offset, byteLength=len(raw), target=target)
+        )
+        accessor = pygltflib.Accessor(
+            bufferView=len(self.buffer_views) - 1,
+            byteOffset=0,
+            componentType=component_type,
+            count=count,
+            type=accessor_type,
+            name=name,
+        )
+        if min_max:
+            flat = data.reshape(count, -1)
+            # min/max must be given in the accessor's component type
+            cast = float if dtype.kind == "f" else int
+            accessor.min = [cast(x) for x in flat.min(axis=0)]
+            accessor.max = [cast(x) for x in flat.max(axis=0)]
+        self.accessors.append(accessor)
+        return len(self.accessors) - 1
+
+
+def _check_rig(func, n_vertices, joint_names, parents, joint_positions, weights, joint_transforms):
+    names = list(joint_names) if not isinstance(joint_names, str) else None
+    if names is None or any(not isinstance(n, str) for n in names):
+        raise ValueError(f"{func}: joint_names must be a list of K str")
+    k = len(names)
+    if k == 0:
+        raise ValueError(f"{func}: joint_names must name at least one joint, got an empty list")
+    if len(set(names)) != k:
+        raise ValueError(f"{func}: joint_names must be unique")
+
+    par = np.asarray(parents)
+    if par.shape != (k,):
+        raise _shape_error(func, "parents", f"(K,) = ({k},)", par.shape)
+    if not np.issubdtype(par.dtype, np.integer):
+        raise ValueError(f"{func}: parents must be integers, got dtype {par.dtype}")
+    par = par.astype(np.int64)
+    bad = np.nonzero((par < -1) | (par >= np.arange(k)))[0]
+    if bad.size:
+        j = int(bad[0])
+        raise ValueError(
+            f"{func}: parents must be -1 (root) or the index of an earlier joint; "
+            f"joint {j} ({names[j]!r}) has parent {int(par[j])}"
+        )
+
+    pos = np.asarray(joint_positions)
+    if pos.shape != (k, 3):
+        raise _shape_error(func, "joint_positions", f"(K, 3) = ({k}, 3)", pos.shape)
+    pos = pos.astype(np.float64)
+    if not np.isfinite(pos).all():
+        raise ValueError(f"{func}: joint_positions contain NaN or infinite values")
+
+    w = np.asarray(weights)
+    if w.shape != (n_vertices, k):
+        raise _shape_error(func, "weights", f"(V, K) = ({n_vertices}, {k})", w.shape)
+    w = w.astype(np.float64)
+    if not np.isfinite(w).all():
+        raise ValueError(f"{func}: weights contain NaN or infinite values")
+    if w.min() < -WEIGHT_EPS:
+        raise ValueError(f"{func}: weights must be non-negative, got minimum {w.min()}")
+    row_sum = w.sum(axis=1)
+    worst = int(np.argmax(np.abs(row_sum - 1.0)))
+    if abs(row_sum[worst] - 1.0) > MAX_DROPPED_WEIGHT:
+        raise ValueError(
+            f"{func}: weights rows must sum to 1; vertex {worst} sums to {row_sum[worst]}"
+        )
+
+    taus = None
+    if joint_transforms is not None:
+        taus = np.asarray(joint_transforms)
+        if taus.shape != (k, 4, 4):
+            raise _shape_error(func, "joint_transforms", f"(K, 4, 4) = ({k}, 4, 4)", taus.shape)
+        taus = taus.astype(np.float64)
+        if not np.isfinite(taus).all():
+            raise ValueError(f"{func}: joint_transforms contain NaN or infinite values")
+        if not np.allclose(taus[:, 3, :], [0.0, 0.0, 0.0, 1.0], atol=1e-9):
+            raise ValueError(f"{func}: joint_transforms must be affine (last row 0, 0, 0, 1)")
+    return names, par, pos, w, taus
+
+
+def _top_influences(func: str, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The 4 largest weights per vertex, renormalised: ``(joints (V, 4) int, weights (V, 4))``."""
+    n_vertices, k = weights.shape
+    w = np.where(weights > WEIGHT_EPS, weights, 0.0)
+    if k < MAX_INFLUENCES:
+        w = np.concatenate([w, np.zeros((n_vertices, MAX_INFLUENCES - k))], axis=1)
+    order = np.argsort(-w, axis=1, kind="stable")[:, :MAX_INFLUENCES]
+    top = np.take_along_axis(w, order, axis=1)
+    dropped = w.sum(axis=1) - top.sum(axis=1)
+    lossy = np.nonzero(dropped > MAX_DROPPED_WEIGHT)[0]
+    if lossy.size:
+        worst = int(lossy[np.argmax(dropped[lossy])])
+        n_influences = int((w[worst] > 0).sum())
+        raise ValueError(
+            f"{func}: weights of {lossy.size} vertices have more than {MAX_INFLUENCES} influences "
+            f"and keeping the {MAX_INFLUENCES} largest would drop more than {MAX_DROPPED_WEIGHT} "
+            f"of their weight (worst: vertex {worst}, {n_influences} influences, dropped weight "
+            f"{dropped[worst]:.3g}); prune the weights to {MAX_INFLUENCES} joints per vertex first"
+        )
+    top = top / top.sum(axis=1, keepdims=True)
+    order = np.where(top > 0.0, order, 0)  # unused influences point at joint 0 with weight 0
+    return order.astype(np.int64), top
+
+
+def _scale_affine_to_metres(m: np.ndarray) -> np.ndarray:
+    out = m.copy()
+    out[..., :3, 3] *= MM_TO_M
+    return out
+
+
+def export_skinned_gltf(
+    path: str | os.PathLike,
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    *,
+    joint_names: Sequence[str],
+    parents: np.ndarray,
+    joint_positions: np.ndarray,
+    weights: np.ndarray,
+    face_uvs: np.ndarray | None = None,
+    vertex_colors: np.ndarray | None = None,
+    joint_transforms: np.ndarray | None = None,
+) -> None:
+    """Write a skinned mesh with its joint hierarchy as glTF 2.0 (``.glb`` or ``.gltf``).
+
+    The file holds one node per joint (nodes ``0 .. K-1``, in joint order, named by
+    ``joint_names``, nested by ``parents``), one mesh node (node ``K``) with the mesh and the skin,
+    and a scene with the mesh node and the root joint node(s). Lengths are converted from
+    millimetres to metres; the axes are unchanged (glTF, like rig space, is right-handed, +Y up,
+    +Z forward).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Destination; the suffix picks the container: ``.glb`` (binary) or ``.gltf`` (JSON with the
+        buffer embedded as a base64 data URI). Written atomically.
+    vertices : (V, 3) float
+        Bind-pose vertex positions in millimetres.
+    faces : (F, 3) int
+        Triangles into ``vertices``.
+    joint_names : sequence of K str
+        Unique joint (node) names.
+    parents : (K,) int
+        Parent joint of each joint, ``-1`` for a root; parents come before their children.
+    joint_positions : (K, 3) float
+        Bind-pose joint positions in millimetres. Joint frames are axis-aligned in the bind pose,
+        so the world bind matrix of joint ``k`` is the translation ``T(p_k)`` and its inverse bind
+        matrix is ``T(-p_k)`` (stored in metres).
+    weights : (V, K) float
+        Dense skinning weights, non-negative, rows summing to 1. The 4 largest per vertex are kept
+        (``JOINTS_0`` / ``WEIGHTS_0``) and renormalised.
+    face_uvs : (F, 3, 2) float, optional
+        Texture coordinates per face corner (v up). Stored as ``TEXCOORD_0`` = ``(u, 1 - v)``
+        (glTF's v points down) on split vertices (see the module docstring).
+    vertex_colors : (V, 3) float in [0, 1] or uint8, optional
+        Stored unchanged as float ``COLOR_0`` (glTF reads it as linear RGB).
+    joint_transforms : (K, 4, 4) float, optional
+        Local pose transform ``tau_k`` of each joint relative to its bind pose (column vectors,
+        translations in millimetres). Joint ``k``'s node then has the local matrix
+        ``T(p_k - p_parent) @ tau_k`` (``p_parent = 0`` for a root), stored as node
+        ``translation`` / ``rotation`` / ``scale`` so that the joints stay posable in DCC tools.
+        glTF requires node transforms to decompose this way, so each ``tau_k`` must be
+        ``T @ R @ S`` with a rotation ``R`` and positive axis scales ``S`` (as the rig's channel
+        transforms are); a shear or reflection raises ValueError. The mesh is still stored in
+        the bind pose; a glTF viewer shows it posed. None means identity (bind pose).
+
+    Raises
+    ------
+    ValueError
+        Unsupported suffix; an argument with the wrong shape, dtype or range; weight rows not
+        summing to 1; a vertex whose weights beyond its 4 largest sum to more than
+        ``MAX_DROPPED_WEIGHT`` (1e-3); or a joint transform that is not translation @ rotation
+        @ positive scale.
+
+    Notes
+    -----
+    Mesh attributes: ``POSITION`` (float32, with min/max), ``NORMAL`` (area-weighted, unit; computed
+    before the seam split, so seams stay smooth), ``TEXCOORD_0``, ``COLOR_0``, ``JOINTS_0``
+    (unsigned short), ``WEIGHTS_0`` (float), indices unsigned int. The mesh node's ``extras``
+    record the units, ``V`` and the source vertex of each seam duplicate, which
+    :func:`read_skinned_gltf` uses to undo the split.
+    """
+    func = "export_skinned_gltf"
+    path = Path(path)
+    fmt = _resolve_format(func, path, None, ("glb", "gltf"))
+    v, f, uv, colors = _check_mesh(func, vertices, faces, face_uvs, vertex_colors)
+    n_vertices = v.shape[0]
+    names, par, pos, w, taus = _check_rig(
+        func, n_vertices, joint_names, parents, joint_positions, weights, joint_transforms
+    )
+    k = len(names)
+    if k > np.iinfo(np.uint16).max + 1:
+        raise ValueError(f"{func}: at most 65536 joints fit JOINTS_0 (unsigned short), got {k}")
+
+    joints4, weights4 = _top_influences(func, w)
+    normals = _vertex_normals(v, f)
+
+    if uv is not None:
+        f, uvs, source = _split_uv_seams(f, uv, n_vertices)
+    else:
+        uvs, source = None, np.arange(n_vertices)
+
+    builder = _BufferBuilder()
+    attributes = pygltflib.Attributes()
+    attributes.POSITION = builder.add(
+        v[source] * MM_TO_M, _FLOAT, "VEC3", target=_ARRAY_BUFFER, min_max=True, name="POSITION"
+    )
+    attributes.NORMAL = builder.add(normals[source], _FLOAT, "VEC3", target=_ARRAY_BUFFER, name="NORMAL")
+    if uvs is not None:
+        gltf_uv = np.column_stack([uvs[:, 0], 1.0 - uvs[:, 1]])
+        attributes.TEXCOORD_0 = builder.add(gltf_uv, _FLOAT, "VEC2", target=_ARRAY_BUFFER, name="TEXCOORD_0")
+    if colors is not None:
+        attributes.COLOR_0 = builder.add(colors[source], _FLOAT, "VEC3", target=_ARRAY_BUFFER, name="COLOR_0")
+    attributes.JOINTS_0 = builder.add(
+        joints4[source], _UNSIGNED_SHORT, "VEC4", target=_ARRAY_BUFFER, name="JOINTS_0"
+    )
+    attributes.WEIGHTS_0 = builder.add(
+        weights4[source], _FLOAT, "VEC4", target=_ARRAY_BUFFER, name="WEIGHTS_0"
+    )
+    indices = builder.add(
+        f.reshape(-1), _UNSIGNED_INT, "SCALAR", target=_ELEMENT_ARRAY_BUFFER, name="indices"
+    )
+    inverse_bind = np.stack([_translation(-p * MM_TO_M) for p in pos])
+    # glTF matrices are column-major: store the transpose of each row-major numpy matrix
+    ibm_accessor = builder.add(
+        np.transpose(inverse_bind, (0, 2, 1)).reshape(k, 16), _FLOAT, "MAT4", name="inverseBindMatrices"
+    )
+
+    joint_nodes = []
+    for j in range(k):
+        parent_pos = pos[par[j]] if par[j] >= 0 else np.zeros(3)
+        offset_m = (pos[j] - parent_pos) * MM_TO_M
+        node = pygltflib.Node(name=names[j])
+        if taus is None:
+            node.translation = [float(x) for x in offset_m]
+        else:
+            local = _translation(offset_m) @ _scale_affine_to_metres(taus[j])
+            trs = _decompose_trs(local)
+            if trs is None:
+                raise ValueError(
+                    f"{func}: joint_transforms[{j}] (joint {names[j]!r}) has a shear, a reflection "
+                    "or a zero scale; glTF joint nodes need translation @ rotation @ positive scale"
+                )
+            t, r, s = trs
+            node.translation = [float(x) for x in t]
+            if not np.allclose(r, [0.0, 0.0, 0.0, 1.0], rtol=0.0, atol=1e-12):
+                node.rotation = [float(x) for x in r]
+            if not np.allclose(s, 1.0, rtol=0.0, atol=1e-12):
+                node.scale = [float(x) for x in s]
+        joint_nodes.append(node)
+    for j in range(k):
+        if par[j] >= 0:
+            joint_nodes[par[j]].children.append(j)
+    roots = [j for j in range(k) if par[j] < 0]
+
+    mesh_node_index = k
+    mesh_node = pygltflib.Node(
+        name="mesh",
+        mesh=0,
+        skin=0,
+        extras={
+            "units": GLTF_UNITS_NOTE,
+            _EXTRAS_SOURCE_COUNT: int(n_vertices),
+            _EXTRAS_SPLIT_SOURCE: [int(s) for s in source[n_vertices:]],
+        },
+    )
+
+    blob = bytes(builder.blob)
+    buffer = pygltflib.Buffer(byteLength=len(blob))
+    if fmt == "gltf":
+        buffer.uri = "data:application/octet-stream;base64," + base64.b64encode(blob).decode("ascii")
+
+    gltf = pygltflib.GLTF2(
+        asset=pygltflib.Asset(version="2.0", generator="jnr"),
+        scene=0,
+        scenes=[pygltflib.Scene(name="jnr", nodes=[mesh_node_index, *roots])],
+        nodes=[*joint_nodes, mesh_node],
+        meshes=[
+            pygltflib.Mesh(
+                name="mesh",
+                primitives=[
+                    pygltflib.Primitive(attributes=attributes, indices=indices, mode=pygltflib.TRIANGLES)
+                ],
+            )
+        ],
+        skins=[
+            pygltflib.Skin(
+                name="skin",
+                joints=list(range(k)),
+                inverseBindMatrices=ibm_accessor,
+                skeleton=roots[0] if len(roots) == 1 else None,
+            )
+        ],
+        accessors=builder.accessors,
+        bufferViews=builder.buffer_views,
+        buffers=[buffer],
+    )
+    if fmt == "glb":
+        gltf.set_binary_blob(blob)
+        data = b"".join(gltf.save_to_bytes())
+    else:
+        data = gltf.gltf_to_json().encode("utf-8")
+    write_bytes_atomic(path, data)
+
+
+# ----------------------------------------------------------------------------------------------
+# reading glTF back
+# ----------------------------------------------------------------------------------------------
+
+
+def _buffer_bytes(gltf: pygltflib.GLTF2, index: int, directory: Path, cache: dict) -> bytes:
+    if index in cache:
+        return cache[index]
+    buffer = gltf.buffers[index]
+    if buffer.uri is None:
+        data = gltf.binary_blob()
+        if data is None:
+            raise ValueError(f"read_skinned_gltf: buffer {index} has no uri and the file no BIN chunk")
+    elif buffer.uri.startswith("data:"):
+        data = base64.b64decode(buffer.uri.split(",", 1)[1])
+    else:
+        data = (directory / buffer.uri).read_bytes()
+    cache[index] = bytes(data)
+    return cache[index]
+
+
+def _read_accessor(gltf: pygltflib.GLTF2, index: int, directory: Path, cache: dict) -> np.ndarray:
+    accessor = gltf.accessors[index]
+    if accessor.sparse is not None:
+        raise ValueError(f"read_skinned_gltf: sparse accessor {index} is not supported")
+    dtype = _COMPONENT_DTYPES[accessor.componentType]
+    shape = _TYPE_SHAPES[accessor.type]
+    n_components = int(np.prod(shape)) if shape else 1
+    if accessor.bufferView is None:
+        out = np.zeros((accessor.count, *shape), dtype=dtype)
+    else:
+        view = gltf.bufferViews[accessor.bufferView]
+        data = _buffer_bytes(gltf, view.buffer, directory, cache)
+        start = (view.byteOffset or 0) + (accessor.byteOffset or 0)
+        element_size = dtype.itemsize * n_components
+        stride = view.byteStride or element_size
+        if stride == element_size:
+            flat = np.frombuffer(data, dtype=dtype, count=accessor.count * n_components, offset=start)
+            out = flat.reshape(accessor.count, *shape).copy()
+        else:
+            rows = [
+                np.frombuffer(data, dtype=dtype, count=n_components, offset=start + i * stride)
+                for i in range(accessor.count)
+            ]
+            out = np.asarray(rows).reshape(accessor.count, *shape)
+    if accessor.normalized and dtype.kind in "iu":
+        out = out.astype(np.float64) / np.iinfo(dtype).max
+        if dtype.kind == "i":
+            out = np.maximum(out, -1.0)
+    if accessor.type.startswith("MAT"):
+        out = np.swapaxes(out, -1, -2)  # column-major storage to row-major numpy matrices
+    return out
+
+
+def read_skinned_gltf(path: str | os.PathLike) -> dict[str, Any]:
+    """Read a skinned glTF 2.0 file (as written by :func:`export_skinned_gltf`) into numpy arrays.
+
+    Uses the first node that has both a mesh and a skin, and that mesh's first primitive. Files
+    from other tools are read too, as long as they have one triangle primitive with ``POSITION``,
+    ``JOINTS_0``, ``WEIGHTS_0`` and indices (then every glTF vertex is its own source vertex).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        A ``.glb`` or ``.gltf`` file (embedded or external buffers).
+
+    Returns
+    -------
+    dict
+        ``vertices`` : (V, 3) float64
+            Bind-pose positions in millimetres of the ``V`` source vertices (glTF vertices before
+            the UV-seam duplicates).
+        ``faces`` : (F, 3) int64
+            Triangles into ``vertices`` (seam duplicates mapped back to their source).
+        ``split_source`` : (N,) int64
+            Source vertex of every glTF vertex (``N >= V``, ``split_source[:V] == arange(V)``).
+        ``gltf_faces`` : (F, 3) int64
+            Triangles into the ``N`` glTF vertices.
+        ``joint_names`` : list of K str
+        ``parents`` : (K,) int64
+            Parent joint, ``-1`` for a root (a joint whose parent node is not a joint of the skin).
+        ``joint_positions`` : (K, 3) float64
+            World bind positions in millimetres, from the inverse bind matrices.
+        ``joints`` : (V, 4) int64 and ``weights`` : (V, 4) float64
+            ``JOINTS_0`` / ``WEIGHTS_0`` of the source vertices.
+        ``local_matrices`` : (K, 4, 4) float64
+            Node-local joint matrices (relative to the parent node), translations in millimetres.
+        ``inverse_bind_matrices`` : (K, 4, 4) float64
+            Translations in millimetres.
+        ``normals`` : (N, 3) float64 or None
+        ``texcoords`` : (N, 2) float64 or None
+            ``TEXCOORD_0`` converted back to v-up, i.e. ``(u, 1 - v_gltf)``.
+        ``colors`` : (N, 3) float64 or None
+            ``COLOR_0`` RGB.
+        ``extras`` : dict
+            The mesh node's ``extras``.
+    """
+    func = "read_skinned_gltf"
+    path = Path(path)
+    raw = path.read_bytes()
+    try:
+        if raw[:4] == b"glTF":
+            gltf = pygltflib.GLTF2.load_from_bytes(raw)
+        else:
+            gltf = pygltflib.GLTF2.from_json(raw.decode("utf-8"))
+    except Exception as exc:
+        raise ValueError(f"{func}: could not read {str(path)!r} as glTF: {exc}") from exc
+    if gltf is None:
+        raise ValueError(f"{func}: could not read {str(path)!r} as glTF")
+    directory = path.parent
+    cache: dict = {}
+
+    mesh_node = next(
+        (n for n in gltf.nodes if n.mesh is not None and n.skin is not None), None
+    )
+    if mesh_node is None:
+        raise ValueError(f"{func}: {str(path)!r} has no node with both a mesh and a skin")
+    primitive = gltf.meshes[mesh_node.mesh].primitives[0]
+    if primitive.mode not in (None, pygltflib.TRIANGLES):
+        raise ValueError(f"{func}: only triangle primitives are supported, got mode {primitive.mode}")
+    attrs = primitive.attributes
+
+    def attribute(name: str) -> np.ndarray | None:
+        index = getattr(attrs, name, None)
+        return None if index is None else _read_accessor(gltf, index, directory, cache)
+
+    positions = attribute("POSITION").astype(np.float64) / MM_TO_M
+    n_gltf = positions.shape[0]
+    if primitive.indices is None:
+        gltf_faces = np.arange(n_gltf, dtype=np.int64).reshape(-1, 3)
+    else:
+        gltf_faces = _read_accessor(gltf, primitive.indices, directory, cache).astype(np.int64).reshape(-1, 3)
+
+    extras = dict(mesh_node.extras or {})
+    n_source = int(extras.get(_EXTRAS_SOURCE_COUNT, n_gltf))
+    duplicates = np.asarray(extras.get(_EXTRAS_SPLIT_SOURCE, []), dtype=np.int64)
+    split_source = np.concatenate([np.arange(n_source, dtype=np.int64), duplicates])
+    if split_source.shape[0] != n_gltf:
+        raise ValueError(
+            f"{func}: mesh node extras describe {split_source.shape[0]} vertices, "
+            f"the primitive has {n_gltf}"
+        )
+
+    skin = gltf.skins[mesh_node.skin]
+    joint_nodes = list(skin.joints)
+    k = len(joint_nodes)
+    node_to_joint = {node: j for j, node in enumerate(joint_nodes)}
+    parent_node = {child: i for i, n in enumerate(gltf.nodes) for child in (n.children or [])}
+    parents = np.array(
+        [node_to_joint.get(parent_node.get(node, -1), -1) for node in joint_nodes], dtype=np.int64
+    )
+    names = [gltf.nodes[node].name or f"joint_{j}" for j, node in enumerate(joint_nodes)]
+    if skin.inverseBindMatrices is None:
+        inverse_bind = np.tile(np.eye(4), (k, 1, 1))
+    else:
+        inverse_bind = _read_accessor(gltf, skin.inverseBindMatrices, directory, cache).astype(np.float64)
+    world_bind = np.linalg.inv(inverse_bind)
+    joint_positions = world_bind[:, :3, 3] / MM_TO_M
+
+    local = np.stack([_node_local_matrix(gltf.nodes[node]) for node in joint_nodes])
+    local[:, :3, 3] /= MM_TO_M
+    inverse_bind_mm = inverse_bind.copy()
+    inverse_bind_mm[:, :3, 3] /= MM_TO_M
+
+    joints = attribute("JOINTS_0")
+    weights = attribute("WEIGHTS_0")
+    if joints is None or weights is None:
+        raise ValueError(f"{func}: the skinned primitive lacks JOINTS_0 or WEIGHTS_0")
+    texcoords = attribute("TEXCOORD_0")
+    if texcoords is not None:
+        texcoords = np.column_stack([texcoords[:, 0], 1.0 - texcoords[:, 1].astype(np.float64)])
+    colors = attribute("COLOR_0")
+    normals = attribute("NORMAL")
+
+    return {
+        "vertices": positions[:n_source],
+        "faces": split_source[gltf_faces],
+        "split_source": split_source,
+        "gltf_faces": gltf_faces,
+        "joint_names": names,
+        "parents": parents,
+        "joint_positions": joint_positions,
+        "joints": joints[:n_source].astype(np.int64),
+        "weights": weights[:n_source].astype(np.float64),
+        "local_matrices": local,
+        "inverse_bind_matrices": inverse_bind_mm,
+        "normals": None if normals is None else normals.astype(np.float64),
+        "texcoords": None if texcoords is None else texcoords.astype(np.float64),
+        "colors": None if colors is None else colors[:, :3].astype(np.float64),
+        "extras": extras,
+    }

@@ -1,0 +1,498 @@
+"""Round trips of rig.io.export: OBJ / PLY through trimesh, skinned glTF through pygltflib."""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+import pygltflib
+import pytest
+import trimesh
+
+from rig.io import export as export_module
+from rig.io.export import export_mesh, export_skinned_gltf, read_skinned_gltf
+
+RADIUS_MM = 100.0
+JOINT_NAMES = ["neck", "head", "crown"]
+PARENTS = np.array([-1, 0, 1])
+JOINT_POSITIONS = np.array([[0.0, -90.0, -10.0], [0.0, 0.0, 5.0], [0.0, 60.0, 0.0]])
+
+
+# ----------------------------------------------------------------------------------------------
+# synthetic data
+# ----------------------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def sphere():
+    """Icosphere (162 vertices) of radius 100 mm with a UV seam, colours and 3-joint weights."""
+    mesh = trimesh.creation.icosphere(subdivisions=2)
+    vertices = np.asarray(mesh.vertices, dtype=np.float64) * RADIUS_MM
+    faces = np.asarray(mesh.faces, dtype=np.int64)
+
+    # spherical UVs per face corner; faces straddling u = 0 / 1 get u + 1 on their low corners,
+    # so the vertices on the seam carry two different UVs
+    unit = vertices / RADIUS_MM
+    u = np.arctan2(unit[:, 0], unit[:, 2]) / (2.0 * np.pi) + 0.5
+    v = 0.5 + np.arcsin(np.clip(unit[:, 1], -1.0, 1.0)) / np.pi
+    face_uvs = np.stack([u[faces], v[faces]], axis=-1)
+    wraps = np.ptp(face_uvs[:, :, 0], axis=1) > 0.5
+    low = wraps[:, None] & (face_uvs[:, :, 0] < 0.5)
+    face_uvs[:, :, 0] = np.where(low, face_uvs[:, :, 0] + 1.0, face_uvs[:, :, 0])
+    assert wraps.any()
+
+    # smooth weights along the chain (Gaussian in y around each joint)
+    dist = np.abs(vertices[:, 1:2] - JOINT_POSITIONS[None, :, 1])
+    weights = np.exp(-((dist / 45.0) ** 2))
+    weights /= weights.sum(axis=1, keepdims=True)
+
+    rng = np.random.default_rng(0)
+    colors = rng.uniform(0.0, 1.0, size=(len(vertices), 3))
+    return {"vertices": vertices, "faces": faces, "face_uvs": face_uvs, "weights": weights, "colors": colors}
+
+
+def _rotation(axis, angle):
+    axis = np.asarray(axis, dtype=np.float64)
+    axis = axis / np.linalg.norm(axis)
+    k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    return np.eye(3) + np.sin(angle) * k + (1 - np.cos(angle)) * k @ k
+
+
+def _affine(linear=np.eye(3), translation=(0.0, 0.0, 0.0)):
+    m = np.eye(4)
+    m[:3, :3] = linear
+    m[:3, 3] = translation
+    return m
+
+
+def _pose(kind: str) -> np.ndarray:
+    """(3, 4, 4) local pose transforms in mm: rigid + scale (TRS-decomposable) or sheared."""
+    taus = np.stack(
+        [
+            _affine(_rotation([1, 0.2, 0], 0.3), (2.0, -1.0, 3.0)),
+            _affine(_rotation([0, 1, 0.5], -0.5) @ np.diag([1.1, 0.9, 1.2]), (0.0, 4.0, -2.0)),
+            _affine(_rotation([0.3, 0, 1], 0.8), (1.0, 1.0, 1.0)),
+        ]
+    )
+    if kind == "sheared":
+        shear = np.eye(3)
+        shear[0, 1] = 0.4
+        taus[1, :3, :3] = taus[1, :3, :3] @ shear
+    return taus
+
+
+def _merge_duplicates(loaded_vertices, faces, vertices):
+    """Map every vertex index >= V of a loaded mesh to the input vertex at the same position."""
+    n = len(vertices)
+    source = np.arange(len(loaded_vertices))
+    for i in range(n, len(loaded_vertices)):
+        d = np.linalg.norm(vertices - loaded_vertices[i], axis=1)
+        source[i] = int(np.argmin(d))
+        assert d[source[i]] < 1e-4
+    return source[faces]
+
+
+def _no_temp_files(directory: Path):
+    return [p.name for p in directory.iterdir() if p.name.endswith(".tmp")]
+
+
+# ----------------------------------------------------------------------------------------------
+# OBJ / PLY
+# ----------------------------------------------------------------------------------------------
+
+
+def test_obj_round_trip_with_uv_seam(sphere, tmp_path):
+    v, f, uv = sphere["vertices"], sphere["faces"], sphere["face_uvs"]
+    path = tmp_path / "head.obj"
+    export_mesh(path, v, f, face_uvs=uv)
+
+    loaded = trimesh.load(path, process=False)
+    assert isinstance(loaded, trimesh.Trimesh)
+    n = len(v)
+    assert len(loaded.vertices) > n  # the seam was split
+    np.testing.assert_allclose(loaded.vertices[:n], v, rtol=0, atol=1e-5)
+    np.testing.assert_array_equal(_merge_duplicates(loaded.vertices, loaded.faces, v), f)
+    assert loaded.visual.uv is not None and loaded.visual.uv.shape == (len(loaded.vertices), 2)
+    np.testing.assert_allclose(loaded.visual.uv[loaded.faces], uv, rtol=0, atol=1e-8)
+    text = path.read_text()
+    assert "mtllib" not in text and "\nvt " in text
+    assert _no_temp_files(tmp_path) == []
+
+
+def test_obj_without_uvs_keeps_vertices_and_colors(sphere, tmp_path):
+    v, f = sphere["vertices"], sphere["faces"]
+    path = tmp_path / "plain.obj"
+    export_mesh(path, v, f, vertex_colors=sphere["colors"])
+    loaded = trimesh.load(path, process=False)
+    assert len(loaded.vertices) == len(v)
+    np.testing.assert_allclose(loaded.vertices, v, rtol=0, atol=1e-5)
+    np.testing.assert_array_equal(loaded.faces, f)
+    expected = np.round(sphere["colors"] * 255).astype(np.uint8)
+    np.testing.assert_allclose(loaded.visual.vertex_colors[:, :3], expected, atol=1)
+
+
+def test_obj_with_uvs_and_colors(sphere, tmp_path):
+    v, f, uv = sphere["vertices"], sphere["faces"], sphere["face_uvs"]
+    path = tmp_path / "both.obj"
+    export_mesh(path, v, f, face_uvs=uv, vertex_colors=sphere["colors"])
+    loaded = trimesh.load(path, process=False)
+    n = len(v)
+    np.testing.assert_allclose(loaded.vertices[:n], v, rtol=0, atol=1e-5)
+    np.testing.assert_array_equal(_merge_duplicates(loaded.vertices, loaded.faces, v), f)
+    np.testing.assert_allclose(loaded.visual.uv[loaded.faces], uv, rtol=0, atol=1e-8)
+    first_v = next(line for line in path.read_text().splitlines() if line.startswith("v "))
+    assert len(first_v.split()) == 7  # v x y z r g b
+
+
+@pytest.mark.parametrize("uint8", [False, True])
+def test_ply_round_trip_with_colors(sphere, tmp_path, uint8):
+    v, f = sphere["vertices"], sphere["faces"]
+    colors = sphere["colors"]
+    expected = np.round(colors * 255).astype(np.uint8)
+    path = tmp_path / "head.ply"
+    export_mesh(path, v, f, vertex_colors=expected if uint8 else colors)
+    assert path.read_bytes().startswith(b"ply\nformat binary_little_endian")
+    loaded = trimesh.load(path, process=False)
+    assert len(loaded.vertices) == len(v)
+    np.testing.assert_allclose(loaded.vertices, v, rtol=0, atol=1e-4)  # float32 on disk
+    np.testing.assert_array_equal(loaded.faces, f)
+    np.testing.assert_array_equal(loaded.visual.vertex_colors[:, :3], expected)
+
+
+def test_ply_with_uvs(sphere, tmp_path):
+    v, f, uv = sphere["vertices"], sphere["faces"], sphere["face_uvs"]
+    path = tmp_path / "head.data"
+    export_mesh(path, v, f, face_uvs=uv, vertex_colors=sphere["colors"], file_format="ply")
+    loaded = trimesh.load(path, file_type="ply", process=False)
+    n = len(v)
+    np.testing.assert_allclose(loaded.vertices[:n], v, rtol=0, atol=1e-4)
+    np.testing.assert_array_equal(_merge_duplicates(loaded.vertices, loaded.faces, v), f)
+    np.testing.assert_allclose(loaded.visual.uv[loaded.faces], uv, rtol=0, atol=1e-8)
+
+
+# ----------------------------------------------------------------------------------------------
+# glTF
+# ----------------------------------------------------------------------------------------------
+
+
+def _export_sphere_gltf(sphere, path, **kwargs):
+    export_skinned_gltf(
+        path,
+        sphere["vertices"],
+        sphere["faces"],
+        joint_names=JOINT_NAMES,
+        parents=PARENTS,
+        joint_positions=JOINT_POSITIONS,
+        weights=sphere["weights"],
+        face_uvs=sphere["face_uvs"],
+        vertex_colors=sphere["colors"],
+        **kwargs,
+    )
+
+
+def _expected_posed(vertices, weights, taus):
+    """LBS directly from our inputs, in mm: W_k = W_parent T(p_k - p_parent) tau_k, skin = W_k T(-p_k)."""
+    world = []
+    for k in range(len(PARENTS)):
+        parent_pos = JOINT_POSITIONS[PARENTS[k]] if PARENTS[k] >= 0 else np.zeros(3)
+        local = _affine(translation=JOINT_POSITIONS[k] - parent_pos) @ taus[k]
+        world.append(local if PARENTS[k] < 0 else world[PARENTS[k]] @ local)
+    skin = np.stack([w @ _affine(translation=-p) for w, p in zip(world, JOINT_POSITIONS)])
+    homogeneous = np.column_stack([vertices, np.ones(len(vertices))])
+    per_joint = np.einsum("kij,vj->vki", skin, homogeneous)[..., :3]
+    return np.einsum("vk,vki->vi", weights, per_joint)
+
+
+def _gltf_posed(path):
+    """glTF-style skinning straight from the file with pygltflib, in metres, returned in mm."""
+    gltf = pygltflib.GLTF2.load(str(path))
+    if path.suffix == ".glb":
+        blob = gltf.binary_blob()
+    else:
+        import base64
+
+        blob = base64.b64decode(gltf.buffers[0].uri.split(",", 1)[1])
+
+    def accessor(index):
+        acc = gltf.accessors[index]
+        view = gltf.bufferViews[acc.bufferView]
+        dtype = {5126: "<f4", 5123: "<u2", 5125: "<u4"}[acc.componentType]
+        width = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT4": 16}[acc.type]
+        assert view.byteOffset % 4 == 0
+        assert view.byteLength == acc.count * width * np.dtype(dtype).itemsize
+        data = np.frombuffer(blob, dtype=dtype, count=acc.count * width, offset=view.byteOffset)
+        return data.reshape(acc.count, width)
+
+    def local(node):
+        if node.matrix is not None:
+            return np.asarray(node.matrix).reshape(4, 4).T
+        m = np.eye(4)
+        if node.rotation is not None:
+            x, y, z, w = node.rotation
+            m[:3, :3] = [
+                [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+            ]
+        if node.scale is not None:
+            m[:3, :3] = m[:3, :3] @ np.diag(node.scale)
+        if node.translation is not None:
+            m[:3, 3] = node.translation
+        return m
+
+    parent_of = {c: i for i, n in enumerate(gltf.nodes) for c in n.children}
+
+    def global_matrix(index):
+        m = local(gltf.nodes[index])
+        while index in parent_of:
+            index = parent_of[index]
+            m = local(gltf.nodes[index]) @ m
+        return m
+
+    mesh_node = next(n for n in gltf.nodes if n.mesh is not None)
+    skin = gltf.skins[mesh_node.skin]
+    ibm = accessor(skin.inverseBindMatrices).reshape(-1, 4, 4).transpose(0, 2, 1)
+    joint_matrices = np.stack([global_matrix(j) @ b for j, b in zip(skin.joints, ibm)])
+    attributes = gltf.meshes[mesh_node.mesh].primitives[0].attributes
+    positions = accessor(attributes.POSITION).astype(np.float64)
+    joints = accessor(attributes.JOINTS_0).astype(np.int64)
+    weights = accessor(attributes.WEIGHTS_0).astype(np.float64)
+    skin_matrices = np.einsum("vi,vijk->vjk", weights, joint_matrices[joints])
+    homogeneous = np.column_stack([positions, np.ones(len(positions))])
+    return np.einsum("vij,vj->vi", skin_matrices, homogeneous)[:, :3] * 1000.0, gltf
+
+
+@pytest.mark.parametrize("suffix", [".glb", ".gltf"])
+def test_gltf_round_trip(sphere, tmp_path, suffix):
+    v, f = sphere["vertices"], sphere["faces"]
+    n = len(v)
+    path = tmp_path / f"rig{suffix}"
+    _export_sphere_gltf(sphere, path)
+    assert _no_temp_files(tmp_path) == []
+
+    out = read_skinned_gltf(path)
+    np.testing.assert_allclose(out["vertices"], v, rtol=0, atol=1e-4)
+    np.testing.assert_array_equal(out["faces"], f)
+    split = out["split_source"]
+    assert len(split) > n and np.array_equal(split[:n], np.arange(n))
+    assert out["joint_names"] == JOINT_NAMES
+    np.testing.assert_array_equal(out["parents"], PARENTS)
+    np.testing.assert_allclose(out["joint_positions"], JOINT_POSITIONS, rtol=0, atol=1e-4)
+
+    dense = np.zeros_like(sphere["weights"])
+    np.add.at(dense, (np.repeat(np.arange(n), 4), out["joints"].reshape(-1)), out["weights"].reshape(-1))
+    np.testing.assert_allclose(dense, sphere["weights"], rtol=0, atol=1e-6)
+
+    # UVs back in v-up convention, per face corner
+    np.testing.assert_allclose(out["texcoords"][out["gltf_faces"]], sphere["face_uvs"], atol=1e-6)
+    np.testing.assert_allclose(out["colors"][:n], sphere["colors"], atol=1e-6)
+    np.testing.assert_allclose(np.linalg.norm(out["normals"], axis=1), 1.0, atol=1e-5)
+    # normals point outwards on a sphere
+    assert (np.sum(out["normals"][:n] * v, axis=1) > 0).all()
+
+    _, gltf = _gltf_posed(path)
+    assert gltf.asset.generator == "jnr"
+    position = gltf.accessors[gltf.meshes[0].primitives[0].attributes.POSITION]
+    assert len(position.min) == 3 and len(position.max) == 3
+    for view in gltf.bufferViews[:-1]:
+        assert view.target in (pygltflib.ARRAY_BUFFER, pygltflib.ELEMENT_ARRAY_BUFFER)
+    mesh_node = next(node for node in gltf.nodes if node.mesh is not None)
+    assert mesh_node.extras["units"].startswith("metres")
+    roots = [i for i, p in enumerate(PARENTS) if p < 0]
+    assert set(gltf.scenes[gltf.scene].nodes) == {gltf.nodes.index(mesh_node), *roots}
+
+    scene = trimesh.load(path, process=False)
+    geometries = scene.geometry.values() if isinstance(scene, trimesh.Scene) else [scene]
+    assert sum(len(g.vertices) for g in geometries) >= n
+
+
+@pytest.mark.parametrize("suffix", [".glb", ".gltf"])
+def test_gltf_posed_skinning_matches_numpy(sphere, tmp_path, suffix):
+    taus = _pose("rigid_scaled")
+    path = tmp_path / f"posed{suffix}"
+    _export_sphere_gltf(sphere, path, joint_transforms=taus)
+
+    posed, gltf = _gltf_posed(path)
+    expected = _expected_posed(sphere["vertices"], sphere["weights"], taus)
+    out = read_skinned_gltf(path)
+    assert np.abs(expected - sphere["vertices"]).max() > 10.0  # the pose really moves the mesh
+    np.testing.assert_allclose(posed, expected[out["split_source"]], rtol=0, atol=1e-3)
+    # the pose did not move the bind data
+    np.testing.assert_allclose(out["joint_positions"], JOINT_POSITIONS, rtol=0, atol=1e-4)
+    np.testing.assert_allclose(out["vertices"], sphere["vertices"], rtol=0, atol=1e-4)
+    # joints stay posable: translation / rotation / scale, never a matrix
+    assert all(node.matrix is None for node in gltf.nodes[:3])
+    assert all(node.rotation is not None for node in gltf.nodes[:3])
+    assert gltf.nodes[1].scale is not None and gltf.nodes[0].scale is None
+    # node-local matrices read back in mm are T(p_k - p_parent) @ tau_k
+    for k in range(3):
+        parent = JOINT_POSITIONS[PARENTS[k]] if PARENTS[k] >= 0 else np.zeros(3)
+        expected_local = _affine(translation=JOINT_POSITIONS[k] - parent) @ taus[k]
+        np.testing.assert_allclose(out["local_matrices"][k], expected_local, atol=1e-9)
+
+
+def test_gltf_float32_pose_is_accepted(sphere, tmp_path):
+    taus = _pose("rigid_scaled").astype(np.float32)
+    path = tmp_path / "posed32.glb"
+    _export_sphere_gltf(sphere, path, joint_transforms=taus)
+    posed, _ = _gltf_posed(path)
+    expected = _expected_posed(sphere["vertices"], sphere["weights"], taus.astype(np.float64))
+    out = read_skinned_gltf(path)
+    np.testing.assert_allclose(posed, expected[out["split_source"]], rtol=0, atol=1e-3)
+
+
+def test_gltf_sheared_pose_is_rejected(sphere, tmp_path):
+    path = tmp_path / "sheared.glb"
+    with pytest.raises(ValueError, match=r"joint_transforms\[1\] \(joint 'head'\) has a shear"):
+        _export_sphere_gltf(sphere, path, joint_transforms=_pose("sheared"))
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_gltf_bind_pose_uses_translations(sphere, tmp_path):
+    path = tmp_path / "bind.gltf"
+    _export_sphere_gltf(sphere, path)
+    doc = json.loads(path.read_text())
+    assert doc["buffers"][0]["uri"].startswith("data:application/octet-stream;base64,")
+    for k, node in enumerate(doc["nodes"][:3]):
+        parent = JOINT_POSITIONS[PARENTS[k]] if PARENTS[k] >= 0 else np.zeros(3)
+        np.testing.assert_allclose(node["translation"], (JOINT_POSITIONS[k] - parent) * 1e-3)
+        assert "matrix" not in node and "rotation" not in node
+    assert doc["skins"][0]["joints"] == [0, 1, 2]
+    assert doc["skins"][0]["skeleton"] == 0
+    posed, _ = _gltf_posed(path)
+    out = read_skinned_gltf(path)
+    np.testing.assert_allclose(posed, sphere["vertices"][out["split_source"]], atol=1e-3)
+
+
+def test_gltf_without_uvs_or_colors(sphere, tmp_path):
+    path = tmp_path / "plain.glb"
+    v, f = sphere["vertices"], sphere["faces"]
+    export_skinned_gltf(
+        path, v, f, joint_names=JOINT_NAMES, parents=PARENTS, joint_positions=JOINT_POSITIONS,
+        weights=sphere["weights"],
+    )
+    out = read_skinned_gltf(path)
+    assert len(out["split_source"]) == len(v)
+    assert out["texcoords"] is None and out["colors"] is None
+    np.testing.assert_array_equal(out["gltf_faces"], f)
+
+
+def test_gltf_too_many_influences(sphere, tmp_path):
+    v, f = sphere["vertices"], sphere["faces"]
+    k = 6
+    names = [f"j{i}" for i in range(k)]
+    parents = np.arange(k) - 1
+    positions = np.zeros((k, 3))
+    path = tmp_path / "lossy.glb"
+    uniform = np.full((len(v), k), 1.0 / k)
+    with pytest.raises(ValueError, match="more than 4 influences"):
+        export_skinned_gltf(path, v, f, joint_names=names, parents=parents,
+                            joint_positions=positions, weights=uniform)
+    assert not path.exists()
+
+    # a 5th influence below the tolerance is dropped and the rest renormalised
+    almost = np.zeros((len(v), k))
+    almost[:, :4] = (1.0 - 5e-4) / 4
+    almost[:, 4] = 5e-4
+    export_skinned_gltf(path, v, f, joint_names=names, parents=parents,
+                        joint_positions=positions, weights=almost)
+    out = read_skinned_gltf(path)
+    np.testing.assert_allclose(out["weights"], 0.25, atol=1e-6)
+    assert set(np.unique(out["joints"])) == {0, 1, 2, 3}
+
+
+# ----------------------------------------------------------------------------------------------
+# errors and atomic writes
+# ----------------------------------------------------------------------------------------------
+
+
+def test_bad_formats(sphere, tmp_path):
+    v, f = sphere["vertices"], sphere["faces"]
+    with pytest.raises(ValueError, match="unsupported file format 'stl'"):
+        export_mesh(tmp_path / "a.stl", v, f)
+    with pytest.raises(ValueError, match="unsupported file format"):
+        export_mesh(tmp_path / "a.obj", v, f, file_format="fbx")
+    with pytest.raises(ValueError, match="unsupported file format 'obj'"):
+        _export_sphere_gltf(sphere, tmp_path / "a.obj")
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        ({"vertices": np.zeros((10, 2))}, r"vertices must have shape \(V, 3\).*\(10, 2\)"),
+        ({"faces": np.zeros((4, 4), dtype=int)}, r"faces must have shape .*\(4, 4\)"),
+        ({"faces": np.full((4, 3), 999)}, r"faces index vertices out of range"),
+        ({"face_uvs": np.zeros((5, 3, 2))}, r"face_uvs must have shape .*\(5, 3, 2\)"),
+        ({"vertex_colors": np.zeros((3, 3))}, r"vertex_colors must have shape .*\(3, 3\)"),
+        ({"vertex_colors": "big"}, r"vertex_colors"),
+    ],
+)
+def test_bad_mesh_shapes(sphere, tmp_path, kwargs, match):
+    args = {"vertices": sphere["vertices"], "faces": sphere["faces"]}
+    args.update(kwargs)
+    if isinstance(kwargs.get("vertex_colors"), str):
+        args["vertex_colors"] = sphere["colors"] * 2.0
+    path = tmp_path / "bad.obj"
+    with pytest.raises(ValueError, match=match):
+        export_mesh(path, args.pop("vertices"), args.pop("faces"), **args)
+    assert not path.exists()
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        ({"parents": np.array([-1, 0])}, r"parents must have shape \(K,\).*\(2,\)"),
+        ({"parents": np.array([-1, 2, 1])}, r"parents must be -1 \(root\) or the index of an earlier"),
+        ({"joint_positions": np.zeros((3, 2))}, r"joint_positions must have shape .*\(3, 2\)"),
+        ({"weights": np.full((162, 4), 0.25)}, r"weights must have shape \(V, K\).*\(162, 4\)"),
+        ({"weights": np.full((162, 3), 0.5)}, r"weights rows must sum to 1"),
+        ({"joint_transforms": np.zeros((3, 3, 3))}, r"joint_transforms must have shape .*\(3, 3, 3\)"),
+    ],
+)
+def test_bad_rig_shapes(sphere, tmp_path, kwargs, match):
+    args = {
+        "joint_names": JOINT_NAMES,
+        "parents": PARENTS,
+        "joint_positions": JOINT_POSITIONS,
+        "weights": sphere["weights"],
+    }
+    args.update(kwargs)
+    path = tmp_path / "bad.glb"
+    with pytest.raises(ValueError, match=match):
+        export_skinned_gltf(path, sphere["vertices"], sphere["faces"], **args)
+    assert not path.exists()
+
+
+def test_failed_write_leaves_nothing(sphere, tmp_path, monkeypatch):
+    v, f = sphere["vertices"], sphere["faces"]
+
+    def broken_replace(src, dst):
+        raise OSError("disk full")
+
+    monkeypatch.setattr(export_module.os, "replace", broken_replace)
+    for name in ("a.obj", "a.ply"):
+        with pytest.raises(OSError, match="disk full"):
+            export_mesh(tmp_path / name, v, f)
+    with pytest.raises(OSError, match="disk full"):
+        _export_sphere_gltf(sphere, tmp_path / "a.glb")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_failed_write_keeps_existing_file(sphere, tmp_path):
+    v, f = sphere["vertices"], sphere["faces"]
+    path = tmp_path / "keep.obj"
+    path.write_text("old")
+    with pytest.raises(ValueError):
+        export_mesh(path, v[:, :2], f)
+    assert path.read_text() == "old"
+
+    # the destination is a directory: os.replace fails, the temporary file is removed
+    blocker = tmp_path / "blocked.ply"
+    blocker.mkdir()
+    with pytest.raises(OSError):
+        export_mesh(blocker, v, f)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["blocked.ply", "keep.obj"]
+    assert os.listdir(blocker) == []
