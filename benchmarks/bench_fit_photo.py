@@ -10,7 +10,8 @@ fit is aligned to the true head by a similarity transform on the 51 inner landma
 similarity ICP; then the face-region scan-to-mesh distance (median, mean, std per photo) and the
 true vertex error are computed (pipeline.evaluation.photos). Rows: the full fit (``jnr``), its landmark-only
 stage (``landmarks``, seconds = that stage alone) and the unfitted template (``template``), mean ±
-sd over photos. Heads from 20 on by default: the fit's defaults were chosen on heads 0-5.
+sample std (ddof=1) over photos (pipeline.evaluation.metrics). Heads from 20 on by default: the fit's
+defaults were chosen on heads 0-5.
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from pipeline.evaluation.metrics import summarize
 from pipeline.evaluation.photos import evaluate_photos
 
 
@@ -54,11 +56,11 @@ def main() -> None:
     print(ev.table_markdown())
     print()
     all_jnr = [r for r in ev.records if r.method == "jnr"]
-    lm = [r for r in ev.records if r.method == "landmarks"]
+    full = summarize(r.seconds for r in all_jnr)
+    landmark_only = summarize(r.seconds for r in ev.records if r.method == "landmarks")
     print(f"goals: median s2m <= 1.0 mm: {max(r.s2m_median_mm for r in all_jnr):.2f} mm worst photo; "
-          f"landmark fit <= 2 s: median {sorted(r.seconds for r in lm)[len(lm) // 2]:.1f} s; "
-          f"full fit <= 60 s: median {sorted(r.seconds for r in all_jnr)[len(all_jnr) // 2]:.1f} s, "
-          f"max {max(r.seconds for r in all_jnr):.1f} s")
+          f"landmark fit <= 2 s: median {landmark_only.median:.1f} s; "
+          f"full fit <= 60 s: median {full.median:.1f} s, max {max(r.seconds for r in all_jnr):.1f} s")
     print(f"wall {wall:.0f} s | torch threads {torch.get_num_threads()} | cpu_count {os.cpu_count()} | "
           f"{platform.processor() or platform.machine()} | python {platform.python_version()} | "
           f"torch {torch.__version__}")

@@ -27,6 +27,7 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from pipeline.evaluation.metrics import STD_DDOF
 from pipeline.evaluation.scans import evaluate_scans
 from pipeline.synthetic.scans import DepthCamera
 
@@ -59,7 +60,7 @@ def main() -> None:
     print()
     print("s2m: distance of every scan point (outliers included) to the fitted surface; vertex err: "
           "|fitted - true| per vertex with known correspondence (face region / seen face vertices / all); "
-          "mean ± std over scans (ddof=1); seconds: median (nricp_amberg = shared prealign + nricp).")
+          f"mean ± std over scans (ddof={STD_DDOF}); seconds: median (nricp_amberg = shared prealign + nricp).")
     print(f"wall {wall:.0f} s | torch threads {torch.get_num_threads()} | cpu_count {os.cpu_count()} | "
           f"{platform.processor() or platform.machine()} | python {platform.python_version()} | "
           f"torch {torch.__version__}")

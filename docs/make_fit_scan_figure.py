@@ -25,14 +25,15 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from pipeline.scan.baseline import nricp_baseline  # noqa: E402
-from pipeline.scan.pointcloud import error_colors, validate_points  # noqa: E402
-from pipeline.scan.registration import invert_similarity  # noqa: E402
-from pipeline.evaluation.scans import scan_seed  # noqa: E402
-from pipeline.scan.fit import FACE_REGIONS, fit_scan  # noqa: E402
-from pipeline.synthetic.scans import simulate_scan  # noqa: E402
-from rig.asset import load_asset  # noqa: E402
-from pipeline.synthetic.expressive import expressive_split  # noqa: E402
+from pipeline.evaluation.scans import scan_seed
+from pipeline.scan.baseline import nricp_baseline
+from pipeline.scan.fit import fit_scan
+from pipeline.scan.pointcloud import error_colors, validate_points
+from pipeline.synthetic.expressive import expressive_split
+from pipeline.synthetic.scans import simulate_scan
+from rig.asset import load_asset
+from rig.geometry import Similarity
+from rig.template import FACE_REGIONS
 
 VMAX_MM = 5.0
 TILE = (160, 280)  # width, height of one view in pixels
@@ -52,7 +53,7 @@ def fit_meshes() -> tuple[np.ndarray, list[tuple[str, np.ndarray, np.ndarray | N
     face = asset.region_mask(*FACE_REGIONS)
 
     def to_rig(world: np.ndarray) -> np.ndarray:  # the true pose, scale 1, for every mesh
-        return invert_similarity(world, scan.rotation, scan.translation, 1.0)
+        return Similarity(scan.rotation, scan.translation).apply_inverse(world)
 
     truth = to_rig(scan.gt_vertices)  # == head
     panels: list[tuple[str, np.ndarray, np.ndarray | None]] = [("ground truth", truth, None)]

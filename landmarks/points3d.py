@@ -145,7 +145,7 @@ def fit_similarity(reference: np.ndarray, points: np.ndarray) -> tuple[float, np
 
     With ``A``, ``B`` the centred point sets, ``B^T A = U diag(d) V^T`` and ``sign = det U det V`` (the
     sign of ``det B^T A``, defined also for coplanar points where ``d3 = 0``), the best proper similarity
-    (Umeyama 1991, the same as :func:`pipeline.scan.registration.umeyama`) is
+    (Umeyama 1991, the same as :meth:`rig.geometry.Similarity.fit`) is
     ``R = U diag(1, 1, sign) V^T``, ``s = (d1 + d2 + sign d3) / |A|^2``, leaving ``|B|^2 - s^2 |A|^2`` as
     the sum of squared residuals; the best improper one (``det R = -1``) has ``-sign d3`` instead.
 

@@ -1,1 +1,48 @@
-"""Fitting pipelines and the ``jnr`` command line. Uses every other package."""
+"""jnr's fitting pipeline: reconstruct a head from photos or a point cloud with the joint rig.
+
+The public entry points (imported lazily, so ``import pipeline`` stays cheap)::
+
+    from pipeline import fit_photo, FitPhotoConfig           # one photo in memory -> PhotoFit
+    from pipeline import fit_photo_file, fit_photo_files     # photo files -> output folders
+    from pipeline import fit_scan, FitScanConfig             # a point cloud -> ScanFit
+    from pipeline import read_point_cloud, load_config
+
+Layout by task: :mod:`pipeline.fitting` (the staged engine, the fit state, the priors),
+:mod:`pipeline.photo`, :mod:`pipeline.scan`, :mod:`pipeline.synthetic` (data with known truth),
+:mod:`pipeline.evaluation`, :mod:`pipeline.cli` (the ``jnr`` command).
+"""
+
+from __future__ import annotations
+
+import importlib
+
+_PUBLIC = {
+    "fit_photo": "pipeline.photo.fit",
+    "FitPhotoConfig": "pipeline.photo.fit",
+    "PhotoFit": "pipeline.photo.fit",
+    "fit_landmarks": "pipeline.photo.landmark_fit",
+    "LandmarkFitConfig": "pipeline.photo.landmark_fit",
+    "fit_photo_file": "pipeline.photo.files",
+    "fit_photo_files": "pipeline.photo.files",
+    "fit_scan": "pipeline.scan.fit",
+    "FitScanConfig": "pipeline.scan.fit",
+    "ScanFit": "pipeline.scan.fit",
+    "read_point_cloud": "pipeline.scan.pointcloud",
+    "load_config": "pipeline.config",
+}
+
+__all__ = ["FitPhotoConfig", "FitScanConfig", "LandmarkFitConfig", "PhotoFit", "ScanFit", "fit_landmarks",
+           "fit_photo", "fit_photo_file", "fit_photo_files", "fit_scan", "load_config", "read_point_cloud"]
+
+
+def __getattr__(name: str):
+    module = _PUBLIC.get(name)
+    if module is None:
+        raise AttributeError(f"module 'pipeline' has no attribute {name!r}")
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_PUBLIC))

@@ -129,7 +129,7 @@ def load_config(cls: type[T], path: str | Path | None = None, overrides: dict | 
             raise ConfigError(f"{path}: expected a mapping of {cls.__name__} fields")
         values.update(data)
     for key, value in (overrides or {}).items():
-        # "landmarks.lambda_m=0.5" sets a field of a nested config
+        # "landmarks.prior.lambda_m=0.5" sets a field of a nested config group
         *parents, leaf = key.split(".")
         node = values
         for part in parents:
@@ -150,5 +150,28 @@ def _yaml_problem(exc) -> str:
 
 
 def config_to_dict(config) -> dict:
-    """A config dataclass as plain JSON/YAML-ready data."""
-    return dataclasses.asdict(config)
+    """A config dataclass as plain JSON/YAML-ready data (nested groups as mappings, tuples as lists)."""
+    def plain(value):
+        if isinstance(value, dict):
+            return {k: plain(v) for k, v in value.items()}
+        if isinstance(value, (list, tuple)):
+            return [plain(v) for v in value]
+        return value
+
+    return plain(dataclasses.asdict(config))
+
+
+CONFIG_FILE = "config.yaml"
+"""The resolved configuration every fit writes beside its outputs."""
+
+
+def dump_config(config, path: str | Path, *, command: str | None = None) -> None:
+    """Write ``config`` (a config dataclass, every field resolved) as YAML that :func:`load_config`
+    reads back to an equal config: ``jnr fit ... --config OUT/config.yaml`` repeats a fit."""
+    import yaml
+
+    header = f"# The settings of this fit ({type(config).__module__}.{type(config).__name__}), every field resolved.\n"
+    if command:
+        header += f"# Made by: {command}\n"
+    header += "# Repeat it with --config on this file.\n"
+    Path(path).write_text(header + yaml.safe_dump(config_to_dict(config), sort_keys=False, width=100))

@@ -7,20 +7,18 @@ Every output of the ``jnr`` commands goes through this module:
   without ``force``; with ``force``, an existing folder that jnr did not write (:func:`is_jnr_output`:
   it has no :data:`OUTPUT_MARKER` file) or a folder where a file is expected; a parent folder that does not
   exist, is not writable or has less than :data:`MIN_FREE_BYTES` free. Messages name the user's path.
-* :func:`staged_folder` / :func:`staged_file` write into a hidden temporary folder/file beside the
-  output and move it into place in one atomic step at the end: ``renameat2(RENAME_NOREPLACE)`` when
-  nothing may be replaced (a target that appeared meanwhile, e.g. from a second ``jnr`` process with
-  the same ``--out``, is refused, not overwritten) and ``RENAME_EXCHANGE`` (swap, then delete the old
-  one) with ``force``. On any error or signal (SIGINT, SIGTERM: see :func:`pipeline.signals`) the
-  temporary is removed and the old output is untouched.
+* :func:`staged_folder` / :func:`staged_file` check the output, then write it with the one atomic
+  writer, :mod:`rig.io.atomic`: into a hidden temporary folder/file beside the output, moved into place
+  in one atomic step at the end: ``renameat2(RENAME_NOREPLACE)`` when nothing may be replaced (a target
+  that appeared meanwhile, e.g. from a second ``jnr`` process with the same ``--out``, is refused, not
+  overwritten) and ``RENAME_EXCHANGE`` (swap, then delete the old one) with ``force`` (a folder only if
+  it is still jnr's). On any error or signal (SIGINT, SIGTERM: see :func:`pipeline.signals`) the
+  temporary is removed and the old output is untouched; errors name the user's path.
 * Outputs get the user's umask permissions (``mkdtemp``/``mkstemp`` make 0700/0600).
 """
 
 from __future__ import annotations
 
-import ctypes
-import ctypes.util
-import errno
 import json
 import math
 import os
@@ -31,6 +29,8 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from rig.errors import InputError
+from rig.io import atomic
+from rig.io.atomic import TargetExistsError
 
 OUTPUT_MARKER = ".jnr-output"
 """The file that marks a folder written by jnr; ``--force`` replaces only folders that hold it."""
@@ -72,12 +72,6 @@ class OutputError(InputError):
 
 class OutputExistsError(OutputError, FileExistsError):
     """The output exists (and ``force`` was not given), or appeared while jnr was writing it."""
-
-
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
 
 
 def _resolved(path: str | Path) -> Path:
@@ -169,95 +163,7 @@ def check_writable(folder: str | Path, *, what: str | None = None, free_bytes: i
                           f"(jnr needs {free_bytes / 2**20:.0f} MB)")
 
 
-# ---------------------------------------------------------------------------------------- atomic renames
-
-_RENAME_NOREPLACE, _RENAME_EXCHANGE = 1, 2
-_AT_FDCWD = -100
-
-
-def _renameat2():
-    """libc's ``renameat2`` (Linux, glibc >= 2.28), or None."""
-    if not hasattr(_renameat2, "fn"):
-        fn = None
-        try:
-            libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
-            fn = libc.renameat2
-            fn.argtypes = [ctypes.c_int, ctypes.c_char_p, ctypes.c_int, ctypes.c_char_p, ctypes.c_uint]
-            fn.restype = ctypes.c_int
-        except (OSError, AttributeError):
-            fn = None
-        _renameat2.fn = fn
-    return _renameat2.fn
-
-
-def _rename(src: Path, dst: Path, flags: int) -> None:
-    fn = _renameat2()
-    if fn is None:
-        raise OSError(errno.ENOSYS, "renameat2 is not available")
-    if fn(_AT_FDCWD, os.fsencode(src), _AT_FDCWD, os.fsencode(dst), flags) != 0:
-        code = ctypes.get_errno()
-        raise OSError(code, os.strerror(code), str(dst))
-
-
-def _move_into_place(tmp: Path, out: Path, force: bool, kind: str) -> None:
-    """Atomically move ``tmp`` to ``out``; never replaces something that is not allowed to be replaced."""
-    appeared = OutputExistsError(f"output {out} appeared while jnr was writing it (another process?); "
-                           "it was not replaced and nothing was written")
-    exists = out.is_symlink() or out.exists()
-    if exists and not force:
-        raise appeared
-    if exists:
-        if kind == "folder" and not (out.is_dir() and is_jnr_output(out)):
-            raise OutputError(f"output {out} changed while jnr was writing it and is no longer a jnr output "
-                              "folder; it was not replaced")
-        try:
-            _rename(tmp, out, _RENAME_EXCHANGE)  # tmp now holds the old output
-        except OSError as exc:
-            if exc.errno not in (errno.ENOSYS, errno.EINVAL, errno.ENOENT):
-                raise
-            if exc.errno == errno.ENOENT:  # removed meanwhile: a plain no-replace move
-                return _move_into_place(tmp, out, force=False, kind=kind)
-            # No exchange here: move the old one aside, then the new one in.
-            aside = Path(tempfile.mkdtemp(prefix=f".{out.name}.old.", dir=out.parent))
-            os.rename(out, aside / "old")
-            try:
-                os.rename(tmp, out)
-            except BaseException:
-                os.rename(aside / "old", out)
-                shutil.rmtree(aside, ignore_errors=True)
-                raise
-            shutil.rmtree(aside, ignore_errors=True)
-            return None
-        shutil.rmtree(tmp, ignore_errors=True) if tmp.is_dir() else tmp.unlink(missing_ok=True)
-        return None
-    try:
-        _rename(tmp, out, _RENAME_NOREPLACE)
-    except OSError as exc:
-        if exc.errno == errno.EEXIST:
-            raise appeared from None
-        if exc.errno not in (errno.ENOSYS, errno.EINVAL):
-            raise
-        # No renameat2 (or a file system without it): link() for files fails on an existing target;
-        # rename() of a folder fails on a non-empty one.
-        if kind == "file":
-            try:
-                os.link(tmp, out)
-            except FileExistsError:
-                raise appeared from None
-            os.unlink(tmp)
-        else:
-            if out.exists():
-                raise appeared from None
-            os.rename(tmp, out)
-    return None
-
-
-def _remove(path: Path) -> None:
-    if path.is_dir() and not path.is_symlink():
-        shutil.rmtree(path, ignore_errors=True)
-    elif path.exists() or path.is_symlink():
-        path.unlink(missing_ok=True)
-
+# ---------------------------------------------------------------------------------------- staging
 
 def _write_error(exc: OSError, out: Path) -> OutputError:
     """An OSError while writing, reported with the user's path instead of the temporary one (our own
@@ -268,24 +174,31 @@ def _write_error(exc: OSError, out: Path) -> OutputError:
 
 
 @contextmanager
-def _staged(out: Path, tmp: Path, finish) -> Iterator[Path]:
-    """Yield ``tmp``; then ``finish(tmp)`` (which moves it into place). Any error, signal or interrupt
-    removes ``tmp``; an OSError is reported with the user's path ``out``."""
+def _output_errors(out: Path) -> Iterator[None]:
+    """The staging's OSErrors as :class:`OutputError` naming ``out``; a target that appeared meanwhile as
+    :class:`OutputExistsError`."""
     try:
-        try:
-            yield tmp
-            finish(tmp)
-        except OSError as exc:
+        yield
+    except TargetExistsError as exc:
+        if exc.filename != str(out):
             raise _write_error(exc, out) from None
-    except BaseException:
-        _remove(tmp)
-        raise
+        raise OutputExistsError(f"output {out} appeared while jnr was writing it (another process?); "
+                                "it was not replaced and nothing was written") from None
+    except OSError as exc:
+        raise _write_error(exc, out) from None
+
+
+def _still_jnr_output(out: Path) -> None:
+    """Just before ``--force`` swaps a folder in: the folder there must still be one jnr wrote."""
+    if not (out.is_dir() and is_jnr_output(out)):
+        raise OutputError(f"output {out} changed while jnr was writing it and is no longer a jnr output "
+                          "folder; it was not replaced")
 
 
 @contextmanager
 def staged_folder(out_dir: str | Path, force: bool = False, *, inputs: Iterable[str | Path] = (),
                   marker: dict | None = None) -> Iterator[Path]:
-    """Write an output folder atomically (module docstring).
+    """Write an output folder atomically (module docstring; :func:`rig.io.atomic.staged_folder`).
 
     Yields a hidden temporary folder beside ``out_dir``; when the block ends without an error the
     :data:`OUTPUT_MARKER` file is added and the folder is moved into place atomically; on an error, a
@@ -303,43 +216,28 @@ def staged_folder(out_dir: str | Path, force: bool = False, *, inputs: Iterable[
     """
     out_dir = Path(out_dir)
     check_output(out_dir, force=force, inputs=inputs, kind="folder")
-    try:
-        tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", suffix=".tmp", dir=out_dir.parent))
-    except OSError as exc:
-        raise _write_error(exc, out_dir) from None
 
-    def finish(tmp: Path) -> None:
+    def add_marker(tmp: Path) -> None:
         (tmp / OUTPUT_MARKER).write_text(json.dumps({"written_by": "jnr", **(marker or {})}) + "\n")
-        os.chmod(tmp, 0o777 & ~_umask())
-        _move_into_place(tmp, out_dir, force, "folder")
 
-    with _staged(out_dir, tmp, finish) as staged:
-        yield staged
+    with _output_errors(out_dir), atomic.staged_folder(out_dir, replace=force, check_replace=_still_jnr_output,
+                                                       before_move=add_marker) as tmp:
+        yield tmp
 
 
 @contextmanager
 def staged_file(out: str | Path, force: bool = False, *, inputs: Iterable[str | Path] = ()) -> Iterator[Path]:
-    """Write one output file atomically: yields a hidden temporary path beside ``out`` with the same
-    suffix (writers pick the format from it); moved into place when the block succeeds (refusing a
-    file that appeared meanwhile unless ``force``), removed otherwise.
+    """Write one output file atomically (:func:`rig.io.atomic.staged_file`): yields a hidden temporary
+    path beside ``out`` with the same suffix (writers pick the format from it); moved into place when the
+    block succeeds (refusing a file that appeared meanwhile unless ``force``), removed otherwise.
 
     Raises:
         OutputError: as :func:`staged_folder`.
     """
     out = Path(out)
     check_output(out, force=force, inputs=inputs, kind="file")
-    try:
-        fd, name = tempfile.mkstemp(prefix=f".{out.stem}.", suffix=f".tmp{out.suffix}", dir=out.parent)
-        os.close(fd)
-    except OSError as exc:
-        raise _write_error(exc, out) from None
-
-    def finish(tmp: Path) -> None:
-        os.chmod(tmp, 0o666 & ~_umask())
-        _move_into_place(tmp, out, force, "file")
-
-    with _staged(out, Path(name), finish) as staged:
-        yield staged
+    with _output_errors(out), atomic.staged_file(out, replace=force) as tmp:
+        yield tmp
 
 
 def make_output_folder(out: str | Path, *, inputs: Iterable[str | Path] = ()) -> bool:

@@ -13,11 +13,12 @@ from __future__ import annotations
 
 import json
 import time
-from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import torch
+
+from rig.optim import Progress
 
 
 @dataclass(frozen=True)
@@ -82,7 +83,7 @@ def perturb(theta: torch.Tensor, config: TrainConfig, gen: torch.Generator) -> t
 
 
 def train(config: TrainConfig, out_path: Path, *, log_path: Path | None = None,
-          progress: Callable[[str, int, int], None] | None = None) -> TrainReport:
+          progress: Progress | None = None) -> TrainReport:
     """Run the whole training; write the artifact to ``out_path`` (and a JSON log)."""
     from pipeline.synthetic.population import population_split
     from rig.model import JointRig
@@ -149,14 +150,13 @@ def train(config: TrainConfig, out_path: Path, *, log_path: Path | None = None,
     critic = Critic()
     ae_train, ae_val = train_autoencoder(decoder, encoder, train_res, val_res, epochs=config.autoencoder_epochs,
                                          batch_size=config.batch_size, lr=config.autoencoder_lr, seed=config.seed,
-                                         progress=(lambda e, l: progress("autoencoder", e + 1, config.autoencoder_epochs))
-                                         if progress else None)
+                                         progress=progress)
     seconds["autoencoder"] = time.perf_counter() - t
     t = time.perf_counter()
     g_log, c_log = train_wgan(decoder, encoder, critic, train_res, iterations=config.wgan_iterations,
                               batch_size=config.batch_size, lr=config.wgan_lr, critic_steps=config.critic_steps,
                               seed=config.seed,
-                              progress=(lambda i, l: progress("wgan", i + 1, config.wgan_iterations)) if progress else None)
+                              progress=progress)
     seconds["wgan"] = time.perf_counter() - t
     seconds["total"] = time.perf_counter() - t0
 

@@ -223,7 +223,8 @@ class DifferentiableRenderer:
         v, a = self._weld(vertices.to(torch.float32), albedo.to(torch.float32))
         emission = a * light.ambient.to(a)
         irradiance = light.irradiance.to(torch.float32)
-        image = self._dr_render(v.contiguous(), a.contiguous(), emission.contiguous(), irradiance.contiguous(),
+        # plain tensor views: dr.wrap does not convert a torch.nn.Parameter (the fits' albedo and light are)
+        image = self._dr_render(*(x.contiguous().as_subclass(torch.Tensor) for x in (v, a, emission, irradiance)),
                                 self.spp, int(seed))
         extras = self._ray_cast(mi, aovs)
         return RenderOutput(image=image, **extras)

@@ -104,3 +104,98 @@ def barycentric(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> n
     w1 = (d11 * d20 - d01 * d21) / den
     w2 = (d00 * d21 - d01 * d20) / den
     return np.stack([1.0 - w1 - w2, w1, w2], 1)
+
+
+class Similarity:
+    """A similarity transform ``x -> scale * R @ x + t`` (mm), the one type jnr uses for every alignment:
+    rig space -> a point cloud's frame, a fitted head -> the true one, landmarks -> landmarks.
+
+    Args:
+        rotation: ``(3, 3)`` proper rotation. translation: ``(3,)`` mm. scale: > 0.
+
+    Example:
+        >>> s = Similarity(np.eye(3), np.array([0.0, 0.0, 10.0]), 2.0)
+        >>> s.apply(np.array([[1.0, 0.0, 0.0]]))
+        array([[ 2.,  0., 10.]])
+        >>> np.allclose(s.inverse().apply(s.apply(np.ones((1, 3)))), 1.0)
+        True
+    """
+
+    __slots__ = ("rotation", "scale", "translation")
+
+    def __init__(self, rotation: np.ndarray, translation: np.ndarray, scale: float = 1.0) -> None:
+        rotation = np.asarray(rotation, float)
+        translation = np.asarray(translation, float)
+        if rotation.shape != (3, 3) or translation.shape != (3,):
+            raise ValueError(f"Similarity: rotation must be (3, 3) and translation (3,), got {rotation.shape} "
+                             f"and {translation.shape}")
+        if not (np.isfinite(scale) and scale > 0):
+            raise ValueError(f"Similarity: scale must be a finite number > 0, got {scale}")
+        self.rotation, self.translation, self.scale = rotation, translation, float(scale)
+
+    def __repr__(self) -> str:
+        return f"Similarity(rotation={self.rotation.tolist()}, translation={self.translation.tolist()}, scale={self.scale})"
+
+    def __eq__(self, other) -> bool:
+        return (isinstance(other, Similarity) and np.array_equal(self.rotation, other.rotation)
+                and np.array_equal(self.translation, other.translation) and self.scale == other.scale)
+
+    __hash__ = None  # mutable arrays inside
+
+    @classmethod
+    def identity(cls) -> Similarity:
+        return cls(np.eye(3), np.zeros(3), 1.0)
+
+    @classmethod
+    def fit(cls, source: np.ndarray, target: np.ndarray, weights: np.ndarray | None = None,
+            with_scale: bool = False) -> Similarity:
+        """Least-squares ``target ~ scale * R @ source + t`` (Umeyama 1991, weighted), ``det R = +1``.
+
+        Args:
+            source, target: ``(N, 3)`` corresponding points, mm (N >= 3, not collinear).
+            weights: optional ``(N,)`` non-negative weights.
+            with_scale: also estimate the scale (else 1).
+        """
+        source = np.asarray(source, float)
+        target = np.asarray(target, float)
+        if source.shape != target.shape or source.ndim != 2 or source.shape[1] != 3 or len(source) < 3:
+            raise ValueError(f"Similarity.fit: source and target must both be (N >= 3, 3), got {source.shape} and "
+                             f"{target.shape}")
+        w = np.ones(len(source)) if weights is None else np.asarray(weights, float)
+        w = w / max(w.sum(), 1e-300)
+        mu_s, mu_t = w @ source, w @ target
+        s0, t0 = source - mu_s, target - mu_t
+        cov = (t0 * w[:, None]).T @ s0
+        u, d, vt = np.linalg.svd(cov)
+        fix = np.eye(3)
+        fix[2, 2] = np.sign(np.linalg.det(u) * np.linalg.det(vt)) or 1.0
+        rot = u @ fix @ vt
+        scale = 1.0
+        if with_scale:
+            var = float(w @ (s0 ** 2).sum(1))
+            scale = float((d * np.diag(fix)).sum() / max(var, 1e-300))
+        return cls(rot, mu_t - scale * rot @ mu_s, scale)
+
+    def apply(self, points: np.ndarray) -> np.ndarray:
+        """``(N, 3) -> (N, 3)``: ``scale * R @ x + t``."""
+        return self.scale * np.asarray(points, float) @ self.rotation.T + self.translation
+
+    def apply_inverse(self, points: np.ndarray) -> np.ndarray:
+        """``(N, 3) -> (N, 3)``: ``R.T @ (x - t) / scale`` (undoes :meth:`apply`)."""
+        return (np.asarray(points, float) - self.translation) @ self.rotation / self.scale
+
+    def inverse(self) -> Similarity:
+        return Similarity(self.rotation.T, -self.rotation.T @ self.translation / self.scale, 1.0 / self.scale)
+
+    def then(self, other: Similarity) -> Similarity:
+        """``other`` applied after ``self``."""
+        return Similarity(other.rotation @ self.rotation,
+                          other.scale * other.rotation @ self.translation + other.translation,
+                          other.scale * self.scale)
+
+    def matrix(self) -> np.ndarray:
+        """``(4, 4)`` homogeneous matrix."""
+        m = np.eye(4)
+        m[:3, :3] = self.scale * self.rotation
+        m[:3, 3] = self.translation
+        return m

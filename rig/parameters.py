@@ -1,4 +1,4 @@
-"""Named rig parameters: the flat parameter vector, its limits, JSON I/O and mirroring.
+"""Named rig parameters: the flat parameter vector, its limits and mirroring (the JSON file: :mod:`rig.io.params`).
 
 The flat vector ``theta`` of shape ``(B, P)`` holds one entry per channel in :data:`CHANNELS` order:
 rotations in degrees, translations in millimetres and scales as ``factor - 1``, so ``theta = 0`` is the
@@ -8,11 +8,9 @@ rest pose. Names are ``"<joint>.<channel>"`` (``nose_tip.translate_y``). In JSON
 
 from __future__ import annotations
 
-import json
 import math
 import warnings
 from dataclasses import dataclass
-from pathlib import Path
 
 import torch
 
@@ -166,34 +164,6 @@ def theta_to_params(theta: torch.Tensor, *, include_rest: bool = True) -> dict[s
     return out
 
 
-def load_params_json(path: str | Path, *, clamp: bool = False) -> torch.Tensor:
-    """Read a parameter file: a JSON object of ``name: value``, or ``{"joints": {name: value}}``.
-
-    Raises:
-        FileNotFoundError: the file does not exist.
-        ParameterError: the file is not valid JSON of that shape, or a name/value is bad.
-    """
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"parameter file not found: {path}")
-    try:
-        data = json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise ParameterError(f"{path}: not valid JSON ({exc})") from None
-    if isinstance(data, dict) and isinstance(data.get("joints"), dict):
-        data = data["joints"]
-    if not isinstance(data, dict):
-        raise ParameterError(f"{path}: expected a JSON object of parameter names to values")
-    return params_to_theta(data, clamp=clamp)
-
-
-def save_params_json(theta: torch.Tensor, path: str | Path, *, include_rest: bool = False) -> None:
-    """Write ``{"joints": {name: value}}`` (deg, mm, factor) to ``path``."""
-    payload = {"units": {"rotate": "deg", "translate": "mm", "scale": "factor"},
-               "joints": theta_to_params(theta, include_rest=include_rest)}
-    Path(path).write_text(json.dumps(payload, indent=2, sort_keys=False) + "\n")
-
-
 def random_theta(generator: torch.Generator, batch: int = 1, *, spread: float = 0.5,
                  dtype: torch.dtype = torch.float32) -> torch.Tensor:
     """Random parameters inside the limits, ``(batch, P)``: each channel uniform in ``spread`` x its range around rest."""
@@ -210,11 +180,9 @@ __all__ = [
     "NUM_PARAMETERS",
     "Channel",
     "ParameterError",
-    "load_params_json",
     "mirror_theta",
     "params_to_theta",
     "random_theta",
-    "save_params_json",
     "symmetric_groups",
     "theta_limits",
     "theta_to_params",

@@ -28,6 +28,9 @@ REGION_NAMES: tuple[str, ...] = (
     "scalp", "forehead", "brows", "eyelids", "nose", "cheeks", "lips", "chin", "jaw", "ears", "neck",
     "eyeballs", "mouth_interior",
 )
+FACE_REGIONS: tuple[str, ...] = ("forehead", "brows", "eyelids", "nose", "cheeks", "lips", "chin")
+"""The face proper: what the fits' photometric term and the evaluations count (no scalp or hair, ears,
+neck, eyes or mouth interior)."""
 TEMPLATE_VERSION = 1
 
 # Ray centre inside the head, mm.

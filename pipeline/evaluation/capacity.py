@@ -3,7 +3,9 @@
 For the 7 test heads and the held-out set, the rig is fitted to each head with
 (1) the initial painted weights, (2) the learned linear weights, (3) neural skinning (test-time fit of
 joints and Z). The error is the point-to-point distance between fitted and true vertices (mm), mean
-over a head's vertices, then mean and std over heads. Model sizes count the identity part in floats.
+over a head's vertices (:func:`pipeline.evaluation.metrics.mean_vertex_error`), then mean, sample std
+(ddof=1) and median over heads (:func:`pipeline.evaluation.metrics.summarize`). Model sizes count the
+identity part in floats.
 """
 
 from __future__ import annotations
@@ -11,7 +13,10 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass
 
+import numpy as np
 import torch
+
+from pipeline.evaluation.metrics import mean_vertex_error, summarize
 
 EVAL_CHUNK = 20
 
@@ -26,17 +31,19 @@ class CapacitySettings:
     seed: int = 0
 
 
-def _per_head_error(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
-    return (pred - target).norm(dim=-1).mean(-1)
+def _per_head_error(pred: torch.Tensor, target: torch.Tensor) -> np.ndarray:
+    """``(B, V, 3)`` -> ``(B,)`` (or ``(V, 3)`` -> ``()``) mean vertex error per head, mm."""
+    return mean_vertex_error(pred.detach().cpu(), target.detach().cpu())
 
 
-def _summary(errors: torch.Tensor) -> dict:
-    return {"mean_mm": round(float(errors.mean()), 4), "std_mm": round(float(errors.std(unbiased=False)), 4),
-            "median_mm": round(float(errors.median()), 4), "heads": int(errors.numel())}
+def _summary(errors: list[np.ndarray]) -> dict:
+    """Mean, sample std (ddof=1) and median over heads (:func:`pipeline.evaluation.metrics.summarize`)."""
+    s = summarize(np.concatenate([np.atleast_1d(e) for e in errors]))
+    return {"mean_mm": round(s.mean, 4), "std_mm": round(s.std, 4), "median_mm": round(s.median, 4), "heads": s.n}
 
 
 def _oracle_errors(rig, targets: torch.Tensor, linear_theta: torch.Tensor, linear_free: torch.Tensor,
-                   settings: CapacitySettings, rounds: int = 3) -> torch.Tensor:
+                   settings: CapacitySettings, rounds: int = 3) -> list[np.ndarray]:
     """Per-head optimal weights alternated with joint refits, from the learned-linear joint fit."""
     from rig.skinning.joint_fit import fit_joints
     from rig.skinning.linear import solve_weights, valid_weights
@@ -50,9 +57,9 @@ def _oracle_errors(rig, targets: torch.Tensor, linear_theta: torch.Tensor, linea
             if r < rounds - 1:
                 theta = fit_joints(rig, chunk, weights=w, init=theta, iterations=settings.joint_iterations // 2).theta
         with torch.no_grad():
-            errs.append(torch.stack([_per_head_error(rig(theta[i:i + 1], weights=w[i]).vertices[0], chunk[i])
-                                     for i in range(chunk.shape[0])]))
-    return torch.cat(errs)
+            errs.extend(_per_head_error(rig(theta[i:i + 1], weights=w[i]).vertices[0], chunk[i])
+                        for i in range(chunk.shape[0]))
+    return errs
 
 
 def evaluate_capacity(splits: tuple[str, ...] = ("test", "heldout"), settings: CapacitySettings = CapacitySettings(),
@@ -98,7 +105,7 @@ def evaluate_capacity(splits: tuple[str, ...] = ("test", "heldout"), settings: C
                     errs.append(_per_head_error(rig(fit.theta, weights=weights).vertices, chunk))
                 if progress:
                     progress(f"{split}: {name}", min(start + EVAL_CHUNK, targets.shape[0]), targets.shape[0])
-            row[name] = _summary(torch.cat(errs))
+            row[name] = _summary(errs)
         linear_theta = torch.cat(thetas)  # the last loop's: learned linear
         errs = []
         for start in range(0, targets.shape[0], EVAL_CHUNK):
@@ -109,7 +116,7 @@ def evaluate_capacity(splits: tuple[str, ...] = ("test", "heldout"), settings: C
                 errs.append(_per_head_error(rig(fit.theta, weights=neural(fit.z)).vertices, chunk))
             if progress:
                 progress(f"{split}: neural", min(start + EVAL_CHUNK, targets.shape[0]), targets.shape[0])
-        row["neural"] = _summary(torch.cat(errs))
+        row["neural"] = _summary(errs)
         if oracle:
             row["per_head_optimal_weights"] = _summary(_oracle_errors(rig, targets, linear_theta, neural.linear_free,
                                                                       settings))

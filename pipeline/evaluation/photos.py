@@ -10,12 +10,14 @@ samples per pixel) at yaw within +-30 deg; its landmarks are the projected true 
    scale: from one photo the size of a head is not observable) on the 51 inner landmarks (17-67),
 2. refined by similarity ICP of the true face-region points onto the fitted surface,
 3. the **scan-to-mesh distance** of every true face-region vertex (forehead, brows, eyelids, nose,
-   cheeks, lips, chin) to the fitted surface is reported (median, mean, std, mm).
+   cheeks, lips, chin) to the fitted surface is reported (median, mean, std, mm;
+   :func:`pipeline.evaluation.metrics.distance_stats`).
 
 Because the true head has the template's topology, the **true vertex error** (same vertex, after
 the same alignment) is reported too; it also measures sliding along the surface, which the
 scan-to-mesh distance does not see. The template head, aligned the same way, is the reference that
-any fit must beat.
+any fit must beat. Summaries over photos (:mod:`pipeline.evaluation.metrics`): mean ± sample std
+(ddof=1) and median.
 """
 
 from __future__ import annotations
@@ -24,30 +26,58 @@ import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import ClassVar
 
 import numpy as np
 
+from pipeline.evaluation.metrics import (
+    ALL,
+    Column,
+    Evaluation,
+    Group,
+    distance_stats,
+    mean_vertex_error,
+    scan_to_mesh_distances,
+)
 from pipeline.evaluation.scans import scan_seed
 from pipeline.photo.fit import FitPhotoConfig, fit_photo
-from pipeline.scan.fit import FACE_REGIONS
-from pipeline.scan.registration import MeshDistance, umeyama
+from pipeline.scan.registration import MeshDistance
 from rig.asset import load_asset
 from rig.expressions import EXPRESSION_NAMES
+from rig.geometry import Similarity
+from rig.template import FACE_REGIONS
 
 INNER_LANDMARKS = tuple(range(17, 68))
 """Landmarks used for the initial alignment (the jaw contour's 3D points depend on the view)."""
 
 
+KINDS: tuple[str, ...] = ("neutral", "expressive")
+METHODS: tuple[str, ...] = ("jnr", "landmarks", "template")
+#: Per-photo metrics summarised by :meth:`PhotoEvaluation.summary` (mean, std and median over photos).
+METRICS: tuple[str, ...] = ("s2m_median_mm", "s2m_mean_mm", "s2m_std_mm", "vertex_mean_mm", "landmark_error_px",
+                            "seconds")
+
+
 @dataclass(frozen=True)
 class PhotoRecord:
-    """One fitted synthetic photo."""
+    """One method on one fitted synthetic photo.
+
+    Attributes:
+        name: head name (``heldout_020``, ...).
+        kind: ``neutral`` or ``expressive``.
+        yaw_deg: the head's yaw in the photo, deg.
+        method: ``jnr`` (full fit), ``landmarks`` (the landmark-only fit) or ``template`` (no fit).
+        s2m_median_mm, s2m_mean_mm, s2m_std_mm: statistics of the distances from every true
+            face-region vertex to the aligned fitted surface (std over the vertices, ddof=0), mm.
+        vertex_mean_mm: true per-vertex error over the face region after the same alignment, mm.
+        landmark_error_px: mean landmark error of the fit, px (NaN for ``template``).
+        seconds: wall time of the fit, s (``landmarks``: that stage alone; ``template``: 0).
+    """
 
     name: str
     kind: str
-    """``neutral`` or ``expressive``."""
     yaw_deg: float
     method: str
-    """``jnr`` (full fit), ``landmarks`` (the landmark-only fit) or ``template`` (no fit)."""
     s2m_median_mm: float
     s2m_mean_mm: float
     s2m_std_mm: float
@@ -57,43 +87,25 @@ class PhotoRecord:
 
 
 @dataclass(frozen=True)
-class PhotoEvaluation:
-    """All records and the settings of :func:`evaluate_photos`."""
+class PhotoEvaluation(Evaluation):
+    """All records and the settings of :func:`evaluate_photos` (:class:`pipeline.evaluation.metrics.Evaluation`).
 
-    records: list[PhotoRecord]
+    :meth:`summary`: per kind (``neutral``, ``expressive``, and ``all`` photos) and method, ``n`` and for
+    every name in :data:`METRICS` ``<metric>`` (mean over photos), ``<metric>_std`` (sample std over
+    photos, ddof=1; NaN for one photo) and ``<metric>_median`` (``s2m_median_mm_median``: the median of
+    the per-photo medians). :meth:`table_markdown`: the same, mean ± std over photos.
+    """
+
+    records: tuple[PhotoRecord, ...]
     settings: dict = field(default_factory=dict)
 
-    def summary(self) -> list[dict]:
-        """Per kind and method: median / mean / std over photos of each metric (the per-photo medians and
-        means), and the pooled median of the per-photo scan-to-mesh medians."""
-        rows = []
-        for kind in ("neutral", "expressive", "all"):
-            for method in ("jnr", "landmarks", "template"):
-                rs = [r for r in self.records if r.method == method and (kind == "all" or r.kind == kind)]
-                if not rs:
-                    continue
-                row = {"kind": kind, "method": method, "photos": len(rs)}
-                for m in ("s2m_median_mm", "s2m_mean_mm", "s2m_std_mm", "vertex_mean_mm", "landmark_error_px",
-                          "seconds"):
-                    values = np.array([getattr(r, m) for r in rs], float)
-                    row[m] = float(np.mean(values))
-                    row[m + "_sd"] = float(np.std(values))
-                row["s2m_median_of_medians_mm"] = float(np.median([r.s2m_median_mm for r in rs]))
-                rows.append(row)
-        return rows
-
-    def table_markdown(self) -> str:
-        """The summary as a Markdown table (mean +- sd over photos)."""
-        lines = ["| photos | method | n | s2m median mm | s2m mean mm | s2m std mm | vertex mean mm | landmarks px | seconds |",
-                 "|---|---|---|---|---|---|---|---|---|"]
-        def pm(row: dict, m: str, digits: int = 2) -> str:
-            return f"{row[m]:.{digits}f} ± {row[m + '_sd']:.{digits}f}"
-
-        for r in self.summary():
-            lines.append(f"| {r['kind']} | {r['method']} | {r['photos']} | {pm(r, 's2m_median_mm')} | "
-                         f"{pm(r, 's2m_mean_mm')} | {pm(r, 's2m_std_mm')} | {pm(r, 'vertex_mean_mm')} | "
-                         f"{pm(r, 'landmark_error_px')} | {pm(r, 'seconds', 1)} |")
-        return "\n".join(lines)
+    GROUPS: ClassVar[tuple[Group, ...]] = (Group("kind", (*KINDS, ALL), title="photos"), Group("method", METHODS))
+    METRICS: ClassVar[tuple[str, ...]] = METRICS
+    COLUMNS: ClassVar[tuple[Column, ...]] = (
+        Column("s2m median mm", "s2m_median_mm"), Column("s2m mean mm", "s2m_mean_mm"),
+        Column("s2m std mm", "s2m_std_mm"), Column("vertex mean mm", "vertex_mean_mm"),
+        Column("landmarks px", "landmark_error_px"), Column("seconds", "seconds", digits=1),
+    )
 
 
 def now_style_error(fitted: np.ndarray, truth: np.ndarray, faces: np.ndarray, face_vertices: np.ndarray,
@@ -110,26 +122,26 @@ def now_style_error(fitted: np.ndarray, truth: np.ndarray, faces: np.ndarray, fa
         ``{"s2m_median_mm", "s2m_mean_mm", "s2m_std_mm", "vertex_mean_mm", "scale"}``.
     """
     # align the fitted mesh onto the truth: x -> s R x + t
-    rot, t, s = umeyama(fitted_landmarks, true_landmarks, with_scale=True)
+    align = Similarity.fit(fitted_landmarks, true_landmarks, with_scale=True)
     points = truth[face_vertices]
     for _ in range(icp_iterations):
-        aligned = s * fitted @ rot.T + t
+        aligned = align.apply(fitted)
         d, closest, _ = MeshDistance(aligned, faces).query(points)
         keep = d <= max(3.0 * np.median(d), 1.0)
         # closest points expressed on the unaligned fitted mesh correspond to the true points
-        source = ((closest - t) / s) @ rot
-        rot, t, s = umeyama(source[keep], points[keep], with_scale=True)
-    aligned = s * fitted @ rot.T + t
-    d, _, _ = MeshDistance(aligned, faces).query(points)
-    vertex = np.linalg.norm(aligned[face_vertices] - truth[face_vertices], axis=1)
-    return {"s2m_median_mm": float(np.median(d)), "s2m_mean_mm": float(d.mean()), "s2m_std_mm": float(d.std()),
-            "vertex_mean_mm": float(vertex.mean()), "scale": float(s)}
+        source = ((closest - align.translation) / align.scale) @ align.rotation
+        align = Similarity.fit(source[keep], points[keep], with_scale=True)
+    aligned = align.apply(fitted)
+    stats = distance_stats(scan_to_mesh_distances(points, aligned, faces))
+    vertex = mean_vertex_error(aligned[face_vertices], truth[face_vertices])
+    s = align.scale
+    return {**stats.as_dict("s2m_"), "vertex_mean_mm": float(vertex), "scale": float(s)}
 
 
 def face_error(fitted: np.ndarray, truth: np.ndarray, asset=None) -> dict:
     """:func:`now_style_error` of a fitted head against the true head (both template topology, mm): aligned
     on the inner landmarks (:data:`INNER_LANDMARKS`), scored over the face regions
-    (:data:`pipeline.scan.fit.FACE_REGIONS`)."""
+    (:data:`rig.template.FACE_REGIONS`)."""
     from landmarks.ibug68 import ibug68_embedding, landmark_positions
 
     asset = load_asset() if asset is None else asset
@@ -204,5 +216,5 @@ def evaluate_photos(n_neutral: int = 5, n_expressive: int = 5, *, first: int = 0
                 add(**common, method=method, s2m_median_mm=err["s2m_median_mm"], s2m_mean_mm=err["s2m_mean_mm"],
                     s2m_std_mm=err["s2m_std_mm"], vertex_mean_mm=err["vertex_mean_mm"], landmark_error_px=lm_px,
                     seconds=secs)
-    return PhotoEvaluation(records, settings={"first": first, "n_neutral": n_neutral, "n_expressive": n_expressive, "seed": seed,
-                                              "photo_settings": dict(settings.__dict__)})
+    return PhotoEvaluation(tuple(records), settings={"first": first, "n_neutral": n_neutral, "n_expressive": n_expressive,
+                                                     "seed": seed, "photo_settings": dict(settings.__dict__)})

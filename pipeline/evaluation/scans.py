@@ -15,13 +15,16 @@ not the rig's blendshapes, so the fit cannot reproduce them exactly).
 
 Metrics, all in mm:
 
-- **scan-to-mesh** (``s2m_*``): the exact distance from *every* scan point to the fitted surface.
+- **scan-to-mesh** (``s2m_*``): the exact distance from *every* scan point to the fitted surface
+  (:func:`pipeline.evaluation.metrics.scan_to_mesh_distances`; std over the points, ddof=0).
   The outliers of the scan (~1 %) are kept, so the mean and the std include them; the median is
   the robust figure. This is what a user without ground truth can measure.
 - **true vertex error** (``vertex_*``): ``|fitted_v - true_v|`` per vertex, with the known
   correspondence (the fitted mesh and the simulated head share the template's topology), over the
-  face region (:data:`pipeline.scan.fit.FACE_REGIONS`), over all vertices (includes the back of the
+  face region (:data:`rig.template.FACE_REGIONS`), over all vertices (includes the back of the
   head that no scan sees), and over the face-region vertices the camera saw.
+
+Summaries over scans (:mod:`pipeline.evaluation.metrics`): mean ± sample std (ddof=1) and median.
 
 Timing: ``jnr`` is ``fit.timings["total"]`` (pre-alignment + fit; models loaded once beforehand);
 ``nricp_amberg`` is the same pre-alignment's seconds plus the ``nricp_amberg`` call, so both pay for
@@ -34,15 +37,25 @@ import math
 import time
 import zlib
 from collections.abc import Callable
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
+from typing import ClassVar
 
 import numpy as np
+
+from pipeline.evaluation.metrics import (
+    Column,
+    Evaluation,
+    Group,
+    distance_stats,
+    scan_to_mesh_distances,
+    vertex_errors,
+)
 
 __all__ = ["KINDS", "METHODS", "METRICS", "ScanEvaluation", "ScanRecord", "evaluate_scans", "scan_seed"]
 
 KINDS: tuple[str, ...] = ("neutral", "expressive")
 METHODS: tuple[str, ...] = ("jnr", "nricp_amberg")
-#: Per-scan metrics summarised by :meth:`ScanEvaluation.summary` (mean and std over scans).
+#: Per-scan metrics summarised by :meth:`ScanEvaluation.summary` (mean, std and median over scans).
 METRICS: tuple[str, ...] = (
     "s2m_median_mm", "s2m_mean_mm", "s2m_std_mm", "vertex_mean_mm", "vertex_median_mm",
     "vertex_all_mean_mm", "vertex_visible_mean_mm", "prealign_vertex_mean_mm", "seconds",
@@ -86,52 +99,31 @@ class ScanRecord:
 
 
 @dataclass(frozen=True)
-class ScanEvaluation:
-    """Result of :func:`evaluate_scans`.
+class ScanEvaluation(Evaluation):
+    """Result of :func:`evaluate_scans` (:class:`pipeline.evaluation.metrics.Evaluation`).
 
     Attributes:
         records: one :class:`ScanRecord` per (scan, method), in scan order (neutral first).
         settings: what was run (counts, seeds, split, camera, scan settings, schedule, baseline steps).
+
+    :meth:`summary`: per (method, kind) with at least one record, ``n`` and for every name in
+    :data:`METRICS` ``<metric>`` (mean over scans), ``<metric>_std`` (sample std over scans, ddof=1; NaN
+    for a single scan) and ``<metric>_median`` (e.g. ``seconds_median``). :meth:`table_markdown`: rows
+    method x kind; mean ± std over scans, mm; median seconds.
     """
 
     records: tuple[ScanRecord, ...]
-    settings: dict
+    settings: dict = field(default_factory=dict)
 
-    def summary(self) -> list[dict]:
-        """Per (method, kind) with at least one record: ``n``, and for every name in :data:`METRICS`
-        ``<metric>`` (mean over scans) and ``<metric>_std`` (sample std over scans, ddof=1; NaN for a
-        single scan), plus ``seconds_median``."""
-        rows = []
-        for method in METHODS:
-            for kind in KINDS:
-                recs = [r for r in self.records if r.method == method and r.kind == kind]
-                if not recs:
-                    continue
-                row: dict = {"method": method, "kind": kind, "n": len(recs)}
-                for m in METRICS:
-                    x = np.array([getattr(r, m) for r in recs], dtype=np.float64)
-                    row[m] = float(x.mean())
-                    row[m + "_std"] = float(x.std(ddof=1)) if len(x) > 1 else math.nan
-                row["seconds_median"] = float(np.median([r.seconds for r in recs]))
-                rows.append(row)
-        return rows
-
-    def table_markdown(self) -> str:
-        """The summary as a markdown table (rows method x kind; mean ± std over scans, mm; median s)."""
-        def pm(row: dict, m: str, digits: int = 2) -> str:
-            std = row[m + "_std"]
-            return f"{row[m]:.{digits}f}" + ("" if math.isnan(std) else f" ± {std:.{digits}f}")
-
-        head = ("| method | kind | n | s2m median (mm) | s2m mean (mm) | s2m std (mm) | vertex err face (mm) "
-                "| vertex err seen (mm) | vertex err all (mm) | prealigned template (mm) | seconds (median) |")
-        lines = [head, "|" + "---|" * head.count(" | ") + "---|"]
-        for row in self.summary():
-            lines.append(
-                f"| {row['method']} | {row['kind']} | {row['n']} | {pm(row, 's2m_median_mm')} "
-                f"| {pm(row, 's2m_mean_mm')} | {pm(row, 's2m_std_mm')} | {pm(row, 'vertex_mean_mm')} "
-                f"| {pm(row, 'vertex_visible_mean_mm')} | {pm(row, 'vertex_all_mean_mm')} "
-                f"| {pm(row, 'prealign_vertex_mean_mm')} | {row['seconds_median']:.1f} |")
-        return "\n".join(lines)
+    GROUPS: ClassVar[tuple[Group, ...]] = (Group("method", METHODS), Group("kind", KINDS))
+    METRICS: ClassVar[tuple[str, ...]] = METRICS
+    COLUMNS: ClassVar[tuple[Column, ...]] = (
+        Column("s2m median (mm)", "s2m_median_mm"), Column("s2m mean (mm)", "s2m_mean_mm"),
+        Column("s2m std (mm)", "s2m_std_mm"), Column("vertex err face (mm)", "vertex_mean_mm"),
+        Column("vertex err seen (mm)", "vertex_visible_mean_mm"), Column("vertex err all (mm)", "vertex_all_mean_mm"),
+        Column("prealigned template (mm)", "prealign_vertex_mean_mm"),
+        Column("seconds (median)", "seconds", digits=1, statistic="median"),
+    )
 
 
 def scan_seed(seed: int, kind: str, index: int) -> int:
@@ -147,14 +139,11 @@ def _check_count(value, name: str, limit: int) -> int:
 
 
 def _s2m_stats(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray) -> dict:
-    from pipeline.scan.fit import scan_to_mesh
-
-    d = scan_to_mesh(points, vertices, faces)
-    return {"s2m_median_mm": float(np.median(d)), "s2m_mean_mm": float(d.mean()), "s2m_std_mm": float(d.std())}
+    return distance_stats(scan_to_mesh_distances(points, vertices, faces)).as_dict("s2m_")
 
 
 def _vertex_stats(vertices: np.ndarray, truth: np.ndarray, face: np.ndarray, seen: np.ndarray) -> dict:
-    e = np.linalg.norm(vertices - truth, axis=1)
+    e = vertex_errors(vertices, truth)
     return {"vertex_mean_mm": float(e[face].mean()), "vertex_median_mm": float(np.median(e[face])),
             "vertex_all_mean_mm": float(e.mean()),
             "vertex_visible_mean_mm": float(e[seen].mean()) if seen.any() else math.nan}
@@ -184,27 +173,18 @@ def evaluate_scans(n_neutral: int = 5, n_expressive: int = 5, *, seed: int = 0, 
         ValueError: negative or too large counts, both zero, a negative seed, an unknown split;
             :class:`pipeline.scan.pointcloud.CloudError` (a ValueError) if a scan fails the pre-alignment.
     """
-    import torch
-
-    from pipeline.scan.baseline import DEFAULT_STEPS, nricp_baseline
-    from pipeline.scan.fit import FACE_REGIONS, FitScanConfig, fit_scan
+    from pipeline.scan.baseline import nricp_baseline
+    from pipeline.scan.fit import FitScanConfig, fit_scan
     from pipeline.scan.pointcloud import validate_points
     from pipeline.synthetic.expressive import expressive_split
-    from pipeline.synthetic.population import SPLIT_SIZES
     from pipeline.synthetic.scans import DepthCamera, ScanSettings, simulate_scan
     from rig.asset import load_asset
     from rig.expressions import ExpressionModel
     from rig.model import JointRig
     from rig.skinning.neural import load_neural
+    from rig.template import FACE_REGIONS
 
-    if split not in SPLIT_SIZES:
-        raise ValueError(f"evaluate_scans: split must be one of {list(SPLIT_SIZES)}, got {split!r}")
-    n_neutral = _check_count(n_neutral, "n_neutral", SPLIT_SIZES[split])
-    n_expressive = _check_count(n_expressive, "n_expressive", SPLIT_SIZES[split])
-    if n_neutral + n_expressive == 0:
-        raise ValueError("evaluate_scans: n_neutral and n_expressive are both 0; nothing to evaluate")
-    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
-        raise ValueError(f"evaluate_scans: seed must be an integer >= 0, got {seed!r}")
+    n_neutral, n_expressive = _check_arguments(n_neutral, n_expressive, seed, split)
     config = config or FitScanConfig()
     camera = camera or DepthCamera()
     settings = settings or ScanSettings()
@@ -238,7 +218,7 @@ def evaluate_scans(n_neutral: int = 5, n_expressive: int = 5, *, seed: int = 0, 
         fit = fit_scan(cloud, config, rig=rig, neural=neural, expressions=expressions)
         al = fit.prealign
         prealigned = float(al.scale) * asset.vertices @ np.asarray(al.rotation).T + np.asarray(al.translation)
-        pre_err = float(np.linalg.norm(prealigned - scan.gt_vertices, axis=1)[face].mean())
+        pre_err = float(vertex_errors(prealigned, scan.gt_vertices)[face].mean())
         add(**common, method="jnr", seconds=float(fit.timings["total"]),
             **_s2m_stats(scan.points, fit.vertices, asset.faces),
             **_vertex_stats(fit.vertices, scan.gt_vertices, face, seen), prealign_vertex_mean_mm=pre_err)
@@ -253,10 +233,35 @@ def evaluate_scans(n_neutral: int = 5, n_expressive: int = 5, *, seed: int = 0, 
     run_settings = {
         "n_neutral": n_neutral, "n_expressive": n_expressive, "seed": int(seed), "split": split,
         "camera": asdict(camera), "scan_settings": asdict(settings),
+        **_fit_settings(config, baseline),
+        "finished": time.strftime("%Y-%m-%d %H:%M:%S"),
+    }
+    return ScanEvaluation(records=tuple(records), settings=run_settings)
+
+
+def _check_arguments(n_neutral, n_expressive, seed, split: str) -> tuple[int, int]:
+    from pipeline.synthetic.population import SPLIT_SIZES
+
+    if split not in SPLIT_SIZES:
+        raise ValueError(f"evaluate_scans: split must be one of {list(SPLIT_SIZES)}, got {split!r}")
+    n_neutral = _check_count(n_neutral, "n_neutral", SPLIT_SIZES[split])
+    n_expressive = _check_count(n_expressive, "n_expressive", SPLIT_SIZES[split])
+    if n_neutral + n_expressive == 0:
+        raise ValueError("evaluate_scans: n_neutral and n_expressive are both 0; nothing to evaluate")
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ValueError(f"evaluate_scans: seed must be an integer >= 0, got {seed!r}")
+    return n_neutral, n_expressive
+
+
+def _fit_settings(config, baseline: bool) -> dict:
+    """The schedule, the baseline's steps and the thread count, for the evaluation's settings."""
+    import torch
+
+    from pipeline.scan.baseline import DEFAULT_STEPS
+
+    return {
         "stages": [(s.name, list(s.free), s.iterations) for s in config.stages],
         "baseline": bool(baseline), "baseline_steps": [list(s) for s in DEFAULT_STEPS] if baseline else None,
         "s2m": "over all scan points, outliers included",
         "torch_threads": torch.get_num_threads(),
-        "finished": time.strftime("%Y-%m-%d %H:%M:%S"),
     }
-    return ScanEvaluation(records=tuple(records), settings=run_settings)

@@ -1,47 +1,129 @@
-"""The free parameters of a rig fit and their differentiable map to rig-space vertices.
+"""The free parameters of a rig fit as an ``nn.Module`` with named parameter groups.
 
-Shared by the point-cloud fit (:mod:`pipeline.scan.fit`) and the photo fit (:mod:`pipeline.photo.landmark_fit`),
-which add their own pose on top. Joint channels are optimised as ``theta / span`` (each channel's range),
-so degrees, millimetres and scale factors take comparable steps.
+:class:`FitState` holds the joints, the neural-skinning latent Z, the expression coefficients and a head
+rotation, and maps them to rig-space vertices; :class:`PhotoState` (one photo: a pose into the camera
+frame) and :class:`ScanState` (a point cloud: a similarity into the cloud's frame) add where the head
+is. Joint channels are optimised as ``theta / span`` (each channel's range), so degrees, millimetres
+and scale factors take comparable steps.
+
+A *group* is what a stage frees (``pose``, ``joints``, ``latent``, ``expressions`` and, for the photo
+fit, ``albedo``, ``light``); :meth:`FitState.parameter_groups` turns a stage's groups and a
+learning-rate config into the optimiser's parameter groups, one per tensor, by name.
 """
 
 from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 import torch
 from kornia.geometry.conversions import axis_angle_to_rotation_matrix
 from scipy.spatial.transform import Rotation
+from torch import nn
 
 from rig.expressions import EXPRESSION_NAMES, ExpressionModel, expression_limits
+from rig.geometry import RIG_TO_OPENCV
 from rig.lbs import skin_vertices, skin_with_basis, skinning_basis
 from rig.model import JointRig
 from rig.parameters import NUM_PARAMETERS, theta_limits
 from rig.skinning.neural import LATENT, NeuralSkinning
 
 FREE_GROUPS = ("pose", "joints", "latent", "expressions")
+"""The groups of the geometry: head pose, joint channels, latent Z, expression coefficients."""
 
 
-class RigState:
-    """Joints ``theta (P,)``, latent ``z (50,)``, expressions ``c (E,)`` (leaf tensors) and a head rotation.
+@dataclass(frozen=True)
+class RigModels:
+    """The fixed models a fit evaluates (not parameters of the fit).
+
+    Attributes:
+        rig: the joint rig. neural: its neural skinning (None: the rig's own weights, no latent).
+        expressions: the expression blendshapes.
+    """
+
+    rig: JointRig
+    neural: NeuralSkinning | None
+    expressions: ExpressionModel
+
+
+class FitState(nn.Module):
+    """Joints ``theta (P,)``, latent ``z (50,)``, expressions ``c (E,)`` and a head rotation, as parameters.
 
     Args:
         rig, neural, expressions: the models (``neural=None``: the rig's own weights, no latent).
         rotation: initial ``(3, 3)`` head rotation (kept as a rotation vector ``rotvec``).
+        hard_joint_limits: project the joints back into their limits after each step (else only the
+            soft penalty L_x keeps them there).
+
+    Parameters (``named_parameters()``): ``rotvec (3,)`` radians, ``theta_n (P,)`` joint channels over
+    their span, ``z (50,)``, ``c (E,)``; subclasses add theirs. :attr:`GROUPS` names them by group, each
+    with the field of the learning-rate config that gives its step.
     """
 
+    GROUPS: ClassVar[dict[str, tuple[tuple[str, str], ...]]] = {
+        "pose": (("rotvec", "rotation"),),
+        "joints": (("theta_n", "joints"),),
+        "latent": (("z", "latent"),),
+        "expressions": (("c", "expressions"),),
+    }
+    """group -> ``(parameter name, learning-rate field)`` pairs, in the optimiser's order."""
+
     def __init__(self, rig: JointRig, neural: NeuralSkinning | None, expressions: ExpressionModel,
-                 rotation: np.ndarray) -> None:
-        self.rig, self.neural, self.expr = rig, neural, expressions
+                 rotation: np.ndarray, *, hard_joint_limits: bool = True) -> None:
+        super().__init__()
+        self.models = RigModels(rig, neural, expressions)
+        self.hard_joint_limits = hard_joint_limits
         dtype = rig.template.dtype
-        self.low, self.high = theta_limits(dtype)
-        self.span = (self.high - self.low).clamp_min(1e-3)
-        self.c_low, self.c_high = expression_limits(dtype)
-        self.rotvec = torch.tensor(Rotation.from_matrix(rotation).as_rotvec(), dtype=dtype, requires_grad=True)
-        self.theta_n = torch.zeros(NUM_PARAMETERS, dtype=dtype, requires_grad=True)
-        self.z = torch.zeros(LATENT, dtype=dtype, requires_grad=True)
-        self.c = torch.zeros(len(EXPRESSION_NAMES), dtype=dtype, requires_grad=True)
+        low, high = theta_limits(dtype)
+        self.register_buffer("low", low)
+        self.register_buffer("high", high)
+        self.register_buffer("span", (high - low).clamp_min(1e-3))
+        c_low, c_high = expression_limits(dtype)
+        self.register_buffer("c_low", c_low)
+        self.register_buffer("c_high", c_high)
+        self.rotvec = nn.Parameter(torch.tensor(Rotation.from_matrix(rotation).as_rotvec(), dtype=dtype))
+        self.theta_n = nn.Parameter(torch.zeros(NUM_PARAMETERS, dtype=dtype))
+        self.z = nn.Parameter(torch.zeros(LATENT, dtype=dtype))
+        self.c = nn.Parameter(torch.zeros(len(EXPRESSION_NAMES), dtype=dtype))
         self._basis: tuple[tuple[int, int], torch.Tensor] | None = None
 
+    # -- the models ---------------------------------------------------------------------------------
+    @property
+    def rig(self) -> JointRig:
+        return self.models.rig
+
+    @property
+    def neural(self) -> NeuralSkinning | None:
+        return self.models.neural
+
+    @property
+    def dtype(self) -> torch.dtype:
+        return self.models.rig.template.dtype
+
+    # -- groups -------------------------------------------------------------------------------------
+    def available(self, free: tuple[str, ...]) -> tuple[str, ...]:
+        """``free`` without the groups this state cannot move (``latent`` without neural skinning)."""
+        return tuple(g for g in free if not (g == "latent" and self.neural is None))
+
+    def parameter_groups(self, free: tuple[str, ...], lr) -> list[dict]:
+        """The optimiser's parameter groups for the groups ``free``: one ``{"params": [p], "lr": ...}`` per
+        parameter, its step read from the field of ``lr`` that :attr:`GROUPS` names."""
+        groups = self.GROUPS
+        return [{"params": [getattr(self, name)], "lr": float(getattr(lr, field))}
+                for g in free for name, field in groups[g]]
+
+    def project(self, free: tuple[str, ...]) -> None:
+        """After a step: project what ``free`` moved back into its limits (expressions always; joints
+        with ``hard_joint_limits``). Only freed groups are written: a write to ``c`` invalidates the
+        cached skinning basis."""
+        if "expressions" in free:
+            self.clamp_expressions()
+        if "joints" in free and self.hard_joint_limits:
+            self.clamp_joints()
+
+    # -- the head -----------------------------------------------------------------------------------
     @property
     def theta(self) -> torch.Tensor:
         """``(P,)`` joint channels (deg, mm, ``scale - 1``)."""
@@ -59,18 +141,19 @@ class RigState:
         """``(V, 3)`` rig-space vertices, mm; only the groups in ``free`` carry gradients."""
         theta = self.theta if "joints" in free else self.theta.detach()
         c = self.c if "expressions" in free else self.c.detach()
+        expr = self.models.expressions
         _, skinning = self.rig.joint_transforms(theta[None])
         if "latent" not in free and "expressions" not in free:
             # Rest shape and weights are fixed: reuse their skinning basis (one GEMM per step).
             key = (self.z._version, self.c._version)
             if self._basis is None or self._basis[0] != key:
                 with torch.no_grad():
-                    rest = self.expr.template + self.expr(self.c[None])[0]
+                    rest = expr.template + expr(self.c[None])[0]
                     self._basis = (key, skinning_basis(rest, self.weights()))
             return skin_with_basis(self._basis[1], skinning)[0]
         with torch.set_grad_enabled("latent" in free):
             w = self.weights()
-        rest = self.expr.template + self.expr(c[None])[0]
+        rest = expr.template + expr(c[None])[0]
         return skin_vertices(rest, w if "latent" in free else w.detach(), skinning)[0]
 
     def clamp_joints(self) -> None:
@@ -82,6 +165,101 @@ class RigState:
         """Project the expression coefficients back into their limits (in place)."""
         with torch.no_grad():
             self.c.copy_(torch.maximum(torch.minimum(self.c, self.c_high), self.c_low))
+
+    def load(self, theta, z, expressions) -> None:
+        """Start from fitted values: joint channels ``theta (P,)`` (deg, mm, ``scale - 1``), ``z (50,)``,
+        expression coefficients ``(E,)``."""
+        with torch.no_grad():
+            self.theta_n.copy_(torch.as_tensor(theta, dtype=self.dtype) / self.span)
+            self.z.copy_(torch.as_tensor(z, dtype=self.dtype))
+            self.c.copy_(torch.as_tensor(expressions, dtype=self.dtype))
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """The fitted values as float64 arrays: ``theta (P,)``, ``z (50,)``, ``expressions (E,)``,
+        ``rotation (3, 3)``."""
+        with torch.no_grad():
+            return {"theta": self.theta.double().numpy(), "z": self.z.double().numpy(),
+                    "expressions": self.c.double().numpy(), "rotation": self.rotation().double().numpy()}
+
+
+class PhotoState(FitState):
+    """A head in one photo: ``x_cam = RIG_TO_OPENCV @ R @ x_rig + t`` (OpenCV camera frame, mm), and for
+    the photometric fit a per-vertex albedo and the light's ambient and irradiance.
+
+    Args:
+        rig, neural, expressions, rotation: as :class:`FitState`.
+        translation: ``(3,)`` head position in the camera frame, mm.
+
+    Extra parameters: ``translation (3,)`` mm (group ``pose``); ``albedo (V, 3)`` linear RGB (group
+    ``albedo``), ``ambient (3,)`` and ``irradiance (3,)`` (group ``light``), set by :meth:`add_appearance`.
+    """
+
+    GROUPS: ClassVar[dict[str, tuple[tuple[str, str], ...]]] = {**FitState.GROUPS,
+              "pose": (("rotvec", "rotation"), ("translation", "translation")),
+              "albedo": (("albedo", "albedo"),),
+              "light": (("ambient", "light"), ("irradiance", "light"))}
+
+    def __init__(self, rig: JointRig, neural: NeuralSkinning | None, expressions: ExpressionModel,
+                 rotation: np.ndarray, translation: np.ndarray) -> None:
+        super().__init__(rig, neural, expressions, rotation)
+        self.register_buffer("flip", torch.tensor(RIG_TO_OPENCV, dtype=self.dtype))
+        self.translation = nn.Parameter(torch.tensor(translation, dtype=self.dtype))
+
+    def add_appearance(self, albedo: torch.Tensor, ambient: torch.Tensor, irradiance: torch.Tensor) -> None:
+        """The photometric parameters: ``albedo (V, 3)``, ``ambient (3,)``, ``irradiance (3,)``, linear RGB."""
+        self.albedo = nn.Parameter(albedo.detach().clone())
+        self.ambient = nn.Parameter(ambient.detach().clone())
+        self.irradiance = nn.Parameter(irradiance.detach().clone())
+
+    def project(self, free: tuple[str, ...]) -> None:
+        """Albedo into [0, 1] and the light non-negative, then :meth:`FitState.project`."""
+        if hasattr(self, "albedo"):
+            with torch.no_grad():
+                self.albedo.clamp_(0.0, 1.0)
+                self.ambient.clamp_(min=0.0)
+                self.irradiance.clamp_(min=0.0)
+        super().project(free)
+
+    def to_camera(self, points: torch.Tensor, free: tuple[str, ...] = ()) -> torch.Tensor:
+        """``(N, 3)`` rig space -> OpenCV camera space, mm; the pose carries gradients if ``pose`` is free."""
+        rot, t = (self.rotation(), self.translation) if "pose" in free else (
+            self.rotation().detach(), self.translation.detach())
+        return points @ (self.flip @ rot).T + t
+
+    def camera_center(self) -> np.ndarray:
+        """``(3,)`` float64 camera centre in rig space, mm."""
+        from pipeline.photo.camera import camera_center_in_rig
+
+        return camera_center_in_rig(self.rotation().detach().double().numpy(),
+                                    self.translation.detach().double().numpy())
+
+
+class ScanState(FitState):
+    """A head in a point cloud's frame: ``x = s R x_rig + t`` (mm), ``s = exp(log_scale)``.
+
+    Args:
+        rig, neural, expressions: as :class:`FitState`.
+        rotation, translation, scale: the start (a rigid pre-alignment): ``(3, 3)``, ``(3,)`` mm, scalar.
+        fit_scale: optimise the global scale with the pose.
+
+    Joints are kept in their limits by the soft penalty L_x only (JNR's point-cloud fit).
+    """
+
+    def __init__(self, rig: JointRig, neural: NeuralSkinning | None, expressions: ExpressionModel,
+                 rotation: np.ndarray, translation: np.ndarray, scale: float, *, fit_scale: bool = True) -> None:
+        super().__init__(rig, neural, expressions, rotation, hard_joint_limits=False)
+        self.log_scale = nn.Parameter(torch.tensor(math.log(scale), dtype=self.dtype))
+        self.translation = nn.Parameter(torch.tensor(translation, dtype=self.dtype))
+        pose = (("rotvec", "rotation"), ("translation", "translation"))
+        self.GROUPS = {**FitState.GROUPS, "pose": pose + ((("log_scale", "log_scale"),) if fit_scale else ())}
+
+    def to_cloud(self, v: torch.Tensor) -> torch.Tensor:
+        """``(V, 3)`` rig space -> the cloud's frame, mm."""
+        return self.log_scale.exp() * v @ self.rotation().T + self.translation
+
+    @property
+    def scale(self) -> float:
+        return float(self.log_scale.detach().exp())
 
 
 def head_vertices(rig: JointRig, neural: NeuralSkinning | None, theta, z, expressions) -> np.ndarray:

@@ -104,7 +104,7 @@ def camera_from_head_pose(rotation: np.ndarray, translation: np.ndarray) -> np.n
 
 def make_camera(width: int, height: int, focal: float, principal: tuple[float, float] | None = None,
                 rotation: np.ndarray | None = None, translation: np.ndarray | None = None,
-                dtype: torch.dtype = torch.float32) -> PinholeCamera:
+                dtype: torch.dtype = torch.float32, *, pose: bool = True) -> PinholeCamera:
     """A kornia ``PinholeCamera`` (batch 1) looking at rig space.
 
     Args:
@@ -114,6 +114,8 @@ def make_camera(width: int, height: int, focal: float, principal: tuple[float, f
         rotation: ``(3, 3)`` head rotation in rig axes (default identity: facing the camera).
         translation: ``(3,)`` rig origin in camera coordinates, mm (default zeros).
         dtype: of the camera's tensors.
+        pose: False: identity extrinsics, for points already in the camera frame (the fits move the head
+            into the camera themselves and only project); ``rotation``/``translation`` must then be None.
 
     Returns:
         ``PinholeCamera`` with ``intrinsics``/``extrinsics`` ``(1, 4, 4)``, ``height``/``width`` ``(1,)``.
@@ -130,8 +132,13 @@ def make_camera(width: int, height: int, focal: float, principal: tuple[float, f
     cx, cy = ((width - 1) / 2.0, (height - 1) / 2.0) if principal is None else map(float, principal)
     intrinsics = np.array([[focal, 0.0, cx, 0.0], [0.0, focal, cy, 0.0], [0.0, 0.0, 1.0, 0.0],
                            [0.0, 0.0, 0.0, 1.0]])
-    extrinsics = camera_from_head_pose(np.eye(3) if rotation is None else rotation,
-                                       np.zeros(3) if translation is None else translation)
+    if pose:
+        extrinsics = camera_from_head_pose(np.eye(3) if rotation is None else rotation,
+                                           np.zeros(3) if translation is None else translation)
+    elif rotation is None and translation is None:
+        extrinsics = np.eye(4)
+    else:
+        raise ValueError("make_camera: pose=False takes no rotation or translation")
     return PinholeCamera(torch.as_tensor(intrinsics, dtype=dtype)[None], torch.as_tensor(extrinsics, dtype=dtype)[None],
                          torch.tensor([float(height)], dtype=dtype), torch.tensor([float(width)], dtype=dtype))
 

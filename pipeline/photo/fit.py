@@ -37,7 +37,6 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import ClassVar
 
@@ -45,7 +44,10 @@ import numpy as np
 import torch
 from kornia.geometry.camera import PinholeCamera
 
-from pipeline.fitting.state import FREE_GROUPS
+from pipeline.evaluation.metrics import landmark_errors
+from pipeline.fitting.engine import Loss, Stage, StageLog, run_schedule
+from pipeline.fitting.priors import PriorWeights, rig_prior_terms
+from pipeline.fitting.state import FREE_GROUPS, PhotoState
 from pipeline.photo.camera import (
     camera_direction_to_rig,
     check_focal,
@@ -57,17 +59,15 @@ from pipeline.photo.landmark_fit import (
     LandmarkFit,
     LandmarkFitConfig,
     LandmarkTerm,
-    PosedRig,
-    _check_landmarks,
+    check_landmarks_2d_shape,
     fit_landmarks,
-    landmark_errors,
-    rig_prior,
 )
-from pipeline.scan.fit import FACE_REGIONS, Stage
 from rig.expressions import ExpressionModel
 from rig.geometry import mesh_edges
 from rig.model import JointRig
+from rig.optim import Progress
 from rig.skinning.neural import NeuralSkinning, load_neural
+from rig.template import FACE_REGIONS
 
 PHOTO_GROUPS = FREE_GROUPS + ("albedo", "light")
 
@@ -105,14 +105,41 @@ def photo_schedule(appearance_iterations: int = 25, joint_iterations: int = 30, 
 
 
 @dataclass(frozen=True)
-class FitPhotoConfig:
-    """Settings of :func:`fit_photo` (``configs/fit_photo.yaml`` holds the defaults)."""
+class PhotoLearningRates:
+    """Adam steps of the photometric stages' parameter groups (``photometric.lr:`` in YAML)."""
 
-    landmarks: LandmarkFitConfig = field(default_factory=lambda: LandmarkFitConfig(lambda_m=PHOTO_LAMBDA_M))
-    """The landmark-only fit that starts the photometric one (with a strong joint prior, see
-    :data:`PHOTO_LAMBDA_M`)."""
-    photometric: bool = True
-    """Run the photometric stages (false: landmark fit only)."""
+    rotation: float = 0.003
+    """Head rotation vector, radians."""
+    translation: float = 0.5
+    """Head translation, mm."""
+    joints: float = 0.004
+    """Joint channels, as a fraction of each channel's range."""
+    latent: float = 0.02
+    expressions: float = 0.02
+    albedo: float = 0.02
+    """Per-vertex albedo, linear RGB."""
+    light: float = 0.05
+    """Ambient and irradiance of the light, linear RGB."""
+
+
+@dataclass(frozen=True)
+class AlbedoPrior:
+    """Weights of the albedo priors (``photometric.albedo_prior:`` in YAML), each a mean squared difference."""
+
+    smooth: float = 20.0
+    """Along mesh edges."""
+    symmetry: float = 5.0
+    """To the mirror vertex's albedo."""
+    mean: float = 0.5
+    """To the start colour (the median face colour)."""
+
+
+@dataclass(frozen=True)
+class PhotometricConfig:
+    """The photometric stages of :func:`fit_photo` (``photometric:`` in YAML)."""
+
+    enabled: bool = True
+    """Run them (false, or ``jnr fit --landmarks-only``: the landmark fit only)."""
     stages: tuple[PhotoStage, ...] = field(default_factory=photo_schedule)
     render_size: int = 128
     """Side of the square face crop the photometric loss is computed on, pixels."""
@@ -131,25 +158,10 @@ class FitPhotoConfig:
     """Residuals above ``median + outlier_mads * 1.4826 * MAD`` are outliers (re-selected every stage)."""
     face_regions: tuple[str, ...] = FACE_REGIONS
     """Rig regions whose pixels the photometric loss counts (default: no scalp/hair, ears, neck, eyes, mouth)."""
-    lambda_albedo_smooth: float = 20.0
-    """Mean squared albedo difference along mesh edges."""
-    lambda_albedo_symmetry: float = 5.0
-    """Mean squared difference to the mirror vertex's albedo."""
-    lambda_albedo_mean: float = 0.5
-    """Mean squared difference to the start colour (the median face colour)."""
-    lr_rotation: float = 0.003
-    lr_translation: float = 0.5
-    lr_joints: float = 0.004
-    lr_latent: float = 0.02
-    lr_expressions: float = 0.02
-    lr_albedo: float = 0.02
-    lr_light: float = 0.05
-    lambda_m: float = PHOTO_LAMBDA_M
-    """L_m (eq. 4) during the photometric stages."""
-    lambda_x: float = 3.0
-    lambda_z: float = 0.01
-    lambda_expressions: float = 0.5
-    lambda_symmetry: float = 0.0
+    albedo_prior: AlbedoPrior = field(default_factory=AlbedoPrior)
+    lr: PhotoLearningRates = field(default_factory=PhotoLearningRates)
+    prior: PriorWeights = field(default_factory=lambda: PriorWeights(lambda_m=PHOTO_LAMBDA_M))
+    """The rig priors during the photometric stages (:data:`PHOTO_LAMBDA_M` for L_m)."""
     light_directions: int = 64
     """Candidate light directions re-picked before each stage."""
     seed: int = 0
@@ -173,6 +185,18 @@ class FitPhotoConfig:
         bad = [r for r in self.face_regions if r not in REGION_NAMES]
         if bad or not self.face_regions:
             raise ValueError(f"face_regions must be a non-empty subset of {list(REGION_NAMES)}, got {list(self.face_regions)}")
+
+
+@dataclass(frozen=True)
+class FitPhotoConfig:
+    """Settings of :func:`fit_photo` (``configs/fit_photo.yaml`` holds the defaults)."""
+
+    landmarks: LandmarkFitConfig = field(
+        default_factory=lambda: LandmarkFitConfig(prior=PriorWeights(lambda_m=PHOTO_LAMBDA_M)))
+    """The landmark-only fit that starts the photometric one (with a strong joint prior, see
+    :data:`PHOTO_LAMBDA_M`)."""
+    photometric: PhotometricConfig = field(default_factory=PhotometricConfig)
+    """The photometric stages."""
 
 
 @dataclass(frozen=True)
@@ -232,26 +256,6 @@ def face_crop(landmarks2d: np.ndarray, size: int, margin: float) -> Crop:
 
 
 @dataclass(frozen=True)
-class PhotoStageReport:
-    """What one photometric stage did (losses at its end)."""
-
-    name: str
-    free: tuple[str, ...]
-    iterations: int
-    loss_start: float
-    loss_end: float
-    photo_end: float
-    """Mean Charbonnier residual over the counted face pixels (linear RGB)."""
-    landmarks_px2_end: float
-    pixels: int
-    """Face pixels counted at the end of the stage."""
-    outlier_fraction: float
-    """Fraction of face pixels rejected as outliers at the stage's start."""
-    light_direction_camera: tuple[float, float, float]
-    seconds: float
-
-
-@dataclass(frozen=True)
 class PhotoFit:
     """Result of :func:`fit_photo`.
 
@@ -268,7 +272,10 @@ class PhotoFit:
         landmarks2d: ``(68, 2)`` the input landmarks; landmarks_px: ``(68, 2)`` fitted, pixels;
             error_px ``(68,)``; nme: mean error / outer-eye-corner distance.
         landmark_fit: the landmark-only fit it started from.
-        stages: one :class:`PhotoStageReport` per photometric stage.
+        stages: one :class:`~pipeline.fitting.engine.StageLog` per photometric stage: every loss term,
+            and the metrics ``photo`` (mean Charbonnier residual over the counted face pixels, linear RGB),
+            ``landmarks_px2``, ``pixels`` (face pixels counted), ``outlier_fraction`` (of the face pixels,
+            rejected at the stage's start), ``light_direction_camera``.
         crop: the photometric crop (None without photometric stages).
         timings: seconds per phase (``landmarks``, ``photometric``, ``total``).
     """
@@ -293,12 +300,13 @@ class PhotoFit:
     error_px: np.ndarray
     nme: float
     landmark_fit: LandmarkFit
-    stages: tuple[PhotoStageReport, ...]
+    stages: tuple[StageLog, ...]
     crop: Crop | None
     timings: dict
 
 
-def _check_image(image) -> np.ndarray:
+def check_photo(image) -> np.ndarray:
+    """``(H, W, 3)`` float32 linear RGB of a uint8 sRGB or float linear image; ValueError otherwise."""
     img = np.asarray(image)
     if img.ndim != 3 or img.shape[2] != 3 or img.shape[0] < 16 or img.shape[1] < 16:
         raise ValueError(f"fit_photo: image must be (H, W, 3) RGB with H, W >= 16, got {img.shape}")
@@ -346,7 +354,7 @@ def fit_light(albedo_img: np.ndarray, normals: np.ndarray, target: np.ndarray, d
 
 def fit_photo(image, landmarks2d, *, focal: float | None = None, config: FitPhotoConfig | None = None,
               rig: JointRig | None = None, neural: NeuralSkinning | None = None,
-              progress: Callable[[str, int, int], None] | None = None) -> PhotoFit:
+              progress: Progress | None = None) -> PhotoFit:
     """Reconstruct the head in one photo (module docstring).
 
     Args:
@@ -356,7 +364,7 @@ def fit_photo(image, landmarks2d, *, focal: float | None = None, config: FitPhot
         focal: focal length in pixels (default :func:`pipeline.photo.camera.default_focal`).
         config: settings and schedules (default :class:`FitPhotoConfig`).
         rig, neural: the models (default: the committed rig, float32, and its learned skinning).
-        progress: called as ``progress(stage_name, iteration, iterations)``.
+        progress: :data:`rig.optim.Progress`, called after every step of both fits.
 
     Returns:
         :class:`PhotoFit`.
@@ -367,8 +375,8 @@ def fit_photo(image, landmarks2d, *, focal: float | None = None, config: FitPhot
     """
     t0 = time.perf_counter()
     config = config or FitPhotoConfig()
-    photo = _check_image(image)
-    lm = _check_landmarks(landmarks2d)
+    photo = check_photo(image)
+    lm = check_landmarks_2d_shape(landmarks2d)
     height, width = photo.shape[:2]
     focal = default_focal(width, height) if focal is None else check_focal(focal, width, height)
     rig = rig or JointRig()
@@ -382,191 +390,169 @@ def fit_photo(image, landmarks2d, *, focal: float | None = None, config: FitPhot
 
     dtype = rig.template.dtype
     asset = rig.asset
-    model = PosedRig(rig, neural, ExpressionModel(asset, dtype=dtype), lfit.rotation, lfit.translation)
-    with torch.no_grad():
-        model.theta_n.copy_(torch.as_tensor(lfit.theta, dtype=dtype) / model.span)
-        model.z.copy_(torch.as_tensor(lfit.z, dtype=dtype))
-        model.c.copy_(torch.as_tensor(lfit.expressions, dtype=dtype))
-    full = make_camera(width, height, focal, dtype=dtype)
-    term = LandmarkTerm(asset, lm, PinholeCamera(full.intrinsics, torch.eye(4, dtype=dtype)[None], full.height,
-                                                 full.width), config.landmarks.huber_delta_px)
-
-    stages: list[PhotoStageReport] = []
+    state = PhotoState(rig, neural, ExpressionModel(asset, dtype=dtype), lfit.rotation, lfit.translation)
+    state.load(lfit.theta, lfit.z, lfit.expressions)
+    term = LandmarkTerm(asset, lm, make_camera(width, height, focal, dtype=dtype, pose=False),
+                        config.landmarks.huber_delta_px)
+    settings = config.photometric
+    stages: tuple[StageLog, ...] = ()
     crop = None
     albedo_np = np.full((len(asset.vertices), 3), 0.5)
     light_cam = np.array([0.0, 0.3, 1.0]) / np.linalg.norm([0.0, 0.3, 1.0])
     ambient_np, irradiance_np = np.full(3, 0.6), np.zeros(3)
     t1 = time.perf_counter()
-    if config.photometric and any(s.iterations > 0 for s in config.stages):
-        crop = face_crop(lm, config.render_size, config.crop_margin)
-        result = _photometric(photo, crop, focal, model, term, config, asset, neural, progress)
-        albedo_np, ambient_np, irradiance_np, light_cam, stages = result
+    if settings.enabled and any(s.iterations > 0 for s in settings.stages):
+        crop = face_crop(lm, settings.render_size, settings.crop_margin)
+        light_cam, stages = _photometric(photo, crop, focal, state, term, settings, progress)
+        albedo_np, ambient_np, irradiance_np = (state.albedo.detach().double().numpy(),
+                                                state.ambient.detach().double().numpy(),
+                                                state.irradiance.detach().double().numpy())
     t_photo = time.perf_counter() - t1
 
     with torch.no_grad():
-        v = model.rig_vertices()
-        projected = term.project(model, v)
-        rotation = model.rotation().double().numpy()
-        translation = model.translation.double().numpy()
+        v = state.rig_vertices()
+        projected = term.project(state, v)
+        translation = state.translation.double().numpy()
+    values = state.arrays()
+    rotation = values["rotation"]
     error, nme = landmark_errors(projected, lm)
-    return PhotoFit(theta=model.theta.detach().double().numpy(), z=model.z.detach().double().numpy(),
-                    expressions=model.c.detach().double().numpy(), rotation=rotation, translation=translation,
-                    focal=focal, width=width, height=height,
+    return PhotoFit(theta=values["theta"], z=values["z"], expressions=values["expressions"], rotation=rotation,
+                    translation=translation, focal=focal, width=width, height=height,
                     camera=make_camera(width, height, focal, rotation=rotation, translation=translation),
                     rig_vertices=v.double().numpy(), albedo=albedo_np, ambient=ambient_np,
                     irradiance=irradiance_np, light_direction_camera=light_cam,
                     light_direction_rig=camera_direction_to_rig(light_cam, rotation),
                     landmarks2d=lm, landmarks_px=projected, error_px=error, nme=nme, landmark_fit=lfit,
-                    stages=tuple(stages), crop=crop,
+                    stages=stages, crop=crop,
                     timings={"landmarks": t_landmarks, "photometric": t_photo,
                              "total": time.perf_counter() - t0})
 
 
-def _photometric(photo: np.ndarray, crop: Crop, focal: float, model: PosedRig, term: LandmarkTerm,
-                 config: FitPhotoConfig, asset, neural, progress):
-    """The photometric stages; updates ``model`` in place. Returns albedo, ambient, irradiance, the light
-    direction (camera frame) and the stage reports."""
+def _photometric(photo: np.ndarray, crop: Crop, focal: float, state: PhotoState, term: LandmarkTerm,
+                 settings: PhotometricConfig, progress: Progress | None):
+    """The photometric stages; updates ``state`` in place. Returns the light direction (camera frame)
+    and the stage logs."""
     from render.backend import reproducible
 
     threads = torch.get_num_threads()
-    if config.reproducible:  # torch's CPU scatter-adds (index backward) are order-dependent on several threads too
+    if settings.reproducible:  # torch's CPU scatter-adds (index backward) are order-dependent on several threads too
         torch.set_num_threads(1)
     try:
-        with reproducible(config.reproducible):
-            return _photometric_stages(photo, crop, focal, model, term, config, asset, neural, progress)
+        with reproducible(settings.reproducible):
+            fit = PhotometricObjective(photo, crop, focal, state, term, settings)
+            stages = run_schedule(state, settings.stages, fit, settings.lr, label="fit_photo", progress=progress,
+                                  before_stage=fit.before_stage)
+            return np.asarray(fit.direction, float), stages
     finally:
         torch.set_num_threads(threads)
 
 
-def _photometric_stages(photo: np.ndarray, crop: Crop, focal: float, model: PosedRig, term: LandmarkTerm,
-                        config: FitPhotoConfig, asset, neural, progress):
-    from render.lighting import Lighting
-    from render.renderer import DifferentiableRenderer
+class PhotometricObjective:
+    """The loss of the photometric stages (module docstring) and what is re-picked before each stage.
 
-    height, width = photo.shape[:2]
-    dtype = torch.float32
-    target_np, inside_np = crop.cut(photo)
-    target = torch.as_tensor(target_np, dtype=dtype)
-    inside = torch.as_tensor(inside_np, dtype=dtype)
-    camera = crop.camera(focal, width, height, dtype=dtype)
-    face_region_ids = torch.as_tensor([asset.region_names.index(r) for r in config.face_regions])
+    Builds the renderer of the crop, starts the albedo from the median face colour seen from the
+    landmark fit's pose and adds the appearance parameters to ``state``
+    (:meth:`~pipeline.fitting.state.PhotoState.add_appearance`).
+    """
 
-    with torch.no_grad():
-        v_cam0 = model.to_camera(model.rig_vertices()).to(dtype)
-    n_vertices = len(asset.vertices)
-    renderer = DifferentiableRenderer(v_cam0, asset.faces, torch.full((n_vertices, 3), 0.5), camera,
-                                      Lighting(torch.full((3,), 1.0), torch.zeros(3),
-                                               torch.tensor([0.0, 0.0, 1.0])),
-                                      spp=config.spp, seed=config.seed, regions=asset.regions)
+    def __init__(self, photo: np.ndarray, crop: Crop, focal: float, state: PhotoState, term: LandmarkTerm,
+                 settings: PhotometricConfig) -> None:
+        from render.lighting import Lighting
+        from render.renderer import DifferentiableRenderer
 
-    def face_mask(region_ids: torch.Tensor) -> torch.Tensor:
-        return torch.isin(region_ids, face_region_ids).to(dtype) * inside
+        self.state, self.term, self.settings = state, term, settings
+        asset = state.rig.asset
+        height, width = photo.shape[:2]
+        dtype = self.dtype = torch.float32
+        target_np, inside_np = crop.cut(photo)
+        self.target = torch.as_tensor(target_np, dtype=dtype)
+        self.inside = torch.as_tensor(inside_np, dtype=dtype)
+        self.face_region_ids = torch.as_tensor([asset.region_names.index(r) for r in settings.face_regions])
+        with torch.no_grad():
+            v_cam0 = state.to_camera(state.rig_vertices()).to(dtype)
+        n_vertices = len(asset.vertices)
+        self.renderer = DifferentiableRenderer(v_cam0, asset.faces, torch.full((n_vertices, 3), 0.5),
+                                               crop.camera(focal, width, height, dtype=dtype),
+                                               Lighting(torch.full((3,), 1.0), torch.zeros(3),
+                                                        torch.tensor([0.0, 0.0, 1.0])),
+                                               spp=settings.spp, seed=settings.seed, regions=asset.regions)
+        # start colour: the median of the face pixels seen from the landmark fit's pose
+        with torch.no_grad():
+            first = self.renderer.render(v_cam0, torch.full((n_vertices, 3), 0.5), aovs=True)
+            m = self.face_mask(first.region_ids) > 0
+            if int(m.sum()) < 50:
+                raise ValueError(f"fit_photo: the face covers only {int(m.sum())} pixels of the "
+                                 f"{crop.size}x{crop.size} crop; the landmarks do not match the head")
+            self.start_colour = self.target[m].median(0).values.clamp(0.02, 0.98)
+        state.add_appearance(self.start_colour.repeat(n_vertices, 1), torch.full((3,), 1.0, dtype=dtype),
+                             torch.zeros(3, dtype=dtype))
+        self.direction = np.array([0.0, 0.0, 1.0])
+        self.edges = torch.as_tensor(mesh_edges(asset.faces))
+        self.mirror = torch.as_tensor(np.asarray(asset.mirror, np.int64))
+        self.candidates = hemisphere_directions(settings.light_directions)
+        self.inlier: torch.Tensor | None = None
+        self.stages_started = 0
 
-    # start colour: the median of the face pixels seen from the landmark fit's pose
-    with torch.no_grad():
-        first = renderer.render(v_cam0, torch.full((n_vertices, 3), 0.5), aovs=True)
-        m = face_mask(first.region_ids) > 0
-        if int(m.sum()) < 50:
-            raise ValueError(f"fit_photo: the face covers only {int(m.sum())} pixels of the "
-                             f"{crop.size}x{crop.size} crop; the landmarks do not match the head")
-        start_colour = target[m].median(0).values.clamp(0.02, 0.98)
-    albedo = start_colour.repeat(n_vertices, 1).clone().requires_grad_(True)
-    ambient = torch.full((3,), 1.0, dtype=dtype, requires_grad=True)
-    irradiance = torch.zeros(3, dtype=dtype, requires_grad=True)
-    direction = np.array([0.0, 0.0, 1.0])
-    edges = torch.as_tensor(mesh_edges(asset.faces))
-    mirror = torch.as_tensor(np.asarray(asset.mirror, np.int64))
-    candidates = hemisphere_directions(config.light_directions)
+    def face_mask(self, region_ids: torch.Tensor) -> torch.Tensor:
+        """``(S, S)`` 1 on face-region pixels inside the photo."""
+        return torch.isin(region_ids, self.face_region_ids).to(self.dtype) * self.inside
 
-    lrs = {"joints": [(model.theta_n, config.lr_joints)], "latent": [(model.z, config.lr_latent)],
-           "expressions": [(model.c, config.lr_expressions)],
-           "pose": [(model.rotvec, config.lr_rotation), (model.translation, config.lr_translation)],
-           "albedo": [(albedo, config.lr_albedo)], "light": [(ambient, config.lr_light), (irradiance, config.lr_light)]}
+    def light(self):
+        from render.lighting import Lighting
 
-    def light() -> Lighting:
-        return Lighting(ambient, irradiance, torch.as_tensor(direction, dtype=dtype))
+        return Lighting(self.state.ambient, self.state.irradiance, torch.as_tensor(self.direction, dtype=self.dtype))
 
-    def residual_norm(image: torch.Tensor) -> torch.Tensor:
-        return (image - target).square().sum(-1)
+    def residual_norm(self, image: torch.Tensor) -> torch.Tensor:
+        return (image - self.target).square().sum(-1)
 
-    def albedo_prior() -> torch.Tensor:
-        smooth = (albedo[edges[:, 0]] - albedo[edges[:, 1]]).square().sum(-1).mean()
-        sym = (albedo - albedo[mirror]).square().sum(-1).mean()
-        mean = (albedo - start_colour).square().sum(-1).mean()
-        return config.lambda_albedo_smooth * smooth + config.lambda_albedo_symmetry * sym \
-            + config.lambda_albedo_mean * mean
+    def before_stage(self, stage: Stage) -> dict:
+        """Re-pick the light direction (and, before the first stage, its ambient and irradiance) and the
+        outlier pixels from the current state."""
+        from render.lighting import Lighting
 
-    reports: list[PhotoStageReport] = []
-    if neural is not None:
-        for p in neural.decoder.parameters():
-            p.requires_grad_(False)
-    try:
-        for stage in config.stages:
-            if stage.iterations == 0:
-                continue
-            ts = time.perf_counter()
-            free = tuple(g for g in stage.free if not (g == "latent" and neural is None))
-            geometry = tuple(g for g in free if g in FREE_GROUPS)
-            # re-pick the light direction and the outlier pixels from the current state
-            with torch.no_grad():
-                v_cam = model.to_camera(model.rig_vertices()).to(dtype)
-                flat = renderer.render(v_cam, albedo.clamp(0, 1),
-                                       Lighting(torch.ones(3), torch.zeros(3), torch.as_tensor(direction, dtype=dtype)),
-                                       aovs=True)
-                m = face_mask(flat.region_ids) > 0
-                direction, amb, irr = fit_light(flat.image[m].double().numpy(), flat.normals[m].double().numpy(),
-                                                 target[m].double().numpy(), candidates)
-                if stage is config.stages[0] or not reports:
-                    ambient.copy_(torch.as_tensor(amb, dtype=dtype))
-                    irradiance.copy_(torch.as_tensor(irr, dtype=dtype))
-                shaded = renderer.render(v_cam, albedo.clamp(0, 1), light(), aovs=True)
-                m = face_mask(shaded.region_ids) > 0
-                e = residual_norm(shaded.image).sqrt()
-                med = e[m].median()
-                mad = (e[m] - med).abs().median()
-                threshold = float(med + config.outlier_mads * 1.4826 * mad)
-                inlier = (e <= max(threshold, 0.05)).to(dtype)
-                outlier_fraction = float(1.0 - inlier[m].mean()) if bool(m.any()) else 0.0
+        state, dtype = self.state, self.dtype
+        with torch.no_grad():
+            v_cam = state.to_camera(state.rig_vertices()).to(dtype)
+            albedo = state.albedo.clamp(0, 1)
+            flat = self.renderer.render(v_cam, albedo, Lighting(torch.ones(3), torch.zeros(3),
+                                                                torch.as_tensor(self.direction, dtype=dtype)), aovs=True)
+            m = self.face_mask(flat.region_ids) > 0
+            self.direction, amb, irr = fit_light(flat.image[m].double().numpy(), flat.normals[m].double().numpy(),
+                                                 self.target[m].double().numpy(), self.candidates)
+            if self.stages_started == 0:
+                state.ambient.copy_(torch.as_tensor(amb, dtype=dtype))
+                state.irradiance.copy_(torch.as_tensor(irr, dtype=dtype))
+            self.stages_started += 1
+            shaded = self.renderer.render(v_cam, albedo, self.light(), aovs=True)
+            m = self.face_mask(shaded.region_ids) > 0
+            e = self.residual_norm(shaded.image).sqrt()
+            med = e[m].median()
+            mad = (e[m] - med).abs().median()
+            threshold = float(med + self.settings.outlier_mads * 1.4826 * mad)
+            self.inlier = (e <= max(threshold, 0.05)).to(dtype)
+            outlier_fraction = float(1.0 - self.inlier[m].mean()) if bool(m.any()) else 0.0
+        return {"outlier_fraction": outlier_fraction,
+                "light_direction_camera": tuple(float(x) for x in self.direction)}
 
-            opt = torch.optim.Adam([{"params": [t], "lr": lr} for g in free for t, lr in lrs[g]])
-            loss_start = None
-            for it in range(stage.iterations):
-                v = model.rig_vertices(geometry)
-                v_cam = model.to_camera(v, geometry).to(dtype)
-                out = renderer.render(v_cam, albedo, light(), aovs=True)
-                weight = face_mask(out.region_ids) * inlier
-                count = weight.sum().clamp_min(1.0)
-                rho = (residual_norm(out.image) + config.charbonnier_eps ** 2).sqrt() - config.charbonnier_eps
-                photo_loss = (rho * weight).sum() / count
-                lm_loss = term(model, v, geometry)
-                loss = config.lambda_photo * photo_loss + config.lambda_landmarks * lm_loss \
-                    + rig_prior(model, config) + albedo_prior()
-                if not torch.isfinite(loss):
-                    raise FloatingPointError(f"fit_photo diverged in stage {stage.name!r} (non-finite loss)")
-                if loss_start is None:
-                    loss_start = float(loss.detach())
-                opt.zero_grad()
-                loss.backward()
-                opt.step()
-                with torch.no_grad():
-                    albedo.clamp_(0.0, 1.0)
-                    ambient.clamp_(min=0.0)
-                    irradiance.clamp_(min=0.0)
-                if "expressions" in free:
-                    model.clamp_expressions()
-                if "joints" in free:
-                    model.clamp_joints()
-                if progress is not None:
-                    progress(stage.name, it + 1, stage.iterations)
-            reports.append(PhotoStageReport(
-                name=stage.name, free=tuple(free), iterations=stage.iterations, loss_start=float(loss_start),
-                loss_end=float(loss.detach()), photo_end=float(photo_loss.detach()),
-                landmarks_px2_end=float(lm_loss.detach()), pixels=int(weight.sum()),
-                outlier_fraction=outlier_fraction, light_direction_camera=tuple(float(x) for x in direction),
-                seconds=time.perf_counter() - ts))
-    finally:
-        if neural is not None:
-            for p in neural.decoder.parameters():
-                p.requires_grad_(True)
-    return (albedo.detach().double().numpy(), ambient.detach().double().numpy(),
-            irradiance.detach().double().numpy(), np.asarray(direction, float), reports)
+    def albedo_prior_terms(self) -> dict[str, torch.Tensor]:
+        albedo, w = self.state.albedo, self.settings.albedo_prior
+        smooth = (albedo[self.edges[:, 0]] - albedo[self.edges[:, 1]]).square().sum(-1).mean()
+        sym = (albedo - albedo[self.mirror]).square().sum(-1).mean()
+        mean = (albedo - self.start_colour).square().sum(-1).mean()
+        return {"albedo_smooth": w.smooth * smooth, "albedo_symmetry": w.symmetry * sym, "albedo_mean": w.mean * mean}
+
+    def __call__(self, free: tuple[str, ...]) -> Loss:
+        """One step's loss: render -> Charbonnier over the inlier face pixels, landmarks, priors."""
+        state, s = self.state, self.settings
+        geometry = tuple(g for g in free if g in FREE_GROUPS)
+        v = state.rig_vertices(geometry)
+        v_cam = state.to_camera(v, geometry).to(self.dtype)
+        out = self.renderer.render(v_cam, state.albedo, self.light(), aovs=True)
+        weight = self.face_mask(out.region_ids) * self.inlier
+        count = weight.sum().clamp_min(1.0)
+        rho = (self.residual_norm(out.image) + s.charbonnier_eps ** 2).sqrt() - s.charbonnier_eps
+        photo_loss = (rho * weight).sum() / count
+        lm_loss = self.term(state, v, geometry)
+        terms = {"photo": s.lambda_photo * photo_loss, "landmarks": s.lambda_landmarks * lm_loss,
+                 **rig_prior_terms(state, s.prior), **self.albedo_prior_terms()}
+        return Loss(terms, {"photo": photo_loss, "landmarks_px2": lm_loss, "pixels": int(weight.sum())})

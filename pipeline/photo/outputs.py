@@ -19,33 +19,35 @@ file                   contents
                        (green) and the fitted ones (red)
 ``render.png``         the fitted head, albedo and light, rendered alone at the photo's size
 ``landmarks.pts``      the 68 input landmarks (iBUG .pts, 1-based pixels)
-``report.json``        landmark error (px, NME), per-stage losses, timings, input, configuration
+``report.json``        landmark error (px, NME), every loss term per stage, timings, input, configuration
+``config.yaml``        the configuration used, every field resolved (``--config`` repeats the fit)
 =====================  ===========================================================================
 """
 
 from __future__ import annotations
 
 import json
+from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from pipeline.config import config_to_dict
+from pipeline.config import CONFIG_FILE, config_to_dict, dump_config
 from pipeline.files import check_output, json_safe, staged_folder
 from pipeline.photo.camera import camera_from_head_pose
 from pipeline.photo.colour import linear_to_srgb
 from pipeline.photo.fit import FitPhotoConfig, PhotoFit
 from pipeline.scan.outputs import rig_vertices_from_params
-from rig.asset import load_asset
-from rig.expressions import EXPRESSION_NAMES
+from rig.asset import RigAsset, load_asset
+from rig.expressions import EXPRESSION_NAMES, ExpressionModel
 from rig.model import JointRig
 from rig.parameters import theta_to_params
-from rig.skinning.neural import load_neural
+from rig.skinning.neural import NeuralSkinning, load_neural
 
 PARAMS_FORMAT = "jnr-photo-params/1"
 OUTPUT_FILES = ("mesh.obj", "mesh.ply", "mesh.glb", "params.json", "overlay.png", "render.png", "landmarks.pts",
-                "report.json")
+                "report.json", CONFIG_FILE)
 INPUT_COLOUR = (40, 220, 60)
 FIT_COLOUR = (235, 40, 40)
 
@@ -114,8 +116,12 @@ def mesh_from_photo_params(params: dict | str | Path, *, rig: JointRig | None = 
     return v
 
 
-def render_fit(fit: PhotoFit, *, spp: int = 16, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+def render_fit(fit: PhotoFit, *, spp: int = 16, seed: int = 0, asset: RigAsset | None = None
+               ) -> tuple[np.ndarray, np.ndarray]:
     """The fitted head rendered at the photo's size with its albedo and light.
+
+    Args:
+        asset: the rig asset of the fit, for its faces (default: the committed one).
 
     Returns:
         ``(image (H, W, 3) float32 linear RGB, coverage mask (H, W) float32)``.
@@ -123,7 +129,7 @@ def render_fit(fit: PhotoFit, *, spp: int = 16, seed: int = 0) -> tuple[np.ndarr
     from render.lighting import Lighting
     from render.renderer import DifferentiableRenderer
 
-    asset = load_asset()
+    asset = asset or load_asset()
     v = torch.as_tensor(fit.rig_vertices, dtype=torch.float32)
     albedo = torch.as_tensor(fit.albedo, dtype=torch.float32)
     light = Lighting(torch.as_tensor(fit.ambient, dtype=torch.float32),
@@ -173,8 +179,8 @@ def report_payload(fit: PhotoFit, *, config: FitPhotoConfig | None = None, extra
             "fitted_at_reduction": int(image_factor),
         },
         "landmark_stages": lfit.losses,
-        "photometric_stages": [dict(s.__dict__, free=list(s.free), light_direction_camera=list(s.light_direction_camera))
-                               for s in fit.stages],
+        "landmark_stage_logs": [asdict(s) for s in lfit.stages],
+        "photometric_stages": [asdict(s) for s in fit.stages],
         "crop": None if fit.crop is None else dict(fit.crop.__dict__),
         "timings_s": fit.timings,
         "config": config_to_dict(config) if config is not None else None,
@@ -183,10 +189,37 @@ def report_payload(fit: PhotoFit, *, config: FitPhotoConfig | None = None, extra
     return json_safe(report)
 
 
+def output_models(rig: JointRig | None = None, neural: NeuralSkinning | None = None
+                  ) -> tuple[JointRig, NeuralSkinning]:
+    """The float64 models the output files of a fit are computed with, from the fit's own ones.
+
+    Args:
+        rig: the fit's rig; a float64 one is used as it is, another one is rebuilt in float64 on its
+            asset (default: the committed asset).
+        neural: the fit's learned skinning; one on the float64 ``rig`` is used as it is, another one is
+            converted (its learned linear weights and a float64 copy of its decoder; a float32 model's
+            linear weights are float32-rounded). Default: the committed learned skinning.
+
+    Returns:
+        ``(rig, neural)``, float64, ``neural`` on ``rig``; nothing that was given is reloaded.
+    """
+    import copy
+
+    f64 = torch.float64
+    if rig is None or rig.template.dtype != f64:
+        rig = JointRig(rig.asset if rig is not None else load_asset(), dtype=f64)
+    if neural is None:
+        neural = load_neural(rig)[0]
+    elif neural.rig is not rig:
+        neural = NeuralSkinning(rig, neural.linear_free.to(f64), copy.deepcopy(neural.decoder))
+    return rig, neural
+
+
 def write_photo_outputs(out_dir: str | Path, photo: np.ndarray, fit: PhotoFit, *,
                         config: FitPhotoConfig | None = None, force: bool = False, extra: dict | None = None,
                         spp: int = 16, inputs: tuple = (), image_factor: int = 1,
-                        original_size: tuple[int, int] | None = None) -> Path:
+                        original_size: tuple[int, int] | None = None, rig: JointRig | None = None,
+                        neural: NeuralSkinning | None = None) -> Path:
     """Write the output folder of a fit (see the module docstring) atomically.
 
     Args:
@@ -202,25 +235,29 @@ def write_photo_outputs(out_dir: str | Path, photo: np.ndarray, fit: PhotoFit, *
             pixel errors of ``report.json`` are given in the photo file's pixels; ``overlay.png`` and
             ``render.png`` are at the reduced size.
         original_size: ``(W, H)`` of the photo file (default: the fitted image's size).
+        rig, neural: the models the fit ran with (the rig's asset gives the faces, UVs, joints and
+            expressions; the learned skinning the glTF's weights); :func:`output_models` computes the
+            files in float64 from them, so they are the same whether the fit's float32 models are
+            given or the defaults (the committed rig and learned skinning) are loaded here.
 
     Raises:
         pipeline.files.OutputError: ``out_dir`` is refused (exists without ``force``, not jnr's, an
             input; :class:`~pipeline.files.OutputExistsError` when it exists) or cannot be written.
     """
     from landmarks.formats import write_landmarks
-    from rig.expressions import ExpressionModel
-    from rig.io.export import export_mesh, export_skinned_gltf
+    from rig.io.gltf import export_skinned_gltf
+    from rig.io.mesh import export_mesh
 
     out_dir = Path(out_dir)
     check_output(out_dir, force=force, inputs=inputs)  # before the rendering below
-    asset = load_asset()
+    rig, neural = output_models(rig, neural)
+    asset = rig.asset
     colours = np.clip(np.round(linear_to_srgb(fit.albedo) * 255.0), 0, 255).astype(np.uint8)
-    render, mask = render_fit(fit, spp=spp)
+    render, mask = render_fit(fit, spp=spp, asset=asset)
 
-    rig = JointRig(asset, dtype=torch.float64)
     with torch.no_grad():
         rest = ExpressionModel(asset, dtype=torch.float64).vertices(torch.as_tensor(fit.expressions)[None])[0].numpy()
-        weights = load_neural(rig)[0](torch.as_tensor(fit.z)[None])[0].numpy()
+        weights = neural(torch.as_tensor(fit.z)[None])[0].numpy()
         tau = rig.channel_transforms(torch.as_tensor(fit.theta)[None])[0].numpy()
 
     with staged_folder(out_dir, force, inputs=inputs, marker={"command": (extra or {}).get("command")}) as tmp:
@@ -236,4 +273,5 @@ def write_photo_outputs(out_dir: str | Path, photo: np.ndarray, fit: PhotoFit, *
         write_landmarks(tmp / "landmarks.pts", np.asarray(fit.landmarks2d, float) * k + (k - 1) / 2)
         report = report_payload(fit, config=config, extra=extra, image_factor=k)
         (tmp / "report.json").write_text(json.dumps(report, indent=2) + "\n")
+        dump_config(config or FitPhotoConfig(), tmp / CONFIG_FILE, command=(extra or {}).get("command"))
     return out_dir

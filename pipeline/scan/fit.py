@@ -9,7 +9,7 @@ NICP, and a regulariser L_m (eq. 4) that diminishes while the correspondences co
    first checked (:func:`landmarks.points3d.check_landmarks_3d`); a cloud of which less than
    ``min_inlier_fraction`` lies near the aligned head is rejected as not a head before the per-point
    work of the fit (the scan border). Large clouds arrive subsampled (:func:`pipeline.scan.pointcloud.validate_points`).
-2. **Stages** (:class:`Stage`): each optimises some of ``pose`` (rotation + translation in the cloud
+2. **Stages** (:class:`pipeline.fitting.engine.Stage`, run by :func:`pipeline.fitting.engine.run_schedule`): each optimises some of ``pose`` (rotation + translation in the cloud
    frame), ``joints`` (the 105 channels), ``latent`` (Z) and ``expressions`` (24 coefficients) with
    Adam, rebuilding correspondences every ``correspondence_every`` iterations:
 
@@ -37,15 +37,16 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import ClassVar
 
 import numpy as np
 import torch
 from scipy.spatial import cKDTree
 
-from pipeline.fitting.state import FREE_GROUPS, RigState
+from pipeline.fitting.engine import Loss, Stage, StageLog, run_schedule
+from pipeline.fitting.priors import PriorWeights, rig_prior_terms
+from pipeline.fitting.state import ScanState
 from pipeline.scan.pointcloud import (
     CloudError,
     PointCloud,
@@ -53,7 +54,6 @@ from pipeline.scan.pointcloud import (
     estimate_normals,
 )
 from pipeline.scan.registration import (
-    MeshDistance,
     RigidAlignment,
     closest_on_one_ring,
     incident_faces,
@@ -61,35 +61,12 @@ from pipeline.scan.registration import (
     vertex_normals,
 )
 from rig.expressions import ExpressionModel
-from rig.losses import limit_loss, regularizer
+from rig.geometry import Similarity
 from rig.model import JointRig
+from rig.optim import Progress
 from rig.parameters import NUM_PARAMETERS
 from rig.skinning.neural import LATENT, NeuralSkinning, load_neural
-
-FACE_REGIONS = ("forehead", "brows", "eyelids", "nose", "cheeks", "lips", "chin")
-
-
-@dataclass(frozen=True)
-class Stage:
-    """One stage of the schedule."""
-
-    name: str
-    """Label in reports and progress bars."""
-    free: tuple[str, ...]
-    """What is optimised: a subset of ``pose``, ``joints``, ``latent``, ``expressions``."""
-    iterations: int
-    """Adam steps."""
-
-    groups: ClassVar[tuple[str, ...]] = FREE_GROUPS
-    """What ``free`` may name (a subclass may allow more)."""
-
-    def __post_init__(self) -> None:
-        bad = [f for f in self.free if f not in self.groups]
-        if bad or not self.free:
-            raise ValueError(f"stage {self.name!r}: free must be a non-empty subset of {list(self.groups)}, "
-                             f"got {list(self.free)}")
-        if self.iterations < 0:
-            raise ValueError(f"stage {self.name!r}: iterations must be >= 0, got {self.iterations}")
+from rig.template import FACE_REGIONS
 
 
 def jnr_schedule(joint_iterations: int = 30, latent_iterations: int = 15, expression_iterations: int = 30,
@@ -115,26 +92,42 @@ def jnr_schedule(joint_iterations: int = 30, latent_iterations: int = 15, expres
 
 
 @dataclass(frozen=True)
-class FitScanConfig:
-    """Settings of ``jnr fit-scan`` (``configs/fit_scan.yaml`` overrides them)."""
+class ScanLearningRates:
+    """Adam steps of the point-cloud fit's parameter groups (``lr:`` in YAML)."""
 
-    stages: tuple[Stage, ...] = field(default_factory=jnr_schedule)
-    """The schedule (JNR 4.3); in YAML a list of ``{name, free, iterations}``."""
-    seed: int = 0
-    """Seed of the cloud subsampling."""
-    lr_rotation: float = 0.002
-    """Adam step of the pose rotation vector, radians."""
-    lr_translation: float = 0.3
-    """Adam step of the pose translation, mm."""
-    lr_log_scale: float = 0.001
-    """Adam step of the log of the global scale."""
-    fit_scale: bool = True
-    """Optimise a global scale with the pose (heads differ in size; the joints' scales are local)."""
-    lr_joints: float = 0.01
-    """Adam step of the joint channels, as a fraction of each channel's range."""
-    lr_latent: float = 0.03
-    lr_expressions: float = 0.03
-    correspondence_every: int = 5
+    rotation: float = 0.002
+    """Pose rotation vector, radians."""
+    translation: float = 0.3
+    """Pose translation, mm."""
+    log_scale: float = 0.001
+    """Log of the global scale."""
+    joints: float = 0.01
+    """Joint channels, as a fraction of each channel's range."""
+    latent: float = 0.03
+    expressions: float = 0.03
+
+
+@dataclass(frozen=True)
+class ScanPriorWeights(PriorWeights):
+    """The rig priors of the point-cloud fit (``prior:`` in YAML): ``lambda_m`` is L_m's weight at the
+    start; it diminishes towards ``lambda_m_end`` as the correspondences settle."""
+
+    lambda_m: float = 0.3
+    lambda_m_end: float = 0.03
+    """L_m once the correspondences have settled (JNR's 0.03)."""
+    settle_mm: float = 1.0
+    """Median vertex motion between rebuilds at which L_m has reached ``lambda_m_end``."""
+    lambda_x: float = 0.3
+    """L_x (eq. 5), the joint-limit penalty (JNR's 0.3)."""
+    lambda_z: float = 1e-3
+    lambda_expressions: float = 0.02
+
+
+@dataclass(frozen=True)
+class CorrespondenceConfig:
+    """How the non-rigid ICP pairs points with the model (``correspondences:`` in YAML)."""
+
+    every: int = 5
     """Rebuild the correspondences every this many iterations."""
     max_cloud_points: int = 8000
     """Cloud points used by the fit (a seeded subsample of larger clouds)."""
@@ -158,47 +151,45 @@ class FitScanConfig:
     1.05 mm, 0 1.04 mm (noise pulls a point-to-point fit sideways); a little keeps sliding in check."""
     model_to_cloud_weight: float = 1.0
     """Weight of the model -> cloud pairs relative to the cloud -> model pairs."""
-    lambda_m_start: float = 0.3
-    lambda_m_end: float = 0.03
-    """L_m (eq. 4) weight at the start and once the correspondences have settled (JNR's 0.03)."""
-    settle_mm: float = 1.0
-    """Median vertex motion between rebuilds at which L_m has reached ``lambda_m_end``."""
-    lambda_x: float = 0.3
-    """L_x (eq. 5), the joint-limit penalty (JNR's 0.3)."""
-    lambda_z: float = 1e-3
-    """|Z|^2 keeps the latent where the decoder was trained."""
-    lambda_expressions: float = 0.02
-    """|c|^2 on the expression coefficients."""
-    lambda_landmarks: float = 0.5
-    """Weight of the 3D landmark RMSE (mm) when landmarks are given."""
     boundary_k: int = 16
     """Neighbours for the scan-border test."""
     normals_k: int = 16
     """Neighbours for normal estimation when the cloud has no normals."""
-    use_neural: bool = True
-    """Use the neural skinning (learned linear + decoded residual); else the learned linear weights only."""
-    prealign_yaw_step_deg: float = 20.0
-    prealign_scale: bool = True
-    """Estimate a global scale in the pre-alignment (clamped to [0.85, 1.2])."""
+
+
+@dataclass(frozen=True)
+class PrealignConfig:
+    """The rigid pre-alignment (``prealign:`` in YAML; :func:`pipeline.scan.registration.rigid_prealign`)."""
+
+    yaw_step_deg: float = 20.0
+    """Yaw hypotheses this far apart."""
+    scale: bool = True
+    """Estimate a global scale (clamped to [0.85, 1.2])."""
     min_inlier_fraction: float = 0.6
     """After pre-alignment at least this fraction of the cloud must lie within 8 mm of the head, else the
     cloud is rejected as not a head."""
 
 
 @dataclass(frozen=True)
-class StageReport:
-    """What one stage did: losses at its start and end, the data RMS (mm), L_m's weight, pair counts."""
+class FitScanConfig:
+    """Settings of ``jnr fit-scan`` (``configs/fit_scan.yaml`` overrides them)."""
 
-    name: str
-    free: tuple[str, ...]
-    iterations: int
-    loss_start: float
-    loss_end: float
-    data_rms_mm: float
-    lambda_m: float
-    pairs_cloud_to_model: int
-    pairs_model_to_cloud: int
-    seconds: float
+    stages: tuple[Stage, ...] = field(default_factory=jnr_schedule)
+    """The schedule (JNR 4.3); in YAML a list of ``{name, free, iterations}``."""
+    seed: int = 0
+    """Seed of the cloud subsampling."""
+    lr: ScanLearningRates = field(default_factory=ScanLearningRates)
+    """Adam steps per parameter group."""
+    fit_scale: bool = True
+    """Optimise a global scale with the pose (heads differ in size; the joints' scales are local)."""
+    prior: ScanPriorWeights = field(default_factory=ScanPriorWeights)
+    """The rig priors (:mod:`pipeline.fitting.priors`), L_m diminishing."""
+    lambda_landmarks: float = 0.5
+    """Weight of the 3D landmark RMSE (mm) when landmarks are given."""
+    correspondences: CorrespondenceConfig = field(default_factory=CorrespondenceConfig)
+    prealign: PrealignConfig = field(default_factory=PrealignConfig)
+    use_neural: bool = True
+    """Use the neural skinning (learned linear + decoded residual); else the learned linear weights only."""
 
 
 @dataclass(frozen=True)
@@ -213,7 +204,9 @@ class ScanFit:
         vertices: ``(V, 3)`` fitted mesh in the cloud frame, mm.
         rig_vertices: ``(V, 3)`` the same mesh in rig space, mm.
         prealign: the rigid pre-alignment.
-        stages: one :class:`StageReport` per stage.
+        stages: one :class:`~pipeline.fitting.engine.StageLog` per stage: every loss term, and the metrics
+            ``data_rms_mm`` (cloud -> model RMS of the inliers), ``lambda_m`` (L_m's weight at the end),
+            ``pairs_cloud_to_model``, ``pairs_model_to_cloud``.
         timings: seconds per phase (``prealign``, ``fit``, ``total``).
     """
 
@@ -226,64 +219,156 @@ class ScanFit:
     vertices: np.ndarray
     rig_vertices: np.ndarray
     prealign: RigidAlignment
-    stages: tuple[StageReport, ...]
+    stages: tuple[StageLog, ...]
     timings: dict
 
-
-class _Pairs:
-    """Correspondences of one rebuild (index tensors and the fixed normals of the residuals)."""
-
-    def __init__(self, cloud_idx, tri_idx, bary, normals_c2m, vert_idx_m2c, cloud_idx_m2c, normals_m2c, sigma):
-        self.c_i = torch.as_tensor(cloud_idx, dtype=torch.long)
-        self.c_tri = torch.as_tensor(tri_idx, dtype=torch.long)  # (M, 3) vertex ids of the matched triangle
-        self.c_bary = torch.as_tensor(bary)  # (M, 3) barycentric coordinates of the closest surface point
-        self.c_n = torch.as_tensor(normals_c2m)
-        self.m_j = torch.as_tensor(vert_idx_m2c, dtype=torch.long)
-        self.m_k = torch.as_tensor(cloud_idx_m2c, dtype=torch.long)
-        self.m_n = torch.as_tensor(normals_m2c)
-        self.sigma = float(sigma)
+    @property
+    def transform(self) -> Similarity:
+        """Rig space -> the cloud's frame as a :class:`rig.geometry.Similarity`."""
+        return Similarity(self.rotation, self.translation, self.scale)
 
 
-def _residual(d: torch.Tensor, n: torch.Tensor, tangential: float) -> torch.Tensor:
-    """Squared point-to-plane distance plus a weighted tangential part, ``(M, 3) -> (M,)`` mm^2."""
+@dataclass(frozen=True)
+class Pairs:
+    """Correspondences of one rebuild: cloud -> model pairs (cloud point ``c_i``, triangle ``c_tri (M, 3)``,
+    barycentric ``c_bary (M, 3)``, fixed normal ``c_n (M, 3)``), model -> cloud pairs (vertex ``m_j``,
+    cloud point ``m_k``, cloud normal ``m_n``) and the Geman-McClure scale ``sigma`` (mm)."""
+
+    c_i: torch.Tensor
+    c_tri: torch.Tensor
+    c_bary: torch.Tensor
+    c_n: torch.Tensor
+    m_j: torch.Tensor
+    m_k: torch.Tensor
+    m_n: torch.Tensor
+    sigma: float
+
+
+def plane_residual(d: torch.Tensor, n: torch.Tensor, tangential: float) -> torch.Tensor:
+    """Squared point-to-plane distance plus a weighted tangential part: ``d, n (M, 3) -> (M,)`` mm^2."""
     normal = (d * n).sum(-1)
     tangent = d - normal[:, None] * n
     return normal ** 2 + tangential * (tangent ** 2).sum(-1)
 
 
-def _geman_mcclure(e: torch.Tensor, sigma: float) -> torch.Tensor:
+def geman_mcclure(e: torch.Tensor, sigma: float) -> torch.Tensor:
+    """Geman-McClure of squared residuals ``e`` (mm^2) at scale ``sigma`` (mm): ``s^2 e / (s^2 + e)``."""
     s2 = sigma * sigma
     return s2 * e / (s2 + e)
 
 
-class _Model(RigState):
-    """The differentiable map (pose, joints, Z, expressions) -> vertices in the cloud frame."""
+class ScanObjective:
+    """The non-rigid ICP loss of one cloud: correspondences rebuilt every ``correspondences.every`` steps
+    (:meth:`rebuild`, the engine's ``before_step``), the robust data term, the rig priors with L_m
+    diminishing as the correspondences settle, and the optional 3D landmark term.
 
-    def __init__(self, rig: JointRig, neural: NeuralSkinning | None, expressions: ExpressionModel,
-                 prealign: RigidAlignment) -> None:
-        super().__init__(rig, neural, expressions, prealign.rotation)
-        dtype = rig.template.dtype
-        self.log_scale = torch.tensor(math.log(prealign.scale), dtype=dtype, requires_grad=True)
-        self.translation = torch.tensor(prealign.translation, dtype=dtype, requires_grad=True)
+    Args:
+        state: the fit state (:class:`~pipeline.fitting.state.ScanState`).
+        points, normals: ``(N, 3)`` the cloud and its unit normals, mm. border: ``(N,)`` bool scan border.
+        view_dir: ``(3,)`` unit viewing direction of a single-view scan, or None.
+        config: the fit's settings. rng: subsampling generator.
+        landmarks: ``(vertex ids (L,), positions (L, 3) mm)`` or None.
+    """
 
-    def to_cloud(self, v: torch.Tensor) -> torch.Tensor:
-        return self.log_scale.exp() * v @ self.rotation().T + self.translation
+    def __init__(self, state: ScanState, points: np.ndarray, normals: np.ndarray, border: np.ndarray,
+                 view_dir: np.ndarray | None, config: FitScanConfig, rng: np.random.Generator,
+                 landmarks: tuple[np.ndarray, np.ndarray] | None) -> None:
+        c = config.correspondences
+        dtype = state.dtype
+        self.state, self.config, self.c = state, config, c
+        self.points, self.normals, self.border, self.view_dir = points, normals, border, view_dir
+        sub = np.sort(rng.choice(len(points), size=c.max_cloud_points, replace=False)) \
+            if len(points) > c.max_cloud_points else np.arange(len(points))
+        self.p_sub, self.n_sub = points[sub], normals[sub]
+        self.cloud_tree = cKDTree(points)
+        self.P_sub = torch.as_tensor(self.p_sub, dtype=dtype)
+        self.P_all = torch.as_tensor(points, dtype=dtype)
+        self.cos_max = math.cos(math.radians(c.normal_angle_deg))
+        self.landmarks = None if landmarks is None else (torch.as_tensor(landmarks[0]),
+                                                         torch.as_tensor(landmarks[1], dtype=dtype))
+        faces = state.rig.asset.faces
+        self.incident = incident_faces(faces, len(state.rig.asset.vertices))
+        self.max_d, self.lambda_m, self.previous = c.max_distance_mm, config.prior.lambda_m, None
+        self.pairs: Pairs | None = None
 
-    @property
-    def scale(self) -> float:
-        return float(self.log_scale.detach().exp())
+    def before_step(self, stage: Stage, iteration: int) -> None:
+        """Rebuild the correspondences at the stage's first step and every ``correspondences.every``."""
+        if iteration % self.c.every == 0:
+            with torch.no_grad():
+                v = self.state.to_cloud(self.state.rig_vertices()).numpy().astype(np.float64)
+            self.pairs = self.rebuild(v)
+
+    def _candidates(self, v_cloud: np.ndarray):
+        """Both pair directions, found and rejected (module docstring), with their residuals (mm^2)."""
+        c, faces = self.c, self.state.rig.asset.faces
+        vn = vertex_normals(v_cloud, faces)
+        _, j1 = cKDTree(v_cloud).query(self.p_sub)
+        # cloud -> model: the closest point on the model's surface (around the nearest vertex).
+        f1, b1, q1 = closest_on_one_ring(self.p_sub, v_cloud, faces, self.incident, j1)
+        n1 = (b1[:, :, None] * vn[faces[f1]]).sum(1)
+        n1 /= np.linalg.norm(n1, axis=1, keepdims=True).clip(1e-12)
+        d1 = np.linalg.norm(self.p_sub - q1, axis=1)
+        ok1 = (d1 <= self.max_d) & ((self.n_sub * n1).sum(1) >= self.cos_max)
+        d2, k2 = self.cloud_tree.query(v_cloud)
+        ok2 = (d2 <= self.max_d) & ~self.border[k2] & ((vn * self.normals[k2]).sum(1) >= self.cos_max)
+        if self.view_dir is not None:
+            ok2 &= vn @ self.view_dir > c.min_facing
+        e1 = plane_residual(torch.from_numpy(self.p_sub[ok1] - q1[ok1]), torch.from_numpy(n1[ok1]),
+                            c.tangential_weight).numpy()
+        e2 = plane_residual(torch.from_numpy(v_cloud[ok2] - self.points[k2[ok2]]),
+                            torch.from_numpy(self.normals[k2[ok2]]), 0.0).numpy()
+        return (f1, b1, n1, ok1), (k2, ok2), np.sqrt(np.concatenate([e1, e2]))
+
+    def rebuild(self, v_cloud: np.ndarray) -> Pairs:
+        """New pairs for the model at ``v_cloud (V, 3)`` (float64, mm); adapts the rejection distance and
+        lowers L_m's weight by how far the model moved since the last rebuild."""
+        c, p, faces, dtype = self.c, self.config.prior, self.state.rig.asset.faces, self.state.dtype
+        (f1, b1, n1, ok1), (k2, ok2), r = self._candidates(v_cloud)
+        sigma = max(c.robust_sigma_min_mm, float(np.quantile(r, c.robust_sigma_quantile)))
+        inlier_rms = float(np.sqrt(np.mean(np.minimum(r, sigma * 3) ** 2)))
+        self.max_d = float(np.clip(3.0 * max(inlier_rms, sigma), c.min_distance_mm, c.max_distance_mm))
+        if self.previous is not None:
+            motion = float(np.median(np.linalg.norm(v_cloud - self.previous, axis=1)))
+            target = p.lambda_m_end + (p.lambda_m - p.lambda_m_end) * min(1.0, motion / p.settle_mm)
+            self.lambda_m = min(self.lambda_m, target)
+        self.previous = v_cloud.copy()
+        return Pairs(c_i=torch.as_tensor(np.flatnonzero(ok1), dtype=torch.long),
+                     c_tri=torch.as_tensor(faces[f1[ok1]], dtype=torch.long),
+                     c_bary=torch.as_tensor(torch.as_tensor(b1[ok1], dtype=dtype)),
+                     c_n=torch.as_tensor(torch.as_tensor(n1[ok1], dtype=dtype)),
+                     m_j=torch.as_tensor(np.flatnonzero(ok2), dtype=torch.long),
+                     m_k=torch.as_tensor(k2[ok2], dtype=torch.long),
+                     m_n=torch.as_tensor(torch.as_tensor(self.normals[k2[ok2]], dtype=dtype)), sigma=float(sigma))
+
+    def __call__(self, free: tuple[str, ...]) -> Loss:
+        """One step's loss: ``sqrt(mean robust residual)``, the rig priors, the landmark RMSE."""
+        pairs, c = self.pairs, self.c
+        v_cloud = self.state.to_cloud(self.state.rig_vertices(free))
+        on_surface = (pairs.c_bary[:, :, None] * v_cloud[pairs.c_tri]).sum(1)
+        e1 = plane_residual(self.P_sub[pairs.c_i] - on_surface, pairs.c_n, c.tangential_weight)
+        e2 = plane_residual(v_cloud[pairs.m_j] - self.P_all[pairs.m_k], pairs.m_n, 0.0)
+        w2 = c.model_to_cloud_weight
+        robust = (geman_mcclure(e1, pairs.sigma).sum() + w2 * geman_mcclure(e2, pairs.sigma).sum()) / (
+            len(e1) + w2 * len(e2))
+        terms = {"data": (robust + 1e-12).sqrt(), **rig_prior_terms(self.state, self.config.prior, lambda_m=self.lambda_m)}
+        if self.landmarks is not None:
+            ids, positions = self.landmarks
+            terms["landmarks"] = self.config.lambda_landmarks * ((v_cloud[ids] - positions) ** 2).sum(-1).mean().sqrt()
+        data_rms = e1.detach().clamp_max((3 * pairs.sigma) ** 2).mean().sqrt()
+        return Loss(terms, {"data_rms_mm": data_rms, "lambda_m": self.lambda_m,
+                            "pairs_cloud_to_model": len(pairs.c_i), "pairs_model_to_cloud": len(pairs.m_j)})
 
 
 def _cloud_normals(cloud: PointCloud, config: FitScanConfig) -> np.ndarray:
     """``(N, 3)`` unit normals of the cloud: its own, or estimated (PCA over ``normals_k`` neighbours)."""
-    return cloud.normals if cloud.normals is not None else estimate_normals(cloud.points, k=config.normals_k)
+    return cloud.normals if cloud.normals is not None else estimate_normals(cloud.points,
+                                                                            k=config.correspondences.normals_k)
 
 
 def fit_scan(cloud: PointCloud, config: FitScanConfig | None = None, *,
              landmarks: Mapping[str, np.ndarray] | None = None, rig: JointRig | None = None,
              neural: NeuralSkinning | None = None, expressions: ExpressionModel | None = None,
-             progress: Callable[[str, int, int], None] | None = None,
-             landmarks_source: str = "--landmarks") -> ScanFit:
+             progress: Progress | None = None, landmarks_source: str = "--landmarks") -> ScanFit:
     """Fit the rig (pose, joints, Z, expressions) to a point cloud.
 
     Args:
@@ -292,7 +377,7 @@ def fit_scan(cloud: PointCloud, config: FitScanConfig | None = None, *,
         landmarks: optional ``{name: (3,) mm}`` 3D landmarks in the cloud's frame
             (:data:`landmarks.points3d.LANDMARK_NAMES_3D`); they replace the rigid search and add a term.
         rig, neural, expressions: the models (default: the committed rig and learned skinning, float32).
-        progress: called as ``progress(stage_name, iteration, iterations)``.
+        progress: :data:`rig.optim.Progress`, called after every step.
         landmarks_source: how error messages name the landmarks (e.g. their file).
 
     Returns:
@@ -313,169 +398,60 @@ def fit_scan(cloud: PointCloud, config: FitScanConfig | None = None, *,
     if not config.use_neural:
         neural = None
     expressions = expressions or ExpressionModel(rig.asset, dtype=rig.template.dtype)
-    dtype = rig.template.dtype
-    asset = rig.asset
-    faces = asset.faces
     rng = np.random.default_rng(config.seed)
-
-    points = cloud.points
-    face_mask = asset.region_mask(*FACE_REGIONS)
-    with torch.no_grad():
-        start_vertices = (neural.rig(torch.zeros(1, NUM_PARAMETERS, dtype=dtype), weights=neural(
-            torch.zeros(1, LATENT, dtype=dtype))[0]).vertices[0].numpy() if neural is not None else asset.vertices)
-    lm_ids = lm_pos = None
-    if landmarks:
-        from landmarks.points3d import check_landmarks_3d, match_landmarks
-
-        lm_ids, lm_pos, lm_names = match_landmarks(landmarks, asset)
-    # The not-a-head test (the pre-alignment's inlier fraction) comes before the per-point work only
-    # the fit needs (the scan border); the pre-alignment needs the normals.
     normals = _cloud_normals(cloud, config)
     # A single-view scan's normals face its sensor: their mean is the viewing direction (None for a
     # cloud all around the head). Model -> cloud pairs only come from vertices facing the sensor.
     mean_normal = normals.mean(0)
     view_dir = mean_normal / np.linalg.norm(mean_normal) if np.linalg.norm(mean_normal) > 0.3 else None
-    if lm_ids is not None:
+    align, marks = _prealign(cloud, normals, view_dir, config, rig, neural, landmarks, landmarks_source)
+    border = boundary_mask(cloud.points, k=config.correspondences.boundary_k)
+    t_prealign = time.perf_counter() - t_start
+
+    state = ScanState(rig, neural, expressions, align.rotation, align.translation, align.scale,
+                      fit_scale=config.fit_scale)
+    objective = ScanObjective(state, cloud.points, normals, border, view_dir, config, rng, marks)
+    t_fit = time.perf_counter()
+    stages = run_schedule(state, config.stages, objective, config.lr, label="fit-scan", progress=progress,
+                          before_step=objective.before_step)
+    with torch.no_grad():
+        v_rig = state.rig_vertices()
+        v_cloud = state.to_cloud(v_rig)
+    values = state.arrays()
+    t_end = time.perf_counter()
+    return ScanFit(theta=values["theta"], z=values["z"], expressions=values["expressions"],
+                   rotation=values["rotation"], translation=state.translation.detach().double().numpy(),
+                   scale=state.scale, vertices=v_cloud.double().numpy(), rig_vertices=v_rig.double().numpy(),
+                   prealign=align, stages=stages,
+                   timings={"prealign": t_prealign, "fit": t_end - t_fit, "total": t_end - t_start})
+
+
+def _prealign(cloud: PointCloud, normals: np.ndarray, view_dir: np.ndarray | None, config: FitScanConfig,
+              rig: JointRig, neural: NeuralSkinning | None, landmarks: Mapping[str, np.ndarray] | None,
+              landmarks_source: str) -> tuple[RigidAlignment, tuple[np.ndarray, np.ndarray] | None]:
+    """Check the landmarks, align the template rigidly and reject a cloud that is not a head. Returns the
+    alignment and the matched landmarks ``(vertex ids, positions)`` (None without landmarks)."""
+    asset, dtype, points = rig.asset, rig.template.dtype, cloud.points
+    with torch.no_grad():
+        start_vertices = (neural.rig(torch.zeros(1, NUM_PARAMETERS, dtype=dtype), weights=neural(
+            torch.zeros(1, LATENT, dtype=dtype))[0]).vertices[0].numpy() if neural is not None else asset.vertices)
+    marks = None
+    if landmarks:
+        from landmarks.points3d import check_landmarks_3d, match_landmarks
+
+        lm_ids, lm_pos, lm_names = match_landmarks(landmarks, asset)
         check_landmarks_3d(lm_pos, lm_names, reference=start_vertices[lm_ids], cloud=points, view_direction=view_dir,
                            source=landmarks_source)
-    align = rigid_prealign(points, normals, start_vertices, faces, face_mask=face_mask, seed=config.seed,
-                           yaw_step_deg=config.prealign_yaw_step_deg, with_scale=config.prealign_scale,
-                           landmarks=None if lm_ids is None else (start_vertices[lm_ids], lm_pos),
-                           )
-    if align.inlier_fraction < config.min_inlier_fraction:
+        marks = (lm_ids, lm_pos)
+    # The not-a-head test (the pre-alignment's inlier fraction) comes before the per-point work only
+    # the fit needs (the scan border).
+    align = rigid_prealign(points, normals, start_vertices, asset.faces, face_mask=asset.region_mask(*FACE_REGIONS),
+                           seed=config.seed, yaw_step_deg=config.prealign.yaw_step_deg, with_scale=config.prealign.scale,
+                           landmarks=None if marks is None else (start_vertices[marks[0]], marks[1]))
+    if align.inlier_fraction < config.prealign.min_inlier_fraction:
         sampled = (f" (a random {len(points)} of its {cloud.input_points})"
                    if cloud.input_points > len(points) else "")
         raise CloudError(f"the cloud does not look like a head: after the best rigid alignment only "
                          f"{100 * align.inlier_fraction:.0f} % of its points{sampled} lie within 8 mm of the head "
-                         f"model (need {100 * config.min_inlier_fraction:.0f} %)")
-    border = boundary_mask(points, k=config.boundary_k)
-    t_prealign = time.perf_counter() - t_start
-
-    sub = np.sort(rng.choice(len(points), size=config.max_cloud_points, replace=False)) \
-        if len(points) > config.max_cloud_points else np.arange(len(points))
-    p_sub, n_sub = points[sub], normals[sub]
-    cloud_tree = cKDTree(points)
-    P_sub = torch.as_tensor(p_sub, dtype=dtype)
-    P_all = torch.as_tensor(points, dtype=dtype)
-    model = _Model(rig, neural, expressions, align)
-    cos_max = math.cos(math.radians(config.normal_angle_deg))
-    lm_ids_t = None if lm_ids is None else torch.as_tensor(lm_ids)
-    lm_pos_t = None if lm_pos is None else torch.as_tensor(lm_pos, dtype=dtype)
-
-    incident = incident_faces(faces, len(asset.vertices))
-    state = {"max_d": config.max_distance_mm, "lambda_m": config.lambda_m_start, "prev": None}
-
-    def rebuild(v_cloud: np.ndarray) -> _Pairs:
-        vn = vertex_normals(v_cloud, faces)
-        tree = cKDTree(v_cloud)
-        _, j1 = tree.query(p_sub)
-        # cloud -> model: the closest point on the model's surface (around the nearest vertex).
-        f1, b1, q1 = closest_on_one_ring(p_sub, v_cloud, faces, incident, j1)
-        n1 = (b1[:, :, None] * vn[faces[f1]]).sum(1)
-        n1 /= np.linalg.norm(n1, axis=1, keepdims=True).clip(1e-12)
-        d1 = np.linalg.norm(p_sub - q1, axis=1)
-        ok1 = (d1 <= state["max_d"]) & ((n_sub * n1).sum(1) >= cos_max)
-        d2, k2 = cloud_tree.query(v_cloud)
-        ok2 = (d2 <= state["max_d"]) & ~border[k2] & ((vn * normals[k2]).sum(1) >= cos_max)
-        if view_dir is not None:
-            ok2 &= vn @ view_dir > config.min_facing
-        e1 = _residual(torch.from_numpy(p_sub[ok1] - q1[ok1]), torch.from_numpy(n1[ok1]),
-                       config.tangential_weight).numpy()
-        e2 = _residual(torch.from_numpy(v_cloud[ok2] - points[k2[ok2]]), torch.from_numpy(normals[k2[ok2]]),
-                       0.0).numpy()
-        r = np.sqrt(np.concatenate([e1, e2]))
-        sigma = max(config.robust_sigma_min_mm, float(np.quantile(r, config.robust_sigma_quantile)))
-        inlier_rms = float(np.sqrt(np.mean(np.minimum(r, sigma * 3) ** 2)))
-        state["max_d"] = float(np.clip(3.0 * max(inlier_rms, sigma), config.min_distance_mm, config.max_distance_mm))
-        if state["prev"] is not None:
-            motion = float(np.median(np.linalg.norm(v_cloud - state["prev"], axis=1)))
-            target = config.lambda_m_end + (config.lambda_m_start - config.lambda_m_end) * min(
-                1.0, motion / config.settle_mm)
-            state["lambda_m"] = min(state["lambda_m"], target)
-        state["prev"] = v_cloud.copy()
-        return _Pairs(np.flatnonzero(ok1), faces[f1[ok1]], torch.as_tensor(b1[ok1], dtype=dtype),
-                      torch.as_tensor(n1[ok1], dtype=dtype),
-                      np.flatnonzero(ok2), k2[ok2], torch.as_tensor(normals[k2[ok2]], dtype=dtype), sigma)
-
-    def objective(v_cloud: torch.Tensor, pairs: _Pairs, free: tuple[str, ...]) -> tuple[torch.Tensor, torch.Tensor]:
-        on_surface = (pairs.c_bary[:, :, None] * v_cloud[pairs.c_tri]).sum(1)
-        e1 = _residual(P_sub[pairs.c_i] - on_surface, pairs.c_n, config.tangential_weight)
-        e2 = _residual(v_cloud[pairs.m_j] - P_all[pairs.m_k], pairs.m_n, 0.0)
-        w2 = config.model_to_cloud_weight
-        robust = (_geman_mcclure(e1, pairs.sigma).sum() + w2 * _geman_mcclure(e2, pairs.sigma).sum()) / (
-            len(e1) + w2 * len(e2))
-        data = (robust + 1e-12).sqrt()
-        theta = model.theta
-        loss = data + state["lambda_m"] * regularizer(theta[None])[0] \
-            + config.lambda_x * limit_loss(theta[None], model.low, model.high)[0]
-        loss = loss + config.lambda_z * model.z.square().sum() + config.lambda_expressions * model.c.square().sum()
-        if lm_ids_t is not None:
-            lm = ((v_cloud[lm_ids_t] - lm_pos_t) ** 2).sum(-1).mean().sqrt()
-            loss = loss + config.lambda_landmarks * lm
-        return loss, e1.detach().clamp_max((3 * pairs.sigma) ** 2).mean().sqrt()
-
-    reports: list[StageReport] = []
-    lrs = {"joints": [(model.theta_n, config.lr_joints)], "latent": [(model.z, config.lr_latent)],
-           "expressions": [(model.c, config.lr_expressions)],
-           "pose": [(model.rotvec, config.lr_rotation), (model.translation, config.lr_translation)]
-           + ([(model.log_scale, config.lr_log_scale)] if config.fit_scale else [])}
-    if neural is not None:
-        for p in neural.decoder.parameters():
-            p.requires_grad_(False)
-    t_fit = time.perf_counter()
-    try:
-        for stage in config.stages:
-            free = tuple(g for g in stage.free if not (g == "latent" and neural is None))
-            if stage.iterations == 0 or not free:
-                continue
-            t0 = time.perf_counter()
-            record = {"start": float("nan"), "loss": float("nan"), "data": float("nan"), "pairs": None}
-
-            def step_loss(pairs: _Pairs) -> torch.Tensor:
-                v_cloud = model.to_cloud(model.rig_vertices(free))
-                loss, data_rms_t = objective(v_cloud, pairs, free)
-                record["loss"], record["data"] = float(loss.detach()), float(data_rms_t)
-                if record["start"] != record["start"]:
-                    record["start"] = record["loss"]
-                return loss
-
-            opt = torch.optim.Adam([{"params": [t], "lr": lr} for g in free for t, lr in lrs[g]])
-            for it in range(stage.iterations):  # rebuild -> forward -> loss -> backward -> step -> project
-                if it % config.correspondence_every == 0:
-                    with torch.no_grad():
-                        record["pairs"] = rebuild(model.to_cloud(model.rig_vertices()).numpy().astype(np.float64))
-                loss = step_loss(record["pairs"])
-                if not torch.isfinite(loss):
-                    raise FloatingPointError(f"fit-scan diverged in stage {stage.name!r} (non-finite loss); "
-                                             f"try smaller learning rates in the config")
-                opt.zero_grad()
-                loss.backward()
-                opt.step()
-                model.clamp_expressions()
-                if progress is not None:
-                    progress(stage.name, it + 1, stage.iterations)
-            pairs = record["pairs"]
-            loss_start, loss_value, data_rms = record["start"], record["loss"], record["data"]
-            reports.append(StageReport(stage.name, free, stage.iterations, loss_start, loss_value, data_rms,
-                                       state["lambda_m"], len(pairs.c_i), len(pairs.m_j),
-                                       time.perf_counter() - t0))
-    finally:
-        if neural is not None:
-            for p in neural.decoder.parameters():
-                p.requires_grad_(True)
-    with torch.no_grad():
-        v_rig = model.rig_vertices()
-        v_cloud = model.to_cloud(v_rig)
-        rot = model.rotation().numpy().astype(np.float64)
-    t_end = time.perf_counter()
-    return ScanFit(theta=model.theta.detach().numpy().astype(np.float64), z=model.z.detach().numpy().astype(np.float64),
-                   expressions=model.c.detach().numpy().astype(np.float64), rotation=rot,
-                   translation=model.translation.detach().numpy().astype(np.float64), scale=model.scale,
-                   vertices=v_cloud.numpy().astype(np.float64), rig_vertices=v_rig.numpy().astype(np.float64),
-                   prealign=align, stages=tuple(reports),
-                   timings={"prealign": t_prealign, "fit": t_end - t_fit, "total": t_end - t_start})
-
-
-def scan_to_mesh(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """Exact distance (mm) from every point ``(N, 3)`` to the mesh surface, ``(N,)``."""
-    return MeshDistance(vertices, faces).query(points)[0]
+                         f"model (need {100 * config.prealign.min_inlier_fraction:.0f} %)")
+    return align, marks

@@ -13,20 +13,23 @@ file                   contents
                        ``jnr rig edit`` parameter file (its ``joints`` key)
 ``cloud_error.ply``    the input cloud coloured by its distance to the fitted mesh (blue 0 ->
                        red at ``vmax``), with the distance as the float property ``error_mm``
-``report.json``        scan-to-mesh distance (median, mean, std, mm), pre-alignment, stage
-                       losses, timings, the configuration used
+``report.json``        scan-to-mesh distance (median, mean, std, mm), pre-alignment, every loss
+                       term per stage, timings, the configuration used
+``config.yaml``        the configuration used, every field resolved (``--config`` repeats the fit)
 =====================  ===========================================================================
 """
 
 from __future__ import annotations
 
 import json
+from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from pipeline.config import config_to_dict
+from pipeline.config import CONFIG_FILE, config_to_dict, dump_config
+from pipeline.evaluation.metrics import distance_stats
 from pipeline.files import json_safe, staged_folder
 from pipeline.fitting.state import head_vertices
 from pipeline.scan.fit import FitScanConfig, ScanFit
@@ -43,15 +46,15 @@ from rig.parameters import params_to_theta, theta_to_params
 from rig.skinning.neural import LATENT, load_neural
 
 PARAMS_FORMAT = "jnr-scan-params/1"
-OUTPUT_FILES = ("mesh.ply", "mesh.obj", "params.json", "cloud_error.ply", "report.json")
+OUTPUT_FILES = ("mesh.ply", "mesh.obj", "params.json", "cloud_error.ply", "report.json", CONFIG_FILE)
 
 
-def distance_stats(distances: np.ndarray) -> dict:
-    """Median, mean, std, 90th percentile (mm) and the fractions within 2 and 5 mm."""
+def report_distance_stats(distances: np.ndarray) -> dict:
+    """``report.json``'s scan-to-mesh entry: :func:`pipeline.evaluation.metrics.distance_stats` (median,
+    mean, std, mm) plus the 90th percentile and the fractions within 2 and 5 mm."""
     d = np.asarray(distances, float)
-    return {"median_mm": float(np.median(d)), "mean_mm": float(d.mean()), "std_mm": float(d.std()),
-            "p90_mm": float(np.percentile(d, 90)), "within_2mm": float((d <= 2).mean()),
-            "within_5mm": float((d <= 5).mean()), "points": len(d)}
+    return {**distance_stats(d).as_dict(""), "p90_mm": float(np.percentile(d, 90)),
+            "within_2mm": float((d <= 2).mean()), "within_5mm": float((d <= 5).mean()), "points": len(d)}
 
 
 def params_payload(fit: ScanFit, cloud: PointCloud, frame: str) -> dict:
@@ -186,14 +189,15 @@ def write_scan_outputs(out_dir: str | Path, cloud: PointCloud, fit: ScanFit, dis
             "input": {"path": cloud.path, "points": len(cloud.points), "input_points": cloud.input_points,
                       "subsampled": cloud.input_points > len(cloud.points), "units": cloud.units,
                       "scale_to_mm": cloud.scale_to_mm, "frame": frame, "had_normals": cloud.normals is not None},
-            "scan_to_mesh": distance_stats(distances),
+            "scan_to_mesh": report_distance_stats(distances),
             "error_colour_scale_mm": [0.0, vmax],
             "prealign": {"rms_mm": fit.prealign.rms_mm, "inlier_fraction": fit.prealign.inlier_fraction,
                          "hypotheses": fit.prealign.hypotheses, "scale": fit.prealign.scale},
-            "stages": [dict(s.__dict__, free=list(s.free)) for s in fit.stages],
+            "stages": [asdict(s) for s in fit.stages],
             "timings_s": fit.timings,
             "config": config_to_dict(config) if config is not None else None,
         }
         report.update(extra or {})
         (tmp / "report.json").write_text(json.dumps(json_safe(report), indent=2) + "\n")
+        dump_config(config or FitScanConfig(), tmp / CONFIG_FILE, command=(extra or {}).get("command"))
     return out_dir

@@ -12,7 +12,7 @@ Large clouds are reduced as soon as they are checked: :func:`validate_points` (s
 :func:`read_point_cloud`) keeps a cloud of at most :data:`LARGE_CLOUD_POINTS` (200 000) points exactly as
 given, and replaces a larger one by a seeded uniform random subsample of :data:`SUBSAMPLE_POINTS`
 (50 000) of its points, in file order (its units are still detected on all points). The fit draws its
-8 000 points (``FitScanConfig.max_cloud_points``) uniformly at random anyway, so the reduced cloud has the
+8 000 points (``FitScanConfig.correspondences.max_cloud_points``) uniformly at random anyway, so the reduced cloud has the
 statistics the fit would have seen (the pre-alignment's inlier fraction, which decides "not a head", the
 share of outliers), while everything after reading (normals, the scan border, the error map,
 ``cloud_error.ply``, the report) costs what a 50k-point scan costs. :class:`PointCloud` records the
@@ -50,7 +50,7 @@ LARGE_CLOUD_POINTS = 200_000
 exactly as given (a simulated 640x576 Kinect-like scan of a head has 14-20k points, a 320x288 one 3-5k)."""
 SUBSAMPLE_POINTS = 50_000
 """Points kept of a larger cloud: 2.5x the densest simulated Kinect scan (20k) and 6x the fit's own
-subsample (``FitScanConfig.max_cloud_points``, 8000)."""
+subsample (``FitScanConfig.correspondences.max_cloud_points``, 8000)."""
 SUBSAMPLE_SEED = 0
 """Seed of that subsample (the same file always gives the same cloud)."""
 
@@ -494,7 +494,7 @@ def boundary_mask(points: np.ndarray, k: int = 16, threshold: float = 0.35) -> n
 
 def write_point_cloud_ply(path, points, *, colors=None, normals=None,
                           scalars: dict[str, np.ndarray] | None = None) -> None:
-    """Write a binary little-endian PLY point cloud, atomically (temporary file + ``os.replace``).
+    """Write a binary little-endian PLY point cloud, atomically (:func:`rig.io.atomic.write_bytes_atomic`).
 
     Vertex properties, in order: float32 ``x y z``, float32 ``nx ny nz`` (if ``normals``), uint8
     ``red green blue`` (if ``colors``), then one float32 property per entry of ``scalars``.

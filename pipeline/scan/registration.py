@@ -13,57 +13,12 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from rig.geometry import (
+    Similarity,
     barycentric,
     closest_points_on_triangles,
     head_rotation,
     vertex_normals,
 )
-
-# ----------------------------------------------------------------------------------------------------
-# Similarity transforms
-# ----------------------------------------------------------------------------------------------------
-
-def umeyama(source: np.ndarray, target: np.ndarray, weights: np.ndarray | None = None,
-            with_scale: bool = False) -> tuple[np.ndarray, np.ndarray, float]:
-    """Least-squares similarity ``target ~ scale * R @ source + t`` (Umeyama 1991, weighted).
-
-    Args:
-        source, target: ``(N, 3)`` corresponding points, mm (N >= 3, not collinear).
-        weights: optional ``(N,)`` non-negative weights.
-        with_scale: also estimate the scale (else 1).
-
-    Returns:
-        ``(R (3, 3), t (3,), scale)`` with ``det R = +1``.
-    """
-    source = np.asarray(source, float)
-    target = np.asarray(target, float)
-    if source.shape != target.shape or source.ndim != 2 or source.shape[1] != 3 or len(source) < 3:
-        raise ValueError(f"umeyama: source and target must both be (N >= 3, 3), got {source.shape} and {target.shape}")
-    w = np.ones(len(source)) if weights is None else np.asarray(weights, float)
-    w = w / max(w.sum(), 1e-300)
-    mu_s, mu_t = w @ source, w @ target
-    s0, t0 = source - mu_s, target - mu_t
-    cov = (t0 * w[:, None]).T @ s0
-    u, d, vt = np.linalg.svd(cov)
-    fix = np.eye(3)
-    fix[2, 2] = np.sign(np.linalg.det(u) * np.linalg.det(vt)) or 1.0
-    rot = u @ fix @ vt
-    scale = 1.0
-    if with_scale:
-        var = float(w @ (s0 ** 2).sum(1))
-        scale = float((d * np.diag(fix)).sum() / max(var, 1e-300))
-    return rot, mu_t - scale * rot @ mu_s, scale
-
-
-def apply_similarity(points: np.ndarray, rotation: np.ndarray, translation: np.ndarray, scale: float = 1.0) -> np.ndarray:
-    """``(N, 3) -> (N, 3)``: ``scale * R @ x + t``."""
-    return scale * np.asarray(points, float) @ np.asarray(rotation).T + np.asarray(translation)
-
-
-def invert_similarity(points: np.ndarray, rotation: np.ndarray, translation: np.ndarray, scale: float = 1.0) -> np.ndarray:
-    """Inverse of :func:`apply_similarity`: ``R.T @ (x - t) / scale``."""
-    return (np.asarray(points, float) - np.asarray(translation)) @ np.asarray(rotation) / scale
-
 
 # ----------------------------------------------------------------------------------------------------
 # Mesh geometry
@@ -203,6 +158,11 @@ class RigidAlignment:
     hypotheses: int
     score: float
 
+    @property
+    def transform(self) -> Similarity:
+        """The alignment as a :class:`rig.geometry.Similarity` (rig space -> cloud frame)."""
+        return Similarity(self.rotation, self.translation, self.scale)
+
 
 def _trimmed_icp(cloud: np.ndarray, cloud_n: np.ndarray | None, tree: cKDTree, model_n: np.ndarray,
                  model_v: np.ndarray, rot: np.ndarray, t: np.ndarray, scale: float, iterations: int,
@@ -210,7 +170,7 @@ def _trimmed_icp(cloud: np.ndarray, cloud_n: np.ndarray | None, tree: cKDTree, m
                  min_normal_dot: float) -> tuple[np.ndarray, np.ndarray, float, float]:
     """Point-to-point trimmed ICP of the cloud onto the model; returns ``(R, t, scale, score)``."""
     for it in range(iterations + 1):
-        q = invert_similarity(cloud, rot, t, scale)
+        q = Similarity(rot, t, scale).apply_inverse(cloud)
         d, j = tree.query(q)
         ok = np.ones(len(q), bool)
         if cloud_n is not None:
@@ -221,13 +181,44 @@ def _trimmed_icp(cloud: np.ndarray, cloud_n: np.ndarray | None, tree: cKDTree, m
         if ok.sum() < 10:
             break
         keep = ok & (d <= np.quantile(d[ok], trim))
-        r, tt, s = umeyama(model_v[j[keep]], cloud[keep], with_scale=with_scale)
+        fitted = Similarity.fit(model_v[j[keep]], cloud[keep], with_scale=with_scale)
+        r, tt, s = fitted.rotation, fitted.translation, fitted.scale
         if with_scale:
             s = float(np.clip(s, *scale_bounds))
             if not scale_bounds[0] < s < scale_bounds[1]:
                 tt = (cloud[keep] - s * model_v[j[keep]] @ r.T).mean(0)
         rot, t, scale = r, tt, s
     return rot, t, scale, score
+
+
+def pose_hypotheses(model_v: np.ndarray, model_n: np.ndarray, centroid: np.ndarray, face_centroid: np.ndarray,
+                    mean_n: np.ndarray | None, *, landmarks: tuple[np.ndarray, np.ndarray] | None,
+                    with_scale: bool, scale_bounds: tuple[float, float], yaw_step_deg: float,
+                    pitches_deg: tuple[float, ...], rolls_deg: tuple[float, ...],
+                    facing_min: float) -> list[tuple[np.ndarray, np.ndarray, float]]:
+    """The starts of :func:`rigid_prealign`: ``(rotation (3, 3), translation (3,) mm, scale)`` for every
+    yaw, pitch and roll whose face turns towards the viewer (``mean_n``, the cloud's mean normal, when
+    known), placed so that the centroid of the model part facing the viewer meets the cloud's
+    ``centroid``; or the one similarity of the ``landmarks`` (model points, cloud points)."""
+    if landmarks is not None:
+        src, dst = (np.asarray(a, float) for a in landmarks)
+        s = Similarity.fit(src, dst, with_scale=with_scale)
+        return [(s.rotation, s.translation, float(np.clip(s.scale, *scale_bounds)) if with_scale else 1.0)]
+    candidates: list[tuple[np.ndarray, np.ndarray, float]] = []
+    for yaw in np.arange(0.0, 360.0, yaw_step_deg):
+        for pitch in pitches_deg:
+            for roll in rolls_deg:
+                rot = head_rotation(yaw, pitch, roll)
+                face_dir = rot @ np.array([0.0, 0.0, 1.0])
+                if mean_n is not None and face_dir @ mean_n < facing_min:
+                    continue  # the face would point (nearly) away from the viewer
+                if mean_n is not None:
+                    facing = (model_n @ (rot.T @ mean_n)) > 0.3
+                    c_model = model_v[facing].mean(0) if facing.sum() > 50 else face_centroid
+                else:
+                    c_model = face_centroid
+                candidates.append((rot, centroid - rot @ c_model, 1.0))
+    return candidates
 
 
 def rigid_prealign(cloud: np.ndarray, cloud_normals: np.ndarray | None, model_vertices: np.ndarray,
@@ -284,27 +275,9 @@ def rigid_prealign(cloud: np.ndarray, cloud_normals: np.ndarray | None, model_ve
     centroid = cloud.mean(0)
     face_centroid = model_v[face_mask].mean(0) if face_mask is not None else model_v.mean(0)
 
-    candidates: list[tuple[np.ndarray, np.ndarray, float]] = []
-    if landmarks is not None:
-        src, dst = (np.asarray(a, float) for a in landmarks)
-        rot, t, s = umeyama(src, dst, with_scale=with_scale)
-        s = float(np.clip(s, *scale_bounds)) if with_scale else 1.0
-        candidates.append((rot, t, s))
-    else:
-        yaws = np.arange(0.0, 360.0, yaw_step_deg)
-        for yaw in yaws:
-            for pitch in pitches_deg:
-                for roll in rolls_deg:
-                    rot = head_rotation(yaw, pitch, roll)
-                    face_dir = rot @ np.array([0.0, 0.0, 1.0])
-                    if mean_n is not None and face_dir @ mean_n < facing_min:
-                        continue  # the face would point (nearly) away from the viewer
-                    if mean_n is not None:
-                        facing = (model_n @ (rot.T @ mean_n)) > 0.3
-                        c_model = model_v[facing].mean(0) if facing.sum() > 50 else face_centroid
-                    else:
-                        c_model = face_centroid
-                    candidates.append((rot, centroid - rot @ c_model, 1.0))
+    candidates = pose_hypotheses(model_v, model_n, centroid, face_centroid, mean_n, landmarks=landmarks,
+                                 with_scale=with_scale, scale_bounds=scale_bounds, yaw_step_deg=yaw_step_deg,
+                                 pitches_deg=pitches_deg, rolls_deg=rolls_deg, facing_min=facing_min)
     cn_coarse = None if cn_all is None else cn_all[coarse]
     scored = []
     for rot, t, s in candidates:
@@ -324,7 +297,7 @@ def rigid_prealign(cloud: np.ndarray, cloud_normals: np.ndarray | None, model_ve
             if best is None or score < best[0]:
                 best = (score, r1, t1, s1)
     score, rot, t, s = best
-    q = invert_similarity(cloud[fine], rot, t, s)
+    q = Similarity(rot, t, s).apply_inverse(cloud[fine])
     d, _ = tree.query(q)
     d = d * s
     inl = d <= inlier_mm

@@ -59,8 +59,6 @@ from __future__ import annotations
 
 import json
 import os
-import secrets
-import shutil
 import zlib
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
@@ -71,6 +69,8 @@ from scipy.special import ndtr, ndtri
 
 from rig.asset import RigAsset, cached_per_asset, load_asset
 from rig.fields import bump, capsule_bump, ramp, smoothed_normals, unit
+from rig.io.atomic import staged_folder
+from rig.optim import Progress
 
 GENERATOR_VERSION = 1
 SPLIT_SIZES: dict[str, int] = {"train": 85, "val": 2, "test": 7, "heldout": 100}
@@ -600,9 +600,13 @@ def _check_splits(splits) -> tuple[str, ...]:
     return splits
 
 
+PROGRESS_STAGE = "synthesising heads"
+"""The stage name :func:`write_population` reports progress under."""
+
+
 def write_population(out_dir: str | os.PathLike, seed: int = 0,
                      splits: Iterable[str] = ("train", "val", "test", "heldout"), file_format: str = "ply",
-                     overwrite: bool = False, progress: Callable[[int, int], None] | None = None,
+                     overwrite: bool = False, progress: Progress | None = None,
                      asset: RigAsset | None = None) -> Path:
     """Write synthetic heads as meshes plus a ``manifest.json``.
 
@@ -611,7 +615,8 @@ def write_population(out_dir: str | os.PathLike, seed: int = 0,
     decimals). ``manifest.json`` lists every head (split, name, file relative to ``out_dir``, seed,
     coefficients by feature name, vertex count, expression) and the generator version, units, coordinate
     conventions and feature specs. Everything is written into a temporary sibling directory that is
-    renamed into place at the end, so a failure leaves nothing half-written.
+    moved into place in one step at the end (:func:`rig.io.atomic.staged_folder`), so a failure or a
+    signal leaves nothing half-written and an existing ``out_dir`` as it was.
 
     Parameters
     ----------
@@ -626,7 +631,8 @@ def write_population(out_dir: str | os.PathLike, seed: int = 0,
     overwrite : bool
         Replace a non-empty ``out_dir``; otherwise it raises :class:`FileExistsError`.
     progress : callable, optional
-        Called as ``progress(done, total)`` after each head is written (and once with ``(0, total)``).
+        :data:`rig.optim.Progress`, called as ``progress("synthesising heads", done, total)`` after each head
+        is written (and once with ``done = 0``).
     asset : RigAsset, optional
         The template (default: :func:`rig.asset.load_asset`).
 
@@ -641,7 +647,7 @@ def write_population(out_dir: str | os.PathLike, seed: int = 0,
     if file_format not in FILE_FORMATS:
         raise ValueError(f"file_format must be one of {FILE_FORMATS}, got {file_format!r}")
     if progress is not None and not callable(progress):
-        raise ValueError("progress must be callable as progress(done, total)")
+        raise ValueError("progress must be callable as progress(stage, done, total)")
     if out_dir.exists() and not out_dir.is_dir():
         raise FileExistsError(f"{out_dir} exists and is not a directory")
     if out_dir.is_dir() and any(out_dir.iterdir()) and not overwrite:
@@ -649,68 +655,66 @@ def write_population(out_dir: str | os.PathLike, seed: int = 0,
 
     asset = load_asset() if asset is None else asset
     populations = [population_split(s, seed, asset) for s in splits]
-    total = sum(len(p) for p in populations)
     out_dir.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out_dir.parent / f".{out_dir.name}.tmp-{os.getpid()}-{secrets.token_hex(4)}"
-    os.mkdir(tmp)
-    try:
-        heads = []
-        done = 0
-        if progress is not None:
-            progress(0, total)
-        for pop in populations:
-            (tmp / pop.split).mkdir()
-            for i, name in enumerate(pop.names):
-                rel = f"{pop.split}/{name}.{file_format}"
-                (tmp / rel).write_bytes(_mesh_bytes(pop.vertices[i], asset.faces, file_format))
-                heads.append({
-                    "split": pop.split, "name": name, "file": rel, "seed": int(pop.seeds[i]),
-                    "vertex_count": int(pop.vertices.shape[1]), "expression": pop.expression,
-                    "coefficients": {f: float(v) for f, v in zip(pop.feature_names, pop.coefficients[i])},
-                })
-                done += 1
-                if progress is not None:
-                    progress(done, total)
-        manifest = {
-            "generator": "pipeline.synthetic.population",
-            "generator_version": GENERATOR_VERSION,
-            "template_version": int(asset.version),
-            "units": "mm",
-            "coordinates": COORDINATES,
-            "base_seed": seed,
-            "seed_derivation": "split: SeedSequence([base_seed, crc32(split)]).generate_state(n, uint32); "
-                               "head: sample_coefficients(numpy.random.default_rng(seed), 1)",
-            "file_format": file_format,
-            "vertex_count": len(asset.vertices),
-            "face_count": len(asset.faces),
-            "split_sizes": {p.split: len(p) for p in populations},
-            "feature_names": list(FEATURE_NAMES),
-            "features": [{"name": f.name, "unit": f.unit, "low": f.low, "high": f.high, "sd": f.sd,
-                          "p_active": f.p_active, "symmetry": f.symmetry, "description": f.description}
-                         for f in FEATURES],
-            "heads": heads,
-        }
+    replace = overwrite or out_dir.is_dir()  # an empty folder is replaced without overwrite too
+    with staged_folder(out_dir, replace=replace, check_replace=None if overwrite else _still_empty) as tmp:
+        heads = _write_heads(tmp, populations, asset.faces, file_format, progress)
+        manifest = _manifest(seed, file_format, asset, populations, heads)
         (tmp / MANIFEST_NAME).write_text(json.dumps(manifest, indent=1) + "\n", encoding="utf-8")
-        _move_into_place(tmp, out_dir)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     return out_dir / MANIFEST_NAME
 
 
-def _move_into_place(tmp: Path, out_dir: Path) -> None:
-    """Rename ``tmp`` to ``out_dir``, replacing an existing ``out_dir`` (restored if the rename fails)."""
-    if not out_dir.exists():
-        os.replace(tmp, out_dir)
-        return
-    old = out_dir.parent / f".{out_dir.name}.old-{os.getpid()}-{secrets.token_hex(4)}"
-    os.replace(out_dir, old)
-    try:
-        os.replace(tmp, out_dir)
-    except BaseException:
-        os.replace(old, out_dir)
-        raise
-    shutil.rmtree(old, ignore_errors=True)
+def _still_empty(out_dir: Path) -> None:
+    """Without ``overwrite`` only an empty folder is replaced (checked again just before the move)."""
+    if out_dir.is_dir() and any(out_dir.iterdir()):
+        raise FileExistsError(f"{out_dir} exists and is not empty; use --force (overwrite=True) to replace it")
+
+
+def _write_heads(folder: Path, populations: list[Population], faces: np.ndarray, file_format: str,
+                 progress: Progress | None) -> list[dict]:
+    """Write every head's mesh below ``folder``; returns the manifest's rows."""
+    total = sum(len(p) for p in populations)
+    heads = []
+    done = 0
+    if progress is not None:
+        progress(PROGRESS_STAGE, 0, total)
+    for pop in populations:
+        (folder / pop.split).mkdir()
+        for i, name in enumerate(pop.names):
+            rel = f"{pop.split}/{name}.{file_format}"
+            (folder / rel).write_bytes(_mesh_bytes(pop.vertices[i], faces, file_format))
+            heads.append({
+                "split": pop.split, "name": name, "file": rel, "seed": int(pop.seeds[i]),
+                "vertex_count": int(pop.vertices.shape[1]), "expression": pop.expression,
+                "coefficients": {f: float(v) for f, v in zip(pop.feature_names, pop.coefficients[i])},
+            })
+            done += 1
+            if progress is not None:
+                progress(PROGRESS_STAGE, done, total)
+    return heads
+
+
+def _manifest(seed: int, file_format: str, asset: RigAsset, populations: list[Population], heads: list[dict]) -> dict:
+    """The ``manifest.json`` content (see :func:`write_population`)."""
+    return {
+        "generator": "pipeline.synthetic.population",
+        "generator_version": GENERATOR_VERSION,
+        "template_version": int(asset.version),
+        "units": "mm",
+        "coordinates": COORDINATES,
+        "base_seed": seed,
+        "seed_derivation": "split: SeedSequence([base_seed, crc32(split)]).generate_state(n, uint32); "
+                           "head: sample_coefficients(numpy.random.default_rng(seed), 1)",
+        "file_format": file_format,
+        "vertex_count": len(asset.vertices),
+        "face_count": len(asset.faces),
+        "split_sizes": {p.split: len(p) for p in populations},
+        "feature_names": list(FEATURE_NAMES),
+        "features": [{"name": f.name, "unit": f.unit, "low": f.low, "high": f.high, "sd": f.sd,
+                      "p_active": f.p_active, "symmetry": f.symmetry, "description": f.description}
+                     for f in FEATURES],
+        "heads": heads,
+    }
 
 
 def read_population(manifest_path: str | os.PathLike) -> dict[str, Population]:

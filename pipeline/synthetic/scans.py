@@ -21,7 +21,8 @@ import numpy as np
 
 from rig.geometry import RIG_TO_OPENCV, head_rotation
 
-__all__ = ["WORLD_TO_CAMERA", "DepthCamera", "ScanSettings", "SyntheticScan", "render_depth", "simulate_scan"]
+__all__ = ["HIRES_CAMERA", "WORLD_TO_CAMERA", "DepthCamera", "ScanSettings", "SyntheticScan", "render_depth",
+           "simulate_scan", "write_heldout_scan"]
 
 WORLD_TO_CAMERA = RIG_TO_OPENCV
 """Rotation from world axes (+Y up, camera looking along -Z) to the OpenCV camera axes (a proper rotation)."""
@@ -46,6 +47,10 @@ class DepthCamera:
     fy: float = 252.0
     cx: float = 160.0
     cy: float = 144.0
+
+
+HIRES_CAMERA = DepthCamera(640, 576, 504.0, 504.0, 320.0, 288.0)
+"""Twice the default resolution (``jnr data scan --hires``: ~15-20k points on a head instead of ~4k)."""
 
 
 @dataclass(frozen=True)
@@ -402,3 +407,40 @@ def simulate_scan(vertices: np.ndarray, faces: np.ndarray, *, rng: np.random.Gen
     return SyntheticScan(points=points_world, normals=normals_world, gt_vertices=world, rotation=rotation,
                          translation=translation, visible=visible, hole_fraction=hole_fraction,
                          camera_position=camera_position, depth=final_depth)
+
+
+def write_heldout_scan(out, truth, *, head: int = 0, expressive: bool = False, camera: DepthCamera = DepthCamera(),
+                       seed: int = 0, population_seed: int = 0, force: bool = False) -> SyntheticScan:
+    """Simulate a scan of a held-out synthetic head and write it (``jnr data scan``), each file atomically.
+
+    Args:
+        out: the cloud, a binary PLY with normals (mm, +Y up, the world frame of the scan).
+        truth: the true head as a mesh (template topology, the same frame).
+        head: the held-out head, ``0 <= head < 100``; expressive: with its random expression
+            (:func:`pipeline.synthetic.expressive.expressive_split`) instead of neutral.
+        camera: the depth camera (:data:`HIRES_CAMERA` for more points); seed: of the scan (placement,
+            noise, holes); population_seed: of the synthetic population.
+        force: replace existing files.
+
+    Returns:
+        The :class:`SyntheticScan`.
+
+    Raises:
+        pipeline.files.OutputError: an output is refused (exists without ``force``) or cannot be written.
+    """
+    import trimesh
+
+    from pipeline.files import staged_file
+    from pipeline.scan.pointcloud import write_point_cloud_ply
+    from pipeline.synthetic.expressive import expressive_split
+    from rig.asset import load_asset
+
+    heads = expressive_split("heldout", seed=population_seed, n=head + 1)
+    vertices = heads.vertices[head] if expressive else heads.neutral[head]
+    asset = load_asset()
+    scan = simulate_scan(vertices, asset.faces, rng=np.random.default_rng(seed), camera=camera)
+    with staged_file(out, force) as tmp:
+        write_point_cloud_ply(tmp, scan.points, normals=scan.normals)
+    with staged_file(truth, force) as tmp:
+        trimesh.Trimesh(scan.gt_vertices, asset.faces, process=False).export(tmp)
+    return scan

@@ -1,17 +1,295 @@
-"""The one atomic file writer of the rig package: a file is written to a temporary file in the same
-folder and moved over the destination with :func:`os.replace`, so no half-written file is ever left at
-the destination (an old file stays as it was when writing fails). Whole output folders and the checks
-the command line makes before it writes are in :mod:`pipeline.files`."""
+"""The one atomic writer of files and folders: nothing half-written is ever left at a destination.
+
+A file or folder is written under a hidden temporary name beside its destination and moved into place
+in one step at the end:
+
+* ``renameat2(RENAME_NOREPLACE)`` (:func:`rename_noreplace`) when nothing may be replaced: a
+  destination that appeared meanwhile (e.g. from a second process writing the same path) is refused
+  with :class:`TargetExistsError`, never overwritten, not even an empty folder;
+* ``renameat2(RENAME_EXCHANGE)`` (:func:`rename_exchange`) when the destination may be replaced: the
+  new and the old one are swapped in one step, then the old one is deleted. A folder cannot be
+  replaced by :func:`os.rename` unless it is empty, and a swap never leaves a moment without a
+  destination.
+
+Without ``renameat2`` (not Linux, or a file system that does not support it) :func:`os.link` (files)
+and :func:`os.rename` are used instead, which keep the same guarantees except that replacing a folder
+moves the old one aside first. On any error, signal (a ``BaseException``) or interrupt the temporary is
+removed and an existing destination is left as it was. What is written gets the usual (umask)
+permissions, unlike the 0600/0700 of :func:`tempfile.mkstemp`/:func:`tempfile.mkdtemp`.
+
+:func:`staged_file` and :func:`staged_folder` yield the temporary path to write into;
+:func:`write_bytes_atomic` writes bytes that are already in memory. The policy of what the ``jnr``
+commands may replace (``--force``, the ``.jnr-output`` marker, messages naming the user's path) is in
+:mod:`pipeline.files`, which is built on this module.
+"""
 
 from __future__ import annotations
 
+import ctypes
+import ctypes.util
+import errno
 import os
-import secrets
+import shutil
+import tempfile
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
+__all__ = [
+    "TargetExistsError",
+    "move_into_place",
+    "rename_exchange",
+    "rename_noreplace",
+    "staged_file",
+    "staged_folder",
+    "write_bytes_atomic",
+]
 
-def write_bytes_atomic(path: str | Path, payload: bytes, *, make_parents: bool = False) -> None:
-    """Write ``payload`` to ``path`` atomically, with the usual (umask) permissions.
+_RENAME_NOREPLACE, _RENAME_EXCHANGE = 1, 2
+_AT_FDCWD = -100
+_NO_RENAMEAT2 = (errno.ENOSYS, errno.EINVAL)
+"""``renameat2`` is missing (ENOSYS) or the file system does not support the flag (EINVAL)."""
+
+
+class TargetExistsError(FileExistsError):
+    """The destination exists (or appeared while it was being written) and may not be replaced; it was
+    left as it is. ``filename`` is the destination."""
+
+
+def _renameat2():
+    """libc's ``renameat2`` (Linux, glibc >= 2.28), or None."""
+    if not hasattr(_renameat2, "fn"):
+        fn = None
+        try:
+            libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
+            fn = libc.renameat2
+            fn.argtypes = [ctypes.c_int, ctypes.c_char_p, ctypes.c_int, ctypes.c_char_p, ctypes.c_uint]
+            fn.restype = ctypes.c_int
+        except (OSError, AttributeError):
+            fn = None
+        _renameat2.fn = fn
+    return _renameat2.fn
+
+
+def _rename(src: Path, dst: Path, flags: int) -> None:
+    fn = _renameat2()
+    if fn is None:
+        raise OSError(errno.ENOSYS, "renameat2 is not available")
+    if fn(_AT_FDCWD, os.fsencode(src), _AT_FDCWD, os.fsencode(dst), flags) != 0:
+        code = ctypes.get_errno()
+        raise OSError(code, os.strerror(code), str(dst))
+
+
+def rename_noreplace(src: str | os.PathLike, dst: str | os.PathLike) -> None:
+    """Rename ``src`` to ``dst`` in one step, failing if ``dst`` exists (``renameat2(RENAME_NOREPLACE)``).
+
+    Raises:
+        FileExistsError: ``dst`` exists (errno EEXIST).
+        OSError: errno ENOSYS without ``renameat2``, EINVAL where the file system does not support it,
+            or any other error of the rename.
+    """
+    _rename(Path(src), Path(dst), _RENAME_NOREPLACE)
+
+
+def rename_exchange(a: str | os.PathLike, b: str | os.PathLike) -> None:
+    """Swap the two existing paths ``a`` and ``b`` in one step (``renameat2(RENAME_EXCHANGE)``).
+
+    Raises:
+        FileNotFoundError: either path does not exist (errno ENOENT).
+        OSError: errno ENOSYS / EINVAL as :func:`rename_noreplace`, or any other error of the rename.
+    """
+    _rename(Path(a), Path(b), _RENAME_EXCHANGE)
+
+
+def _exists(path: Path) -> bool:
+    return path.is_symlink() or path.exists()
+
+
+def _remove(path: Path) -> None:
+    if path.is_dir() and not path.is_symlink():
+        shutil.rmtree(path, ignore_errors=True)
+    elif _exists(path):
+        path.unlink(missing_ok=True)
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+def _check_kind(out: Path, kind: str) -> None:
+    """A file never replaces a folder and a folder never replaces anything but a folder (a swap would
+    delete what it replaced): the errors :func:`os.replace` gives."""
+    is_folder = out.is_dir() and not out.is_symlink()
+    if kind == "file" and is_folder:
+        raise IsADirectoryError(errno.EISDIR, os.strerror(errno.EISDIR), str(out))
+    if kind == "folder" and not is_folder:
+        raise NotADirectoryError(errno.ENOTDIR, os.strerror(errno.ENOTDIR), str(out))
+
+
+def _replace(tmp: Path, out: Path, kind: str) -> bool:
+    """Swap ``tmp`` in for the existing ``out`` and delete the old one; False if ``out`` vanished meanwhile."""
+    try:
+        rename_exchange(tmp, out)  # tmp now holds the old destination
+    except OSError as exc:
+        if exc.errno == errno.ENOENT:
+            return False
+        if exc.errno not in _NO_RENAMEAT2:
+            raise
+        if kind == "file":
+            os.replace(tmp, out)
+            return True
+        # No exchange here: move the old folder aside, then the new one in.
+        aside = Path(tempfile.mkdtemp(prefix=f".{out.name}.old.", dir=out.parent))
+        os.rename(out, aside / "old")
+        try:
+            os.rename(tmp, out)
+        except BaseException:
+            os.rename(aside / "old", out)
+            shutil.rmtree(aside, ignore_errors=True)
+            raise
+        shutil.rmtree(aside, ignore_errors=True)
+        return True
+    _remove(tmp)
+    return True
+
+
+def _place_new(tmp: Path, out: Path, kind: str) -> bool:
+    """Move ``tmp`` to the absent ``out``; False if ``out`` appeared meanwhile (nothing moved)."""
+    try:
+        rename_noreplace(tmp, out)
+    except OSError as exc:
+        if exc.errno == errno.EEXIST:
+            return False
+        if exc.errno not in _NO_RENAMEAT2:
+            raise
+        # link() of a file fails on an existing target; rename() of a folder fails on a non-empty one.
+        if kind == "file":
+            try:
+                os.link(tmp, out)
+            except FileExistsError:
+                return False
+            os.unlink(tmp)
+        else:
+            if _exists(out):
+                return False
+            os.rename(tmp, out)
+    return True
+
+
+def move_into_place(tmp: str | os.PathLike, out: str | os.PathLike, *, replace: bool = False, kind: str = "file",
+                    check_replace: Callable[[Path], None] | None = None) -> None:
+    """Move the finished temporary ``tmp`` to ``out`` in one atomic step (module docstring).
+
+    Args:
+        tmp: the temporary file or folder, on the same file system as ``out`` (beside it).
+        out: the destination.
+        replace: an existing ``out`` is replaced (swapped, then deleted); otherwise it is refused.
+        kind: ``"file"`` or ``"folder"``: what ``tmp`` is. A file never replaces a folder and a folder
+            only replaces a folder.
+        check_replace: called with ``out`` just before an existing ``out`` is replaced; raises to refuse
+            (e.g. a folder that is not one's own output).
+
+    Raises:
+        TargetExistsError: ``out`` exists (or appeared) and ``replace`` is false; ``tmp`` is left as it is.
+        IsADirectoryError, NotADirectoryError: ``out`` is of the other kind.
+        OSError: the move failed; ``out`` is unchanged.
+    """
+    if kind not in ("file", "folder"):
+        raise ValueError(f"move_into_place: kind must be 'file' or 'folder', got {kind!r}")
+    tmp, out = Path(tmp), Path(out)
+    for _ in range(100):  # each round lost a race with another process creating or removing ``out``
+        if _exists(out):
+            if not replace:
+                break
+            if check_replace is not None:
+                check_replace(out)
+            _check_kind(out, kind)
+            if _replace(tmp, out, kind):
+                return
+        elif _place_new(tmp, out, kind):
+            return
+        elif not replace:
+            break
+    error = TargetExistsError(f"{out} exists (or appeared while it was being written) and was not replaced")
+    error.errno, error.filename = errno.EEXIST, str(out)
+    raise error
+
+
+@contextmanager
+def _staged(tmp: Path, finish: Callable[[Path], None]) -> Iterator[Path]:
+    """Yield ``tmp``, then ``finish(tmp)``; any error, signal or interrupt removes ``tmp``."""
+    try:
+        yield tmp
+        finish(tmp)
+    except BaseException:
+        _remove(tmp)
+        raise
+
+
+@contextmanager
+def staged_folder(out: str | os.PathLike, *, replace: bool = False,
+                  check_replace: Callable[[Path], None] | None = None,
+                  before_move: Callable[[Path], None] | None = None) -> Iterator[Path]:
+    """Write a folder atomically: yields a new hidden temporary folder beside ``out`` to fill; when the
+    block ends without an error it is moved to ``out`` (:func:`move_into_place`), otherwise removed.
+
+    Args:
+        out: the destination folder; its parent folder must exist.
+        replace: an existing ``out`` folder is replaced as a whole.
+        check_replace: see :func:`move_into_place`.
+        before_move: called with the temporary folder after the block, just before the move (e.g. to
+            add a marker file).
+
+    Raises:
+        TargetExistsError: ``out`` exists or appeared and ``replace`` is false.
+        OSError: the temporary folder cannot be made or moved (``out`` is unchanged).
+    """
+    out = Path(out)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent))
+
+    def finish(tmp: Path) -> None:
+        if before_move is not None:
+            before_move(tmp)
+        os.chmod(tmp, 0o777 & ~_umask())
+        move_into_place(tmp, out, replace=replace, kind="folder", check_replace=check_replace)
+
+    with _staged(tmp, finish) as staged:
+        yield staged
+
+
+@contextmanager
+def staged_file(out: str | os.PathLike, *, replace: bool = False,
+                check_replace: Callable[[Path], None] | None = None) -> Iterator[Path]:
+    """Write one file atomically: yields a new, empty hidden temporary file beside ``out`` with the same
+    suffix (writers that pick the format from the suffix still work); when the block ends without an
+    error it is moved to ``out`` (:func:`move_into_place`), otherwise removed.
+
+    Args:
+        out: the destination file; its folder must exist.
+        replace: an existing ``out`` is replaced.
+        check_replace: see :func:`move_into_place`.
+
+    Raises:
+        TargetExistsError: ``out`` exists or appeared and ``replace`` is false.
+        OSError: the temporary file cannot be made or moved (``out`` is unchanged).
+    """
+    out = Path(out)
+    fd, name = tempfile.mkstemp(prefix=f".{out.stem}.", suffix=f".tmp{out.suffix}", dir=out.parent)
+    os.close(fd)
+
+    def finish(tmp: Path) -> None:
+        os.chmod(tmp, 0o666 & ~_umask())
+        move_into_place(tmp, out, replace=replace, kind="file", check_replace=check_replace)
+
+    with _staged(Path(name), finish) as staged:
+        yield staged
+
+
+def write_bytes_atomic(path: str | os.PathLike, payload: bytes, *, make_parents: bool = False) -> None:
+    """Write ``payload`` to ``path`` atomically (:func:`staged_file`, replacing an existing file), flushed
+    to disk before the move, with the usual (umask) permissions.
 
     Args:
         path: the destination file; its folder must exist unless ``make_parents``.
@@ -19,30 +297,13 @@ def write_bytes_atomic(path: str | Path, payload: bytes, *, make_parents: bool =
         make_parents: create missing parent folders first.
 
     Raises:
-        OSError: the temporary file cannot be written or moved (it is removed; ``path`` is unchanged).
+        OSError: the temporary file cannot be written or moved (it is removed; ``path`` is unchanged),
+            e.g. :class:`IsADirectoryError` when ``path`` is a folder.
     """
     path = Path(path)
     if make_parents:
         path.parent.mkdir(parents=True, exist_ok=True)
-    for _ in range(100):
-        tmp = path.parent / f".{path.name}.{secrets.token_hex(6)}.tmp"
-        try:
-            # os.open with mode 0o666 honours the umask (unlike tempfile.mkstemp's 0o600).
-            fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_BINARY", 0), 0o666)
-        except FileExistsError:
-            continue
-        break
-    else:  # pragma: no cover - 100 collisions of a 48-bit random name
-        raise FileExistsError(f"could not create a temporary file next to {str(path)!r}")
-    try:
-        with os.fdopen(fd, "wb") as handle:
-            handle.write(payload)
-            handle.flush()
-            os.fsync(handle.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
-        raise
+    with staged_file(path, replace=True) as tmp, open(tmp, "wb") as handle:
+        handle.write(payload)
+        handle.flush()
+        os.fsync(handle.fileno())

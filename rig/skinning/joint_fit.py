@@ -7,7 +7,6 @@ different scales, so the optimiser works on ``z = theta / span`` where ``span`` 
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import torch
@@ -15,6 +14,7 @@ import torch
 from rig.lbs import ShapeError, skinning_basis
 from rig.losses import LAMBDA_M, LAMBDA_P, LAMBDA_X, rig_loss, vertex_rmse
 from rig.model import JointRig
+from rig.optim import Progress
 from rig.parameters import NUM_PARAMETERS, theta_limits
 
 
@@ -44,7 +44,7 @@ def parameter_span(dtype: torch.dtype = torch.float32) -> torch.Tensor:
 def fit_joints(rig: JointRig, targets: torch.Tensor, *, weights: torch.Tensor | None = None,
                init: torch.Tensor | None = None, iterations: int = 500, lr: float = 0.01,
                lambda_m: float = LAMBDA_M, lambda_x: float = LAMBDA_X, lambda_p: float = LAMBDA_P,
-               snapshot_every: int = 0, progress: Callable[[int, float], None] | None = None) -> JointFit:
+               snapshot_every: int = 0, progress: Progress | None = None) -> JointFit:
     """Fit joint parameters to meshes with known correspondence by minimising eq. 7.
 
     Args:
@@ -54,7 +54,7 @@ def fit_joints(rig: JointRig, targets: torch.Tensor, *, weights: torch.Tensor | 
         init: optional ``(B, P)`` starting parameters (default: rest pose, as JNR).
         iterations: Adam steps; lr: learning rate on the normalised parameters.
         snapshot_every: keep the parameters every this many iterations (0: none).
-        progress: called as ``progress(iteration, mean_loss)``.
+        progress: called as ``progress("joints", iteration, iterations)`` (:data:`rig.optim.Progress`).
 
     Returns:
         :class:`JointFit`.
@@ -86,7 +86,7 @@ def fit_joints(rig: JointRig, targets: torch.Tensor, *, weights: torch.Tensor | 
         if snapshot_every and (it + 1) % snapshot_every == 0:
             snapshots.append((z.detach() * span).clone())
         if progress is not None:
-            progress(it, losses[-1])
+            progress("joints", it + 1, iterations)
     with torch.no_grad():
         theta = z.detach() * span
         rmse = vertex_rmse(rig(theta, basis=basis).vertices, targets)

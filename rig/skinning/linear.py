@@ -12,7 +12,6 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -21,6 +20,7 @@ import torch
 from rig.lbs import ShapeError, skin_vertices
 from rig.losses import LAMBDA_P, laplacian_loss, vertex_rmse
 from rig.model import JointRig
+from rig.optim import Progress
 from rig.skinning.joint_fit import fit_joints
 
 
@@ -43,7 +43,7 @@ def valid_weights(rig: JointRig, free: torch.Tensor) -> torch.Tensor:
 def fit_linear_weights(rig: JointRig, targets: torch.Tensor, theta: torch.Tensor, init_free: torch.Tensor, *,
                        iterations: int = 300, lr: float = 1e-3, lambda_p: float = LAMBDA_P,
                        batch_size: int | None = None, seed: int = 0,
-                       progress: Callable[[int, float], None] | None = None) -> tuple[torch.Tensor, list[float]]:
+                       progress: Progress | None = None) -> tuple[torch.Tensor, list[float]]:
     """One global weight matrix for many heads with fixed joints: minimise mean ``L_v + lambda_p L_p``.
 
     Args:
@@ -74,7 +74,7 @@ def fit_linear_weights(rig: JointRig, targets: torch.Tensor, theta: torch.Tensor
             free.clamp_(min=0.0)
         losses.append(loss.item())
         if progress is not None:
-            progress(it, losses[-1])
+            progress("weights", it + 1, iterations)
     with torch.no_grad():
         # Store the normalised floats: each vertex's floats then sum to one as stored.
         w = valid_weights(rig, free.detach())
@@ -104,7 +104,7 @@ class LinearSkinningResult:
 def learn_linear_skinning(rig: JointRig, targets: torch.Tensor, *, cycles: int = 3, joint_iterations: int = 300,
                           weight_iterations: int = 300, joint_lr: float = 0.01, weight_lr: float = 1e-3,
                           snapshot_every: int = 50,
-                          progress: Callable[[str, int, int], None] | None = None) -> LinearSkinningResult:
+                          progress: Progress | None = None) -> LinearSkinningResult:
     """JNR's alternation: fit joints with the current weights, then the global weights with those joints.
 
     Starts from the rig's initial weights. ``progress(stage, step, total)`` is called per iteration.
@@ -115,11 +115,9 @@ def learn_linear_skinning(rig: JointRig, targets: torch.Tensor, *, cycles: int =
     total = cycles * (joint_iterations + weight_iterations) + joint_iterations
     done = 0
 
-    def tick(stage):
-        def f(it, loss):
-            if progress is not None:
-                progress(stage, done + it + 1, total)
-        return f
+    def tick(stage: str) -> Progress | None:
+        # one bar over the whole alternation: each inner routine's step, counted from the cycle's start
+        return None if progress is None else (lambda _, it, n: progress(stage, done + it, total))
 
     for cycle in range(cycles + 1):
         w = valid_weights(rig, free).detach()

@@ -17,7 +17,6 @@ we read that as the critic judging weights through the (frozen) encoder's 50-d c
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import torch
@@ -25,6 +24,7 @@ from torch import nn
 
 from rig.lbs import ShapeError, skin_vertices
 from rig.losses import LAMBDA_P, laplacian_loss, vertex_rmse
+from rig.optim import Progress, frozen
 from rig.skinning.joint_fit import fit_joints
 
 LATENT = 50
@@ -136,8 +136,7 @@ class NeuralTrainingLog:
 
 def train_autoencoder(decoder: SkinningDecoder, encoder: SkinningEncoder, residuals: torch.Tensor,
                       val_residuals: torch.Tensor, *, epochs: int = 30, batch_size: int = 64, lr: float = 1e-3,
-                      seed: int = 0, progress: Callable[[int, float], None] | None = None
-                      ) -> tuple[list[float], list[float]]:
+                      seed: int = 0, progress: Progress | None = None) -> tuple[list[float], list[float]]:
     """Phase 1: auto-encode training residuals (weights minus learned linear weights) with an L1 loss
     plus eq. 9's sparsity term on the decoded residual. Returns per-epoch train and validation losses."""
     if residuals.dim() != 2 or residuals.shape[1] != decoder.num_floats:
@@ -160,14 +159,13 @@ def train_autoencoder(decoder: SkinningDecoder, encoder: SkinningEncoder, residu
         with torch.no_grad():
             val_log.append(float((val_residuals - decoder(encoder(val_residuals))).abs().sum(-1).mean()))
         if progress is not None:
-            progress(epoch, train_log[-1])
+            progress("autoencoder", epoch + 1, epochs)
     return train_log, val_log
 
 
 def train_wgan(decoder: SkinningDecoder, encoder: SkinningEncoder, critic: Critic, residuals: torch.Tensor, *,
                iterations: int = 300, batch_size: int = 64, lr: float = 1e-4, critic_steps: int = 5,
-               clip: float = 0.05, seed: int = 0, progress: Callable[[int, float], None] | None = None
-               ) -> tuple[list[float], list[float]]:
+               clip: float = 0.05, seed: int = 0, progress: Progress | None = None) -> tuple[list[float], list[float]]:
     """Phase 2: drop the encoder as a generator input and fine-tune the decoder from noise ``Z``.
 
     Critic loss eq. 8: ``C(E(D(Z))) - C(E(J))`` minimised (Wasserstein estimate, weight clipping as in
@@ -176,40 +174,37 @@ def train_wgan(decoder: SkinningDecoder, encoder: SkinningEncoder, critic: Criti
     loss spreads it over the whole ``Z`` space. The encoder stays frozen.
     """
     gen = torch.Generator().manual_seed(seed)
-    for p in encoder.parameters():
-        p.requires_grad_(False)
     opt_d = torch.optim.Adam(decoder.parameters(), lr=lr)
     opt_c = torch.optim.RMSprop(critic.parameters(), lr=5e-5)
     g_log, c_log = [], []
     n = residuals.shape[0]
-    for it in range(iterations):
-        for _ in range(critic_steps):
+    with frozen(encoder):
+        for it in range(iterations):
+            for _ in range(critic_steps):
+                real = residuals[torch.randint(n, (batch_size,), generator=gen)]
+                z = torch.randn(batch_size, LATENT, generator=gen)
+                with torch.no_grad():
+                    fake = decoder(z)
+                loss_c = critic(encoder(fake)).mean() - critic(encoder(real)).mean()
+                opt_c.zero_grad()
+                loss_c.backward()
+                opt_c.step()
+                with torch.no_grad():
+                    for p in critic.parameters():
+                        p.clamp_(-clip, clip)
             real = residuals[torch.randint(n, (batch_size,), generator=gen)]
             z = torch.randn(batch_size, LATENT, generator=gen)
-            with torch.no_grad():
-                fake = decoder(z)
-            loss_c = critic(encoder(fake)).mean() - critic(encoder(real)).mean()
-            opt_c.zero_grad()
-            loss_c.backward()
-            opt_c.step()
-            with torch.no_grad():
-                for p in critic.parameters():
-                    p.clamp_(-clip, clip)
-        real = residuals[torch.randint(n, (batch_size,), generator=gen)]
-        z = torch.randn(batch_size, LATENT, generator=gen)
-        fake = decoder(z)
-        rec = decoder(encoder(real))
-        loss_g = ((real - rec).abs().sum(-1).mean() + LAMBDA_SPARSE * fake.abs().sum(-1).mean()
-                  - LAMBDA_ADV * critic(encoder(fake)).mean())
-        opt_d.zero_grad()
-        loss_g.backward()
-        opt_d.step()
-        g_log.append(loss_g.item())
-        c_log.append(loss_c.item())
-        if progress is not None:
-            progress(it, g_log[-1])
-    for p in encoder.parameters():
-        p.requires_grad_(True)
+            fake = decoder(z)
+            rec = decoder(encoder(real))
+            loss_g = ((real - rec).abs().sum(-1).mean() + LAMBDA_SPARSE * fake.abs().sum(-1).mean()
+                      - LAMBDA_ADV * critic(encoder(fake)).mean())
+            opt_d.zero_grad()
+            loss_g.backward()
+            opt_d.step()
+            g_log.append(loss_g.item())
+            c_log.append(loss_c.item())
+            if progress is not None:
+                progress("wgan", it + 1, iterations)
     return g_log, c_log
 
 
@@ -262,7 +257,7 @@ class NeuralFit:
 def fit_neural(neural: NeuralSkinning, targets: torch.Tensor, *, cycles: int = 2, joint_iterations: int = 300,
                z_iterations: int = 200, joint_lr: float = 0.01, z_lr: float = 0.02, z_prior: float = 1e-3,
                init: torch.Tensor | None = None,
-               progress: Callable[[str, int], None] | None = None) -> NeuralFit:
+               progress: Progress | None = None) -> NeuralFit:
     """JNR's test-time fit (4.4): ``Z = 0``, fit the joints, then fit ``Z`` with the joints fixed; repeat.
 
     Args:
@@ -279,14 +274,12 @@ def fit_neural(neural: NeuralSkinning, targets: torch.Tensor, *, cycles: int = 2
     z = torch.zeros(B, LATENT, dtype=dtype)
     theta = init
     stages: list[list[float]] = []
-    for p in neural.decoder.parameters():
-        p.requires_grad_(False)
-    try:
+    with frozen(neural.decoder):
         for cycle in range(cycles):
             with torch.no_grad():
                 w = neural(z)
             fit = fit_joints(rig, targets, weights=w, init=theta, iterations=joint_iterations, lr=joint_lr,
-                             progress=(lambda it, loss, c=cycle: progress(f"joints {c + 1}", it)) if progress else None)
+                             progress=(lambda _, it, n, c=cycle: progress(f"joints {c + 1}", it, n)) if progress else None)
             theta = fit.theta
             stages.append(fit.rmse.tolist())
             with torch.no_grad():
@@ -302,14 +295,11 @@ def fit_neural(neural: NeuralSkinning, targets: torch.Tensor, *, cycles: int = 2
                 loss.backward()
                 opt.step()
                 if progress:
-                    progress(f"latent {cycle + 1}", it)
+                    progress(f"latent {cycle + 1}", it + 1, z_iterations)
             z = zz.detach()
             with torch.no_grad():
                 rmse = vertex_rmse(rig(theta, weights=neural(z)).vertices, targets)
             stages.append(rmse.tolist())
-    finally:
-        for p in neural.decoder.parameters():
-            p.requires_grad_(True)
     return NeuralFit(theta, z, rmse, stages)
 
 

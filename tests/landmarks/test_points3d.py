@@ -12,7 +12,7 @@ from landmarks.points3d import (
     landmark_vertices,
     match_landmarks,
 )
-from pipeline.scan.registration import apply_similarity, umeyama
+from rig.geometry import Similarity
 
 GOLDEN = {"left_eye_outer": 1735, "left_eye_inner": 1727, "right_eye_inner": 1717, "right_eye_outer": 1709,
           "nose_tip": 2730, "mouth_left": 3576, "mouth_right": 3564, "chin": 4242}
@@ -57,19 +57,19 @@ def template_marks(asset):
 def _placed(points, seed=0, scale=1.1):
     """A random rotation, the scale and a translation (the same for landmarks and their cloud)."""
     rot = Rotation.random(random_state=seed).as_matrix()
-    return apply_similarity(points, rot, np.array([30.0, -200.0, 650.0]), scale), rot
+    return Similarity(rot, np.array([30.0, -200.0, 650.0]), scale).apply(points), rot
 
 
-def test_fit_similarity_equals_umeyama_and_sees_reflections(rng):
+def test_fit_similarity_equals_the_similarity_fit_and_sees_reflections(rng):
     for _ in range(5):
         a, b = rng.normal(size=(6, 3)) * 50.0, rng.normal(size=(6, 3)) * 40.0
         scale, rot, proper, improper = fit_similarity(a, b)
-        r, t, s = umeyama(a, b, with_scale=True)
-        assert scale == pytest.approx(s, rel=1e-12) and np.allclose(rot, r, atol=1e-10)
-        assert proper == pytest.approx(np.sqrt(((apply_similarity(a, r, t, s) - b) ** 2).sum(1).mean()), rel=1e-9)
+        best = Similarity.fit(a, b, with_scale=True)
+        assert scale == pytest.approx(best.scale, rel=1e-12) and np.allclose(rot, best.rotation, atol=1e-10)
+        assert proper == pytest.approx(np.sqrt(((best.apply(a) - b) ** 2).sum(1).mean()), rel=1e-9)
         mirrored = a * [-1.0, 1.0, 1.0]  # the best improper fit is the best proper fit of the mirror image
-        r, t, s = umeyama(mirrored, b, with_scale=True)
-        assert improper == pytest.approx(np.sqrt(((apply_similarity(mirrored, r, t, s) - b) ** 2).sum(1).mean()),
+        best = Similarity.fit(mirrored, b, with_scale=True)
+        assert improper == pytest.approx(np.sqrt(((best.apply(mirrored) - b) ** 2).sum(1).mean()),
                                          rel=1e-9)
 
 

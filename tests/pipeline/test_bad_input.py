@@ -310,7 +310,7 @@ def _wait_for(predicate, timeout: float = 60.0) -> None:
 SLOW_WRITER = """
 import sys, time
 from pathlib import Path
-import rig.io.export, pipeline.synthetic.population
+import rig.io.mesh, pipeline.synthetic.population
 def slow_mesh(path, *a, **k):
     Path(path).write_text("partial")
     print("WRITING", flush=True)
@@ -319,7 +319,7 @@ original = pipeline.synthetic.population._mesh_bytes
 def slow_bytes(*a, **k):
     print("WRITING", flush=True)
     time.sleep(120)
-rig.io.export.export_mesh = slow_mesh
+rig.io.mesh.export_mesh = slow_mesh
 pipeline.synthetic.population._mesh_bytes = slow_bytes
 from pipeline.cli import main
 sys.exit(main(sys.argv[1:]))
@@ -473,11 +473,11 @@ def test_rig_edit_of_a_fits_params_gives_the_fits_mesh(capsys, tmp_path, sb):
 def test_options_and_settings_that_are_bad_input_exit_2(capsys, tmp_path, sb):
     fit = ["fit", sb / "obama.png", "--out", tmp_path / "o"]
     cases = [
-        ([*fit, "--landmarks", sb / "obama.pts", *fast_fit_args("--set", "landmarks.lambda_m=.nan")], "finite"),
+        ([*fit, "--landmarks", sb / "obama.pts", *fast_fit_args("--set", "landmarks.prior.lambda_m=.nan")], "finite"),
         ([*fit, "--jobs", "0", *fast_fit_args()], "--jobs must be at least 1"),
         ([*fit, "--landmarks", sb / "obama.pts", "--face", "0", *fast_fit_args()], "cannot be used with --landmarks"),
         (["rig", "export", "--format", "gltf", "--out", tmp_path / "x.obj"], "--format gltf writes .glb or .gltf"),
-        ([*fit, "--set", "landmarks.lambda_m=[1", *fast_fit_args()], "not valid YAML"),
+        ([*fit, "--set", "landmarks.prior.lambda_m=[1", *fast_fit_args()], "not valid YAML"),
         (["fit", sb / "notes.txt", "--out", tmp_path / "o", *fast_fit_args()], "not a photo jnr reads"),
     ]
     before = tree_digest(tmp_path)
@@ -500,13 +500,14 @@ def test_a_yaml_syntax_error_is_one_line_with_the_file(capsys, tmp_path, sb):
 def test_gif_files_are_photos_alone_and_in_folders(tmp_path):
     from PIL import Image
 
-    from pipeline.cli import CliError, photo_inputs
+    from pipeline.photo.files import photo_inputs
+    from rig.errors import InputError
 
     Image.fromarray(np.zeros((8, 8, 3), np.uint8)).save(tmp_path / "a.gif")
     assert photo_inputs([str(tmp_path / "a.gif")]) == ([tmp_path / "a.gif"], [])
     assert photo_inputs([str(tmp_path)]) == ([tmp_path / "a.gif"], [tmp_path])
     (tmp_path / "b.xyz").write_text("1 2 3\n")
-    with pytest.raises(CliError, match="not a photo jnr reads"):
+    with pytest.raises(InputError, match="not a photo jnr reads"):
         photo_inputs([str(tmp_path / "b.xyz")])
 
 

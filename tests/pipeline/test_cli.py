@@ -6,7 +6,7 @@ import torch
 import trimesh
 
 from pipeline.cli import main
-from rig.io.export import read_skinned_gltf
+from rig.io.gltf import read_skinned_gltf
 from rig.parameters import params_to_theta
 from tests.pipeline.conftest import fast_fit_args
 

@@ -34,12 +34,13 @@ def test_setup_and_cli_errors():
 def test_the_command_line_maps_errors_by_base_class(monkeypatch, capsys):
     """An InputError from anywhere is exit 2 and a SetupError exit 1, each one line (no list to forget)."""
     from pipeline import cli
+    from pipeline.cli import rig as rig_commands
 
     for error, code in ((DetectionError("a.jpg: no face"), 2), (AssetError("asset missing"), 1)):
         def broken(args, error=error):
             raise error
 
-        monkeypatch.setattr(cli, "cmd_rig_info", broken)
+        monkeypatch.setattr(rig_commands, "cmd_rig_info", broken)
         assert cli.main(["rig", "info"]) == code
         err = capsys.readouterr().err
         assert err == f"jnr: error: {error}\n"

@@ -8,13 +8,10 @@ from rig.parameters import (
     CHANNELS,
     NUM_PARAMETERS,
     ParameterError,
-    load_params_json,
     mirror_theta,
     params_to_theta,
-    save_params_json,
     symmetric_groups,
     theta_limits,
-    theta_to_params,
 )
 
 
@@ -72,16 +69,6 @@ def test_limits_contain_rest_and_respect_units():
     assert CHANNELS[[c.name for c in CHANNELS].index("neck.rotate_x")].high == 15.0
 
 
-def test_named_parameters_round_trip(tmp_path):
-    theta = params_to_theta({"nose_tip.translate_y": 2.5, "neck.scale": 1.2, "left_ear_rotate_scale.rotate_z": -10})
-    assert theta[[c.name for c in CHANNELS].index("neck.scale")] == pytest.approx(0.2)
-    path = tmp_path / "p.json"
-    save_params_json(theta, path)
-    back = load_params_json(path)
-    assert torch.allclose(back, theta)
-    assert theta_to_params(theta)["neck.scale"] == pytest.approx(1.2)
-
-
 def test_unknown_name_and_out_of_limits_are_errors():
     with pytest.raises(ParameterError, match="unknown rig parameter 'nose_tip.rotate_q'"):
         params_to_theta({"nose_tip.rotate_q": 1.0})
@@ -92,18 +79,6 @@ def test_unknown_name_and_out_of_limits_are_errors():
     with pytest.warns(UserWarning, match="clamped"):
         theta = params_to_theta({"crown.translate_y": 45.0}, clamp=True)
     assert theta[[c.name for c in CHANNELS].index("crown.translate_y")] == 40.0
-
-
-def test_bad_parameter_files(tmp_path):
-    with pytest.raises(FileNotFoundError):
-        load_params_json(tmp_path / "missing.json")
-    bad = tmp_path / "bad.json"
-    bad.write_text("{not json")
-    with pytest.raises(ParameterError, match="not valid JSON"):
-        load_params_json(bad)
-    bad.write_text("[1, 2]")
-    with pytest.raises(ParameterError, match="JSON object"):
-        load_params_json(bad)
 
 
 def test_mirror_theta_involution():

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -16,6 +17,7 @@ from pipeline.photo.colour import linear_to_srgb, srgb_to_linear
 from pipeline.photo.fit import (
     Crop,
     FitPhotoConfig,
+    PhotometricConfig,
     PhotoStage,
     face_crop,
     fit_light,
@@ -98,21 +100,25 @@ class TestConfig:
 
     def test_unknown_keys_and_bad_stages_are_errors(self, tmp_path):
         with pytest.raises(ConfigError, match="unknown setting"):
-            load_config(FitPhotoConfig, None, {"render_sise": 64})
+            load_config(FitPhotoConfig, None, {"photometric.render_sise": 64})
         with pytest.raises(ConfigError, match="unknown setting"):
-            load_config(FitPhotoConfig, None, {"landmarks.lambda_mm": 1})
+            load_config(FitPhotoConfig, None, {"landmarks.prior.lambda_mm": 1})
+        with pytest.raises(ConfigError, match="unknown setting"):
+            load_config(FitPhotoConfig, None, {"lr_joints": 0.1})  # the flat names of earlier versions
         bad = tmp_path / "bad.yaml"
-        bad.write_text("stages:\n  - {name: x, free: [joints, hair], iterations: 3}\n")
+        bad.write_text("photometric:\n  stages:\n    - {name: x, free: [joints, hair], iterations: 3}\n")
         with pytest.raises(ConfigError, match="free must be"):
             load_config(FitPhotoConfig, bad)
         with pytest.raises(ValueError, match="render_size"):
-            FitPhotoConfig(render_size=4)
+            PhotometricConfig(render_size=4)
         with pytest.raises(ValueError, match="face_regions"):
-            FitPhotoConfig(face_regions=("forehead", "moustache"))
+            PhotometricConfig(face_regions=("forehead", "moustache"))
 
     def test_nested_override(self):
-        c = load_config(FitPhotoConfig, None, {"landmarks.lambda_m": 0.7, "spp": 3})
-        assert c.landmarks.lambda_m == 0.7 and c.spp == 3
+        c = load_config(FitPhotoConfig, None, {"landmarks.prior.lambda_m": 0.7, "photometric.spp": 3,
+                                               "photometric.lr.albedo": 0.5})
+        assert c.landmarks.prior.lambda_m == 0.7 and c.photometric.spp == 3 and c.photometric.lr.albedo == 0.5
+        assert c.landmarks.prior.lambda_x == FitPhotoConfig().landmarks.prior.lambda_x  # the rest keep their defaults
         assert PhotoStage("a", ("albedo",), 2).iterations == 2
 
 
@@ -144,12 +150,11 @@ def known_photo():
 
 def _short_config(**kw):
     from pipeline.photo.fit import photo_schedule
-    from pipeline.photo.landmark_fit import LandmarkFitConfig, landmark_schedule
+    from pipeline.photo.landmark_fit import landmark_schedule
 
     base = FitPhotoConfig()
-    return FitPhotoConfig(landmarks=LandmarkFitConfig(lambda_m=base.landmarks.lambda_m,
-                                                      stages=landmark_schedule(20, 20, 30, 10, 30, 20)),
-                          stages=photo_schedule(8, 8, 0, 8, 0), render_size=64, **kw)
+    return FitPhotoConfig(landmarks=replace(base.landmarks, stages=landmark_schedule(20, 20, 30, 10, 30, 20)),
+                          photometric=replace(base.photometric, stages=photo_schedule(8, 8, 0, 8, 0), render_size=64, **kw))
 
 
 @pytest.fixture(scope="module")
@@ -176,7 +181,7 @@ def test_a_synthetic_render_is_fitted_within_bounds(known_photo, known_fit):
     assert known_fit.error_px.mean() < 2.0
     # the photometric stages ran, found the light on the camera's side and fit the face pixels
     assert [s.name for s in known_fit.stages] == ["appearance", "photo joints", "photo expressions"]
-    assert known_fit.stages[-1].photo_end < 0.08  # mean residual, linear RGB
+    assert known_fit.stages[-1].metrics["photo"] < 0.08  # mean residual, linear RGB
     assert known_fit.light_direction_camera[2] > 0.25 and known_fit.ambient.min() >= 0
     assert known_fit.albedo.min() >= 0 and known_fit.albedo.max() <= 1
 
@@ -191,12 +196,13 @@ def test_outputs_reload_to_the_same_mesh(known_photo, known_fit, tmp_path):
         mesh_from_photo_params,
         write_photo_outputs,
     )
-    from rig.io.export import read_skinned_gltf
+    from rig.io.gltf import read_skinned_gltf
 
     out = write_photo_outputs(tmp_path / "fit", known_photo.image, known_fit, config=_short_config(), spp=2)
     from pipeline.files import OUTPUT_MARKER
 
     assert sorted(p.name for p in out.iterdir()) == sorted((*OUTPUT_FILES, OUTPUT_MARKER))
+    assert load_config(FitPhotoConfig, out / "config.yaml") == _short_config()  # the settings used, read back
     assert np.abs(mesh_from_photo_params(out / "params.json") - known_fit.rig_vertices).max() < 1e-3
     # the camera frame: projecting the mesh with the params' camera puts the landmarks where the fit says
     cam_points = mesh_from_photo_params(out / "params.json", frame="camera")

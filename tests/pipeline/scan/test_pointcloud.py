@@ -22,6 +22,7 @@ from pipeline.scan.pointcloud import (
     validate_points,
     write_point_cloud_ply,
 )
+from rig.io import atomic
 
 SEMI_AXES_MM = np.array([75.0, 110.0, 90.0])  # a head-sized ellipsoid, 150 x 220 x 180 mm
 
@@ -412,10 +413,10 @@ def test_ply_writer_leaves_old_file_and_no_temp_on_failure(tmp_path, ellipsoid, 
     path = tmp_path / "out.ply"
     path.write_text("old")
 
-    def failing_replace(src, dst):
+    def failing_move(src, dst):
         raise OSError("disk full")
 
-    monkeypatch.setattr(os, "replace", failing_replace)
+    monkeypatch.setattr(atomic, "rename_exchange", failing_move)  # the move over the old file fails
     with pytest.raises(OSError, match="disk full"):
         write_point_cloud_ply(path, points)
     assert os.listdir(tmp_path) == ["out.ply"] and path.read_text() == "old"

@@ -2,32 +2,14 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from pipeline.scan.fit import FACE_REGIONS
 from pipeline.scan.registration import (
     MeshDistance,
-    apply_similarity,
     brute_force_distance,
-    invert_similarity,
     rigid_prealign,
-    umeyama,
     vertex_normals,
 )
-
-
-def test_umeyama_recovers_a_known_similarity(rng):
-    src = rng.normal(size=(50, 3)) * 40
-    rot = Rotation.from_euler("xyz", [20, -35, 10], degrees=True).as_matrix()
-    t = np.array([10.0, -200.0, 600.0])
-    dst = apply_similarity(src, rot, t, 1.1)
-    r, tt, s = umeyama(src, dst, with_scale=True)
-    np.testing.assert_allclose(r, rot, atol=1e-10)
-    np.testing.assert_allclose(tt, t, atol=1e-8)
-    assert s == pytest.approx(1.1, abs=1e-12)
-    np.testing.assert_allclose(invert_similarity(dst, r, tt, s), src, atol=1e-8)
-    r, tt, s = umeyama(src, dst)  # without scale: still a proper rotation
-    assert s == 1.0 and np.linalg.det(r) == pytest.approx(1.0)
-    with pytest.raises(ValueError, match="umeyama"):
-        umeyama(src[:2], dst[:2])
+from rig.geometry import Similarity
+from rig.template import FACE_REGIONS
 
 
 def test_vertex_normals_point_out_of_the_template(asset):
@@ -65,13 +47,13 @@ def test_rigid_prealign_finds_a_yawed_offset_partial_head(asset, rng, yaw):
     rot = Rotation.from_euler("yxz", [yaw, 8, -5], degrees=True).as_matrix()
     t = np.array([-250.0, 120.0, 700.0])
     seen = (n @ (rot.T @ np.array([0.0, 0.0, 1.0]))) > 0.2  # what a camera on +Z sees
-    cloud = apply_similarity(v[seen], rot, t) + rng.normal(0, 0.5, (seen.sum(), 3))
+    cloud = Similarity(rot, t).apply(v[seen]) + rng.normal(0, 0.5, (seen.sum(), 3))
     normals = n[seen] @ rot.T
     for cn in (normals, None):
         al = rigid_prealign(cloud, cn, v, f, face_mask=asset.region_mask(*FACE_REGIONS))
         angle = np.degrees(np.linalg.norm(Rotation.from_matrix(al.rotation @ rot.T).as_rotvec()))
         assert angle < 5.0
-        assert np.linalg.norm(apply_similarity(v, al.rotation, al.translation, al.scale) - apply_similarity(v, rot, t),
+        assert np.linalg.norm(al.transform.apply(v) - Similarity(rot, t).apply(v),
                               axis=1).mean() < 4.0
         assert al.inlier_fraction > 0.95
 
@@ -81,7 +63,7 @@ def test_rigid_prealign_with_landmarks_is_exact(asset):
     rot = Rotation.from_euler("yxz", [100, 0, 0], degrees=True).as_matrix()  # beyond any yaw search
     t = np.array([5.0, 6.0, 7.0])
     ids = np.array([10, 500, 1735, 2730, 4242])
-    cloud = apply_similarity(v, rot, t)
+    cloud = Similarity(rot, t).apply(v)
     al = rigid_prealign(cloud, None, v, f, landmarks=(v[ids], cloud[ids]))
     np.testing.assert_allclose(al.rotation, rot, atol=1e-6)
     assert al.rms_mm < 1e-6

@@ -9,25 +9,21 @@ import torch
 
 from pipeline.cli import main
 from pipeline.config import ConfigError, load_config
-from pipeline.scan.fit import (
-    FACE_REGIONS,
-    FitScanConfig,
-    Stage,
-    fit_scan,
-    jnr_schedule,
-    scan_to_mesh,
-)
+from pipeline.evaluation.metrics import scan_to_mesh_distances
+from pipeline.fitting.engine import Stage
+from pipeline.scan.fit import FitScanConfig, fit_scan, jnr_schedule
 from pipeline.scan.outputs import OUTPUT_FILES, mesh_from_params, write_scan_outputs
 from pipeline.scan.pointcloud import (
     read_point_cloud,
     validate_points,
     write_point_cloud_ply,
 )
-from pipeline.scan.registration import apply_similarity, brute_force_distance
+from pipeline.scan.registration import brute_force_distance
 from pipeline.synthetic.scans import ScanSettings, simulate_scan
 from rig.expressions import EXPRESSION_NAMES, ExpressionModel, coefficients_from_dict
 from rig.parameters import random_theta
 from rig.skinning.neural import load_neural
+from rig.template import FACE_REGIONS
 
 CLEAN = ScanSettings(noise_mm_at_1m=0.0, noise_floor_mm=0.0, lateral_jitter_px=0.0, hole_fraction=(0.0, 0.0),
                      outlier_fraction=0.0)
@@ -61,7 +57,7 @@ def _face_error(fit, scan, asset):
 def _template_error(fit, scan, asset):
     face = asset.region_mask(*FACE_REGIONS)
     pre = fit.prealign
-    placed = apply_similarity(asset.vertices, pre.rotation, pre.translation, pre.scale)
+    placed = pre.transform.apply(asset.vertices)
     return float(np.linalg.norm(placed - scan.gt_vertices, axis=1)[face].mean())
 
 
@@ -73,7 +69,7 @@ def test_recovers_a_known_pose_and_expression_from_its_own_scan(known_head, asse
     jaw = EXPRESSION_NAMES.index("jaw_open")
     assert abs(fit.expressions[jaw] - TRUE_EXPRESSION["jaw_open"]) < 0.15
     assert [s.name for s in fit.stages][:2] == ["coarse", "joints 1.1"]
-    assert np.median(scan_to_mesh(scan.points, fit.vertices, asset.faces)) < 0.3
+    assert np.median(scan_to_mesh_distances(scan.points, fit.vertices, asset.faces)) < 0.3
 
 
 def test_robust_to_noise_outliers_and_a_30_percent_hole(known_head, asset):
@@ -87,10 +83,11 @@ def test_robust_to_noise_outliers_and_a_30_percent_hole(known_head, asset):
 
 def test_config_yaml_overrides_and_rejects_unknown_keys(tmp_path):
     path = tmp_path / "c.yaml"
-    path.write_text(SHORT_YAML + "lambda_m_end: 0.01\n")
+    path.write_text(SHORT_YAML + "prior: {lambda_m_end: 0.01}\ncorrespondences: {every: 3}\n")
     cfg = load_config(FitScanConfig, path, {"seed": 3})
     assert [s.iterations for s in cfg.stages] == [10, 10, 5, 5] and cfg.stages[0].free == ("pose", "expressions")
-    assert cfg.lambda_m_end == 0.01 and cfg.seed == 3 and cfg.lambda_x == FitScanConfig().lambda_x
+    assert cfg.prior.lambda_m_end == 0.01 and cfg.seed == 3 and cfg.prior.lambda_x == FitScanConfig().prior.lambda_x
+    assert cfg.correspondences.every == 3 and cfg.correspondences.max_cloud_points == 8000
     path.write_text("lambda_mm: 1\n")
     with pytest.raises(ConfigError, match="lambda_mm"):
         load_config(FitScanConfig, path)
@@ -136,6 +133,14 @@ def test_cli_fit_scan_writes_outputs_that_reload(scan_file, asset, capsys):
     assert len(params["joints"]) == 105 and len(params["latent_z"]) == 50 and len(params["expressions"]) == 24
     report = json.loads((out / "report.json").read_text())
     assert [s["name"] for s in report["stages"]] == ["coarse", "joints", "latent", "expressions"]
+    # every loss term is logged per stage, and they add up to the stage's total
+    last = report["stages"][-1]
+    assert {"data", "L_m", "L_x", "latent", "expressions"} <= set(last["terms"])
+    assert sum(last["terms"].values()) == pytest.approx(last["loss_end"], rel=1e-5)
+    assert last["metrics"]["pairs_cloud_to_model"] > 100 and 0 < last["metrics"]["data_rms_mm"] < 3
+    # the resolved config is saved beside the outputs and reads back to the one used
+    used = load_config(FitScanConfig, scan_file / "short.yaml")
+    assert load_config(FitScanConfig, out / "config.yaml") == used
     s2m = report["scan_to_mesh"]
     assert 0 < s2m["median_mm"] < 3.0 and s2m["points"] == len(read_point_cloud(scan_file / "scan.ply").points)
     # The error map is the exact distance to the fitted mesh (brute force over every triangle).
@@ -192,7 +197,7 @@ def test_metres_are_detected_and_converted(tmp_path, asset, recwarn):
     assert any("metres" in str(w.message) for w in recwarn.list)
     cfg = load_config(FitScanConfig, None, {"stages": [{"name": "j", "free": ["pose", "joints"], "iterations": 5}]})
     fit = fit_scan(cloud, cfg)
-    out = write_scan_outputs(tmp_path / "o", cloud, fit, scan_to_mesh(cloud.points, fit.vertices, asset.faces),
+    out = write_scan_outputs(tmp_path / "o", cloud, fit, scan_to_mesh_distances(cloud.points, fit.vertices, asset.faces),
                              config=cfg)
     import trimesh
 

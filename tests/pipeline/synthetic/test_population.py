@@ -290,7 +290,7 @@ def test_write_and_read_round_trip(tmp_path, asset, splits):
     out = tmp_path / "population"
     calls = []
     manifest_path = write_population(out, seed=0, splits=("val", "test"),
-                                     progress=lambda done, total: calls.append((done, total)))
+                                     progress=lambda stage, done, total: calls.append((done, total)))
     assert manifest_path == out / "manifest.json"
     assert calls[0] == (0, 9) and calls[-1] == (9, 9) and len(calls) == 10
     assert sorted(p.name for p in out.iterdir()) == ["manifest.json", "test", "val"]
@@ -332,7 +332,7 @@ def test_write_and_read_round_trip(tmp_path, asset, splits):
 def test_failed_write_leaves_nothing(tmp_path):
     out = tmp_path / "population"
 
-    def fail(done, total):
+    def fail(stage, done, total):
         if done == 3:
             raise RuntimeError("interrupted")
 

@@ -1,24 +1,17 @@
-"""Writing the face mesh and the skinned rig to files.
+"""Writing the skinned rig as glTF 2.0 (``.glb`` / ``.gltf``) through ``pygltflib``, and reading it back.
 
-* :func:`export_mesh` writes a triangle mesh as Wavefront OBJ or binary PLY through ``trimesh``.
 * :func:`export_skinned_gltf` writes the mesh, the joint hierarchy and the skinning weights as a
-  glTF 2.0 file (``.glb`` binary or ``.gltf`` JSON with an embedded data-URI buffer) through
-  ``pygltflib``.
+  glTF 2.0 file (``.glb`` binary or ``.gltf`` JSON with an embedded data-URI buffer).
 * :func:`read_skinned_gltf` reads such a glTF file back into numpy arrays (for tests and checks).
 
 Conventions: rig space is right-handed, +Y up, +Z forward out of the face, in millimetres; column
 vectors and 4x4 homogeneous matrices. glTF shares the axes but uses metres, so positions, node
 translations and inverse bind matrices are scaled by 0.001 on export (and by 1000 when read back).
 
-Face-varying texture coordinates (``face_uvs``, one UV per face corner, with a UV seam) cannot be
-stored per vertex without splitting the seam vertices. Every file keeps the ``V`` input vertices
-first, in their input order, and appends one duplicate per extra (vertex, UV) pair at the end;
-faces use the duplicates where needed. The map from every written vertex to its input vertex is
-``split_source`` (``split_source[:V] == arange(V)``).
-
-All files are written atomically: the data is encoded in memory, written to a temporary file in the
-destination directory and moved over the destination with :func:`os.replace`; on any error the
-temporary file is removed and an existing destination is left untouched.
+UV seams are split as in :mod:`rig.io.mesh` (:func:`rig.io.mesh.split_uv_seams`): the ``V`` input
+vertices come first, in order, then one duplicate per extra (vertex, UV) pair; the mesh node's
+``extras`` record ``V`` and the source vertex of each duplicate. Files are written atomically
+(:func:`rig.io.atomic.write_bytes_atomic`).
 """
 
 from __future__ import annotations
@@ -31,18 +24,23 @@ from typing import Any
 
 import numpy as np
 import pygltflib
-import trimesh
 from scipy.spatial.transform import Rotation
 
 from rig.io.atomic import write_bytes_atomic
+from rig.io.mesh import check_mesh_arrays, resolve_format, shape_error, split_uv_seams
 
-__all__ = ["export_mesh", "export_skinned_gltf", "read_skinned_gltf"]
+__all__ = [
+    "GLTF_UNITS_NOTE",
+    "MAX_DROPPED_WEIGHT",
+    "MAX_INFLUENCES",
+    "MM_TO_M",
+    "WEIGHT_EPS",
+    "export_skinned_gltf",
+    "read_skinned_gltf",
+]
 
 MM_TO_M = 1e-3
 """Scale from rig millimetres to glTF metres."""
-
-OBJ_DIGITS = 10
-"""Decimal places written for OBJ coordinates (fixed-point; 1e-10 mm for positions)."""
 
 MAX_INFLUENCES = 4
 """Joint influences per vertex stored in glTF (``JOINTS_0`` / ``WEIGHTS_0``)."""
@@ -84,152 +82,8 @@ _TYPE_SHAPES = {
 
 
 # ----------------------------------------------------------------------------------------------
-# argument checks
-# ----------------------------------------------------------------------------------------------
-
-
-def _shape_error(func: str, name: str, expected: str, got: Any) -> ValueError:
-    return ValueError(f"{func}: {name} must have shape {expected}, got {got}")
-
-
-def _check_mesh(
-    func: str,
-    vertices: Any,
-    faces: Any,
-    face_uvs: Any,
-    vertex_colors: Any,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
-    """Validate and convert the mesh arguments shared by the exporters.
-
-    Returns float64 ``(V, 3)`` vertices, int64 ``(F, 3)`` faces, float64 ``(F, 3, 2)`` face UVs or
-    None and float64 ``(V, 3)`` colours in [0, 1] or None.
-    """
-    v = np.asarray(vertices)
-    if v.ndim != 2 or v.shape[1] != 3 or v.shape[0] == 0:
-        raise _shape_error(func, "vertices", "(V, 3) with V > 0", v.shape)
-    if not np.issubdtype(v.dtype, np.number) or np.issubdtype(v.dtype, np.complexfloating):
-        raise ValueError(f"{func}: vertices must be real numbers, got dtype {v.dtype}")
-    v = v.astype(np.float64)
-    if not np.isfinite(v).all():
-        raise ValueError(f"{func}: vertices contain NaN or infinite values")
-    n_vertices = v.shape[0]
-
-    f = np.asarray(faces)
-    if f.ndim != 2 or f.shape[1] != 3 or f.shape[0] == 0:
-        raise _shape_error(func, "faces", "(F, 3) with F > 0", f.shape)
-    if not np.issubdtype(f.dtype, np.integer):
-        raise ValueError(f"{func}: faces must be integer vertex indices, got dtype {f.dtype}")
-    f = f.astype(np.int64)
-    if f.min() < 0 or f.max() >= n_vertices:
-        raise ValueError(
-            f"{func}: faces index vertices out of range [0, {n_vertices}): "
-            f"min {f.min()}, max {f.max()}"
-        )
-
-    uv = None
-    if face_uvs is not None:
-        uv = np.asarray(face_uvs)
-        if uv.shape != (f.shape[0], 3, 2):
-            raise _shape_error(func, "face_uvs", f"(F, 3, 2) = ({f.shape[0]}, 3, 2)", uv.shape)
-        uv = uv.astype(np.float64) + 0.0  # + 0.0 turns -0.0 into 0.0 so equal UVs compare equal
-        if not np.isfinite(uv).all():
-            raise ValueError(f"{func}: face_uvs contain NaN or infinite values")
-
-    colors = None
-    if vertex_colors is not None:
-        c = np.asarray(vertex_colors)
-        if c.shape != (n_vertices, 3):
-            raise _shape_error(func, "vertex_colors", f"(V, 3) = ({n_vertices}, 3)", c.shape)
-        if c.dtype == np.uint8:
-            colors = c.astype(np.float64) / 255.0
-        elif np.issubdtype(c.dtype, np.floating):
-            colors = c.astype(np.float64)
-            if not np.isfinite(colors).all() or colors.min() < -1e-6 or colors.max() > 1 + 1e-6:
-                raise ValueError(
-                    f"{func}: float vertex_colors must lie in [0, 1], got range "
-                    f"[{np.nanmin(colors)}, {np.nanmax(colors)}]"
-                )
-            colors = np.clip(colors, 0.0, 1.0)
-        else:
-            raise ValueError(
-                f"{func}: vertex_colors must be float in [0, 1] or uint8, got dtype {c.dtype}"
-            )
-    return v, f, uv, colors
-
-
-def _resolve_format(func: str, path: Path, file_format: str | None, allowed: Sequence[str]) -> str:
-    if file_format is None:
-        fmt = path.suffix.lower().lstrip(".")
-        source = f"the suffix of {str(path)!r}"
-    else:
-        fmt = str(file_format).lower().lstrip(".")
-        source = f"file_format={file_format!r}"
-    if fmt not in allowed:
-        raise ValueError(
-            f"{func}: unsupported file format {fmt!r} (from {source}); expected one of "
-            + ", ".join(repr(a) for a in allowed)
-        )
-    return fmt
-
-
-def _colors_uint8(colors: np.ndarray) -> np.ndarray:
-    return np.round(np.clip(colors, 0.0, 1.0) * 255.0).astype(np.uint8)
-
-
-# ----------------------------------------------------------------------------------------------
 # geometry helpers
 # ----------------------------------------------------------------------------------------------
-
-
-def _split_uv_seams(
-    faces: np.ndarray, face_uvs: np.ndarray, n_vertices: int
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Turn face-varying UVs into per-vertex UVs by duplicating seam vertices.
-
-    Parameters
-    ----------
-    faces : (F, 3) int64
-    face_uvs : (F, 3, 2) float64
-        UV per face corner.
-    n_vertices : int
-        ``V``.
-
-    Returns
-    -------
-    split_faces : (F, 3) int64
-        Faces into the ``N = V + D`` split vertices.
-    uvs : (N, 2) float64
-        UV per split vertex; ``(0, 0)`` for vertices no face uses.
-    split_source : (N,) int64
-        Input vertex of each split vertex; ``split_source[:V] == arange(V)``.
-
-    Notes
-    -----
-    Each vertex keeps, in its original slot, the UV of its first corner in face order; every other
-    distinct UV (exact comparison) of that vertex gets a duplicate appended after the ``V`` input
-    vertices, ordered by source vertex, then by first use.
-    """
-    corner_vertex = faces.reshape(-1)
-    corner_uv = face_uvs.reshape(-1, 2)
-    keys = np.column_stack([corner_vertex.astype(np.float64), corner_uv])
-    _, first_corner, inverse = np.unique(keys, axis=0, return_index=True, return_inverse=True)
-    inverse = np.asarray(inverse).reshape(-1)
-    group_source = corner_vertex[first_corner]
-    order = np.lexsort((first_corner, group_source))  # by source vertex, then first use
-    sorted_source = group_source[order]
-    is_primary = np.ones(len(order), dtype=bool)
-    is_primary[1:] = sorted_source[1:] != sorted_source[:-1]
-
-    group_index = np.empty(len(order), dtype=np.int64)
-    group_index[order[is_primary]] = sorted_source[is_primary]
-    n_dup = int((~is_primary).sum())
-    group_index[order[~is_primary]] = n_vertices + np.arange(n_dup)
-
-    split_source = np.concatenate([np.arange(n_vertices), sorted_source[~is_primary]])
-    uvs = np.zeros((n_vertices + n_dup, 2), dtype=np.float64)
-    uvs[group_index] = corner_uv[first_corner]
-    split_faces = group_index[inverse].reshape(faces.shape)
-    return split_faces, uvs, split_source.astype(np.int64)
 
 
 def _vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
@@ -301,140 +155,7 @@ def _node_local_matrix(node: pygltflib.Node) -> np.ndarray:
 
 
 # ----------------------------------------------------------------------------------------------
-# OBJ / PLY
-# ----------------------------------------------------------------------------------------------
-
-
-def _obj_text_trimesh(vertices, faces, uvs, colors) -> str:
-    if uvs is not None:
-        visual = trimesh.visual.TextureVisuals(uv=uvs)
-    elif colors is not None:
-        visual = trimesh.visual.ColorVisuals(vertex_colors=_colors_uint8(colors))
-    else:
-        visual = None
-    mesh = trimesh.Trimesh(vertices=vertices, faces=faces, visual=visual, process=False, validate=False)
-    text = trimesh.exchange.obj.export_obj(
-        mesh,
-        include_normals=False,
-        include_color=colors is not None,
-        include_texture=uvs is not None,
-        return_texture=False,
-        write_texture=False,
-        digits=OBJ_DIGITS,
-        header="jnr",
-    )
-    # trimesh references a default (empty) material library that we do not write; drop the
-    # dangling ``mtllib`` / ``usemtl`` lines (the UVs are kept without them).
-    lines = [ln for ln in text.split("\n") if not ln.startswith(("mtllib ", "usemtl "))]
-    return "\n".join(lines)
-
-
-def _obj_text_uv_and_colors(vertices, faces, uvs, colors) -> str:
-    """OBJ text with ``v x y z r g b`` lines and UVs (trimesh's OBJ export holds one or the other)."""
-    fmt = f"{{:.{OBJ_DIGITS}f}}"
-    v_lines = [
-        "v " + " ".join(fmt.format(x) for x in row)
-        for row in np.column_stack([vertices, colors])
-    ]
-    vt_lines = ["vt " + " ".join(fmt.format(x) for x in row) for row in uvs]
-    f1 = faces + 1
-    f_lines = [f"f {a}/{a} {b}/{b} {c}/{c}" for a, b, c in f1]
-    return "\n".join(["# jnr", *v_lines, *vt_lines, *f_lines, "", ""])
-
-
-def _ply_bytes(vertices, faces, uvs, colors) -> bytes:
-    if uvs is not None:
-        mesh = trimesh.Trimesh(
-            vertices=vertices,
-            faces=faces,
-            visual=trimesh.visual.TextureVisuals(uv=uvs),
-            process=False,
-            validate=False,
-        )
-        if colors is not None:
-            # a texture visual holds no colours; write them as the standard uchar properties
-            c8 = _colors_uint8(colors)
-            for i, channel in enumerate(("red", "green", "blue")):
-                mesh.vertex_attributes[channel] = c8[:, i].copy()
-    else:
-        visual = None
-        if colors is not None:
-            visual = trimesh.visual.ColorVisuals(vertex_colors=_colors_uint8(colors))
-        mesh = trimesh.Trimesh(vertices=vertices, faces=faces, visual=visual, process=False, validate=False)
-    return trimesh.exchange.ply.export_ply(mesh, encoding="binary", vertex_normal=False)
-
-
-def export_mesh(
-    path: str | os.PathLike,
-    vertices: np.ndarray,
-    faces: np.ndarray,
-    *,
-    face_uvs: np.ndarray | None = None,
-    vertex_colors: np.ndarray | None = None,
-    file_format: str | None = None,
-) -> None:
-    """Write a triangle mesh as Wavefront OBJ (text) or PLY (binary little-endian).
-
-    Written through ``trimesh`` with ``process=False``, so no vertex is merged or reordered: the
-    first ``V`` vertices of the file are ``vertices`` in order. When ``face_uvs`` has more than
-    one UV for a vertex (a UV seam), duplicates of that vertex are appended after the first ``V``
-    and faces use them where needed (see the module docstring); ``trimesh.load(path,
-    process=False)`` then returns ``V + D`` vertices whose first ``V`` are the input.
-
-    Parameters
-    ----------
-    path : str or os.PathLike
-        Destination file. Written atomically (temporary file in the same directory, then
-        ``os.replace``); its directory must exist.
-    vertices : (V, 3) float
-        Vertex positions in millimetres (written unchanged, in millimetres).
-    faces : (F, 3) int
-        Triangles as indices into ``vertices`` (counter-clockwise seen from outside).
-    face_uvs : (F, 3, 2) float, optional
-        Texture coordinates per face corner (face-varying, OBJ/OpenGL convention: v up).
-        OBJ: ``vt`` lines; PLY: per-vertex ``s``/``t`` properties.
-    vertex_colors : (V, 3) float in [0, 1] or uint8, optional
-        Per-vertex RGB. OBJ: ``v x y z r g b`` (floats in [0, 1]); PLY: uchar ``red``/``green``/
-        ``blue`` (plus ``alpha`` = 255 when no UVs are given).
-    file_format : {"obj", "ply"}, optional
-        Overrides the format inferred from the suffix of ``path``.
-
-    Raises
-    ------
-    ValueError
-        Unsupported format, or an argument with the wrong shape, dtype or range.
-
-    Notes
-    -----
-    OBJ coordinates are written with ``OBJ_DIGITS`` (10) decimal places. PLY stores positions as
-    float32 (about 1e-5 mm resolution at 100 mm). Vertices that no face uses are written, but
-    trimesh's OBJ loader drops them on reading.
-    """
-    func = "export_mesh"
-    path = Path(path)
-    fmt = _resolve_format(func, path, file_format, ("obj", "ply"))
-    v, f, uv, colors = _check_mesh(func, vertices, faces, face_uvs, vertex_colors)
-
-    if uv is not None:
-        f, uvs, source = _split_uv_seams(f, uv, v.shape[0])
-        v = v[source]
-        colors = colors[source] if colors is not None else None
-    else:
-        uvs = None
-
-    if fmt == "obj":
-        if uvs is not None and colors is not None:
-            text = _obj_text_uv_and_colors(v, f, uvs, colors)
-        else:
-            text = _obj_text_trimesh(v, f, uvs, colors)
-        data = text.encode("utf-8")
-    else:
-        data = _ply_bytes(v, f, uvs, colors)
-    write_bytes_atomic(path, data)
-
-
-# ----------------------------------------------------------------------------------------------
-# glTF
+# writing glTF
 # ----------------------------------------------------------------------------------------------
 
 
@@ -496,7 +217,7 @@ def _check_rig(func, n_vertices, joint_names, parents, joint_positions, weights,
 
     par = np.asarray(parents)
     if par.shape != (k,):
-        raise _shape_error(func, "parents", f"(K,) = ({k},)", par.shape)
+        raise shape_error(func, "parents", f"(K,) = ({k},)", par.shape)
     if not np.issubdtype(par.dtype, np.integer):
         raise ValueError(f"{func}: parents must be integers, got dtype {par.dtype}")
     par = par.astype(np.int64)
@@ -510,14 +231,14 @@ def _check_rig(func, n_vertices, joint_names, parents, joint_positions, weights,
 
     pos = np.asarray(joint_positions)
     if pos.shape != (k, 3):
-        raise _shape_error(func, "joint_positions", f"(K, 3) = ({k}, 3)", pos.shape)
+        raise shape_error(func, "joint_positions", f"(K, 3) = ({k}, 3)", pos.shape)
     pos = pos.astype(np.float64)
     if not np.isfinite(pos).all():
         raise ValueError(f"{func}: joint_positions contain NaN or infinite values")
 
     w = np.asarray(weights)
     if w.shape != (n_vertices, k):
-        raise _shape_error(func, "weights", f"(V, K) = ({n_vertices}, {k})", w.shape)
+        raise shape_error(func, "weights", f"(V, K) = ({n_vertices}, {k})", w.shape)
     w = w.astype(np.float64)
     if not np.isfinite(w).all():
         raise ValueError(f"{func}: weights contain NaN or infinite values")
@@ -534,7 +255,7 @@ def _check_rig(func, n_vertices, joint_names, parents, joint_positions, weights,
     if joint_transforms is not None:
         taus = np.asarray(joint_transforms)
         if taus.shape != (k, 4, 4):
-            raise _shape_error(func, "joint_transforms", f"(K, 4, 4) = ({k}, 4, 4)", taus.shape)
+            raise shape_error(func, "joint_transforms", f"(K, 4, 4) = ({k}, 4, 4)", taus.shape)
         taus = taus.astype(np.float64)
         if not np.isfinite(taus).all():
             raise ValueError(f"{func}: joint_transforms contain NaN or infinite values")
@@ -647,8 +368,8 @@ def export_skinned_gltf(
     """
     func = "export_skinned_gltf"
     path = Path(path)
-    fmt = _resolve_format(func, path, None, ("glb", "gltf"))
-    v, f, uv, colors = _check_mesh(func, vertices, faces, face_uvs, vertex_colors)
+    fmt = resolve_format(func, path, None, ("glb", "gltf"))
+    v, f, uv, colors = check_mesh_arrays(func, vertices, faces, face_uvs, vertex_colors)
     n_vertices = v.shape[0]
     names, par, pos, w, taus = _check_rig(
         func, n_vertices, joint_names, parents, joint_positions, weights, joint_transforms
@@ -661,11 +382,33 @@ def export_skinned_gltf(
     normals = _vertex_normals(v, f)
 
     if uv is not None:
-        f, uvs, source = _split_uv_seams(f, uv, n_vertices)
+        f, uvs, source = split_uv_seams(f, uv, n_vertices)
     else:
         uvs, source = None, np.arange(n_vertices)
 
     builder = _BufferBuilder()
+    attributes, indices = _add_mesh_arrays(builder, v, f, source, normals, uvs, colors, joints4, weights4)
+    inverse_bind = np.stack([_translation(-p * MM_TO_M) for p in pos])
+    # glTF matrices are column-major: store the transpose of each row-major numpy matrix
+    ibm_accessor = builder.add(
+        np.transpose(inverse_bind, (0, 2, 1)).reshape(k, 16), _FLOAT, "MAT4", name="inverseBindMatrices"
+    )
+    joint_nodes, roots = _joint_nodes(func, names, par, pos, taus)
+    mesh_node = pygltflib.Node(
+        name="mesh",
+        mesh=0,
+        skin=0,
+        extras={
+            "units": GLTF_UNITS_NOTE,
+            _EXTRAS_SOURCE_COUNT: int(n_vertices),
+            _EXTRAS_SPLIT_SOURCE: [int(s) for s in source[n_vertices:]],
+        },
+    )
+    write_bytes_atomic(path, _encode(fmt, builder, joint_nodes, roots, mesh_node, attributes, indices, ibm_accessor))
+
+
+def _add_mesh_arrays(builder: _BufferBuilder, v, f, source, normals, uvs, colors, joints4, weights4):
+    """The mesh primitive's accessors, in file order: ``(pygltflib.Attributes, indices accessor)``."""
     attributes = pygltflib.Attributes()
     attributes.POSITION = builder.add(
         v[source] * MM_TO_M, _FLOAT, "VEC3", target=_ARRAY_BUFFER, min_max=True, name="POSITION"
@@ -685,12 +428,13 @@ def export_skinned_gltf(
     indices = builder.add(
         f.reshape(-1), _UNSIGNED_INT, "SCALAR", target=_ELEMENT_ARRAY_BUFFER, name="indices"
     )
-    inverse_bind = np.stack([_translation(-p * MM_TO_M) for p in pos])
-    # glTF matrices are column-major: store the transpose of each row-major numpy matrix
-    ibm_accessor = builder.add(
-        np.transpose(inverse_bind, (0, 2, 1)).reshape(k, 16), _FLOAT, "MAT4", name="inverseBindMatrices"
-    )
+    return attributes, indices
 
+
+def _joint_nodes(func: str, names: list[str], par: np.ndarray, pos: np.ndarray,
+                 taus: np.ndarray | None) -> tuple[list[pygltflib.Node], list[int]]:
+    """One node per joint (local T @ R @ S in metres, children linked) and the root joints."""
+    k = len(names)
     joint_nodes = []
     for j in range(k):
         parent_pos = pos[par[j]] if par[j] >= 0 else np.zeros(3)
@@ -717,19 +461,14 @@ def export_skinned_gltf(
         if par[j] >= 0:
             joint_nodes[par[j]].children.append(j)
     roots = [j for j in range(k) if par[j] < 0]
+    return joint_nodes, roots
 
+
+def _encode(fmt: str, builder: _BufferBuilder, joint_nodes: list[pygltflib.Node], roots: list[int],
+            mesh_node: pygltflib.Node, attributes: pygltflib.Attributes, indices: int, ibm_accessor: int) -> bytes:
+    """The glTF document (joint nodes ``0 .. K-1``, the mesh node ``K``) as ``.glb`` or ``.gltf`` bytes."""
+    k = len(joint_nodes)
     mesh_node_index = k
-    mesh_node = pygltflib.Node(
-        name="mesh",
-        mesh=0,
-        skin=0,
-        extras={
-            "units": GLTF_UNITS_NOTE,
-            _EXTRAS_SOURCE_COUNT: int(n_vertices),
-            _EXTRAS_SPLIT_SOURCE: [int(s) for s in source[n_vertices:]],
-        },
-    )
-
     blob = bytes(builder.blob)
     buffer = pygltflib.Buffer(byteLength=len(blob))
     if fmt == "gltf":
@@ -762,10 +501,8 @@ def export_skinned_gltf(
     )
     if fmt == "glb":
         gltf.set_binary_blob(blob)
-        data = b"".join(gltf.save_to_bytes())
-    else:
-        data = gltf.gltf_to_json().encode("utf-8")
-    write_bytes_atomic(path, data)
+        return b"".join(gltf.save_to_bytes())
+    return gltf.gltf_to_json().encode("utf-8")
 
 
 # ----------------------------------------------------------------------------------------------
@@ -867,16 +604,7 @@ def read_skinned_gltf(path: str | os.PathLike) -> dict[str, Any]:
     """
     func = "read_skinned_gltf"
     path = Path(path)
-    raw = path.read_bytes()
-    try:
-        if raw[:4] == b"glTF":
-            gltf = pygltflib.GLTF2.load_from_bytes(raw)
-        else:
-            gltf = pygltflib.GLTF2.from_json(raw.decode("utf-8"))
-    except Exception as exc:
-        raise ValueError(f"{func}: could not read {str(path)!r} as glTF: {exc}") from exc
-    if gltf is None:
-        raise ValueError(f"{func}: could not read {str(path)!r} as glTF")
+    gltf = _load(func, path)
     directory = path.parent
     cache: dict = {}
 
@@ -911,7 +639,49 @@ def read_skinned_gltf(path: str | os.PathLike) -> dict[str, Any]:
             f"the primitive has {n_gltf}"
         )
 
-    skin = gltf.skins[mesh_node.skin]
+    joints = attribute("JOINTS_0")
+    weights = attribute("WEIGHTS_0")
+    if joints is None or weights is None:
+        raise ValueError(f"{func}: the skinned primitive lacks JOINTS_0 or WEIGHTS_0")
+    texcoords = attribute("TEXCOORD_0")
+    if texcoords is not None:
+        texcoords = np.column_stack([texcoords[:, 0], 1.0 - texcoords[:, 1].astype(np.float64)])
+    colors = attribute("COLOR_0")
+    normals = attribute("NORMAL")
+
+    return {
+        "vertices": positions[:n_source],
+        "faces": split_source[gltf_faces],
+        "split_source": split_source,
+        "gltf_faces": gltf_faces,
+        **_skeleton(gltf, gltf.skins[mesh_node.skin], directory, cache),
+        "joints": joints[:n_source].astype(np.int64),
+        "weights": weights[:n_source].astype(np.float64),
+        "normals": None if normals is None else normals.astype(np.float64),
+        "texcoords": None if texcoords is None else texcoords.astype(np.float64),
+        "colors": None if colors is None else colors[:, :3].astype(np.float64),
+        "extras": extras,
+    }
+
+
+def _load(func: str, path: Path) -> pygltflib.GLTF2:
+    """A ``.glb`` (by its magic bytes) or ``.gltf`` file as a ``pygltflib.GLTF2``."""
+    raw = path.read_bytes()
+    try:
+        if raw[:4] == b"glTF":
+            gltf = pygltflib.GLTF2.load_from_bytes(raw)
+        else:
+            gltf = pygltflib.GLTF2.from_json(raw.decode("utf-8"))
+    except Exception as exc:
+        raise ValueError(f"{func}: could not read {str(path)!r} as glTF: {exc}") from exc
+    if gltf is None:
+        raise ValueError(f"{func}: could not read {str(path)!r} as glTF")
+    return gltf
+
+
+def _skeleton(gltf: pygltflib.GLTF2, skin: pygltflib.Skin, directory: Path, cache: dict) -> dict[str, Any]:
+    """The skin's joints: ``joint_names``, ``parents``, ``joint_positions``, ``local_matrices`` and
+    ``inverse_bind_matrices`` (see :func:`read_skinned_gltf`; millimetres)."""
     joint_nodes = list(skin.joints)
     k = len(joint_nodes)
     node_to_joint = {node: j for j, node in enumerate(joint_nodes)}
@@ -931,31 +701,5 @@ def read_skinned_gltf(path: str | os.PathLike) -> dict[str, Any]:
     local[:, :3, 3] /= MM_TO_M
     inverse_bind_mm = inverse_bind.copy()
     inverse_bind_mm[:, :3, 3] /= MM_TO_M
-
-    joints = attribute("JOINTS_0")
-    weights = attribute("WEIGHTS_0")
-    if joints is None or weights is None:
-        raise ValueError(f"{func}: the skinned primitive lacks JOINTS_0 or WEIGHTS_0")
-    texcoords = attribute("TEXCOORD_0")
-    if texcoords is not None:
-        texcoords = np.column_stack([texcoords[:, 0], 1.0 - texcoords[:, 1].astype(np.float64)])
-    colors = attribute("COLOR_0")
-    normals = attribute("NORMAL")
-
-    return {
-        "vertices": positions[:n_source],
-        "faces": split_source[gltf_faces],
-        "split_source": split_source,
-        "gltf_faces": gltf_faces,
-        "joint_names": names,
-        "parents": parents,
-        "joint_positions": joint_positions,
-        "joints": joints[:n_source].astype(np.int64),
-        "weights": weights[:n_source].astype(np.float64),
-        "local_matrices": local,
-        "inverse_bind_matrices": inverse_bind_mm,
-        "normals": None if normals is None else normals.astype(np.float64),
-        "texcoords": None if texcoords is None else texcoords.astype(np.float64),
-        "colors": None if colors is None else colors[:, :3].astype(np.float64),
-        "extras": extras,
-    }
+    return {"joint_names": names, "parents": parents, "joint_positions": joint_positions,
+            "local_matrices": local, "inverse_bind_matrices": inverse_bind_mm}

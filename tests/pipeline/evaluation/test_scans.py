@@ -53,9 +53,9 @@ def test_summary_and_table(evaluation):
     assert evaluation.settings["n_neutral"] == 1 and evaluation.settings["baseline"]
 
 
-@pytest.mark.parametrize("kwargs", [dict(n_neutral=-1), dict(n_expressive=-2), dict(n_neutral=0, n_expressive=0),
-                                    dict(n_neutral=1.5), dict(seed=-1), dict(split="nope"),
-                                    dict(n_neutral=10_000)])
+@pytest.mark.parametrize("kwargs", [{"n_neutral": -1}, {"n_expressive": -2}, {"n_neutral": 0, "n_expressive": 0},
+                                    {"n_neutral": 1.5}, {"seed": -1}, {"split": "nope"},
+                                    {"n_neutral": 10_000}])
 def test_bad_arguments(kwargs):
     with pytest.raises(ValueError):
         evaluate_scans(**{"n_neutral": 1, "n_expressive": 0, **kwargs})

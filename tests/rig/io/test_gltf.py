@@ -1,4 +1,4 @@
-"""Round trips of rig.io.export: OBJ / PLY through trimesh, skinned glTF through pygltflib."""
+"""Round trips of rig.io.gltf: skinned glTF through pygltflib."""
 
 from __future__ import annotations
 
@@ -11,46 +11,13 @@ import pygltflib
 import pytest
 import trimesh
 
-from rig.io import export as export_module
-from rig.io.export import export_mesh, export_skinned_gltf, read_skinned_gltf
-
-RADIUS_MM = 100.0
-JOINT_NAMES = ["neck", "head", "crown"]
-PARENTS = np.array([-1, 0, 1])
-JOINT_POSITIONS = np.array([[0.0, -90.0, -10.0], [0.0, 0.0, 5.0], [0.0, 60.0, 0.0]])
+from rig.io.gltf import export_skinned_gltf, read_skinned_gltf
+from tests.rig.io.conftest import JOINT_NAMES, JOINT_POSITIONS, PARENTS
 
 
-# ----------------------------------------------------------------------------------------------
-# synthetic data
-# ----------------------------------------------------------------------------------------------
-
-
-@pytest.fixture(scope="module")
-def sphere():
-    """Icosphere (162 vertices) of radius 100 mm with a UV seam, colours and 3-joint weights."""
-    mesh = trimesh.creation.icosphere(subdivisions=2)
-    vertices = np.asarray(mesh.vertices, dtype=np.float64) * RADIUS_MM
-    faces = np.asarray(mesh.faces, dtype=np.int64)
-
-    # spherical UVs per face corner; faces straddling u = 0 / 1 get u + 1 on their low corners,
-    # so the vertices on the seam carry two different UVs
-    unit = vertices / RADIUS_MM
-    u = np.arctan2(unit[:, 0], unit[:, 2]) / (2.0 * np.pi) + 0.5
-    v = 0.5 + np.arcsin(np.clip(unit[:, 1], -1.0, 1.0)) / np.pi
-    face_uvs = np.stack([u[faces], v[faces]], axis=-1)
-    wraps = np.ptp(face_uvs[:, :, 0], axis=1) > 0.5
-    low = wraps[:, None] & (face_uvs[:, :, 0] < 0.5)
-    face_uvs[:, :, 0] = np.where(low, face_uvs[:, :, 0] + 1.0, face_uvs[:, :, 0])
-    assert wraps.any()
-
-    # smooth weights along the chain (Gaussian in y around each joint)
-    dist = np.abs(vertices[:, 1:2] - JOINT_POSITIONS[None, :, 1])
-    weights = np.exp(-((dist / 45.0) ** 2))
-    weights /= weights.sum(axis=1, keepdims=True)
-
-    rng = np.random.default_rng(0)
-    colors = rng.uniform(0.0, 1.0, size=(len(vertices), 3))
-    return {"vertices": vertices, "faces": faces, "face_uvs": face_uvs, "weights": weights, "colors": colors}
+def _hidden_files(directory: Path) -> list[str]:
+    """Temporary files are hidden (``.name...``): none may be left behind."""
+    return [p.name for p in directory.iterdir() if p.name.startswith(".")]
 
 
 def _rotation(axis, angle):
@@ -60,9 +27,9 @@ def _rotation(axis, angle):
     return np.eye(3) + np.sin(angle) * k + (1 - np.cos(angle)) * k @ k
 
 
-def _affine(linear=np.eye(3), translation=(0.0, 0.0, 0.0)):
+def _affine(linear=None, translation=(0.0, 0.0, 0.0)):
     m = np.eye(4)
-    m[:3, :3] = linear
+    m[:3, :3] = np.eye(3) if linear is None else linear
     m[:3, 3] = translation
     return m
 
@@ -81,95 +48,6 @@ def _pose(kind: str) -> np.ndarray:
         shear[0, 1] = 0.4
         taus[1, :3, :3] = taus[1, :3, :3] @ shear
     return taus
-
-
-def _merge_duplicates(loaded_vertices, faces, vertices):
-    """Map every vertex index >= V of a loaded mesh to the input vertex at the same position."""
-    n = len(vertices)
-    source = np.arange(len(loaded_vertices))
-    for i in range(n, len(loaded_vertices)):
-        d = np.linalg.norm(vertices - loaded_vertices[i], axis=1)
-        source[i] = int(np.argmin(d))
-        assert d[source[i]] < 1e-4
-    return source[faces]
-
-
-def _no_temp_files(directory: Path):
-    return [p.name for p in directory.iterdir() if p.name.endswith(".tmp")]
-
-
-# ----------------------------------------------------------------------------------------------
-# OBJ / PLY
-# ----------------------------------------------------------------------------------------------
-
-
-def test_obj_round_trip_with_uv_seam(sphere, tmp_path):
-    v, f, uv = sphere["vertices"], sphere["faces"], sphere["face_uvs"]
-    path = tmp_path / "head.obj"
-    export_mesh(path, v, f, face_uvs=uv)
-
-    loaded = trimesh.load(path, process=False)
-    assert isinstance(loaded, trimesh.Trimesh)
-    n = len(v)
-    assert len(loaded.vertices) > n  # the seam was split
-    np.testing.assert_allclose(loaded.vertices[:n], v, rtol=0, atol=1e-5)
-    np.testing.assert_array_equal(_merge_duplicates(loaded.vertices, loaded.faces, v), f)
-    assert loaded.visual.uv is not None and loaded.visual.uv.shape == (len(loaded.vertices), 2)
-    np.testing.assert_allclose(loaded.visual.uv[loaded.faces], uv, rtol=0, atol=1e-8)
-    text = path.read_text()
-    assert "mtllib" not in text and "\nvt " in text
-    assert _no_temp_files(tmp_path) == []
-
-
-def test_obj_without_uvs_keeps_vertices_and_colors(sphere, tmp_path):
-    v, f = sphere["vertices"], sphere["faces"]
-    path = tmp_path / "plain.obj"
-    export_mesh(path, v, f, vertex_colors=sphere["colors"])
-    loaded = trimesh.load(path, process=False)
-    assert len(loaded.vertices) == len(v)
-    np.testing.assert_allclose(loaded.vertices, v, rtol=0, atol=1e-5)
-    np.testing.assert_array_equal(loaded.faces, f)
-    expected = np.round(sphere["colors"] * 255).astype(np.uint8)
-    np.testing.assert_allclose(loaded.visual.vertex_colors[:, :3], expected, atol=1)
-
-
-def test_obj_with_uvs_and_colors(sphere, tmp_path):
-    v, f, uv = sphere["vertices"], sphere["faces"], sphere["face_uvs"]
-    path = tmp_path / "both.obj"
-    export_mesh(path, v, f, face_uvs=uv, vertex_colors=sphere["colors"])
-    loaded = trimesh.load(path, process=False)
-    n = len(v)
-    np.testing.assert_allclose(loaded.vertices[:n], v, rtol=0, atol=1e-5)
-    np.testing.assert_array_equal(_merge_duplicates(loaded.vertices, loaded.faces, v), f)
-    np.testing.assert_allclose(loaded.visual.uv[loaded.faces], uv, rtol=0, atol=1e-8)
-    first_v = next(line for line in path.read_text().splitlines() if line.startswith("v "))
-    assert len(first_v.split()) == 7  # v x y z r g b
-
-
-@pytest.mark.parametrize("uint8", [False, True])
-def test_ply_round_trip_with_colors(sphere, tmp_path, uint8):
-    v, f = sphere["vertices"], sphere["faces"]
-    colors = sphere["colors"]
-    expected = np.round(colors * 255).astype(np.uint8)
-    path = tmp_path / "head.ply"
-    export_mesh(path, v, f, vertex_colors=expected if uint8 else colors)
-    assert path.read_bytes().startswith(b"ply\nformat binary_little_endian")
-    loaded = trimesh.load(path, process=False)
-    assert len(loaded.vertices) == len(v)
-    np.testing.assert_allclose(loaded.vertices, v, rtol=0, atol=1e-4)  # float32 on disk
-    np.testing.assert_array_equal(loaded.faces, f)
-    np.testing.assert_array_equal(loaded.visual.vertex_colors[:, :3], expected)
-
-
-def test_ply_with_uvs(sphere, tmp_path):
-    v, f, uv = sphere["vertices"], sphere["faces"], sphere["face_uvs"]
-    path = tmp_path / "head.data"
-    export_mesh(path, v, f, face_uvs=uv, vertex_colors=sphere["colors"], file_format="ply")
-    loaded = trimesh.load(path, file_type="ply", process=False)
-    n = len(v)
-    np.testing.assert_allclose(loaded.vertices[:n], v, rtol=0, atol=1e-4)
-    np.testing.assert_array_equal(_merge_duplicates(loaded.vertices, loaded.faces, v), f)
-    np.testing.assert_allclose(loaded.visual.uv[loaded.faces], uv, rtol=0, atol=1e-8)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -270,7 +148,7 @@ def test_gltf_round_trip(sphere, tmp_path, suffix):
     n = len(v)
     path = tmp_path / f"rig{suffix}"
     _export_sphere_gltf(sphere, path)
-    assert _no_temp_files(tmp_path) == []
+    assert _hidden_files(tmp_path) == []
 
     out = read_skinned_gltf(path)
     np.testing.assert_allclose(out["vertices"], v, rtol=0, atol=1e-4)
@@ -408,37 +286,10 @@ def test_gltf_too_many_influences(sphere, tmp_path):
 # ----------------------------------------------------------------------------------------------
 
 
-def test_bad_formats(sphere, tmp_path):
-    v, f = sphere["vertices"], sphere["faces"]
-    with pytest.raises(ValueError, match="unsupported file format 'stl'"):
-        export_mesh(tmp_path / "a.stl", v, f)
-    with pytest.raises(ValueError, match="unsupported file format"):
-        export_mesh(tmp_path / "a.obj", v, f, file_format="fbx")
+def test_bad_format(sphere, tmp_path):
     with pytest.raises(ValueError, match="unsupported file format 'obj'"):
         _export_sphere_gltf(sphere, tmp_path / "a.obj")
     assert list(tmp_path.iterdir()) == []
-
-
-@pytest.mark.parametrize(
-    "kwargs, match",
-    [
-        ({"vertices": np.zeros((10, 2))}, r"vertices must have shape \(V, 3\).*\(10, 2\)"),
-        ({"faces": np.zeros((4, 4), dtype=int)}, r"faces must have shape .*\(4, 4\)"),
-        ({"faces": np.full((4, 3), 999)}, r"faces index vertices out of range"),
-        ({"face_uvs": np.zeros((5, 3, 2))}, r"face_uvs must have shape .*\(5, 3, 2\)"),
-        ({"vertex_colors": np.zeros((3, 3))}, r"vertex_colors must have shape .*\(3, 3\)"),
-        ({"vertex_colors": "big"}, r"vertex_colors"),
-    ],
-)
-def test_bad_mesh_shapes(sphere, tmp_path, kwargs, match):
-    args = {"vertices": sphere["vertices"], "faces": sphere["faces"]}
-    args.update(kwargs)
-    if isinstance(kwargs.get("vertex_colors"), str):
-        args["vertex_colors"] = sphere["colors"] * 2.0
-    path = tmp_path / "bad.obj"
-    with pytest.raises(ValueError, match=match):
-        export_mesh(path, args.pop("vertices"), args.pop("faces"), **args)
-    assert not path.exists()
 
 
 @pytest.mark.parametrize(
@@ -467,32 +318,10 @@ def test_bad_rig_shapes(sphere, tmp_path, kwargs, match):
 
 
 def test_failed_write_leaves_nothing(sphere, tmp_path, monkeypatch):
-    v, f = sphere["vertices"], sphere["faces"]
-
-    def broken_replace(src, dst):
+    def broken_fsync(fd):
         raise OSError("disk full")
 
-    monkeypatch.setattr(export_module.os, "replace", broken_replace)
-    for name in ("a.obj", "a.ply"):
-        with pytest.raises(OSError, match="disk full"):
-            export_mesh(tmp_path / name, v, f)
+    monkeypatch.setattr(os, "fsync", broken_fsync)
     with pytest.raises(OSError, match="disk full"):
         _export_sphere_gltf(sphere, tmp_path / "a.glb")
     assert list(tmp_path.iterdir()) == []
-
-
-def test_failed_write_keeps_existing_file(sphere, tmp_path):
-    v, f = sphere["vertices"], sphere["faces"]
-    path = tmp_path / "keep.obj"
-    path.write_text("old")
-    with pytest.raises(ValueError):
-        export_mesh(path, v[:, :2], f)
-    assert path.read_text() == "old"
-
-    # the destination is a directory: os.replace fails, the temporary file is removed
-    blocker = tmp_path / "blocked.ply"
-    blocker.mkdir()
-    with pytest.raises(OSError):
-        export_mesh(blocker, v, f)
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["blocked.ply", "keep.obj"]
-    assert os.listdir(blocker) == []

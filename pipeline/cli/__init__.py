@@ -1,0 +1,115 @@
+"""The ``jnr`` command line.
+
+    jnr demo [--out DIR]                       the rig, and jnr fit on the astronaut and a synthetic photo
+    jnr rig info [--json]                      sizes of the rig
+    jnr rig build [--out FILE | --check]       regenerate the template asset from code
+    jnr rig export --format obj|ply|gltf --out FILE [--params PARAMS.json]
+    jnr rig edit PARAMS.json --out FILE        write the head edited by named parameters
+    jnr data synth --out DIR                   write the synthetic head population
+    jnr train                                  learn linear + neural skinning weights
+    jnr data scan --out FILE.ply               a simulated depth scan of a held-out synthetic head
+    jnr fit PHOTO... --out DIR                 reconstruct the head in a photo (or several, in parallel)
+    jnr fit-scan CLOUD --out DIR               fit the rig to a point cloud (non-rigid ICP)
+    jnr eval capacity [--json]                 known-correspondence error of each skinning variant
+    jnr eval scans [--neutral N --expressive N]  fit-scan vs nricp_amberg on simulated depth scans
+    jnr eval photos [--neutral N --expressive N] jnr fit on synthetic renders with known truth
+
+Each command's parser lives beside its handler, one module per command group (:mod:`.demo`,
+:mod:`.fit`, :mod:`.fit_scan`, :mod:`.rig`, :mod:`.data`, :mod:`.train`, :mod:`.evaluate`; shared
+pieces in :mod:`.common`); a handler parses, calls one library function, prints and maps errors.
+
+Errors in the input (:class:`rig.errors.InputError` and its subclasses: missing or malformed files,
+unknown parameter names, values outside limits, refused outputs) end with a one-line message on
+stderr and exit status 2; a broken installation (:class:`rig.errors.SetupError`, render's
+``LLVMError``), an error while writing or a diverged fit, 1. Nothing half-written is left behind.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+
+from pipeline.cli import data, demo, evaluate, fit, fit_scan, rig, train
+from pipeline.cli.common import EXIT_FAILURE, EXIT_OK, EXIT_USAGE, CliError
+
+COMMAND_GROUPS = (demo, fit, fit_scan, rig, data, train, evaluate)
+"""The modules whose ``add_commands(subparsers)`` make the sub-commands, in the order ``--help`` lists them."""
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The ``jnr`` parser: every command's parser, made by its module."""
+    parser = argparse.ArgumentParser(
+        prog="jnr", description="Joint-based Neural Rig: a 52-joint face rig, fitted to photos and point clouds.",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog="Units: millimetres in rig space (right-handed, +Y up, +Z out of the face); rotations in "
+               "degrees; scales as factors.\nParameter files: JSON {\"joints\": {\"nose_tip.translate_y\": 2.0, ...}}.")
+    parser.add_argument("-v", "--verbose", action="store_true", help="log progress details")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub.required = True
+    for group in COMMAND_GROUPS:
+        group.add_commands(sub)
+    return parser
+
+
+def _format_warning(message, category, filename, lineno, line=None) -> str:
+    """Warnings as one line for users: no Python file, line number or source line."""
+    return f"warning: {message}"
+
+
+def _one_line(exc: BaseException) -> str:
+    """An exception's message on one line (OSError: strerror and the file)."""
+    if isinstance(exc, OSError) and exc.strerror and exc.filename:
+        return f"{exc.filename}: {exc.strerror}"
+    text = " ".join(str(exc).split())
+    return text or type(exc).__name__
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run ``jnr`` with ``argv`` (default: ``sys.argv[1:]``); returns the exit status: 0, 2 for bad input
+    (:class:`rig.errors.InputError`, a missing or refused file), 1 for other failures
+    (:class:`rig.errors.JnrError`, render's ``LLVMError``, OSError, ValueError), 130 on Ctrl-C, 143 on
+    SIGTERM; errors are one line on stderr."""
+    import signal
+    import threading
+    import warnings
+
+    from pipeline.signals import Terminated, terminate_as_exception
+
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, format="jnr: %(message)s")
+    logging.captureWarnings(True)
+    saved_format, warnings.formatwarning = warnings.formatwarning, _format_warning
+    from render.backend import LLVMError
+    from rig.errors import InputError, JnrError
+
+    main_thread = threading.current_thread() is threading.main_thread()
+    previous = signal.getsignal(signal.SIGTERM) if main_thread else None
+    if main_thread:
+        terminate_as_exception()
+    try:
+        return args.func(args)
+    except CliError as exc:
+        print(f"jnr: error: {exc}", file=sys.stderr)
+        return exc.code
+    except (InputError, FileNotFoundError, FileExistsError, IsADirectoryError, NotADirectoryError,
+            PermissionError) as exc:
+        print(f"jnr: error: {_one_line(exc)}", file=sys.stderr)
+        return EXIT_USAGE
+    except (JnrError, LLVMError, OSError, ValueError) as exc:
+        print(f"jnr: error: {_one_line(exc)}", file=sys.stderr)
+        return EXIT_FAILURE
+    except KeyboardInterrupt:
+        print("jnr: interrupted; nothing half-written was left behind", file=sys.stderr)
+        return 130
+    except Terminated:
+        print("jnr: terminated (SIGTERM); nothing half-written was left behind", file=sys.stderr)
+        return 143
+    finally:
+        warnings.formatwarning = saved_format
+        if main_thread:
+            signal.signal(signal.SIGTERM, previous if previous is not None else signal.SIG_DFL)
+
+
+__all__ = ["EXIT_FAILURE", "EXIT_OK", "EXIT_USAGE", "CliError", "build_parser", "main"]

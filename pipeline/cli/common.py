@@ -1,0 +1,128 @@
+"""What the ``jnr`` commands share: exit statuses, :class:`CliError`, the output check, progress bars,
+``--set`` overrides and the fit configurations built from the options."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+from collections.abc import Callable, Iterable
+from pathlib import Path
+
+from rig.errors import JnrError
+
+log = logging.getLogger("jnr")
+
+EXIT_OK, EXIT_FAILURE, EXIT_USAGE = 0, 1, 2
+
+
+class CliError(JnrError):
+    """An error to report to the user in one line (exit status ``code``)."""
+
+    def __init__(self, message: str, code: int = EXIT_USAGE) -> None:
+        super().__init__(message)
+        self.code = code
+
+
+def check_output(path: str | Path, force: bool, inputs: Iterable = (), kind: str = "file") -> None:
+    """Refuse an output before any work (:func:`pipeline.files.check_output`: it exists and ``--force`` was
+    not given, it is an input, ...); its :class:`~pipeline.files.OutputError` is an InputError, which
+    :func:`pipeline.cli.main` reports with exit 2."""
+    from pipeline.files import check_output as check
+
+    check(path, force=force, inputs=[p for p in inputs if p], kind=kind)
+
+
+def write_output_file(out: Path, force: bool, write: Callable[[Path], object]) -> None:
+    """``write(tmp_path)`` into a staged file that replaces ``out`` atomically when it succeeds."""
+    from pipeline.files import staged_file
+
+    with staged_file(out, force) as tmp:
+        write(tmp)
+
+
+def command_line(default: str) -> str:
+    """The command as the user typed it (``jnr fit a.png --out o``), recorded in the outputs."""
+    return "jnr " + " ".join(sys.argv[1:]) if sys.argv[1:] else default
+
+
+class StageBars:
+    """One tqdm bar per stage name: ``bars(stage, done, total)`` (the progress callback of the fits)."""
+
+    def __init__(self, disable: bool = False) -> None:
+        self.disable = disable
+        self.bar = None
+        self.stage = None
+
+    def __call__(self, stage: str, done: int, total: int) -> None:
+        from tqdm import tqdm
+
+        if stage != self.stage:
+            self.close()
+            self.stage = stage
+            self.bar = tqdm(total=total, desc=stage, disable=self.disable, leave=False)
+        self.bar.n = done
+        self.bar.refresh() if done == total or done % 10 == 0 else None
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+            self.bar = None
+
+
+def parse_overrides(items: list[str] | None) -> dict:
+    """``--set KEY=VALUE`` options as a nested dict (:func:`pipeline.config.parse_overrides`)."""
+    from pipeline.config import ConfigError
+    from pipeline.config import parse_overrides as parse
+
+    try:
+        return parse(items)
+    except ConfigError as exc:
+        raise CliError(str(exc)) from None
+
+
+# ------------------------------------------------------------------------------------------------------
+# The fit configurations from --config, --set and the options that stand for settings: the one place
+# where options become config overrides.
+# ------------------------------------------------------------------------------------------------------
+
+def fit_photo_overrides(args: argparse.Namespace) -> dict:
+    """The photo fit's overrides: ``--set`` items, and ``--landmarks-only`` (``photometric.enabled: false``)."""
+    overrides = parse_overrides(args.set)
+    if args.landmarks_only:
+        group = overrides.get("photometric")
+        overrides["photometric"] = {**group, "enabled": False} if isinstance(group, dict) else {"enabled": False}
+    return overrides
+
+
+def fit_scan_overrides(args: argparse.Namespace, seed_is_fit_seed: bool = True) -> dict:
+    """The scan fit's overrides: ``--set`` items, and ``--seed`` (the cloud subsampling's) when
+    ``seed_is_fit_seed`` (``jnr eval scans`` has a ``--seed`` of its own)."""
+    overrides = parse_overrides(args.set)
+    if seed_is_fit_seed and args.seed is not None:
+        overrides["seed"] = args.seed
+    return overrides
+
+
+def load_fit_photo_config(args: argparse.Namespace):
+    """:class:`pipeline.photo.fit.FitPhotoConfig` from ``--config``, ``--set`` and ``--landmarks-only``."""
+    from pipeline.config import ConfigError, load_config
+    from pipeline.photo.fit import FitPhotoConfig
+
+    overrides = fit_photo_overrides(args)
+    try:
+        return load_config(FitPhotoConfig, args.config, overrides)
+    except ConfigError as exc:
+        raise CliError(str(exc)) from None
+
+
+def load_fit_scan_config(args: argparse.Namespace, seed_is_fit_seed: bool = True):
+    """:class:`pipeline.scan.fit.FitScanConfig` from ``--config``, ``--set`` and ``--seed``."""
+    from pipeline.config import ConfigError, load_config
+    from pipeline.scan.fit import FitScanConfig
+
+    overrides = fit_scan_overrides(args, seed_is_fit_seed)
+    try:
+        return load_config(FitScanConfig, args.config, overrides)
+    except ConfigError as exc:
+        raise CliError(str(exc)) from None

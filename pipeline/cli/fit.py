@@ -1,0 +1,179 @@
+"""``jnr fit PHOTO... --out DIR``: reconstruct the head in a photo, or in several in parallel processes
+(:mod:`pipeline.photo.files`)."""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import sys
+from pathlib import Path
+
+from pipeline.cli.common import (
+    EXIT_FAILURE,
+    EXIT_OK,
+    EXIT_USAGE,
+    CliError,
+    StageBars,
+    command_line,
+    load_fit_photo_config,
+)
+
+
+def _fit_worker(task, threads: int):
+    """One photo (:class:`pipeline.photo.files.PhotoTask`) in a worker process, or in this one for
+    ``--jobs 1``: its :class:`~pipeline.photo.files.PhotoFileResult`."""
+    import torch
+
+    from pipeline.photo.files import fit_photo_task
+    from pipeline.signals import worker_task
+
+    torch.set_num_threads(threads)
+    with worker_task():
+        return fit_photo_task(task)
+
+
+def _runner(jobs: int, threads: int, quiet: bool):
+    """``run(tasks)`` for :func:`pipeline.photo.files.fit_photo_files`, with a progress bar: in this
+    process for one job, else in ``jobs`` spawned processes that die with this one: on an interrupt or
+    SIGTERM here they are terminated (and remove their staged outputs) before the exception goes on."""
+    from tqdm import tqdm
+
+    def one_by_one(tasks):
+        bar = tqdm(total=len(tasks), desc="photos", unit="photo", disable=quiet)
+        try:
+            for task in tasks:
+                result = _fit_worker(task, threads)
+                bar.update()
+                yield result
+        finally:
+            bar.close()
+
+    def in_processes(tasks):
+        import multiprocessing
+        from concurrent.futures import ProcessPoolExecutor, as_completed
+
+        from pipeline.signals import stop_children, worker_init
+
+        bar = tqdm(total=len(tasks), desc="photos", unit="photo", disable=quiet)
+        pool = ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("spawn"), initializer=worker_init,
+                                   initargs=(os.getpid(),))
+        results = []
+        try:
+            futures = [pool.submit(_fit_worker, t, threads) for t in tasks]
+            for future in as_completed(futures):
+                results.append(future.result())
+                bar.update()
+        except BaseException:
+            pool.shutdown(wait=False, cancel_futures=True)
+            stop_children()
+            raise
+        finally:
+            bar.close()
+        pool.shutdown()
+        return results
+
+    return one_by_one if jobs == 1 else in_processes
+
+
+def _fit_one(args: argparse.Namespace, photo: Path, config, out: Path) -> int:
+    from pipeline.photo.files import fit_photo_file
+
+    bars = StageBars(args.quiet)
+    try:
+        summary = fit_photo_file(photo, out, config=config, landmarks=args.landmarks, face=args.face,
+                                 focal=args.focal, force=args.force, progress=bars, command=command_line("jnr fit"))
+    except FloatingPointError as exc:  # a diverged fit
+        raise CliError(str(exc), EXIT_FAILURE) from None
+    finally:
+        bars.close()
+    print(f"fitted {photo} in {summary['fit_seconds']:.1f} s: landmark error {summary['mean_error_px']:.2f} px "
+          f"(NME {summary['nme']:.4f})")
+    print(f"wrote {out}/: mesh.obj, mesh.ply, mesh.glb, params.json, overlay.png, render.png, landmarks.pts, "
+          "report.json")
+    return EXIT_OK
+
+
+def _fit_several(args: argparse.Namespace, photos: list[Path], folders: list[Path], config, out: Path) -> int:
+    from pipeline.photo.files import fit_photo_files
+
+    if (args.landmarks and args.landmarks != "auto") or args.face is not None:
+        raise CliError("--landmarks FILE and --face apply to a single photo; for several, use --landmarks auto "
+                       "(a .pts/.json/.csv file beside each photo) or detection")
+    jobs = max(1, min(args.jobs or (os.cpu_count() or 1), len(photos)))
+    threads = max(1, (os.cpu_count() or 1) // jobs)
+    results = fit_photo_files(photos, out, folders=folders, config=config, landmarks=args.landmarks,
+                              focal=args.focal, force=args.force, command=command_line("jnr fit"),
+                              run=_runner(jobs, threads, args.quiet))
+    failed = [r for r in results if r.error is not None]
+    for r in results:
+        if r.summary is not None:
+            print(f"{r.photo}: {r.summary['mean_error_px']:.2f} px (NME {r.summary['nme']:.4f}), "
+                  f"{r.summary['fit_seconds']:.1f} s -> {r.summary['output']}")
+    for r in failed:
+        print(f"jnr: error: {r.error}", file=sys.stderr)
+    print(f"fitted {len(results) - len(failed)} of {len(results)} photos with {jobs} process(es); outputs in {out}/")
+    if failed:
+        return max(EXIT_USAGE if r.bad_input else EXIT_FAILURE for r in failed)
+    return EXIT_OK
+
+
+def cmd_fit(args: argparse.Namespace) -> int:
+    """``jnr fit PHOTO... --out DIR``: single-photo reconstruction (see pipeline.photo.fit)."""
+    from pipeline.photo.files import photo_inputs
+
+    if args.jobs is not None and args.jobs < 1:
+        raise CliError(f"--jobs must be at least 1, got {args.jobs}")
+    if args.focal is not None and not math.isfinite(args.focal):
+        raise CliError(f"--focal must be a number of pixels, got {args.focal}")
+    photos, folders = photo_inputs(args.photos)
+    config = load_fit_photo_config(args)
+    if len(photos) == 1 and not folders:
+        return _fit_one(args, photos[0], config, Path(args.out))
+    return _fit_several(args, photos, folders, config, Path(args.out))
+
+
+FIT_DESCRIPTION = (
+    "Fit the rig (head pose, 105 joint channels, neural-skinning latent Z, 24 expressions), a "
+    "per-vertex albedo and an ambient + directional light to one photo: detect the 68 iBUG "
+    "landmarks (dlib), place a pinhole camera (--focal, default 1.4 x the image's larger side) "
+    "by solvePnP, fit the landmarks, then alternate joint / latent / expression stages with a "
+    "robust photometric loss on the face pixels (Mitsuba 3 on the CPU) and the landmarks.")
+FIT_EPILOG = (
+    "Inputs: one or more image files (.jpg .jpeg .png .bmp .gif .tif .tiff .webp .ppm .pgm .pnm) or "
+    "folders of them. Several photos are fitted in parallel processes (--jobs); each gets "
+    "OUT/<name>/.\nLimits: images up to 120 megapixels; photos longer than 2048 px are fitted reduced "
+    "by a power of two (camera and landmarks are still written in the photo's pixels); --focal within "
+    "0.25-25 x the longer side; landmark files must look like a face in iBUG-68 order, in or near the "
+    "image, not mirrored.\nSafety: --out must not be, contain or lie in an input or the working "
+    "directory; --force replaces only a folder jnr wrote (it holds a .jnr-output file); outputs are "
+    "moved into place atomically, and nothing is left behind on an error, Ctrl-C or SIGTERM.\n"
+    "Outputs: mesh.obj, mesh.ply "
+    "(rig space, mm, +Y up, vertex colours = albedo), mesh.glb (skinned glTF), params.json (joints "
+    "by name, Z, expressions, camera, pose, light), overlay.png, render.png, landmarks.pts, "
+    "report.json (landmark error in px and NME, loss terms per stage, timings), config.yaml (the "
+    "settings used; --config on it repeats the fit).\nLandmarks: --landmarks "
+    "FILE (.pts 1-based as in iBUG 300-W, .json {\"landmarks\": [[x, y], ...]} or .csv index,x,y; 0-based "
+    "OpenCV pixels) skips detection.\nSchedule and settings: configs/fit_photo.yaml (--config) and "
+    "--set GROUP.KEY=VALUE (e.g. --set landmarks.prior.lambda_m=30, --set photometric.spp=4).\nTry it: jnr fit photo.jpg --out out/photo")
+
+
+def add_commands(sub: argparse._SubParsersAction) -> None:
+    """``jnr fit``."""
+    fit = sub.add_parser("fit", help="reconstruct the head in a photo (landmarks + differentiable rendering)",
+                         formatter_class=argparse.RawDescriptionHelpFormatter, description=FIT_DESCRIPTION,
+                         epilog=FIT_EPILOG)
+    fit.add_argument("photos", nargs="+", metavar="PHOTO", help="image file(s) or folder(s) of images")
+    fit.add_argument("--out", required=True, help="output folder (per photo: OUT/<name>/ when several)")
+    fit.add_argument("--landmarks", metavar="FILE|auto",
+                     help="68 landmarks file (.pts, .json, .csv) instead of detection (one photo); 'auto': the "
+                          "file with the photo's name beside each photo (face.png -> face.pts), as in iBUG 300-W")
+    fit.add_argument("--face", type=int, help="which detected face, 0 = the largest (default: 0; not with --landmarks)")
+    fit.add_argument("--focal", type=float, help="focal length in pixels (default: 1.4 x max(width, height))")
+    fit.add_argument("--landmarks-only", action="store_true", help="skip the photometric stages (~2 s a photo)")
+    fit.add_argument("--config", help="YAML overriding the fitting settings (e.g. configs/fit_photo.yaml)")
+    fit.add_argument("--set", action="append", metavar="KEY=VALUE", help="override one setting (repeatable)")
+    fit.add_argument("--jobs", type=int, help="parallel processes for several photos (default: the CPU count)")
+    fit.add_argument("--force", action="store_true", help="replace output folders that exist (only jnr's own)")
+    fit.add_argument("--quiet", action="store_true", help="no progress bars")
+    fit.set_defaults(func=cmd_fit)

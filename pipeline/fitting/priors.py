@@ -1,0 +1,55 @@
+"""The priors of the rig fits, as named loss terms.
+
+Every fit regularises the same parameters: the joints by JNR's L_m (eq. 4, deviation from the rest
+pose in deg / mm / scale - 1) and L_x (eq. 5, the joint-limit penalty), the latent by ``|Z|^2`` (it
+stays where the decoder was trained), the expression coefficients by ``|c|^2``, and optionally the
+joints' asymmetry ``|theta - mirror(theta)|^2 / P``. Their weights are a :class:`PriorWeights` group
+of each fit's config (``prior:`` in YAML).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+from pipeline.fitting.state import FitState
+from rig.losses import limit_loss, regularizer
+from rig.parameters import mirror_theta
+
+
+@dataclass(frozen=True)
+class PriorWeights:
+    """Weights of the rig priors (:func:`rig_prior_terms`)."""
+
+    lambda_m: float = 0.3
+    """L_m (eq. 4, deg / mm / scale-1 per joint) against the fit's data term."""
+    lambda_x: float = 3.0
+    """L_x (eq. 5), the joint-limit penalty."""
+    lambda_z: float = 0.01
+    """|Z|^2 keeps the latent where the decoder was trained."""
+    lambda_expressions: float = 0.5
+    """|c|^2 on the expression coefficients."""
+    lambda_symmetry: float = 0.0
+    """Optional symmetry prior ``|theta - mirror(theta)|^2 / P`` (0: off)."""
+
+
+def rig_prior_terms(state: FitState, weights: PriorWeights, *, lambda_m: float | None = None) -> dict[str, torch.Tensor]:
+    """The weighted prior terms of ``state``: ``L_m``, ``L_x``, ``latent``, ``expressions`` (and
+    ``symmetry`` when its weight is not 0), scalar tensors.
+
+    Args:
+        state: the fit state (joints ``theta (P,)``, ``z (50,)``, ``c (E,)``).
+        weights: their weights.
+        lambda_m: overrides ``weights.lambda_m`` (the point-cloud fit lowers it as correspondences settle).
+    """
+    theta = state.theta
+    terms = {
+        "L_m": (weights.lambda_m if lambda_m is None else lambda_m) * regularizer(theta[None])[0],
+        "L_x": weights.lambda_x * limit_loss(theta[None], state.low, state.high)[0],
+        "latent": weights.lambda_z * state.z.square().sum(),
+        "expressions": weights.lambda_expressions * state.c.square().sum(),
+    }
+    if weights.lambda_symmetry:
+        terms["symmetry"] = weights.lambda_symmetry * (theta - mirror_theta(theta)).square().mean()
+    return terms

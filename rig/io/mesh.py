@@ -1,0 +1,337 @@
+"""Writing a triangle mesh as Wavefront OBJ (text) or binary PLY, through ``trimesh``.
+
+* :func:`export_mesh` writes the mesh (optionally with face-varying UVs and vertex colours).
+* :func:`check_mesh_arrays`, :func:`shape_error`, :func:`resolve_format` and :func:`split_uv_seams` are
+  the argument checks and the UV-seam split shared with the glTF writer (:mod:`rig.io.gltf`).
+
+Conventions: rig space is right-handed, +Y up, +Z forward out of the face, in millimetres; OBJ and PLY
+files hold millimetres, unchanged.
+
+Face-varying texture coordinates (``face_uvs``, one UV per face corner, with a UV seam) cannot be
+stored per vertex without splitting the seam vertices. Every file keeps the ``V`` input vertices
+first, in their input order, and appends one duplicate per extra (vertex, UV) pair at the end;
+faces use the duplicates where needed. The map from every written vertex to its input vertex is
+``split_source`` (``split_source[:V] == arange(V)``).
+
+Files are written atomically (:func:`rig.io.atomic.write_bytes_atomic`): the data is encoded in
+memory, written to a temporary file beside the destination and moved into place in one step; on any
+error the temporary file is removed and an existing destination is left untouched.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import trimesh
+
+from rig.io.atomic import write_bytes_atomic
+
+__all__ = ["OBJ_DIGITS", "check_mesh_arrays", "export_mesh", "resolve_format", "shape_error", "split_uv_seams"]
+
+OBJ_DIGITS = 10
+"""Decimal places written for OBJ coordinates (fixed-point; 1e-10 mm for positions)."""
+
+
+# ----------------------------------------------------------------------------------------------
+# argument checks
+# ----------------------------------------------------------------------------------------------
+
+
+def shape_error(func: str, name: str, expected: str, got: Any) -> ValueError:
+    """The error for argument ``name`` of ``func`` with shape ``got`` where ``expected`` was required."""
+    return ValueError(f"{func}: {name} must have shape {expected}, got {got}")
+
+
+def check_mesh_arrays(
+    func: str,
+    vertices: Any,
+    faces: Any,
+    face_uvs: Any,
+    vertex_colors: Any,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """Validate and convert the mesh arguments shared by the writers (:func:`export_mesh`,
+    :func:`rig.io.gltf.export_skinned_gltf`).
+
+    Args:
+        func: the public function's name, for messages.
+        vertices: ``(V, 3)`` real, finite, ``V > 0``.
+        faces: ``(F, 3)`` integer indices into ``vertices``, ``F > 0``.
+        face_uvs: ``(F, 3, 2)`` finite, or None.
+        vertex_colors: ``(V, 3)`` float in [0, 1] or uint8, or None.
+
+    Returns:
+        float64 ``(V, 3)`` vertices, int64 ``(F, 3)`` faces, float64 ``(F, 3, 2)`` face UVs or None and
+        float64 ``(V, 3)`` colours in [0, 1] or None.
+
+    Raises:
+        ValueError: an argument with the wrong shape, dtype or range (message: function, argument,
+            expected, got).
+    """
+    v = np.asarray(vertices)
+    if v.ndim != 2 or v.shape[1] != 3 or v.shape[0] == 0:
+        raise shape_error(func, "vertices", "(V, 3) with V > 0", v.shape)
+    if not np.issubdtype(v.dtype, np.number) or np.issubdtype(v.dtype, np.complexfloating):
+        raise ValueError(f"{func}: vertices must be real numbers, got dtype {v.dtype}")
+    v = v.astype(np.float64)
+    if not np.isfinite(v).all():
+        raise ValueError(f"{func}: vertices contain NaN or infinite values")
+    n_vertices = v.shape[0]
+
+    f = np.asarray(faces)
+    if f.ndim != 2 or f.shape[1] != 3 or f.shape[0] == 0:
+        raise shape_error(func, "faces", "(F, 3) with F > 0", f.shape)
+    if not np.issubdtype(f.dtype, np.integer):
+        raise ValueError(f"{func}: faces must be integer vertex indices, got dtype {f.dtype}")
+    f = f.astype(np.int64)
+    if f.min() < 0 or f.max() >= n_vertices:
+        raise ValueError(
+            f"{func}: faces index vertices out of range [0, {n_vertices}): "
+            f"min {f.min()}, max {f.max()}"
+        )
+
+    uv = None
+    if face_uvs is not None:
+        uv = np.asarray(face_uvs)
+        if uv.shape != (f.shape[0], 3, 2):
+            raise shape_error(func, "face_uvs", f"(F, 3, 2) = ({f.shape[0]}, 3, 2)", uv.shape)
+        uv = uv.astype(np.float64) + 0.0  # + 0.0 turns -0.0 into 0.0 so equal UVs compare equal
+        if not np.isfinite(uv).all():
+            raise ValueError(f"{func}: face_uvs contain NaN or infinite values")
+
+    colors = None
+    if vertex_colors is not None:
+        c = np.asarray(vertex_colors)
+        if c.shape != (n_vertices, 3):
+            raise shape_error(func, "vertex_colors", f"(V, 3) = ({n_vertices}, 3)", c.shape)
+        if c.dtype == np.uint8:
+            colors = c.astype(np.float64) / 255.0
+        elif np.issubdtype(c.dtype, np.floating):
+            colors = c.astype(np.float64)
+            if not np.isfinite(colors).all() or colors.min() < -1e-6 or colors.max() > 1 + 1e-6:
+                raise ValueError(
+                    f"{func}: float vertex_colors must lie in [0, 1], got range "
+                    f"[{np.nanmin(colors)}, {np.nanmax(colors)}]"
+                )
+            colors = np.clip(colors, 0.0, 1.0)
+        else:
+            raise ValueError(
+                f"{func}: vertex_colors must be float in [0, 1] or uint8, got dtype {c.dtype}"
+            )
+    return v, f, uv, colors
+
+
+def resolve_format(func: str, path: Path, file_format: str | None, allowed: Sequence[str]) -> str:
+    """The file format: ``file_format`` if given, else the suffix of ``path`` (lower case, no dot).
+
+    Raises:
+        ValueError: the format is not one of ``allowed``.
+    """
+    if file_format is None:
+        fmt = path.suffix.lower().lstrip(".")
+        source = f"the suffix of {str(path)!r}"
+    else:
+        fmt = str(file_format).lower().lstrip(".")
+        source = f"file_format={file_format!r}"
+    if fmt not in allowed:
+        raise ValueError(
+            f"{func}: unsupported file format {fmt!r} (from {source}); expected one of "
+            + ", ".join(repr(a) for a in allowed)
+        )
+    return fmt
+
+
+def _colors_uint8(colors: np.ndarray) -> np.ndarray:
+    return np.round(np.clip(colors, 0.0, 1.0) * 255.0).astype(np.uint8)
+
+
+# ----------------------------------------------------------------------------------------------
+# UV seams
+# ----------------------------------------------------------------------------------------------
+
+
+def split_uv_seams(
+    faces: np.ndarray, face_uvs: np.ndarray, n_vertices: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Turn face-varying UVs into per-vertex UVs by duplicating seam vertices.
+
+    Parameters
+    ----------
+    faces : (F, 3) int64
+    face_uvs : (F, 3, 2) float64
+        UV per face corner.
+    n_vertices : int
+        ``V``.
+
+    Returns
+    -------
+    split_faces : (F, 3) int64
+        Faces into the ``N = V + D`` split vertices.
+    uvs : (N, 2) float64
+        UV per split vertex; ``(0, 0)`` for vertices no face uses.
+    split_source : (N,) int64
+        Input vertex of each split vertex; ``split_source[:V] == arange(V)``.
+
+    Notes
+    -----
+    Each vertex keeps, in its original slot, the UV of its first corner in face order; every other
+    distinct UV (exact comparison) of that vertex gets a duplicate appended after the ``V`` input
+    vertices, ordered by source vertex, then by first use.
+    """
+    corner_vertex = faces.reshape(-1)
+    corner_uv = face_uvs.reshape(-1, 2)
+    keys = np.column_stack([corner_vertex.astype(np.float64), corner_uv])
+    _, first_corner, inverse = np.unique(keys, axis=0, return_index=True, return_inverse=True)
+    inverse = np.asarray(inverse).reshape(-1)
+    group_source = corner_vertex[first_corner]
+    order = np.lexsort((first_corner, group_source))  # by source vertex, then first use
+    sorted_source = group_source[order]
+    is_primary = np.ones(len(order), dtype=bool)
+    is_primary[1:] = sorted_source[1:] != sorted_source[:-1]
+
+    group_index = np.empty(len(order), dtype=np.int64)
+    group_index[order[is_primary]] = sorted_source[is_primary]
+    n_dup = int((~is_primary).sum())
+    group_index[order[~is_primary]] = n_vertices + np.arange(n_dup)
+
+    split_source = np.concatenate([np.arange(n_vertices), sorted_source[~is_primary]])
+    uvs = np.zeros((n_vertices + n_dup, 2), dtype=np.float64)
+    uvs[group_index] = corner_uv[first_corner]
+    split_faces = group_index[inverse].reshape(faces.shape)
+    return split_faces, uvs, split_source.astype(np.int64)
+
+
+# ----------------------------------------------------------------------------------------------
+# OBJ / PLY
+# ----------------------------------------------------------------------------------------------
+
+
+def _obj_text_trimesh(vertices, faces, uvs, colors) -> str:
+    if uvs is not None:
+        visual = trimesh.visual.TextureVisuals(uv=uvs)
+    elif colors is not None:
+        visual = trimesh.visual.ColorVisuals(vertex_colors=_colors_uint8(colors))
+    else:
+        visual = None
+    mesh = trimesh.Trimesh(vertices=vertices, faces=faces, visual=visual, process=False, validate=False)
+    text = trimesh.exchange.obj.export_obj(
+        mesh,
+        include_normals=False,
+        include_color=colors is not None,
+        include_texture=uvs is not None,
+        return_texture=False,
+        write_texture=False,
+        digits=OBJ_DIGITS,
+        header="jnr",
+    )
+    # trimesh references a default (empty) material library that we do not write; drop the
+    # dangling ``mtllib`` / ``usemtl`` lines (the UVs are kept without them).
+    lines = [ln for ln in text.split("\n") if not ln.startswith(("mtllib ", "usemtl "))]
+    return "\n".join(lines)
+
+
+def _obj_text_uv_and_colors(vertices, faces, uvs, colors) -> str:
+    """OBJ text with ``v x y z r g b`` lines and UVs (trimesh's OBJ export holds one or the other)."""
+    fmt = f"{{:.{OBJ_DIGITS}f}}"
+    v_lines = [
+        "v " + " ".join(fmt.format(x) for x in row)
+        for row in np.column_stack([vertices, colors])
+    ]
+    vt_lines = ["vt " + " ".join(fmt.format(x) for x in row) for row in uvs]
+    f1 = faces + 1
+    f_lines = [f"f {a}/{a} {b}/{b} {c}/{c}" for a, b, c in f1]
+    return "\n".join(["# jnr", *v_lines, *vt_lines, *f_lines, "", ""])
+
+
+def _ply_bytes(vertices, faces, uvs, colors) -> bytes:
+    if uvs is not None:
+        mesh = trimesh.Trimesh(
+            vertices=vertices,
+            faces=faces,
+            visual=trimesh.visual.TextureVisuals(uv=uvs),
+            process=False,
+            validate=False,
+        )
+        if colors is not None:
+            # a texture visual holds no colours; write them as the standard uchar properties
+            c8 = _colors_uint8(colors)
+            for i, channel in enumerate(("red", "green", "blue")):
+                mesh.vertex_attributes[channel] = c8[:, i].copy()
+    else:
+        visual = None
+        if colors is not None:
+            visual = trimesh.visual.ColorVisuals(vertex_colors=_colors_uint8(colors))
+        mesh = trimesh.Trimesh(vertices=vertices, faces=faces, visual=visual, process=False, validate=False)
+    return trimesh.exchange.ply.export_ply(mesh, encoding="binary", vertex_normal=False)
+
+
+def export_mesh(
+    path: str | os.PathLike,
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    *,
+    face_uvs: np.ndarray | None = None,
+    vertex_colors: np.ndarray | None = None,
+    file_format: str | None = None,
+) -> None:
+    """Write a triangle mesh as Wavefront OBJ (text) or PLY (binary little-endian).
+
+    Written through ``trimesh`` with ``process=False``, so no vertex is merged or reordered: the
+    first ``V`` vertices of the file are ``vertices`` in order. When ``face_uvs`` has more than
+    one UV for a vertex (a UV seam), duplicates of that vertex are appended after the first ``V``
+    and faces use them where needed (see the module docstring); ``trimesh.load(path,
+    process=False)`` then returns ``V + D`` vertices whose first ``V`` are the input.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Destination file. Written atomically (:func:`rig.io.atomic.write_bytes_atomic`); its
+        directory must exist.
+    vertices : (V, 3) float
+        Vertex positions in millimetres (written unchanged, in millimetres).
+    faces : (F, 3) int
+        Triangles as indices into ``vertices`` (counter-clockwise seen from outside).
+    face_uvs : (F, 3, 2) float, optional
+        Texture coordinates per face corner (face-varying, OBJ/OpenGL convention: v up).
+        OBJ: ``vt`` lines; PLY: per-vertex ``s``/``t`` properties.
+    vertex_colors : (V, 3) float in [0, 1] or uint8, optional
+        Per-vertex RGB. OBJ: ``v x y z r g b`` (floats in [0, 1]); PLY: uchar ``red``/``green``/
+        ``blue`` (plus ``alpha`` = 255 when no UVs are given).
+    file_format : {"obj", "ply"}, optional
+        Overrides the format inferred from the suffix of ``path``.
+
+    Raises
+    ------
+    ValueError
+        Unsupported format, or an argument with the wrong shape, dtype or range.
+
+    Notes
+    -----
+    OBJ coordinates are written with ``OBJ_DIGITS`` (10) decimal places. PLY stores positions as
+    float32 (about 1e-5 mm resolution at 100 mm). Vertices that no face uses are written, but
+    trimesh's OBJ loader drops them on reading.
+    """
+    func = "export_mesh"
+    path = Path(path)
+    fmt = resolve_format(func, path, file_format, ("obj", "ply"))
+    v, f, uv, colors = check_mesh_arrays(func, vertices, faces, face_uvs, vertex_colors)
+
+    if uv is not None:
+        f, uvs, source = split_uv_seams(f, uv, v.shape[0])
+        v = v[source]
+        colors = colors[source] if colors is not None else None
+    else:
+        uvs = None
+
+    if fmt == "obj":
+        if uvs is not None and colors is not None:
+            text = _obj_text_uv_and_colors(v, f, uvs, colors)
+        else:
+            text = _obj_text_trimesh(v, f, uvs, colors)
+        data = text.encode("utf-8")
+    else:
+        data = _ply_bytes(v, f, uvs, colors)
+    write_bytes_atomic(path, data)

@@ -1,0 +1,62 @@
+"""The rig's parameter file: a JSON object of named channel values (deg, mm, factor).
+
+A file is ``{"joints": {"nose_tip.translate_y": 2.0, "neck.scale": 1.1, ...}}`` (optionally with a
+``"units"`` entry), or just the inner object of names to values. Channels not named stay at rest; names
+and limits are those of :data:`rig.parameters.CHANNELS`. The fits' own ``params.json`` files (joints,
+latent Z and expressions) are written by :mod:`pipeline.photo.outputs` / :mod:`pipeline.scan.outputs`.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import torch
+
+from rig.io.atomic import write_bytes_atomic
+from rig.parameters import ParameterError, params_to_theta, theta_to_params
+
+__all__ = ["PARAMS_UNITS", "load_params_json", "save_params_json"]
+
+PARAMS_UNITS = {"rotate": "deg", "translate": "mm", "scale": "factor"}
+"""The ``"units"`` entry :func:`save_params_json` writes."""
+
+
+def load_params_json(path: str | Path, *, clamp: bool = False) -> torch.Tensor:
+    """Read a parameter file: a JSON object of ``name: value``, or ``{"joints": {name: value}}``.
+
+    Args:
+        path: the JSON file.
+        clamp: clamp out-of-limit values to the limits with a warning instead of raising.
+
+    Returns:
+        ``(P,)`` float32 flat parameters (:func:`rig.parameters.params_to_theta`).
+
+    Raises:
+        FileNotFoundError: the file does not exist.
+        ParameterError: the file is not valid JSON of that shape, or a name/value is bad.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"parameter file not found: {path}")
+    try:
+        data = json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise ParameterError(f"{path}: not valid JSON ({exc})") from None
+    if isinstance(data, dict) and isinstance(data.get("joints"), dict):
+        data = data["joints"]
+    if not isinstance(data, dict):
+        raise ParameterError(f"{path}: expected a JSON object of parameter names to values")
+    return params_to_theta(data, clamp=clamp)
+
+
+def save_params_json(theta: torch.Tensor, path: str | Path, *, include_rest: bool = False) -> None:
+    """Write ``{"units": ..., "joints": {name: value}}`` (deg, mm, factor) to ``path``, atomically.
+
+    Args:
+        theta: ``(P,)`` flat parameters.
+        path: the destination file; its folder must exist.
+        include_rest: also write the channels at rest (by default only the ones that moved).
+    """
+    payload = {"units": dict(PARAMS_UNITS), "joints": theta_to_params(theta, include_rest=include_rest)}
+    write_bytes_atomic(path, (json.dumps(payload, indent=2, sort_keys=False) + "\n").encode("utf-8"))

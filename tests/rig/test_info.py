@@ -1,0 +1,26 @@
+import subprocess
+import sys
+
+from rig.info import rig_info
+from rig.parameters import NUM_PARAMETERS
+
+
+def test_rig_info_counts_the_asset(asset):
+    info = rig_info(asset)
+    assert list(info) == ["vertices", "faces", "joints", "free_parameters", "free_parameters_symmetric",
+                          "skinning_floats", "skinning_nonzeros", "max_influences", "model_floats", "regions",
+                          "units", "asset_version"]
+    assert (info["vertices"], info["faces"], info["joints"]) == (len(asset.vertices), len(asset.faces), 52)
+    assert info["free_parameters"] == NUM_PARAMETERS and 0 < info["free_parameters_symmetric"] < NUM_PARAMETERS
+    assert info["skinning_floats"] == len(asset.weight_free) and info["skinning_nonzeros"] == len(asset.weight_rows)
+    assert 1 <= info["max_influences"] <= 52
+    assert info["model_floats"] == asset.vertices.size + asset.joint_positions.size + len(asset.weight_free)
+    assert info["regions"] == list(asset.region_names) and info["units"] == "mm"
+    assert rig_info() == info  # the committed asset by default
+
+
+def test_rig_info_imports_nothing_outside_rig():
+    code = ("import sys, rig.info; bad = sorted(m for m in sys.modules if m.split('.')[0] in "
+            "('pipeline', 'landmarks', 'render')); print(bad); sys.exit(bool(bad))")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=False)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
