@@ -55,6 +55,24 @@ class Stage:
             raise ValueError(f"stage {self.name!r}: iterations must be >= 0, got {self.iterations}")
 
 
+@dataclass(frozen=True)
+class LearningRates:
+    """Adam steps of the geometry's parameter groups (``lr:`` in YAML); the defaults are the landmark
+    fit's, each fit's config sets its own (the photometric and point-cloud fits add their groups'
+    steps in subclasses)."""
+
+    rotation: float = 0.01
+    """Head rotation vector, radians."""
+    translation: float = 2.0
+    """Head translation, mm."""
+    joints: float = 0.01
+    """Joint channels, as a fraction of each channel's range."""
+    latent: float = 0.05
+    """Neural-skinning latent Z."""
+    expressions: float = 0.05
+    """Expression coefficients."""
+
+
 class Loss(NamedTuple):
     """What an objective returns for one step.
 

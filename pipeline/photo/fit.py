@@ -45,7 +45,7 @@ import torch
 from kornia.geometry.camera import PinholeCamera
 
 from pipeline.evaluation.metrics import landmark_errors
-from pipeline.fitting.engine import Loss, Stage, StageLog, run_schedule
+from pipeline.fitting.engine import LearningRates, Loss, Stage, StageLog, run_schedule
 from pipeline.fitting.priors import PriorWeights, rig_prior_terms
 from pipeline.fitting.state import FREE_GROUPS, PhotoState
 from pipeline.photo.camera import (
@@ -105,21 +105,19 @@ def photo_schedule(appearance_iterations: int = 25, joint_iterations: int = 30, 
 
 
 @dataclass(frozen=True)
-class PhotoLearningRates:
-    """Adam steps of the photometric stages' parameter groups (``photometric.lr:`` in YAML)."""
+class PhotoLearningRates(LearningRates):
+    """Adam steps of the photometric stages (``photometric.lr:`` in YAML): the geometry's groups
+    (:class:`pipeline.fitting.engine.LearningRates`) and the appearance."""
 
-    rotation: float = 0.003
-    """Head rotation vector, radians."""
-    translation: float = 0.5
-    """Head translation, mm."""
-    joints: float = 0.004
-    """Joint channels, as a fraction of each channel's range."""
-    latent: float = 0.02
-    expressions: float = 0.02
     albedo: float = 0.02
     """Per-vertex albedo, linear RGB."""
     light: float = 0.05
     """Ambient and irradiance of the light, linear RGB."""
+
+
+PHOTO_LEARNING_RATES = PhotoLearningRates(rotation=0.003, translation=0.5, joints=0.004, latent=0.02,
+                                          expressions=0.02)
+"""The photometric stages' steps: smaller than the landmark fit's, which they refine."""
 
 
 @dataclass(frozen=True)
@@ -159,7 +157,7 @@ class PhotometricConfig:
     face_regions: tuple[str, ...] = FACE_REGIONS
     """Rig regions whose pixels the photometric loss counts (default: no scalp/hair, ears, neck, eyes, mouth)."""
     albedo_prior: AlbedoPrior = field(default_factory=AlbedoPrior)
-    lr: PhotoLearningRates = field(default_factory=PhotoLearningRates)
+    lr: PhotoLearningRates = PHOTO_LEARNING_RATES
     prior: PriorWeights = field(default_factory=lambda: PriorWeights(lambda_m=PHOTO_LAMBDA_M))
     """The rig priors during the photometric stages (:data:`PHOTO_LAMBDA_M` for L_m)."""
     light_directions: int = 64

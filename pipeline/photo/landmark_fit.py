@@ -31,7 +31,7 @@ from kornia.geometry.camera import PinholeCamera
 from landmarks.ibug68 import contour_landmarks, ibug68_embedding, landmark_positions
 from landmarks.loss import landmark_reprojection_loss, project_points
 from pipeline.evaluation.metrics import landmark_errors
-from pipeline.fitting.engine import Loss, Stage, StageLog, run_schedule
+from pipeline.fitting.engine import LearningRates, Loss, Stage, StageLog, run_schedule
 from pipeline.fitting.priors import PriorWeights, rig_prior_terms
 from pipeline.fitting.state import PhotoState
 from pipeline.photo.camera import default_focal, make_camera, solve_pose
@@ -57,22 +57,6 @@ def landmark_schedule(pose_iterations: int = 20, coarse_iterations: int = 20, jo
               Stage("expressions", ("pose", "expressions"), expression_iterations),
               Stage("joints 2", ("pose", "joints"), final_joint_iterations))
     return tuple(s for s in stages if s.iterations > 0)
-
-
-@dataclass(frozen=True)
-class LearningRates:
-    """Adam steps of the geometry's parameter groups (``lr:`` in YAML)."""
-
-    rotation: float = 0.01
-    """Head rotation vector, radians."""
-    translation: float = 2.0
-    """Head translation, mm."""
-    joints: float = 0.01
-    """Joint channels, as a fraction of each channel's range."""
-    latent: float = 0.05
-    """Neural-skinning latent Z."""
-    expressions: float = 0.05
-    """Expression coefficients."""
 
 
 @dataclass(frozen=True)

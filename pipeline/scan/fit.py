@@ -44,7 +44,7 @@ import numpy as np
 import torch
 from scipy.spatial import cKDTree
 
-from pipeline.fitting.engine import Loss, Stage, StageLog, run_schedule
+from pipeline.fitting.engine import LearningRates, Loss, Stage, StageLog, run_schedule
 from pipeline.fitting.priors import PriorWeights, rig_prior_terms
 from pipeline.fitting.state import ScanState
 from pipeline.scan.pointcloud import (
@@ -92,19 +92,12 @@ def jnr_schedule(joint_iterations: int = 30, latent_iterations: int = 15, expres
 
 
 @dataclass(frozen=True)
-class ScanLearningRates:
-    """Adam steps of the point-cloud fit's parameter groups (``lr:`` in YAML)."""
+class ScanLearningRates(LearningRates):
+    """Adam steps of the point-cloud fit (``lr:`` in YAML): the geometry's groups
+    (:class:`pipeline.fitting.engine.LearningRates`) and the global scale."""
 
-    rotation: float = 0.002
-    """Pose rotation vector, radians."""
-    translation: float = 0.3
-    """Pose translation, mm."""
     log_scale: float = 0.001
     """Log of the global scale."""
-    joints: float = 0.01
-    """Joint channels, as a fraction of each channel's range."""
-    latent: float = 0.03
-    expressions: float = 0.03
 
 
 @dataclass(frozen=True)
@@ -112,15 +105,16 @@ class ScanPriorWeights(PriorWeights):
     """The rig priors of the point-cloud fit (``prior:`` in YAML): ``lambda_m`` is L_m's weight at the
     start; it diminishes towards ``lambda_m_end`` as the correspondences settle."""
 
-    lambda_m: float = 0.3
     lambda_m_end: float = 0.03
     """L_m once the correspondences have settled (JNR's 0.03)."""
     settle_mm: float = 1.0
     """Median vertex motion between rebuilds at which L_m has reached ``lambda_m_end``."""
-    lambda_x: float = 0.3
-    """L_x (eq. 5), the joint-limit penalty (JNR's 0.3)."""
-    lambda_z: float = 1e-3
-    lambda_expressions: float = 0.02
+
+
+SCAN_LEARNING_RATES = ScanLearningRates(rotation=0.002, translation=0.3, joints=0.01, latent=0.03, expressions=0.03)
+"""Steps of the point-cloud fit (radians, mm, fractions of the channels' ranges)."""
+SCAN_PRIOR = ScanPriorWeights(lambda_m=0.3, lambda_x=0.3, lambda_z=1e-3, lambda_expressions=0.02)
+"""JNR's weights for depth data: L_m 0.3 diminishing to 0.03, L_x 0.3; small latent and expression priors."""
 
 
 @dataclass(frozen=True)
@@ -178,11 +172,11 @@ class FitScanConfig:
     """The schedule (JNR 4.3); in YAML a list of ``{name, free, iterations}``."""
     seed: int = 0
     """Seed of the cloud subsampling."""
-    lr: ScanLearningRates = field(default_factory=ScanLearningRates)
+    lr: ScanLearningRates = SCAN_LEARNING_RATES
     """Adam steps per parameter group."""
     fit_scale: bool = True
     """Optimise a global scale with the pose (heads differ in size; the joints' scales are local)."""
-    prior: ScanPriorWeights = field(default_factory=ScanPriorWeights)
+    prior: ScanPriorWeights = SCAN_PRIOR
     """The rig priors (:mod:`pipeline.fitting.priors`), L_m diminishing."""
     lambda_landmarks: float = 0.5
     """Weight of the 3D landmark RMSE (mm) when landmarks are given."""

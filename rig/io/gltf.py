@@ -26,6 +26,7 @@ import numpy as np
 import pygltflib
 from scipy.spatial.transform import Rotation
 
+from rig.geometry import vertex_normals
 from rig.io.atomic import write_bytes_atomic
 from rig.io.mesh import check_mesh_arrays, resolve_format, shape_error, split_uv_seams
 
@@ -86,17 +87,11 @@ _TYPE_SHAPES = {
 # ----------------------------------------------------------------------------------------------
 
 
-def _vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """Area-weighted unit vertex normals ``(V, 3)``; ``(0, 0, 1)`` where undefined."""
-    tri = vertices[faces]
-    face_cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])  # length = 2 * area
-    normals = np.zeros_like(vertices)
-    for corner in range(3):
-        np.add.at(normals, faces[:, corner], face_cross)
-    length = np.linalg.norm(normals, axis=1, keepdims=True)
-    good = length[:, 0] > 1e-12 * max(1.0, float(np.abs(vertices).max()) ** 2)
-    normals[good] /= length[good]
-    normals[~good] = (0.0, 0.0, 1.0)
+def unit_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """:func:`rig.geometry.vertex_normals` ``(V, 3)``, with ``(0, 0, 1)`` where a vertex has none (glTF
+    requires unit normals)."""
+    normals = vertex_normals(vertices, faces)
+    normals[np.linalg.norm(normals, axis=1) < 0.5] = (0.0, 0.0, 1.0)
     return normals
 
 
@@ -379,7 +374,7 @@ def export_skinned_gltf(
         raise ValueError(f"{func}: at most 65536 joints fit JOINTS_0 (unsigned short), got {k}")
 
     joints4, weights4 = _top_influences(func, w)
-    normals = _vertex_normals(v, f)
+    normals = unit_normals(v, f)
 
     if uv is not None:
         f, uvs, source = split_uv_seams(f, uv, n_vertices)

@@ -7,10 +7,9 @@ import pytest
 import torch
 
 import pipeline
-from pipeline.fitting.engine import Loss, Stage, run_schedule, run_stage
+from pipeline.fitting.engine import LearningRates, Loss, Stage, run_schedule, run_stage
 from pipeline.fitting.priors import PriorWeights, rig_prior_terms
 from pipeline.fitting.state import FitState, PhotoState, ScanState
-from pipeline.photo.landmark_fit import LearningRates
 from pipeline.scan.fit import ScanLearningRates
 from rig.expressions import ExpressionModel
 from rig.losses import limit_loss, regularizer
