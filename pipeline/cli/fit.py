@@ -90,7 +90,7 @@ def _fit_one(args: argparse.Namespace, photo: Path, config, out: Path) -> int:
     print(f"fitted {photo} in {summary['fit_seconds']:.1f} s: landmark error {summary['mean_error_px']:.2f} px "
           f"(NME {summary['nme']:.4f})")
     print(f"wrote {out}/: mesh.obj, mesh.ply, mesh.glb, params.json, overlay.png, render.png, landmarks.pts, "
-          "report.json")
+          "report.json, config.yaml")
     return EXIT_OK
 
 
