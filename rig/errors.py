@@ -34,4 +34,20 @@ class ShapeError(InputError):
     """A tensor or array argument has the wrong shape (message: function, argument, expected, got)."""
 
 
-__all__ = ["InputError", "JnrError", "SetupError", "ShapeError"]
+def shape_error(func: str, arg: str, expected: str, got: object) -> ShapeError:
+    """The one message for a wrong shape: ``"{func}: {arg} must have shape {expected}, got {got}"``.
+
+    Example:
+        >>> str(shape_error("skin_vertices", "weights", "(V, J)", (3, 2, 1)))
+        'skin_vertices: weights must have shape (V, J), got (3, 2, 1)'
+    """
+    return ShapeError(f"{func}: {arg} must have shape {expected}, got {got}")
+
+
+def check_shape(ok: bool, func: str, arg: str, expected: str, got: object) -> None:
+    """Raise :func:`shape_error` unless ``ok`` (the caller's test of the shape, e.g. ``x.shape[-1] == 3``)."""
+    if not ok:
+        raise shape_error(func, arg, expected, got)
+
+
+__all__ = ["InputError", "JnrError", "SetupError", "ShapeError", "check_shape", "shape_error"]

@@ -11,13 +11,8 @@ import math
 
 import torch
 
-from rig.errors import ShapeError
+from rig.errors import ShapeError, check_shape
 from rig.joints import CHANNEL_KINDS, ROTATE, SCALE_AXES, TRANSLATE, UNIFORM_SCALE
-
-
-def _check(cond: bool, func: str, arg: str, expected: str, got: object) -> None:
-    if not cond:
-        raise ShapeError(f"{func}: {arg} must have shape {expected}, got {got}")
 
 
 def euler_to_matrix(angles: torch.Tensor) -> torch.Tensor:
@@ -33,7 +28,7 @@ def euler_to_matrix(angles: torch.Tensor) -> torch.Tensor:
         >>> euler_to_matrix(torch.tensor([0.0, 0.0, math.pi / 2])) @ torch.tensor([1.0, 0.0, 0.0])
         tensor([-4.3711e-08,  1.0000e+00,  0.0000e+00])
     """
-    _check(angles.shape[-1:] == (3,), "euler_to_matrix", "angles", "(*, 3)", tuple(angles.shape))
+    check_shape(angles.shape[-1:] == (3,), "euler_to_matrix", "angles", "(*, 3)", tuple(angles.shape))
     ca, cb, cc = torch.cos(angles).unbind(-1)
     sa, sb, sc = torch.sin(angles).unbind(-1)
     rows = (
@@ -58,7 +53,7 @@ def channels_to_trs(theta: torch.Tensor, channel_joint: torch.Tensor, channel_ki
         ``(rotation_rad (B, K, 3), translation_mm (B, K, 3), scale (B, K, 3))``; joints without a channel
         get zero rotation/translation and unit scale.
     """
-    _check(theta.dim() == 2 and theta.shape[1] == channel_joint.shape[0], "channels_to_trs", "theta",
+    check_shape(theta.dim() == 2 and theta.shape[1] == channel_joint.shape[0], "channels_to_trs", "theta",
            f"(B, {channel_joint.shape[0]})", tuple(theta.shape))
     batch = theta.shape[0]
     # One (B, K, 10) table: rotate xyz, translate xyz, scale xyz offsets, uniform scale offset.
@@ -82,7 +77,7 @@ def local_transforms(rotation: torch.Tensor, translation: torch.Tensor, scale: t
     Returns:
         ``(B, K, 4, 4)``.
     """
-    _check(rotation.shape == translation.shape == scale.shape and rotation.shape[-1] == 3, "local_transforms",
+    check_shape(rotation.shape == translation.shape == scale.shape and rotation.shape[-1] == 3, "local_transforms",
            "rotation/translation/scale", "(B, K, 3) each", (tuple(rotation.shape), tuple(translation.shape),
                                                              tuple(scale.shape)))
     linear = euler_to_matrix(rotation) * scale.unsqueeze(-2)
@@ -111,9 +106,9 @@ def joint_world_transforms(tau: torch.Tensor, bind_positions: torch.Tensor, pare
         ``(world (B, K, 4, 4), skinning (B, K, 4, 4))``.
     """
     K = bind_positions.shape[0]
-    _check(tau.dim() == 4 and tau.shape[1:] == (K, 4, 4), "joint_world_transforms", "tau", f"(B, {K}, 4, 4)",
+    check_shape(tau.dim() == 4 and tau.shape[1:] == (K, 4, 4), "joint_world_transforms", "tau", f"(B, {K}, 4, 4)",
            tuple(tau.shape))
-    _check(parents.shape == (K,), "joint_world_transforms", "parents", f"({K},)", tuple(parents.shape))
+    check_shape(parents.shape == (K,), "joint_world_transforms", "parents", f"({K},)", tuple(parents.shape))
     if levels is None:
         levels = hierarchy_levels(parents)
     parent_pos = torch.where((parents >= 0).unsqueeze(-1), bind_positions[parents.clamp(min=0)],
@@ -154,9 +149,9 @@ def skinning_basis(vertices: torch.Tensor, weights: torch.Tensor) -> torch.Tenso
     Returns:
         ``(V, 4K)`` or ``(B, V, 4K)``.
     """
-    _check(vertices.shape[-1] == 3 and vertices.dim() in (2, 3), "skinning_basis", "vertices", "(V, 3) or (B, V, 3)",
+    check_shape(vertices.shape[-1] == 3 and vertices.dim() in (2, 3), "skinning_basis", "vertices", "(V, 3) or (B, V, 3)",
            tuple(vertices.shape))
-    _check(weights.dim() in (2, 3) and weights.shape[-2] == vertices.shape[-2], "skinning_basis", "weights",
+    check_shape(weights.dim() in (2, 3) and weights.shape[-2] == vertices.shape[-2], "skinning_basis", "weights",
            f"(V, K) or (B, V, K) with V = {vertices.shape[-2]}", tuple(weights.shape))
     homogeneous = torch.cat([vertices, torch.ones_like(vertices[..., :1])], dim=-1)
     basis = weights.unsqueeze(-1) * homogeneous.unsqueeze(-2)
@@ -173,10 +168,10 @@ def skin_with_basis(basis: torch.Tensor, skinning: torch.Tensor) -> torch.Tensor
     Returns:
         ``(B, V, 3)`` posed vertices, mm.
     """
-    _check(skinning.dim() == 4 and skinning.shape[-2:] == (4, 4), "skin_with_basis", "skinning", "(B, K, 4, 4)",
+    check_shape(skinning.dim() == 4 and skinning.shape[-2:] == (4, 4), "skin_with_basis", "skinning", "(B, K, 4, 4)",
            tuple(skinning.shape))
     batch, K = skinning.shape[:2]
-    _check(basis.shape[-1] == 4 * K, "skin_with_basis", "basis", f"(V, {4 * K}) or (B, V, {4 * K})",
+    check_shape(basis.shape[-1] == 4 * K, "skin_with_basis", "basis", f"(V, {4 * K}) or (B, V, {4 * K})",
            tuple(basis.shape))
     if basis.dim() == 3:
         # (B, V, 4K) @ (B, 4K, 3)
@@ -197,10 +192,10 @@ def skin_vertices(vertices: torch.Tensor, weights: torch.Tensor, skinning: torch
     Returns:
         ``(B, V, 3)`` posed vertices in mm.
     """
-    _check(skinning.dim() == 4 and skinning.shape[-2:] == (4, 4), "skin_vertices", "skinning", "(B, K, 4, 4)",
+    check_shape(skinning.dim() == 4 and skinning.shape[-2:] == (4, 4), "skin_vertices", "skinning", "(B, K, 4, 4)",
            tuple(skinning.shape))
     batch, K = skinning.shape[:2]
-    _check(weights.shape[-1] == K and weights.dim() in (2, 3), "skin_vertices", "weights", f"(V, {K}) or (B, V, {K})",
+    check_shape(weights.shape[-1] == K and weights.dim() in (2, 3), "skin_vertices", "weights", f"(V, {K}) or (B, V, {K})",
            tuple(weights.shape))
     basis = skinning_basis(vertices, weights)
     if basis.dim() == 3 and basis.shape[0] != batch:

@@ -26,9 +26,10 @@ import numpy as np
 import pygltflib
 from scipy.spatial.transform import Rotation
 
+from rig.errors import shape_error
 from rig.geometry import vertex_normals
 from rig.io.atomic import write_bytes_atomic
-from rig.io.mesh import check_mesh_arrays, resolve_format, shape_error, split_uv_seams
+from rig.io.mesh import check_mesh_arrays, resolve_format, split_uv_seams
 
 __all__ = [
     "GLTF_UNITS_NOTE",

@@ -28,9 +28,10 @@ from typing import Any
 import numpy as np
 import trimesh
 
+from rig.errors import shape_error
 from rig.io.atomic import write_bytes_atomic
 
-__all__ = ["OBJ_DIGITS", "check_mesh_arrays", "export_mesh", "resolve_format", "shape_error", "split_uv_seams"]
+__all__ = ["OBJ_DIGITS", "check_mesh_arrays", "export_mesh", "resolve_format", "split_uv_seams"]
 
 OBJ_DIGITS = 10
 """Decimal places written for OBJ coordinates (fixed-point; 1e-10 mm for positions)."""
@@ -39,11 +40,6 @@ OBJ_DIGITS = 10
 # ----------------------------------------------------------------------------------------------
 # argument checks
 # ----------------------------------------------------------------------------------------------
-
-
-def shape_error(func: str, name: str, expected: str, got: Any) -> ValueError:
-    """The error for argument ``name`` of ``func`` with shape ``got`` where ``expected`` was required."""
-    return ValueError(f"{func}: {name} must have shape {expected}, got {got}")
 
 
 def check_mesh_arrays(
