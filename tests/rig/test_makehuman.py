@@ -81,3 +81,46 @@ def test_skin_has_one_boundary_loop_and_the_eyeballs_and_tongue_are_closed():
         prev, cur = cur, nxt
     assert len(seen) == len(neighbours)
     assert head.vertices[list(seen), 1].max() < 640.0  # the loop is the neck cut, low on the head
+
+
+def test_arkit_face_units_are_the_52_named_mirrored_shapes():
+    from rig.makehuman import ARKIT_NAMES, arkit_offsets, data_dir
+
+    assert len(ARKIT_NAMES) == len(set(ARKIT_NAMES)) == 52
+    files = {p.name.removesuffix(".target") for p in (data_dir() / "faceunits01" / "targets" / "faceunits").iterdir()}
+    assert files == set(ARKIT_NAMES)
+    head, shapes = head_mesh(), arkit_offsets()
+    assert shapes.shape == (52, len(head.vertices), 3)
+    flip = np.array([-1.0, 1.0, 1.0])
+    for i, name in enumerate(ARKIT_NAMES):
+        if name.endswith("Left"):
+            right = ARKIT_NAMES.index(name[:-4] + "Right")
+            deviation = np.abs(shapes[right] - shapes[i][head.mirror] * flip).max()
+            # the artist's pairs mirror each other closely (measured <= 0.2 mm; mouthSmile 1.1 mm)
+            assert deviation <= (1.2 if name == "mouthSmileLeft" else 0.25), (name, deviation)
+    moved = np.linalg.norm(shapes, axis=2) > 1e-9
+    tongue = np.isin(np.arange(len(head.vertices)), np.unique(head.faces[head.face_piece == PIECES.index("tongue")]))
+    assert moved[ARKIT_NAMES.index("tongueOut")].any() and not moved[ARKIT_NAMES.index("tongueOut")][~tongue].any()
+    blink = np.linalg.norm(shapes[ARKIT_NAMES.index("eyeBlinkLeft")], axis=1) ** 2
+    # the subject's left (+x) side carries most of it; measured 93.5 % (the unit also moves 81 vertices
+    # around the mouth's midline by up to 8.5 mm: in the artist's data, to look at before using it)
+    assert blink[head.vertices[:, 0] > 0].sum() > 0.9 * blink.sum()
+    jaw = shapes[ARKIT_NAMES.index("jawOpen")]
+    assert jaw[:, 1].min() < -25.0 and jaw[:, 1].max() < 4.5  # the jaw drops 34 mm; at most 4.0 mm rises (measured)
+
+
+def test_targets_read_plain_and_gzip(tmp_path):
+    import gzip
+
+    from rig.makehuman import read_target
+
+    text = "# a comment\n3 0.1 0 -0.02\n7 0 0.5 0\n"
+    (tmp_path / "a.target").write_text(text)
+    (tmp_path / "a.target.gz").write_bytes(gzip.compress(text.encode()))
+    for name in ("a.target", "a.target.gz"):
+        ids, offsets = read_target(tmp_path / name)
+        assert ids.tolist() == [3, 7]
+        np.testing.assert_allclose(offsets, [[10.0, 0.0, -2.0], [0.0, 50.0, 0.0]])  # decimetres -> mm
+    (tmp_path / "bad.target").write_text("3 0.1\n")
+    with pytest.raises(SetupError, match="not a MakeHuman target"):
+        read_target(tmp_path / "bad.target")
