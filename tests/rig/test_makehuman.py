@@ -124,3 +124,47 @@ def test_targets_read_plain_and_gzip(tmp_path):
     (tmp_path / "bad.target").write_text("3 0.1\n")
     with pytest.raises(SetupError, match="not a MakeHuman target"):
         read_target(tmp_path / "bad.target")
+
+
+def test_phenotype_weights_follow_makehumans_rules():
+    from rig.makehuman import RACES, Phenotype, macro_target_weights
+
+    assert Phenotype.age_value(25) == 0.5 and Phenotype.age_value(90) == 1.0 and Phenotype.age_value(11) == 0.1875
+    assert Phenotype().age == pytest.approx(Phenotype.age_value(40))
+    at = {0.0: "baby", 0.1875: "child", 0.5: "young", 1.0: "old"}
+    for value, category in at.items():
+        assert Phenotype(age=value).category_weights()["age"][category] == pytest.approx(1.0)
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        p = Phenotype(*rng.uniform(0, 1, 9))
+        for name, weights in p.category_weights().items():
+            assert sum(weights.values()) == pytest.approx(1.0), name
+            assert min(weights.values()) >= 0.0
+        w = macro_target_weights(p)
+        assert sum(v for k, v in w.items() if k.startswith("universal-")) == pytest.approx(1.0)
+        assert sum(v for k, v in w.items() if k.split("-")[0] in RACES) == pytest.approx(1.0)
+    with pytest.raises(ValueError, match="gender"):
+        Phenotype(gender=1.5)
+    with pytest.raises(ValueError, match="race"):
+        Phenotype(african=0.0, asian=0.0, caucasian=0.0)
+
+
+def test_the_adult_average_head_is_symmetric_and_phenotypes_move_it():
+    import dataclasses
+
+    from rig.makehuman import Phenotype, phenotype_offsets
+
+    head = head_mesh()
+    average = head.vertices + phenotype_offsets()
+    np.testing.assert_array_equal(average[head.mirror], average * [-1.0, 1.0, 1.0])
+    moved = np.sqrt((phenotype_offsets() ** 2).sum(1).mean())
+    assert 3.0 < moved < 12.0  # mm RMS from MakeHuman's base mesh (measured 6.8)
+
+    def shape_change(**kw):  # RMS, translation removed, against the average
+        d = head.vertices + phenotype_offsets(dataclasses.replace(Phenotype(), **kw)) - average
+        return float(np.sqrt(((d - d.mean(0)) ** 2).sum(1).mean()))
+
+    # gender and race move the head by millimetres (measured 4.96 and 3.76 mm), age less (2.47 mm at 80 y)
+    assert 3.0 < shape_change(gender=1.0) < 7.0
+    assert 2.0 < shape_change(african=1.0, asian=0.0, caucasian=0.0) < 6.0
+    assert 1.0 < shape_change(age=Phenotype.age_value(80)) < 5.0
