@@ -439,3 +439,16 @@ def phenotype_offsets(phenotype: Phenotype | None = None) -> np.ndarray:
             raise SetupError(f"{folder / path}: a MakeHuman macro target is missing")
         total += weight * target_on_head(folder / path, head)
     return total
+
+
+def expression_unit_offsets(variant: str = "caucasian") -> tuple[tuple[str, ...], np.ndarray]:
+    """MakeHuman's 34 older expression units (``targets/expression/units/<variant>/``; the three variants
+    differ by ~3 %) on the head's vertices: ``(names, (34, V, 3) float64 mm)``, names sorted. A basis
+    largely outside the ARKit span: the test expressions of issue 13."""
+    folder = data_dir() / "mpfb2" / "targets" / "expression" / "units" / variant
+    if not folder.is_dir():
+        raise ValueError(f"expression_unit_offsets: variant must be one of {list(RACES)}, got {variant!r}")
+    paths = sorted(folder.glob("*.target.gz"))
+    head = head_mesh()
+    names = tuple(p.name.removesuffix(".target.gz") for p in paths)
+    return names, np.stack([target_on_head(p, head) for p in paths])

@@ -168,3 +168,23 @@ def test_the_adult_average_head_is_symmetric_and_phenotypes_move_it():
     assert 3.0 < shape_change(gender=1.0) < 7.0
     assert 2.0 < shape_change(african=1.0, asian=0.0, caucasian=0.0) < 6.0
     assert 1.0 < shape_change(age=Phenotype.age_value(80)) < 5.0
+
+
+def test_makehuman_expression_units_lie_mostly_outside_the_arkit_span():
+    from rig.makehuman import arkit_offsets, expression_unit_offsets
+
+    names, units = expression_unit_offsets()
+    assert len(names) == 34 and "mouth-open" in names and units.shape[1:] == (len(head_mesh().vertices), 3)
+
+    def outside(shapes, basis):  # fraction of each shape's norm outside the span of the basis
+        q, _ = np.linalg.qr(basis.reshape(len(basis), -1).T)
+        x = shapes.reshape(len(shapes), -1).T
+        return np.linalg.norm(x - q @ (q.T @ x), axis=0) / np.linalg.norm(x, axis=0)
+
+    arkit = arkit_offsets()
+    # measured on the head cut: median 66 % of each unit outside the 52 ARKit shapes, 79 % the other way
+    # (the note measured 65 % and 77 %)
+    assert 0.55 < np.median(outside(units, arkit)) < 0.75
+    assert 0.70 < np.median(outside(arkit, units)) < 0.85
+    with pytest.raises(ValueError, match="variant"):
+        expression_unit_offsets("martian")
