@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from rig.errors import InputError
+from rig.io.atomic import write_bytes_atomic
 
 NUM_LANDMARKS = 68
 FORMATS = (".pts", ".json", ".csv")
@@ -182,4 +183,4 @@ def write_landmarks(path: str | Path, points) -> None:
         text = json.dumps({"landmarks": pts.tolist(), "convention": "ibug68", "pixel_origin": "opencv"}, indent=1) + "\n"
     else:
         text = "index,x,y\n" + "".join(f"{i},{x!r},{y!r}\n" for i, (x, y) in enumerate(pts.tolist()))
-    path.write_text(text, encoding="utf-8")
+    write_bytes_atomic(path, text.encode("utf-8"))  # never a half-written landmarks file

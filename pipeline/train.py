@@ -18,6 +18,7 @@ from pathlib import Path
 
 import torch
 
+from rig.io.atomic import write_bytes_atomic
 from rig.optim import Progress
 
 
@@ -174,5 +175,5 @@ def train(config: TrainConfig, out_path: Path, *, log_path: Path | None = None,
     )
     save_neural(neural, out_path, meta={"config": asdict(config), "counts": report.counts, "seconds": report.seconds})
     if log_path is not None:
-        log_path.write_text(json.dumps(asdict(report), indent=2) + "\n")
+        write_bytes_atomic(log_path, (json.dumps(asdict(report), indent=2) + "\n").encode())
     return report

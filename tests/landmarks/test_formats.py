@@ -84,3 +84,21 @@ def test_write_rejects_bad_points(tmp_path):
         write_landmarks(tmp_path / "a.csv", np.zeros((68, 3)))
     with pytest.raises(ValueError, match="non-finite"):
         write_landmarks(tmp_path / "a.csv", np.full((68, 2), np.nan))
+
+
+def test_write_landmarks_never_leaves_a_half_written_file(tmp_path, monkeypatch):
+    import os
+
+    path = tmp_path / "face.pts"
+    first = np.arange(136, dtype=float).reshape(68, 2)
+    write_landmarks(path, first)
+    before = path.read_bytes()
+
+    def fail(fd):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(os, "fsync", fail)
+    with pytest.raises(OSError, match="No space"):
+        write_landmarks(path, first + 1.0)
+    assert path.read_bytes() == before and [p.name for p in tmp_path.iterdir()] == ["face.pts"]
+    np.testing.assert_allclose(read_landmarks(path), first)
