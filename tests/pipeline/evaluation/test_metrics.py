@@ -194,7 +194,6 @@ def test_an_evaluation_holds_a_tuple_and_summarises_itself():
 # ------------------------------------------------------------------------------ the committed records
 
 
-@pytest.mark.skipif(not (DOCS / "fit_scan_bench.json").exists(), reason="no committed scan benchmark")
 def test_committed_scan_records_give_the_committed_summary():
     """The scan summary was already mean ± sample std: recomputed from the records it is the same."""
     bench = json.loads((DOCS / "fit_scan_bench.json").read_text())
@@ -210,7 +209,6 @@ def test_committed_scan_records_give_the_committed_summary():
     assert "| jnr | neutral | 5 | 0.70 ± 0.03 |" in ev.table_markdown()
 
 
-@pytest.mark.skipif(not (DOCS / "fit_photo_bench.json").exists(), reason="no committed photo benchmark")
 def test_committed_photo_records_give_the_committed_summary_with_sample_stds():
     """Recomputed from the committed records, the photo summary is the committed one; its stds are the
     sample std (ddof=1) of the records (a naive computation)."""
