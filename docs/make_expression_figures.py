@@ -1,7 +1,7 @@
-"""Render the 24 expression blendshapes at coefficient 1 into ``docs/expressions.png``.
+"""Render the 52 ARKit expression shapes at coefficient 1 into ``docs/expressions.png``.
 
-A 6 x 4 grid of small front views (template + the shape's offsets at its ``high`` limit), each tile
-labelled with the shape's name. Run from the repository root::
+A 13 x 4 grid of small front views (template + the shape's offsets at 1), each tile labelled with the
+shape's ARKit name, in ARKit's order. Run from the repository root::
 
     python docs/make_expression_figures.py [--out docs/expressions.png] [--spp 16]
 """
@@ -22,26 +22,27 @@ if str(ROOT) not in sys.path:
 from rig.asset import load_asset  # noqa: E402
 from rig.expressions import EXPRESSIONS, ExpressionModel  # noqa: E402
 
-COLUMNS, ROWS = 6, 4
-TILE = (200, 240)  # width, height in pixels
+COLUMNS, ROWS = 13, 4
+TILE = (160, 192)  # width, height in pixels
 
 
 def render_grid(spp: int = 16, view: str = "front") -> np.ndarray:
-    """``(ROWS * 240, COLUMNS * 200, 3)`` uint8 picture of every shape at coefficient ``high``."""
+    """``(ROWS * 192, COLUMNS * 160, 3)`` uint8 picture of every shape at coefficient ``high``."""
     from PIL import Image, ImageDraw
 
     from render.preview import render_preview
 
     asset = load_asset()
     model = ExpressionModel(asset, dtype=torch.float64)
+    faces = asset.faces[~asset.region_mask("mouth_interior", "eye_pockets")[asset.faces].all(1)]
     grid = Image.new("RGB", (COLUMNS * TILE[0], ROWS * TILE[1]), (255, 255, 255))
     for i, spec in enumerate(EXPRESSIONS):
         c = torch.zeros(1, len(EXPRESSIONS), dtype=torch.float64)
         c[0, i] = spec.high
         with torch.no_grad():
             verts = model.vertices(c)[0].numpy()
-        tile = Image.fromarray(render_preview(verts, asset.faces, view=view, size=TILE, spp=spp,
-                                              distance=600.0, target=(0.0, -20.0, 30.0)))
+        tile = Image.fromarray(render_preview(verts, faces, view=view, size=TILE, spp=spp,
+                                              distance=520.0, target=(0.0, -25.0, 40.0)))
         draw = ImageDraw.Draw(tile)
         label = spec.name if spec.high == 1.0 else f"{spec.name} = {spec.high:g}"
         draw.text((6, 6), label, fill=(0, 0, 0))

@@ -18,15 +18,17 @@ REGION_COLORS = {
     "eyelids": (0.90, 0.50, 0.50), "nose": (0.92, 0.76, 0.30), "cheeks": (0.80, 0.58, 0.47),
     "lips": (0.80, 0.18, 0.22), "chin": (0.55, 0.72, 0.92), "jaw": (0.45, 0.78, 0.45),
     "ears": (0.68, 0.40, 0.80), "neck": (0.60, 0.60, 0.60), "eyeballs": (0.95, 0.95, 0.95),
-    "mouth_interior": (0.40, 0.05, 0.05),
+    "mouth_interior": (0.40, 0.05, 0.05), "teeth": (0.95, 0.93, 0.85), "tongue": (0.75, 0.30, 0.32),
+    "eye_pockets": (0.30, 0.10, 0.10),
 }
 VIEWS = ("front", "three_quarter", "side")
 
 
 def main() -> None:
     asset = load_asset()
-    v, f = asset.vertices, asset.faces
-    kw = dict(size=(420, 520), spp=128, distance=620.0, target=(0.0, -25.0, 15.0))
+    v = asset.vertices
+    f = asset.faces[~asset.region_mask("mouth_interior", "eye_pockets", "teeth", "tongue")[asset.faces].all(1)]
+    kw = dict(size=(420, 520), spp=64, distance=620.0, target=(0.0, -25.0, 15.0))
     tiles = [render_preview(v, f, view=view, **kw) for view in VIEWS]
     save_png(np.concatenate(tiles, 1), DOCS / "template_views.png")
     colors = np.array([REGION_COLORS[n] for n in asset.region_names])[asset.regions]

@@ -1,25 +1,38 @@
 """The 68 iBUG landmarks embedded on the template: one face index + three barycentric weights each.
 
-Every landmark is found from the template's own structure (eyelid and lip loops, regions, the
-midline, geometric extremes), so it follows the template if the template is regenerated. Landmarks
-on the subject's left (+X) are computed and their right-side partners are obtained through the
-vertex mirror map, so each pair is an exact mirror image; midline landmarks lie on x = 0.
+Every landmark is first placed from the template's own structure (eyelid and lip loops, regions, the
+midline, geometric extremes), so it follows the template if the template is regenerated; then the
+committed corrections (:data:`LANDMARK_CORRECTIONS_MM`, :data:`CONTOUR_ANGLES_DEG`) move it to where
+dlib's 68-point predictor -- the detector the photo fit uses -- puts it on renders of the template
+(``benchmarks/bench_landmark_offsets.py``; ``docs/landmarks.md``). No rendering happens at run time:
+the embedding is a function of the asset and the two tables. Landmarks on the subject's left (+X) and
+on the midline are computed, their right-side partners are obtained through the vertex mirror map, so
+each pair is an exact mirror image; midline landmarks lie exactly on x = 0 (midline vertices and edges).
 The order is the standard iBUG-68 order (:data:`IBUG68_NAMES`); a golden test pins the face ids.
 
 ===========  ==========================================================================
-indices      placement
+indices      geometric placement (before the corrections)
 ===========  ==========================================================================
 0-16         jaw contour: the face's side outline seen from the front (cheeks, jaw,
              chin regions), from the right ear side (-X, at the outer eye corner's height)
-             down to the chin (8, lowest midline chin vertex) and up to the left
+             down to the chin (8, lowest midline chin vertex) and up to the left, in 9
+             equal arc-length steps per side
 17-21/22-26  right brow outer->inner / left brow inner->outer, along the middle of the
              brow band
 27-30        nose bridge, on the midline from the top of the upper eyelids to the tip
 31-35        lower edge of the nose, right->left (33 = lowest forward midline point)
 36-41/42-47  eyelid loops: corners, and the lids at 1/3 and 2/3 of the corner-to-corner width
-48-59        outer lip: the boundary of the ``lips`` region (corners = its x extremes)
-60-67        inner lip: the mouth loop (corners, and the lids at x = +-half the corner x)
+48-59        outer lip on the vermilion border (the outermost edge ring around the mouth
+             loop inside the ``lips`` region): corners, 51/57 on the midline, 50/52 the
+             Cupid's bow peaks, 49/53 halfway to the corners, 55-59 under 53..49
+60-67        inner lip on the mouth loop (the lips' rim): corners, midline, and under the
+             bow peaks
 ===========  ==========================================================================
+
+Corrected, every landmark stays on its surface: brows on faces touching the ``brows`` region, the
+nose base on ``nose`` faces, the outer lip on ``lips`` faces, eyelid points on the eyelid rims, inner
+lip points on the mouth loop, midline landmarks on the midline; the static contour on the frontal
+outline (each point's direction from the contour centre: :data:`CONTOUR_ANGLES_DEG`).
 
 :func:`landmark_positions` gathers the posed landmarks with one einsum (differentiable in torch).
 :func:`contour_landmarks` replaces the static jaw contour with the silhouette seen from a camera
@@ -28,6 +41,7 @@ indices      placement
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 
 import numpy as np
@@ -123,20 +137,6 @@ def _crossing(vertices: np.ndarray, faces: np.ndarray, path: np.ndarray, axis: i
     raise RuntimeError(f"ibug68: path never reaches coordinate {axis} = {value:.3f}")
 
 
-def _path_point(vertices: np.ndarray, faces: np.ndarray, path: np.ndarray, x: float, face_ids: np.ndarray
-                ) -> tuple[int, np.ndarray]:
-    """The point of a vertex path at ``x``: on the edge where consecutive path vertices share one, else the
-    interpolated position projected onto ``face_ids``."""
-    c = vertices[path, 0] - x
-    for k in range(len(path) - 1):
-        if c[k] * c[k + 1] <= 0.0 and c[k] != c[k + 1]:
-            a, b, t = int(path[k]), int(path[k + 1]), c[k] / (c[k] - c[k + 1])
-            if len(_faces_with(faces, a, b)):
-                return _edge_point(faces, a, b, t)
-            return _closest_point_on_faces(vertices, faces, face_ids, (1 - t) * vertices[a] + t * vertices[b])
-    raise RuntimeError(f"ibug68: path never reaches x = {x:.3f}")
-
-
 def _split_loop(vertices: np.ndarray, loop: np.ndarray, a: int, b: int) -> tuple[np.ndarray, np.ndarray]:
     """The two halves of a closed vertex loop between loop vertices ``a`` and ``b`` (both include both ends),
     returned ``(upper, lower)`` by mean height, each running from ``a`` to ``b``."""
@@ -149,32 +149,6 @@ def _split_loop(vertices: np.ndarray, loop: np.ndarray, a: int, b: int) -> tuple
     if vertices[one, 1].mean() >= vertices[other, 1].mean():
         return one, other
     return other, one
-
-
-def _boundary_loops(faces: np.ndarray) -> list[np.ndarray]:
-    """Closed boundary loops (vertex ids) of a face patch."""
-    edges = np.sort(face_edges(faces), 1)
-    uniq, counts = np.unique(edges, axis=0, return_counts=True)
-    boundary = uniq[counts == 1]
-    nbrs: dict[int, list[int]] = {}
-    for a, b in boundary:
-        nbrs.setdefault(int(a), []).append(int(b))
-        nbrs.setdefault(int(b), []).append(int(a))
-    loops, seen = [], set()
-    for start in nbrs:
-        if start in seen:
-            continue
-        loop, prev, cur = [start], None, start
-        seen.add(start)
-        while True:
-            nxt = [n for n in nbrs[cur] if n != prev and (n not in seen or (n == start and len(loop) > 2))]
-            if not nxt or nxt[0] == start:
-                break
-            prev, cur = cur, nxt[0]
-            loop.append(cur)
-            seen.add(cur)
-        loops.append(np.array(loop))
-    return loops
 
 
 def _mirror_point(faces: np.ndarray, mirror: np.ndarray, face: int, bary: np.ndarray,
@@ -195,25 +169,89 @@ def _midline_path(vertices: np.ndarray, mirror: np.ndarray, faces: np.ndarray, y
     return ids[np.argsort(-vertices[ids, 1])]
 
 
-# --- the embedding ---------------------------------------------------------------------------------------
+# --- the committed corrections ---------------------------------------------------------------------------
+
+LANDMARK_CORRECTIONS_MM: dict[int, tuple[float, float, float]] = {
+    8: (0.0, 1.6, 14.2),  # jaw_08
+    22: (1.4, -6.6, -0.3),  # left_brow_0
+    23: (2.3, -2.0, -0.5),  # left_brow_1
+    24: (3.3, 2.1, -1.4),  # left_brow_2
+    25: (5.9, 1.5, -5.3),  # left_brow_3
+    26: (5.0, -4.5, -6.6),  # left_brow_4
+    27: (0.0, -3.3, -0.2),  # nose_bridge_0
+    28: (0.0, -2.4, 1.4),  # nose_bridge_1
+    29: (0.0, -0.1, 0.1),  # nose_bridge_2
+    30: (0.0, 1.3, -0.2),  # nose_bridge_3
+    33: (0.0, 1.3, 0.6),  # nose_base_2
+    34: (0.1, -0.8, -0.2),  # nose_base_3
+    35: (0.4, 4.6, 0.8),  # nose_base_4
+    42: (0.0, 0.0, 0.0),  # left_eye_inner
+    43: (-1.2, -0.2, 0.1),  # left_eye_upper_0
+    44: (-0.5, 0.1, 0.2),  # left_eye_upper_1
+    45: (-0.5, 2.0, 1.3),  # left_eye_outer
+    46: (0.4, 0.1, -0.2),  # left_eye_lower_0
+    47: (-0.9, 0.1, -0.1),  # left_eye_lower_1
+    51: (0.0, -2.3, -0.3),  # outer_lip_upper_2
+    52: (1.1, -1.1, -0.4),  # outer_lip_upper_3
+    53: (0.3, -1.7, -0.4),  # outer_lip_upper_4
+    54: (-1.8, 0.4, 0.1),  # outer_lip_left_corner
+    55: (0.3, 1.1, 0.2),  # outer_lip_lower_0
+    56: (1.4, 0.6, 0.0),  # outer_lip_lower_1
+    57: (0.0, 0.5, 0.2),  # outer_lip_lower_2
+    63: (0.9, -1.3, 0.7),  # inner_lip_upper_2
+    64: (-4.3, -0.4, 1.2),  # inner_lip_left_corner
+    65: (0.9, 0.1, -0.1),  # inner_lip_lower_0
+}
+"""Per landmark of the left side and the midline (x >= 0; the right side is their mirror image), a 3D
+offset in mm, template space, rounded to 0.1 mm, added to the geometric placement before the point is
+snapped back onto the landmark's surface (:func:`_snap`: its region's faces, its rim, or the midline).
+
+It moves the geometric placement to where dlib's 68-point predictor (:mod:`landmarks.detect`) puts the
+landmark on renders of the template: ``benchmarks/bench_landmark_offsets.py --fit`` photographs the
+template in a grid of poses (:func:`pipeline.synthetic.photos.simulate_photo`), detects, and for each
+landmark (with its mirror partner, mirrored) takes the point of its surface whose projections agree
+best with the detections over all views (least squares); the row is that point minus the placement.
+Landmarks without a row keep their placement (the lips' midline rim vertices 62 and 66 have no
+freedom: the mouth loop crosses the midline at one vertex each). Results: ``docs/landmarks.md``."""
+
+CONTOUR_ANGLES_DEG: tuple[float, ...] = (-0.1, 16.0, 27.1, 44.1, 53.4, 63.9, 75.8, 82.9)
+"""The static jaw contour of the left side, landmarks 16, 15, ..., 9: the direction of each point as
+seen from the contour centre (x = 0, the outer eye corners' height) in the frontal projection, degrees
+below the horizontal; each point is the frontal-outline vertex nearest that direction. Fitted with
+:data:`LANDMARK_CORRECTIONS_MM` (the direction sets the line across the cheek on which
+:func:`contour_landmarks` looks for the silhouette); empty: the geometric placement (9 equal steps of
+arc length along the outline from the eye corners' height to the chin)."""
+
+_HIDDEN_REGIONS = ("eyeballs", "mouth_interior", "teeth", "tongue", "eye_pockets")
+
+
+# --- the jaw contour -------------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class _Outline:
+    vertex_ids: np.ndarray  # the frontal outline of the left half, from the horizontal down to the chin
+    angles: np.ndarray  # each vertex's direction from the centre, degrees below the horizontal (~0 .. 90)
+    centre: np.ndarray  # (2,) contour centre (x, y)
+    allowed: np.ndarray  # vertex ids the contour may use (cheeks, jaw, chin; front half)
+    chin_id: int
+
 
 @dataclass(frozen=True)
 class _ContourData:
-    vertex_ids: np.ndarray  # (17,) static contour vertices (left half computed, right mirrored)
+    vertex_ids: np.ndarray  # (17,) static contour vertices (left half placed, right mirrored)
     directions: np.ndarray  # (17, 2) outward frontal directions (x, y) from the contour centre
     centre: np.ndarray  # (2,) contour centre (x, y)
     candidates: tuple[np.ndarray, ...]  # per contour point: vertex ids front -> back (empty for the chin)
 
 
 @cached_per_asset
-def _contour(asset: RigAsset) -> _ContourData:
+def _outline(asset: RigAsset) -> _Outline:
     v, mirror = asset.vertices, asset.mirror
     eye_outer = [int(loop[np.argmax(np.abs(v[loop, 0]))]) for loop in asset.eye_loops]
-    y_top = float(np.mean(v[eye_outer, 1]))
+    centre = np.array([0.0, float(np.mean(v[eye_outer, 1]))])
     chin = np.flatnonzero(asset.region_mask("chin") & (mirror == np.arange(len(v))))
     chin_id = int(chin[np.argmin(v[chin, 1])])
     allowed = np.flatnonzero(asset.region_mask(*_SIDE_REGIONS) & (v[:, 2] > 0.0))
-    centre = np.array([0.0, y_top])
     # The frontal outline of the left half: for each angle from horizontal (0) to straight down (-90 deg),
     # the allowed vertex projecting farthest from the centre within a narrow angular sector.
     rel = v[allowed, :2] - centre
@@ -226,24 +264,37 @@ def _contour(asset: RigAsset) -> _ContourData:
             outline.append(int(allowed[sector[np.argmax(radius[sector])]]))
     outline = [i for k, i in enumerate(outline) if k == 0 or i != outline[k - 1]]
     outline = np.array(outline[:-1] + [chin_id]) if outline[-1] != chin_id else np.array(outline)
-    # Resample the outline polyline (frontal projection) at 9 equal arc-length steps: 16 (ear side) .. 8 (chin).
-    seg = np.linalg.norm(np.diff(v[outline, :2], axis=0), axis=1)
-    s = np.concatenate([[0.0], np.cumsum(seg)])
-    left_half = []
-    for t in np.linspace(0.0, s[-1], 9):
-        k = int(np.argmin(np.abs(s - t)))
-        left_half.append(int(outline[k]))
-    left_half[-1] = chin_id
-    # left_half runs 16, 15, ..., 8; the right half is its mirror 0..7.
-    left_ids = left_half[::-1]  # 8..16
-    ids = np.array([int(mirror[i]) for i in left_ids[:0:-1]] + left_ids, np.int64)
+    rel = v[outline, :2] - centre
+    angles = -np.rad2deg(np.arctan2(rel[:, 1], rel[:, 0]))
+    return _Outline(outline, angles, centre, allowed, chin_id)
+
+
+def _contour_ids(asset: RigAsset, corrected: bool) -> np.ndarray:
+    """``(17,)`` the static contour vertices: the left half from the outline, the right half mirrored."""
+    o, v = _outline(asset), asset.vertices
+    if corrected and CONTOUR_ANGLES_DEG:
+        if len(CONTOUR_ANGLES_DEG) != 8:
+            raise RuntimeError(f"ibug68: CONTOUR_ANGLES_DEG needs 8 angles (16..9), has {len(CONTOUR_ANGLES_DEG)}")
+        left_half = [int(o.vertex_ids[np.argmin(np.abs(o.angles - a))]) for a in CONTOUR_ANGLES_DEG]
+    else:
+        # 9 equal arc-length steps along the outline (frontal projection): 16 (eye corners' height) .. 8 (chin).
+        seg = np.linalg.norm(np.diff(v[o.vertex_ids, :2], axis=0), axis=1)
+        s = np.concatenate([[0.0], np.cumsum(seg)])
+        left_half = [int(o.vertex_ids[int(np.argmin(np.abs(s - t)))]) for t in np.linspace(0.0, s[-1], 9)][:8]
+    left_ids = [o.chin_id] + left_half[::-1]  # 8..16
+    return np.array([int(asset.mirror[i]) for i in left_ids[:0:-1]] + left_ids, np.int64)
+
+
+def _contour_from_ids(asset: RigAsset, ids: np.ndarray) -> _ContourData:
+    """The dynamic contour's candidate lines for static contour vertices ``ids`` (17; the chin gets none)."""
+    v, o = asset.vertices, _outline(asset)
+    centre, cand_pool = o.centre, o.allowed
     # Candidate lines: allowed vertices near the plane through the centre spanned by the outward frontal
     # direction and +Z (a slice across the cheek from the front towards the ear), sorted front to back.
     directions = v[ids, :2] - centre
     directions /= np.linalg.norm(directions, axis=1, keepdims=True)
-    cand_pool = allowed
     candidates = []
-    for k in range(17):
+    for k in range(len(ids)):
         if k == CHIN:
             candidates.append(np.zeros(0, np.int64))
             continue
@@ -253,20 +304,153 @@ def _contour(asset: RigAsset) -> _ContourData:
         near = cand_pool[(np.abs(across) < 3.0) & (along > 0.5 * (v[ids[k], :2] - centre) @ d)]
         line = np.unique(np.concatenate([near, [ids[k]]]))
         candidates.append(line[np.argsort(-v[line, 2])])
-    return _ContourData(ids, directions, centre, tuple(candidates))
+    return _ContourData(np.asarray(ids, np.int64), directions, centre, tuple(candidates))
 
 
 @cached_per_asset
-def _embedding(asset: RigAsset) -> LandmarkEmbedding:
+def _contour(asset: RigAsset) -> _ContourData:
+    return _contour_from_ids(asset, _contour_ids(asset, corrected=True))
+
+
+@cached_per_asset
+def _contour_heuristic(asset: RigAsset) -> _ContourData:
+    return _contour_from_ids(asset, _contour_ids(asset, corrected=False))
+
+
+# --- where each landmark may lie ---------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class _Domain:
+    """The surface a landmark is snapped onto: template faces, or mesh edges (a rim or the midline)."""
+
+    faces: np.ndarray  # (F,) face ids (empty when ``edges`` is used)
+    edges: np.ndarray  # (E, 2) vertex ids
+
+
+_DOMAIN_REGIONS = {  # landmark -> the regions of its domain (left side and midline)
+    **{k: ("brows",) for k in range(22, 27)},
+    **{k: ("nose", "forehead", "brows", "eyelids") for k in (27, 28, 29, 30)},
+    **{k: ("nose",) for k in (33, 34, 35)},
+    **{k: ("lips",) for k in range(51, 58)},
+    CHIN: ("chin",),
+}
+
+
+@cached_per_asset
+def _domains(asset: RigAsset) -> dict[int, _Domain]:
+    v, faces, mirror = asset.vertices, np.asarray(asset.faces, np.int64), asset.mirror
+    hidden = asset.region_mask(*_HIDDEN_REGIONS)
+    skin = np.flatnonzero(~hidden[faces].any(1))
+    edges = np.unique(np.sort(face_edges(faces[skin]), 1), axis=0)
+    on_mid = mirror == np.arange(len(v))
+    midline_edges = edges[on_mid[edges].all(1)]
+    empty_f, empty_e = np.zeros(0, np.int64), np.zeros((0, 2), np.int64)
+
+    def loop_edges(loop) -> np.ndarray:
+        loop = np.asarray(loop, np.int64)
+        return np.stack([loop, np.roll(loop, -1)], 1)
+
+    left_eye = int(np.argmax([v[loop, 0].mean() for loop in asset.eye_loops]))
+    out: dict[int, _Domain] = {}
+    for k, regions in _DOMAIN_REGIONS.items():
+        mask = asset.region_mask(*regions)
+        if IBUG68_MIRROR[k] == k:
+            out[k] = _Domain(empty_f, midline_edges[mask[midline_edges].any(1)])
+        else:
+            out[k] = _Domain(skin[mask[faces[skin]].any(1)], empty_e)
+    for k in range(42, 48):
+        out[k] = _Domain(empty_f, loop_edges(asset.eye_loops[left_eye]))
+    for k in (63, 64, 65):
+        out[k] = _Domain(empty_f, loop_edges(asset.mouth_loop))
+    return out
+
+
+def _snap(asset: RigAsset, domain: _Domain, p: np.ndarray) -> tuple[int, np.ndarray]:
+    """The point of ``domain`` closest to ``p``, as ``(face, barycentric)``."""
+    v, faces = asset.vertices, asset.faces
+    if len(domain.faces):
+        return _closest_point_on_faces(v, faces, domain.faces, p)
+    a, b = v[domain.edges[:, 0]], v[domain.edges[:, 1]]
+    t = np.clip(((p - a) * (b - a)).sum(1) / ((b - a) ** 2).sum(1), 0.0, 1.0)
+    q = a + t[:, None] * (b - a)
+    best = int(np.argmin(((q - p) ** 2).sum(1)))
+    return _edge_point(faces, int(domain.edges[best, 0]), int(domain.edges[best, 1]), float(t[best]))
+
+
+def snap_domain_points(asset: RigAsset, k: int, steps: int = 6) -> np.ndarray:
+    """``(N, 3)`` sample points (mm) of the surface that landmark ``k`` (left side or midline, 17-67 or the
+    chin) is snapped onto after its correction: a barycentric grid of ``steps`` per edge on each face, or
+    ``steps`` per edge along a rim / the midline. For fitting :data:`LANDMARK_CORRECTIONS_MM`."""
+    domain = _domains(asset).get(int(k))
+    if domain is None:
+        raise KeyError(f"ibug68: landmark {k} has no correction domain")
+    v = asset.vertices
+    if len(domain.faces):
+        grid = np.array([(i, j, steps - i - j) for i in range(steps + 1) for j in range(steps + 1 - i)], float) / steps
+        return np.einsum("gk,fkc->fgc", grid, v[asset.faces[domain.faces]]).reshape(-1, 3)
+    t = np.linspace(0.0, 1.0, steps + 1)[None, :, None]
+    a, b = v[domain.edges[:, 0]][:, None], v[domain.edges[:, 1]][:, None]
+    return (a + t * (b - a)).reshape(-1, 3)
+
+
+# --- the embedding ---------------------------------------------------------------------------------------
+
+def _ordered_ring(faces: np.ndarray, ring: np.ndarray) -> np.ndarray:
+    """The vertices of a closed edge loop in loop order."""
+    ring_set = {int(i) for i in ring}
+    edges = np.unique(np.sort(face_edges(faces), 1), axis=0)
+    edges = edges[np.isin(edges, ring).all(1)]
+    nbrs: dict[int, list[int]] = {i: [] for i in ring_set}
+    for a, b in edges:
+        nbrs[int(a)].append(int(b))
+        nbrs[int(b)].append(int(a))
+    if any(len(n) != 2 for n in nbrs.values()):
+        raise RuntimeError("ibug68: the lip ring is not a simple closed loop")
+    start = int(min(ring_set))
+    order = [start, nbrs[start][0]]
+    while True:
+        nxt = next(n for n in nbrs[order[-1]] if n != order[-2])
+        if nxt == start:
+            break
+        order.append(nxt)
+    if len(order) != len(ring_set):
+        raise RuntimeError("ibug68: the lip ring is not a simple closed loop")
+    return np.array(order, np.int64)
+
+
+def _outer_lip_ring(asset: RigAsset) -> np.ndarray:
+    """The vermilion border: of the edge rings around the mouth loop (each one mesh ring further out), the
+    outermost that lies wholly in the ``lips`` region; in loop order."""
+    v, faces = asset.vertices, np.asarray(asset.faces, np.int64)
+    hidden = asset.region_mask(*_HIDDEN_REGIONS)
+    lips = asset.region_mask("lips")
+    edges = np.unique(np.sort(face_edges(faces), 1), axis=0)
+    nbrs: list[list[int]] = [[] for _ in range(len(v))]
+    for a, b in edges:
+        nbrs[a].append(int(b))
+        nbrs[b].append(int(a))
+    seen = np.zeros(len(v), bool)
+    ring = np.asarray(asset.mouth_loop, np.int64)
+    seen[ring] = True
+    best = None
+    while True:
+        nxt = sorted({w for u in ring for w in nbrs[u] if not seen[w] and not hidden[w]})
+        if not nxt or not lips[nxt].all():
+            break
+        seen[nxt] = True
+        ring = np.array(nxt, np.int64)
+        best = ring
+    if best is None:
+        raise RuntimeError("ibug68: no ring of lips vertices around the mouth loop")
+    return _ordered_ring(faces, best)
+
+
+def _placement(asset: RigAsset) -> dict[int, tuple[int, np.ndarray]]:
+    """The geometric placement of the left side and the midline (17-67; the chin), ``{k: (face, bary)}``."""
     v, faces, mirror = asset.vertices, asset.faces, asset.mirror
-    face_lookup = {tuple(sorted(f.tolist())): i for i, f in enumerate(faces)}
-    points: dict[int, tuple[int, np.ndarray]] = {}
+    points: dict[int, tuple[int, np.ndarray]] = {CHIN: _vertex_point(faces, _outline(asset).chin_id)}
 
-    # Jaw contour (static): vertices.
-    for k, vid in enumerate(_contour(asset).vertex_ids):
-        points[k] = _vertex_point(faces, int(vid))
-
-    # Left eye 42-47 (loop with +X), right eye mirrored.
+    # Left eye 42-47 (loop with +X): corners, and the lids at 1/3 and 2/3 of the corner-to-corner width.
     left_eye = int(np.argmax([v[loop, 0].mean() for loop in asset.eye_loops]))
     loop = np.asarray(asset.eye_loops[left_eye])
     inner, outer = int(loop[np.argmin(v[loop, 0])]), int(loop[np.argmax(v[loop, 0])])
@@ -279,42 +463,33 @@ def _embedding(asset: RigAsset) -> LandmarkEmbedding:
     points[46] = _crossing(v, faces, lower, 0, xi + 2.0 * (xo - xi) / 3.0)
     points[47] = _crossing(v, faces, lower, 0, xi + (xo - xi) / 3.0)
 
-    # Inner lip 60-67: the mouth loop.
+    # Outer lip 48-59 on the vermilion border: corners (its x extremes), 51/57 on the midline, 52 the
+    # Cupid's bow peak (the border's highest point), 53 halfway (in x) from the peak to the corner; the
+    # lower lip's 56 and 55 under 52 and 53.
+    ring = _outer_lip_ring(asset)
+    right_c, left_c = int(ring[np.argmin(v[ring, 0])]), int(ring[np.argmax(v[ring, 0])])
+    upper, lower = _split_loop(v, ring, right_c, left_c)
+    midline = mirror == np.arange(len(v))
+    top = upper[(v[upper, 0] > 0.0) & ~midline[upper]]
+    peak = int(top[np.argmax(v[top, 1])])
+    x_peak, x_half = float(v[peak, 0]), 0.5 * float(v[peak, 0] + v[left_c, 0])
+    points[51] = _vertex_point(faces, int(upper[np.flatnonzero(midline[upper])[0]]))
+    points[52] = _vertex_point(faces, peak)
+    points[53] = _crossing(v, faces, upper, 0, x_half)
+    points[54] = _vertex_point(faces, left_c)
+    points[55] = _crossing(v, faces, lower, 0, x_half)
+    points[56] = _crossing(v, faces, lower, 0, x_peak)
+    points[57] = _vertex_point(faces, int(lower[np.flatnonzero(midline[lower])[0]]))
+
+    # Inner lip 60-67 on the mouth loop (the lips' rim): corners, midline, and under the bow peaks.
     mouth = np.asarray(asset.mouth_loop)
     right_c, left_c = int(mouth[np.argmin(v[mouth, 0])]), int(mouth[np.argmax(v[mouth, 0])])
     upper, lower = _split_loop(v, mouth, right_c, left_c)
-    cx = v[left_c, 0]
-    points[60] = _vertex_point(faces, right_c)
     points[62] = _crossing(v, faces, upper, 0, 0.0)
-    points[63] = _crossing(v, faces, upper, 0, 0.5 * cx)
+    points[63] = _crossing(v, faces, upper, 0, x_peak)
     points[64] = _vertex_point(faces, left_c)
-    points[65] = _crossing(v, faces, lower, 0, 0.5 * cx)
+    points[65] = _crossing(v, faces, lower, 0, x_peak)
     points[66] = _crossing(v, faces, lower, 0, 0.0)
-
-    # Outer lip 48-59: the outer boundary of the lips region. The lips faces form an upper and a lower
-    # patch (split by the mouth loop); the lower patch's boundary runs from corner to corner under the lower
-    # lip, the upper patch's top row (boundary minus mouth loop) along the top of the upper lip.
-    lips = asset.region_mask("lips")
-    loops = _boundary_loops(faces[lips[faces].all(1)])
-    lips_ids = np.flatnonzero(lips)
-    lowest, highest = int(lips_ids[np.argmin(v[lips_ids, 1])]), int(lips_ids[np.argmax(v[lips_ids, 1])])
-    lower_loop = next(lp for lp in loops if lowest in lp)
-    upper_loop = next(lp for lp in loops if highest in lp)
-    right_c = int(lower_loop[np.argmin(v[lower_loop, 0])])
-    left_c = int(lower_loop[np.argmax(v[lower_loop, 0])])
-    _, lower = _split_loop(v, lower_loop, right_c, left_c)
-    top = np.setdiff1d(upper_loop, mouth)
-    upper = np.concatenate([[right_c], top[np.argsort(v[top, 0])], [left_c]])
-    near_lips = np.flatnonzero(lips[faces].any(1))
-    cx = v[left_c, 0]
-    midline = mirror == np.arange(len(v))
-    points[51] = _vertex_point(faces, int(upper[np.flatnonzero(midline[upper])[0]]))
-    points[52] = _path_point(v, faces, upper, cx / 3.0, near_lips)
-    points[53] = _path_point(v, faces, upper, 2.0 * cx / 3.0, near_lips)
-    points[54] = _vertex_point(faces, left_c)
-    points[55] = _path_point(v, faces, lower, 2.0 * cx / 3.0, near_lips)
-    points[56] = _path_point(v, faces, lower, cx / 3.0, near_lips)
-    points[57] = _vertex_point(faces, int(lower[np.flatnonzero(midline[lower])[0]]))
 
     # Nose: bridge on the midline from the top of the upper eyelids to the tip; base along the lower edge.
     nose = asset.region_mask("nose")
@@ -344,10 +519,27 @@ def _embedding(asset: RigAsset) -> LandmarkEmbedding:
     brow_faces = np.flatnonzero(asset.region_mask("brows")[faces].all(1)
                                 & (v[faces, 0].min(1) > 0.0))
     for k, x in zip(range(22, 27), np.linspace(x_in, x_out, 5)):
-        near = brows[np.abs(v[brows, 0] - x) < 3.0]
+        near = brows[np.argsort(np.abs(v[brows, 0] - x), kind="stable")[:6]]  # the band's column at x
         target = np.array([x, 0.5 * (v[near, 1].min() + v[near, 1].max()), v[near, 2].max()])
         points[k] = _closest_point_on_faces(v, faces, brow_faces, target)
+    return points
 
+
+def _build_embedding(asset: RigAsset, corrected: bool) -> LandmarkEmbedding:
+    v, faces, mirror = asset.vertices, asset.faces, asset.mirror
+    face_lookup = {tuple(sorted(f.tolist())): i for i, f in enumerate(faces)}
+    points = _placement(asset)
+    if corrected:
+        domains = _domains(asset)
+        for k, delta in LANDMARK_CORRECTIONS_MM.items():
+            if k not in domains:
+                raise RuntimeError(f"ibug68: LANDMARK_CORRECTIONS_MM has landmark {k}, which has no domain")
+            f, w = points[k]
+            points[k] = _snap(asset, domains[k], w @ v[faces[f]] + np.asarray(delta, float))
+    # Jaw contour (static), left half: vertices (the chin is placed above; the right half is mirrored below).
+    for k, vid in enumerate(_contour_ids(asset, corrected)):
+        if k > CHIN:
+            points[k] = _vertex_point(faces, int(vid))
     # Right side: mirror images of the left.
     for i, j in enumerate(IBUG68_MIRROR):
         if i not in points and j in points:
@@ -357,6 +549,16 @@ def _embedding(asset: RigAsset) -> LandmarkEmbedding:
         raise RuntimeError(f"ibug68: landmarks {missing} were not placed")
     return LandmarkEmbedding(np.array([points[i][0] for i in range(68)], np.int64),
                              np.array([points[i][1] for i in range(68)], np.float64))
+
+
+@cached_per_asset
+def _embedding(asset: RigAsset) -> LandmarkEmbedding:
+    return _build_embedding(asset, corrected=True)
+
+
+@cached_per_asset
+def _heuristic_embedding(asset: RigAsset) -> LandmarkEmbedding:
+    return _build_embedding(asset, corrected=False)
 
 
 def _closest_point_on_faces(v: np.ndarray, faces: np.ndarray, face_ids: np.ndarray, p: np.ndarray
@@ -371,15 +573,21 @@ def _closest_point_on_faces(v: np.ndarray, faces: np.ndarray, face_ids: np.ndarr
     return int(face_ids[best]), w / w.sum()
 
 
-def ibug68_embedding(asset: RigAsset | None = None) -> LandmarkEmbedding:
+def ibug68_embedding(asset: RigAsset | None = None, *, corrected: bool = True) -> LandmarkEmbedding:
     """The iBUG-68 landmarks of the template as faces + barycentric weights (computed once per asset).
+
+    Args:
+        asset: the template (default :func:`rig.asset.load_asset`).
+        corrected: False: the geometric placement alone, without :data:`LANDMARK_CORRECTIONS_MM` and
+            :data:`CONTOUR_ANGLES_DEG` (for the benchmark that fits them).
 
     Example:
         >>> emb = ibug68_embedding()
         >>> emb.faces.shape, emb.barycentric.shape
         ((68,), (68, 3))
     """
-    return _embedding(load_asset() if asset is None else asset)
+    asset = load_asset() if asset is None else asset
+    return _embedding(asset) if corrected else _heuristic_embedding(asset)
 
 
 # --- posed landmarks -------------------------------------------------------------------------------------
@@ -415,10 +623,11 @@ def landmark_positions(vertices, embedding: LandmarkEmbedding, faces):
     return np.einsum("blkc,lk->blc", verts[:, tri], embedding.barycentric.astype(verts.dtype))
 
 
-def contour_candidates(asset: RigAsset | None = None) -> tuple[np.ndarray, ...]:
+def contour_candidates(asset: RigAsset | None = None, *, corrected: bool = True) -> tuple[np.ndarray, ...]:
     """Per jaw-contour landmark, the candidate template vertices (front -> back) of the dynamic contour;
-    empty for the chin (8), which stays fixed."""
-    return _contour(load_asset() if asset is None else asset).candidates
+    empty for the chin (8), which stays fixed. ``corrected``: as in :func:`ibug68_embedding`."""
+    asset = load_asset() if asset is None else asset
+    return (_contour(asset) if corrected else _contour_heuristic(asset)).candidates
 
 
 @dataclass(frozen=True)
@@ -433,7 +642,7 @@ class _ContourLines:
 def _build_lines(data: _ContourData, faces: np.ndarray) -> _ContourLines:
     verts = np.concatenate([np.asarray(c, np.int64) for c in data.candidates])
     sizes = np.cumsum([0] + [len(c) for c in data.candidates])
-    bounds = tuple((int(a), int(b)) for a, b in zip(sizes[:-1], sizes[1:]))
+    bounds = tuple((int(a), int(b)) for a, b in itertools.pairwise(sizes))
     incident = np.flatnonzero(np.isin(faces, verts).any(1))
     sub = faces[incident]
     # a vertex may sit on two lines: every occurrence gets its own slot (with the same normal)
@@ -454,15 +663,20 @@ def _asset_lines(asset: RigAsset) -> _ContourLines:
     return _build_lines(_contour(asset), np.asarray(asset.faces, np.int64))
 
 
-def _contour_lines(asset: RigAsset, faces: np.ndarray) -> _ContourLines:
+@cached_per_asset
+def _asset_lines_heuristic(asset: RigAsset) -> _ContourLines:
+    return _build_lines(_contour_heuristic(asset), np.asarray(asset.faces, np.int64))
+
+
+def _contour_lines(asset: RigAsset, faces: np.ndarray, corrected: bool = True) -> _ContourLines:
     """The candidate lines of :func:`contour_candidates` flattened, with their incident faces."""
     if faces.shape == asset.faces.shape and np.array_equal(faces, asset.faces):
-        return _asset_lines(asset)
-    return _build_lines(_contour(asset), faces)
+        return _asset_lines(asset) if corrected else _asset_lines_heuristic(asset)
+    return _build_lines(_contour(asset) if corrected else _contour_heuristic(asset), faces)
 
 
-def contour_landmarks(vertices: torch.Tensor, faces, camera_center, asset: RigAsset | None = None
-                      ) -> torch.Tensor:
+def contour_landmarks(vertices: torch.Tensor, faces, camera_center, asset: RigAsset | None = None, *,
+                      corrected: bool = True) -> torch.Tensor:
     """Dynamic jaw contour (landmarks 0-16) as seen from a camera, for turned heads.
 
     For each contour landmark a precomputed line of template vertices runs across the cheek/jaw from the
@@ -474,6 +688,7 @@ def contour_landmarks(vertices: torch.Tensor, faces, camera_center, asset: RigAs
         vertices: ``(V, 3)`` posed vertices in rig space, mm.
         faces: ``(F, 3)`` template faces.
         camera_center: ``(3,)`` camera centre in the same frame as ``vertices``, mm.
+        corrected: as in :func:`ibug68_embedding` (False: the lines of the geometric contour).
 
     Returns:
         ``(17, 3)`` contour positions, mm, same dtype as ``vertices``.
@@ -486,8 +701,8 @@ def contour_landmarks(vertices: torch.Tensor, faces, camera_center, asset: RigAs
     if cam.shape != (3,):
         raise ShapeError(f"contour_landmarks: camera_center must have shape (3,), got {tuple(cam.shape)}")
     faces_np = np.asarray(faces.cpu() if isinstance(faces, torch.Tensor) else faces, dtype=np.int64)
-    data = _contour(asset)
-    lines = _contour_lines(asset, faces_np)
+    data = _contour(asset) if corrected else _contour_heuristic(asset)
+    lines = _contour_lines(asset, faces_np, corrected)
     v = vertices.detach().cpu().double().numpy()
     # area-weighted normals of the candidate vertices only, from their incident faces (= vertex_normals there)
     tri = v[lines.faces]
@@ -504,5 +719,5 @@ def contour_landmarks(vertices: torch.Tensor, faces, camera_center, asset: RigAs
         if hi > lo and np.isfinite(score[lo:hi]).any():
             picked[k] = int(lines.vertices[lo + int(np.argmin(score[lo:hi]))])
     out = vertices[torch.as_tensor(picked, device=vertices.device)]
-    static = landmark_positions(vertices, ibug68_embedding(asset), faces_np)[0, CHIN]
+    static = landmark_positions(vertices, ibug68_embedding(asset, corrected=corrected), faces_np)[0, CHIN]
     return torch.cat([out[:CHIN], static[None], out[CHIN + 1:]])

@@ -117,7 +117,7 @@ landmarks, in face sizes (the 68 landmarks' bounding-box diagonal).
 
 Chosen on synthetic data (``tests/landmarks/test_plausibility.py`` repeats a smaller sample). Positives:
 3000 views, half of the template and half of the 100 held-out population heads (:mod:`pipeline.synthetic.population`); a
-third neutral, a third with ``jaw_open`` in 0..1, a third with random subsets of the 24 expressions
+third neutral, a third with ``jawOpen`` in 0..1, a third with random subsets of the 52 ARKit expressions
 (:mod:`rig.expressions`) within their limits; yaw -60..60, pitch -30..30, roll -180..180 degrees;
 orthographic or perspective at 250-2000 mm; jaw contour as the silhouette seen from the camera
 (:func:`landmarks.ibug68.contour_landmarks`); 2 px Gaussian noise per coordinate at 100 px frontal

@@ -27,6 +27,7 @@ from scipy.spatial import cKDTree
 
 from rig.asset import RigAsset, load_asset
 from rig.errors import InputError
+from rig.template import rim_halves
 
 LANDMARK_NAMES_3D: tuple[str, ...] = (
     "left_eye_outer", "left_eye_inner", "right_eye_inner", "right_eye_outer",
@@ -44,15 +45,14 @@ def landmark_vertices(asset: RigAsset | None = None) -> dict[str, int]:
     v = asset.vertices
     out: dict[str, int] = {}
     for side, loop in zip(("left", "right"), asset.eye_loops):
-        loop = np.asarray(loop)
-        corners = loop[[0, len(loop) // 2]]
+        upper, _ = rim_halves(v, loop)
+        corners = upper[[0, -1]]
         outer = int(corners[np.argmax(np.abs(v[corners, 0]))])
         inner = int(corners[np.argmin(np.abs(v[corners, 0]))])
         out[f"{side}_eye_outer"], out[f"{side}_eye_inner"] = outer, inner
     nose = np.flatnonzero(asset.region_mask("nose"))
     out["nose_tip"] = int(nose[np.argmax(v[nose, 2])])
-    mouth = np.asarray(asset.mouth_loop)
-    corners = mouth[[0, len(mouth) // 2]]
+    corners = rim_halves(v, asset.mouth_loop)[0][[0, -1]]
     out["mouth_left"] = int(corners[np.argmax(v[corners, 0])])
     out["mouth_right"] = int(corners[np.argmin(v[corners, 0])])
     chin = np.flatnonzero(asset.region_mask("chin") & (np.abs(v[:, 0]) < 3.0))

@@ -11,6 +11,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
+
 MESH_FORMATS = {"obj": ".obj", "ply": ".ply", "gltf": ".glb"}
 """Each mesh format and the suffix it is written with by default."""
 MESH_SUFFIXES = {"obj": (".obj",), "ply": (".ply",), "gltf": (".glb", ".gltf")}
@@ -76,26 +78,39 @@ def write_head(path: str | Path, fmt: str, theta, rig=None, fit_arrays: tuple | 
     """
     import torch
 
-    from rig.io.gltf import export_skinned_gltf
     from rig.io.mesh import export_mesh
     from rig.model import JointRig
 
     rig = rig or JointRig(dtype=torch.float64)
     asset = rig.asset
     if fit_arrays is not None:
-        posed, rest, weights, tau = fit_arrays
+        posed, _, weights, tau, coefficients = fit_arrays
     else:
         with torch.no_grad():
             posed = rig(theta[None]).vertices[0].numpy()
             tau = rig.channel_transforms(theta[None])[0].numpy()
-        rest, weights = asset.vertices, asset.weights
+        weights, coefficients = asset.weights, None
     if fmt == "gltf":
-        export_skinned_gltf(path, rest, asset.faces, joint_names=list(asset.joint_names),
-                            parents=asset.parents, joint_positions=asset.joint_positions, weights=weights,
-                            face_uvs=asset.face_uvs, joint_transforms=tau)
+        write_skinned_head(path, asset, weights, tau, coefficients)
     else:
         export_mesh(path, posed, asset.faces, face_uvs=asset.face_uvs if fmt == "obj" else None,
                     file_format=fmt)
+
+
+def write_skinned_head(path: str | Path, asset, weights: np.ndarray, tau: np.ndarray,
+                       coefficients: np.ndarray | None = None, vertex_colors: np.ndarray | None = None) -> None:
+    """The skinned glTF of a head: the template as the bind mesh, the 52 ARKit shapes as morph targets named
+    by ARKit (:func:`rig.expressions.morph_targets`) with ``coefficients (E,)`` as their weights (zeros when
+    None), ``weights (V, J)``, the joint channel transforms ``tau (J, 4, 4)`` as the joints' pose, and
+    ``vertex_colors (V, 3)`` linear RGB in [0, 1] (glTF's ``COLOR_0`` is linear)."""
+    from rig.expressions import EXPRESSION_NAMES, morph_targets
+    from rig.io.gltf import export_skinned_gltf
+
+    export_skinned_gltf(path, asset.vertices, asset.faces, joint_names=list(asset.joint_names),
+                        parents=asset.parents, joint_positions=asset.joint_positions, weights=weights,
+                        face_uvs=asset.face_uvs, vertex_colors=vertex_colors, joint_transforms=tau,
+                        morph_targets=morph_targets(asset), morph_names=EXPRESSION_NAMES,
+                        morph_weights=coefficients)
 
 
 def write_edited_head(params: str | Path | None, out: str | Path, fmt: str, *, clamp: bool = False,

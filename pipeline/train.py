@@ -6,7 +6,7 @@
 3. Synthesise skinning-weight training sets: saved and sparsely perturbed joint parameters, each with
    the closed-form weights that best reproduce its head (:func:`rig.skinning.linear.solve_weights`).
 4. Neural skinning: auto-encoder, then WGAN-style fine-tuning of the decoder from noise.
-Artifacts: ``rig/assets/jnr_skinning_v1.npz`` (learned linear floats + decoder) and a training log.
+Artifacts: ``rig/assets/jnr_skinning_v2.npz`` (learned linear floats + decoder) and a training log.
 """
 
 from __future__ import annotations
@@ -86,7 +86,7 @@ def perturb(theta: torch.Tensor, config: TrainConfig, gen: torch.Generator) -> t
 def train(config: TrainConfig, out_path: Path, *, log_path: Path | None = None,
           progress: Progress | None = None) -> TrainReport:
     """Run the whole training; write the artifact to ``out_path`` (and a JSON log)."""
-    from pipeline.synthetic.population import population_split
+    from pipeline.synthetic.population import population_split, similarity_normalised
     from rig.model import JointRig
     from rig.skinning.linear import OrbitSystem, learn_linear_skinning, solve_weights
     from rig.skinning.neural import (
@@ -106,7 +106,7 @@ def train(config: TrainConfig, out_path: Path, *, log_path: Path | None = None,
     rig = JointRig(dtype=torch.float32)
     train_set = population_split("train", seed=config.seed)
     val_set = population_split("val", seed=config.seed)
-    targets = torch.as_tensor(train_set.vertices, dtype=torch.float32)
+    targets = torch.as_tensor(similarity_normalised(train_set.vertices, rig.asset.vertices), dtype=torch.float32)
     seconds["population"] = time.perf_counter() - t0
 
     # 1 + 2: joints with the initial weights, then alternate with the global linear weights.

@@ -84,6 +84,11 @@ def _render_preview(vertices, faces, *, colors, view, yaw, pitch, size, spp, dis
 
     if colors is None:
         colors = np.broadcast_to(np.array([0.80, 0.58, 0.47], np.float32), vertices.shape)
+    used = np.unique(faces)  # only the drawn vertices (unreferenced ones would get invalid normals)
+    if len(used) < len(vertices):
+        remap = np.zeros(len(vertices), np.uint32)
+        remap[used] = np.arange(len(used), dtype=np.uint32)
+        vertices, colors, faces = vertices[used], np.asarray(colors)[used], remap[faces]
     props = mi.Properties()
     skin = {"type": "diffuse", "reflectance": {"type": "mesh_attribute", "name": "vertex_color"}}
     if markers is not None:  # see the joints inside the head

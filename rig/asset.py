@@ -1,6 +1,6 @@
 """The versioned rig asset: template mesh, joints and initial skinning weights in one ``.npz``.
 
-``build_asset()`` regenerates everything from code (deterministic); the committed file
+``build_asset()`` regenerates everything from MakeHuman's data and code (deterministic); the committed file
 ``rig/assets/jnr_rig_v1.npz`` is its output, loaded once per process by :func:`load_asset`.
 Arrays are named and typed; the joint order is :data:`rig.joints.JOINT_NAMES` and the region order is
 :data:`rig.template.REGION_NAMES` (both stored in the file and checked on load).
@@ -40,6 +40,11 @@ def cached_per_asset(build):
 
 ASSET_DIR = Path(__file__).resolve().parent / "assets"
 DEFAULT_ASSET = ASSET_DIR / f"jnr_rig_v{TEMPLATE_VERSION}.npz"
+
+
+def default_skinning_path() -> Path:
+    """The committed learned skinning (``rig/assets/jnr_skinning_v<template version>.npz``)."""
+    return ASSET_DIR / f"jnr_skinning_v{TEMPLATE_VERSION}.npz"
 
 
 class AssetError(SetupError):

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from rig.asset import RigAsset, load_asset
+from rig.expressions import EXPRESSION_NAMES
 from rig.parameters import NUM_PARAMETERS, symmetric_groups
 
 
@@ -13,8 +14,9 @@ def rig_info(asset: RigAsset | None = None) -> dict:
         ``{"vertices", "faces", "joints", "free_parameters"`` (joint channels),
         ``"free_parameters_symmetric"`` (with left/right tied), ``"skinning_floats"`` (free skinning
         weights), ``"skinning_nonzeros"``, ``"max_influences"`` (joints per vertex), ``"model_floats"``
-        (template coordinates + joint positions + skinning floats), ``"regions"`` (names), ``"units"``
-        (``"mm"``), ``"asset_version"}``; ints except the list and the strings, in this order.
+        (template coordinates + joint positions + skinning floats), ``"expressions"`` (52),
+        ``"expression_names"`` (the ARKit names, in coefficient order), ``"regions"`` (names), ``"units"``
+        (``"mm"``), ``"asset_version"}``; ints except the lists and the strings, in this order.
 
     Example:
         >>> rig_info()["joints"]
@@ -32,6 +34,8 @@ def rig_info(asset: RigAsset | None = None) -> dict:
         "skinning_nonzeros": len(asset.weight_rows),
         "max_influences": int(max(1, (asset.weights > 0).sum(1).max())),
         "model_floats": int(asset.vertices.size + asset.joint_positions.size + skinning),
+        "expressions": len(EXPRESSION_NAMES),
+        "expression_names": list(EXPRESSION_NAMES),
         "regions": list(asset.region_names),
         "units": "mm",
         "asset_version": asset.version,

@@ -197,6 +197,7 @@ class HeadMesh:
         uvs: ``(T, 2)`` texture coordinates; face_uvs: ``(F, 3)`` indices into them (face-varying).
         mirror: ``(V,)`` int64 mirror vertex of each vertex (exact: ``vertices[mirror] = vertices * (-1, 1, 1)``).
         face_piece: ``(F,)`` int64 index into :data:`PIECES`.
+        face_part: ``(F,)`` int64 the atlas part under each face (index into :func:`part_names`, -1 none).
         source: ``(V,)`` int64 index of each vertex in MakeHuman's base mesh (targets are defined on it).
     """
 
@@ -206,6 +207,7 @@ class HeadMesh:
     face_uvs: np.ndarray
     mirror: np.ndarray
     face_piece: np.ndarray
+    face_part: np.ndarray
     source: np.ndarray
 
 
@@ -260,7 +262,7 @@ def head_mesh() -> HeadMesh:
     quads, quad_uvs = mesh.faces[chosen], mesh.face_uvs[chosen]
     along_ac = triangulate(quads, mesh.vertices, mirror)
     tris, tri_uvs, from_quad = _triangles(quads, quad_uvs, along_ac)
-    tri_piece = piece[chosen][from_quad]
+    tri_piece, tri_part = piece[chosen][from_quad], parts[chosen][from_quad]
     source = np.unique(tris)
     if not np.isin(mirror[source], source).all():
         raise SetupError("the MakeHuman head cut is not closed under the mirror map")
@@ -270,7 +272,7 @@ def head_mesh() -> HeadMesh:
     new_uv = np.full(len(mesh.uvs), -1, np.int64)
     new_uv[uv_ids] = np.arange(len(uv_ids))
     return HeadMesh(vertices=mesh.vertices[source], faces=new[tris], uvs=mesh.uvs[uv_ids], face_uvs=new_uv[tri_uvs],
-                    mirror=new[mirror[source]], face_piece=tri_piece, source=source)
+                    mirror=new[mirror[source]], face_piece=tri_piece, face_part=tri_part, source=source)
 
 
 

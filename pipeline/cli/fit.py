@@ -134,7 +134,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
 
 
 FIT_DESCRIPTION = (
-    "Fit the rig (head pose, 105 joint channels, neural-skinning latent Z, 24 expressions), a "
+    "Fit the rig (head pose, 105 joint channels, neural-skinning latent Z, the 52 ARKit expressions), a "
     "per-vertex albedo and an ambient + directional light to one photo: detect the 68 iBUG "
     "landmarks (dlib), place a pinhole camera (--focal, default 1.4 x the image's larger side) "
     "by solvePnP, fit the landmarks, then alternate joint / latent / expression stages with a "

@@ -17,13 +17,13 @@ from pipeline.cli.common import (
 
 def cmd_train(args: argparse.Namespace) -> int:
     from pipeline.train import load_config, train
-    from rig.asset import ASSET_DIR
+    from rig.asset import default_skinning_path
 
     try:
         config = load_config(args.config, parse_overrides(args.set))
     except (TypeError, ValueError) as exc:
         raise CliError(str(exc)) from None
-    out = Path(args.out) if args.out else ASSET_DIR / "jnr_skinning_v1.npz"
+    out = Path(args.out) if args.out else default_skinning_path()
     check_output(out, args.force or args.out is None)
     log_path = Path(args.log) if args.log else out.with_suffix(".log.json")
     bars = StageBars(args.quiet)
@@ -42,10 +42,10 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     tr = sub.add_parser("train", help="learn the linear and neural skinning weights from the synthetic population",
                         description="Fit joints, learn global linear weights (alternating), synthesise "
                                     "skinning-weight sets, train the auto-encoder and fine-tune the decoder "
-                                    "WGAN-style. Writes rig/assets/jnr_skinning_v1.npz unless --out is given.")
+                                    "WGAN-style. Writes rig/assets/jnr_skinning_v2.npz unless --out is given.")
     tr.add_argument("--config", help="YAML file overriding TrainConfig fields (configs/train.yaml)")
     tr.add_argument("--set", action="append", metavar="KEY=VALUE", help="override one setting (repeatable)")
-    tr.add_argument("--out", help="artifact path (default: the packaged rig/assets/jnr_skinning_v1.npz)")
+    tr.add_argument("--out", help="artifact path (default: the packaged rig/assets/jnr_skinning_v2.npz)")
     tr.add_argument("--log", help="training log JSON (default: next to the artifact)")
     tr.add_argument("--force", action="store_true", help="overwrite --out")
     tr.add_argument("--quiet", action="store_true", help="no progress bars")

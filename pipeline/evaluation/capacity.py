@@ -2,7 +2,10 @@
 
 For the 7 test heads and the held-out set, the rig is fitted to each head with
 (1) the initial painted weights, (2) the learned linear weights, (3) neural skinning (test-time fit of
-joints and Z). The error is the point-to-point distance between fitted and true vertices (mm), mean
+joints and Z), each head first mapped onto the template by its least-squares similarity
+(:func:`pipeline.synthetic.population.similarity_normalised`: the rig has no global scale, the fits of
+photos and scans estimate pose and scale). The error is the point-to-point distance between fitted and
+true vertices (mm), mean
 over a head's vertices (:func:`pipeline.evaluation.metrics.mean_vertex_error`), then mean, sample std
 (ddof=1) and median over heads (:func:`pipeline.evaluation.metrics.summarize`). Model sizes count the
 identity part in floats.
@@ -71,7 +74,7 @@ def evaluate_capacity(splits: tuple[str, ...] = ("test", "heldout"), settings: C
     per-head optimal weights (closed form, :func:`rig.skinning.linear.solve_weights`) alternated with refitting
     the joints, starting from the learned-linear fit.
     """
-    from pipeline.synthetic.population import population_split
+    from pipeline.synthetic.population import population_split, similarity_normalised
     from rig.model import JointRig
     from rig.skinning.joint_fit import fit_joints
     from rig.skinning.neural import fit_neural, load_neural
@@ -90,7 +93,7 @@ def evaluate_capacity(splits: tuple[str, ...] = ("test", "heldout"), settings: C
     linear_w = neural.linear_weights().detach()
     for split in splits:
         heads = population_split(split, seed=settings.seed)
-        targets = torch.as_tensor(heads.vertices, dtype=torch.float32)
+        targets = torch.as_tensor(similarity_normalised(heads.vertices, rig.asset.vertices), dtype=torch.float32)
         if limit:
             targets = targets[:limit]
         row: dict = {}

@@ -5,7 +5,7 @@
 2. **Pose**: :func:`pipeline.photo.camera.solve_pose` on the template's landmark positions (jaw contour
    left out, since its 3D points slide with the view).
 3. **Stages** (:class:`pipeline.scan.fit.Stage`, Adam): pose; pose + expressions (a coarse stage, so an
-   open jaw is taken up by ``jaw_open`` rather than by joint motion, as in ``fit_scan``); pose + joints;
+   open jaw is taken up by ``jawOpen`` rather than by joint motion, as in ``fit_scan``); pose + joints;
    Z; pose + expressions; pose + joints. Each step minimises
 
        landmark_reprojection_loss (px^2, Huber) + lambda_m L_m + lambda_x L_x + lambda_z |Z|^2

@@ -9,8 +9,9 @@ file                   contents
 ``mesh.obj``           the fitted head in rig space (mm, +Y up, +Z out of the face), vertex colours
                        = fitted albedo (sRGB), UVs
 ``mesh.ply``           the same, binary PLY with vertex colours
-``mesh.glb``           skinned glTF 2.0: the fitted rest shape (expressions applied), the 52 joints
-                       posed by the fitted parameters, the fitted skinning weights, vertex colours
+``mesh.glb``           skinned glTF 2.0 (metres): the template with the 52 ARKit shapes as morph targets
+                       named by ARKit, weighted by the fitted coefficients; the 52 joints posed by the
+                       fitted parameters, the fitted skinning weights, linear vertex colours
 ``params.json``        joints by name (deg, mm, factor), latent Z, expressions by name, the camera
                        (focal, principal point, image size, rig -> camera extrinsics), the head pose,
                        the light (ambient, irradiance, direction in rig space and camera frame);
@@ -40,7 +41,7 @@ from pipeline.photo.colour import linear_to_srgb
 from pipeline.photo.fit import FitPhotoConfig, PhotoFit
 from pipeline.scan.outputs import rig_vertices_from_params
 from rig.asset import RigAsset, load_asset
-from rig.expressions import EXPRESSION_NAMES, ExpressionModel
+from rig.expressions import EXPRESSION_NAMES
 from rig.model import JointRig
 from rig.parameters import theta_to_params
 from rig.skinning.neural import NeuralSkinning, load_neural
@@ -245,7 +246,7 @@ def write_photo_outputs(out_dir: str | Path, photo: np.ndarray, fit: PhotoFit, *
             input; :class:`~pipeline.files.OutputExistsError` when it exists) or cannot be written.
     """
     from landmarks.formats import write_landmarks
-    from rig.io.gltf import export_skinned_gltf
+    from pipeline.edit import write_skinned_head
     from rig.io.mesh import export_mesh
 
     out_dir = Path(out_dir)
@@ -256,16 +257,14 @@ def write_photo_outputs(out_dir: str | Path, photo: np.ndarray, fit: PhotoFit, *
     render, mask = render_fit(fit, spp=spp, asset=asset)
 
     with torch.no_grad():
-        rest = ExpressionModel(asset, dtype=torch.float64).vertices(torch.as_tensor(fit.expressions)[None])[0].numpy()
         weights = neural(torch.as_tensor(fit.z)[None])[0].numpy()
         tau = rig.channel_transforms(torch.as_tensor(fit.theta)[None])[0].numpy()
 
     with staged_folder(out_dir, force, inputs=inputs, marker={"command": (extra or {}).get("command")}) as tmp:
         export_mesh(tmp / "mesh.obj", fit.rig_vertices, asset.faces, face_uvs=asset.face_uvs, vertex_colors=colours)
         export_mesh(tmp / "mesh.ply", fit.rig_vertices, asset.faces, vertex_colors=colours)
-        export_skinned_gltf(tmp / "mesh.glb", rest, asset.faces, joint_names=list(asset.joint_names),
-                            parents=asset.parents, joint_positions=asset.joint_positions, weights=weights,
-                            face_uvs=asset.face_uvs, vertex_colors=colours, joint_transforms=tau)
+        write_skinned_head(tmp / "mesh.glb", asset, weights, tau, np.asarray(fit.expressions, np.float64),
+                           vertex_colors=np.clip(np.asarray(fit.albedo, np.float64), 0.0, 1.0))
         (tmp / "params.json").write_text(json.dumps(params_payload(fit, image_factor, original_size), indent=2) + "\n")
         _save_png(np.clip(np.round(linear_to_srgb(render) * 255), 0, 255).astype(np.uint8), tmp / "render.png")
         _save_png(overlay_image(photo, render, mask, fit.landmarks2d, fit.landmarks_px), tmp / "overlay.png")

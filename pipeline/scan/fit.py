@@ -10,7 +10,7 @@ NICP, and a regulariser L_m (eq. 4) that diminishes while the correspondences co
    ``min_inlier_fraction`` lies near the aligned head is rejected as not a head before the per-point
    work of the fit (the scan border). Large clouds arrive subsampled (:func:`pipeline.scan.pointcloud.validate_points`).
 2. **Stages** (:class:`pipeline.fitting.engine.Stage`, run by :func:`pipeline.fitting.engine.run_schedule`): each optimises some of ``pose`` (rotation + translation in the cloud
-   frame), ``joints`` (the 105 channels), ``latent`` (Z) and ``expressions`` (24 coefficients) with
+   frame), ``joints`` (the 105 channels), ``latent`` (Z) and ``expressions`` (the 52 ARKit coefficients) with
    Adam, rebuilding correspondences every ``correspondence_every`` iterations:
 
    - cloud -> model: each (subsampled) cloud point and the closest point on the model's surface

@@ -131,10 +131,11 @@ def rig_vertices_from_params(params: dict, *, rig: JointRig | None = None, use_n
 
 
 def head_arrays_from_params(params: dict, *, rig: JointRig | None = None
-                            ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+                            ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """What a fit's head is made of, from its ``params.json``: ``(posed (V, 3) mm, rest (V, 3) mm with the
-    expressions applied, skinning weights (V, J) of its latent Z, joint channel transforms (J, 4, 4))``;
-    skinning ``rest`` with ``weights`` and the transforms gives ``posed`` (as the skinned glTF does).
+    expressions applied, skinning weights (V, J) of its latent Z, joint channel transforms (J, 4, 4),
+    expression coefficients (E,))``; skinning ``rest`` with ``weights`` and the transforms gives ``posed``
+    (as the skinned glTF does).
 
     Raises:
         ValueError: as :func:`rig_vertices_from_params`.
@@ -150,7 +151,7 @@ def head_arrays_from_params(params: dict, *, rig: JointRig | None = None
         rest = ExpressionModel(rig.asset, dtype=torch.float64).vertices(c[None])[0].numpy()
         weights = load_neural(rig)[0](z[None])[0].numpy()
         tau = rig.channel_transforms(theta[None])[0].numpy()
-    return posed, rest, weights, tau
+    return posed, rest, weights, tau, c.numpy()
 
 
 def write_scan_outputs(out_dir: str | Path, cloud: PointCloud, fit: ScanFit, distances: np.ndarray, *,

@@ -93,6 +93,8 @@ IRIS_COLOURS_SRGB: tuple[tuple[int, int, int], ...] = (
 """Iris colours, 8-bit sRGB."""
 
 _SCLERA_SRGB = (222, 212, 200)
+_TEETH_SRGB = (226, 216, 192)
+_TONGUE_SRGB = (176, 84, 86)
 _MOUTH_INTERIOR_LINEAR = np.array([0.10, 0.025, 0.025])
 _IRIS_RADIUS_MM = 5.5
 _PHOTO_STREAM = zlib.crc32(b"synthetic-photo")
@@ -418,6 +420,9 @@ def synthesize_albedo(rng: np.random.Generator | int, asset: RigAsset | None = N
             weight = np.clip((_IRIS_RADIUS_MM + 1.5 - r) / 3.0, 0.0, 1.0)[:, None]
             colour[ids] = sclera + weight * (iris - sclera)
     colour[region("mouth_interior") > 0] = mouth
+    colour[region("eye_pockets") > 0] = 0.5 * mouth  # hidden behind the eyeballs; dark where it shows
+    colour[region("teeth") > 0] = _palette([_TEETH_SRGB])[0] * rng.uniform(0.85, 1.0)
+    colour[region("tongue") > 0] = _palette([_TONGUE_SRGB])[0] * rng.uniform(0.8, 1.1)
     return np.clip(colour, 0.0, 1.0)
 
 

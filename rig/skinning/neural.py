@@ -319,15 +319,15 @@ def save_neural(neural: NeuralSkinning, path, meta: dict | None = None) -> None:
 
 
 def load_neural(rig, path=None) -> tuple[NeuralSkinning, dict]:
-    """Read a file written by :func:`save_neural` (default: the committed ``rig/assets/jnr_skinning_v1.npz``)."""
+    """Read a file written by :func:`save_neural` (default: the committed :func:`rig.asset.default_skinning_path`)."""
     import json
     from pathlib import Path
 
     import numpy as np
 
-    from rig.asset import ASSET_DIR, AssetError
+    from rig.asset import AssetError, default_skinning_path
 
-    path = Path(path) if path else ASSET_DIR / "jnr_skinning_v1.npz"
+    path = Path(path) if path else default_skinning_path()
     if not path.is_file():
         raise AssetError(f"learned skinning not found: {path} (train it with `jnr train`)")
     with np.load(path, allow_pickle=False) as data:

@@ -2,24 +2,30 @@ import numpy as np
 import pytest
 import torch
 
+from landmarks import ibug68 as ibug
 from landmarks.ibug68 import (
     CHIN,
+    CONTOUR_ANGLES_DEG,
     IBUG68_MIRROR,
     IBUG68_NAMES,
+    LANDMARK_CORRECTIONS_MM,
     LandmarkEmbedding,
     contour_candidates,
     contour_landmarks,
     ibug68_embedding,
     landmark_positions,
+    snap_domain_points,
 )
 from rig.lbs import ShapeError
 
-# Verified visually (front and three-quarter previews) before pinning.
-GOLDEN_FACES = [3054, 4228, 5406, 6584, 7756, 8430, 8458, 8138, 8314, 8155, 8507, 8535, 7865, 6685, 5511, 4337,
-                3159, 2577, 2414, 2420, 2594, 2599, 2608, 2613, 2451, 2457, 2630, 3107, 3947, 4787, 5290, 5622,
-                5792, 5626, 5799, 5633, 3250, 3254, 3260, 3266, 3429, 3423, 3285, 3291, 3297, 3301, 3464, 3458,
-                7126, 6963, 6798, 6802, 6809, 6980, 7153, 7653, 7649, 7642, 7638, 7634, 6958, 6966, 6970, 6977,
-                6983, 7144, 7139, 7135]
+# Verified visually (front and side previews of the MakeHuman head, and dlib's detections on renders:
+# benchmarks/bench_landmark_offsets.py) before pinning.
+GOLDEN_FACES = [3479, 2809, 1163, 1237, 1175, 1058, 1272, 993, 1504, 5323, 5602, 5389, 5504, 5567, 5492, 7134, 7793,
+                315, 287, 282, 1479, 284, 4624, 5809, 4623, 4626, 4655, 170, 169, 2528, 2207, 403, 455, 424, 4794,
+                4743, 1655, 1625, 1652, 1644, 1629, 3128, 5972, 5980, 5952, 5982, 7447, 5956, 536, 601, 605, 589,
+                4944, 4941, 4876, 4958, 4975, 922, 634, 618, 696, 845, 680, 5183, 5036, 5183, 845, 845]
+
+MIDLINE = [8, 27, 28, 29, 30, 33, 51, 57, 62, 66]
 
 
 @pytest.fixture(scope="module")
@@ -32,38 +38,62 @@ def pts(asset, emb):
     return landmark_positions(asset.vertices, emb, asset.faces)[0]
 
 
+@pytest.fixture(scope="module")
+def heuristic_pts(asset):
+    return landmark_positions(asset.vertices, ibug68_embedding(asset, corrected=False), asset.faces)[0]
+
+
+def _distance_to_loop(vertices, loop, p):
+    a = vertices[np.asarray(loop)]
+    b = np.roll(a, -1, axis=0)
+    t = np.clip(((p - a) * (b - a)).sum(1) / ((b - a) ** 2).sum(1), 0.0, 1.0)
+    return float(np.linalg.norm(a + t[:, None] * (b - a) - p, axis=1).min())
+
+
 def test_golden_faces_and_shapes(emb):
     assert len(IBUG68_NAMES) == 68 == len(set(IBUG68_NAMES))
     assert isinstance(emb, LandmarkEmbedding)
     assert emb.faces.dtype == np.int64 and emb.barycentric.shape == (68, 3) and emb.barycentric.dtype == np.float64
     assert emb.faces.tolist() == GOLDEN_FACES
     assert ibug68_embedding() is ibug68_embedding()  # computed once per asset
+    assert ibug68_embedding(corrected=False) is ibug68_embedding(corrected=False)
+    assert ibug68_embedding(corrected=False) is not ibug68_embedding()
 
 
-def test_barycentric_weights_are_convex(emb):
+@pytest.mark.parametrize("corrected", [True, False])
+def test_barycentric_weights_are_convex(asset, corrected):
+    emb = ibug68_embedding(asset, corrected=corrected)
     assert (emb.barycentric >= 0).all()
     np.testing.assert_allclose(emb.barycentric.sum(1), 1.0, atol=1e-12)
 
 
-def test_mirror_pairs_are_exact_mirror_images(pts):
+@pytest.mark.parametrize("corrected", [True, False])
+def test_mirror_pairs_are_exact_mirror_images(asset, corrected):
+    pts = landmark_positions(asset.vertices, ibug68_embedding(asset, corrected=corrected), asset.faces)[0]
     assert sorted(IBUG68_MIRROR) == list(range(68))
     assert all(IBUG68_MIRROR[j] == i for i, j in enumerate(IBUG68_MIRROR))  # an involution
-    np.testing.assert_allclose(pts[list(IBUG68_MIRROR)] * [-1, 1, 1], pts, atol=1e-6)
+    np.testing.assert_allclose(pts[list(IBUG68_MIRROR)] * [-1, 1, 1], pts, atol=1e-9)
     for i, j in [(0, 16), (36, 45), (39, 42), (48, 54), (60, 64), (31, 35), (17, 26)]:
         assert IBUG68_MIRROR[i] == j
-    midline = [i for i, j in enumerate(IBUG68_MIRROR) if i == j]
-    assert midline == [8, 27, 28, 29, 30, 33, 51, 57, 62, 66]
-    np.testing.assert_allclose(pts[midline, 0], 0.0, atol=1e-9)
+    assert [i for i, j in enumerate(IBUG68_MIRROR) if i == j] == MIDLINE
+    assert (pts[MIDLINE, 0] == 0.0).all()  # exactly on the midline (on midline vertices / edges)
+    # the right side's faces are the mirror images of the left side's
+    emb = ibug68_embedding(asset, corrected=corrected)
+    for i, j in enumerate(IBUG68_MIRROR):
+        if i != j:
+            assert sorted(asset.mirror[asset.faces[emb.faces[i]]].tolist()) == sorted(asset.faces[emb.faces[j]].tolist())
 
 
-def test_order_matches_ibug(asset, pts):
+def test_order_matches_ibug(pts):
     x, y = pts[:, 0], pts[:, 1]
     assert (np.diff(x[:17]) > 0).all()  # jaw: subject's right (-X) to left
+    assert (np.diff(y[:9]) < 0).all() and (np.diff(y[8:17]) > 0).all()  # down to the chin and up again
     assert x[0] < 0 < x[16] and y[8] == y[:17].min()  # chin lowest
     assert (np.diff(x[17:27]) > 0).all()  # brows: right outer .. right inner, left inner .. left outer
+    assert y[19] > max(y[17], y[21]) and y[24] > max(y[22], y[26])  # arched: the middle highest
     assert (np.diff(y[27:31]) < 0).all()  # nose bridge top -> tip
     assert pts[30, 2] == pts[:, 2].max()  # tip is the most forward landmark
-    assert (np.diff(x[31:36]) > 0).all()
+    assert (np.diff(x[31:36]) > 0).all() and y[33] < min(y[31], y[35])  # nose base; subnasale lowest
     # right eye 36-41: 36 outer (most -X), 39 inner; upper lids above lower lids
     assert x[36] == x[36:42].min() and x[39] == x[36:42].max()
     assert x[45] == x[42:48].max() and x[42] == x[42:48].min()
@@ -73,13 +103,91 @@ def test_order_matches_ibug(asset, pts):
     assert (np.diff(x[48:55]) > 0).all() and (np.diff(x[54:60]) < 0).all() and x[59] > x[48]
     assert (np.diff(x[60:65]) > 0).all() and (np.diff(x[[64, 65, 66, 67]]) < 0).all()
     assert y[51] > y[62] >= y[66] > y[57]  # outer upper above inner lips above outer lower
+    assert y[50:53].min() > y[[49, 53]].max() > y[[48, 54]].max()  # the upper lip's border rises to the bow
+    assert abs(x[54]) >= abs(x[64]) - 1.0  # the outer corners are not inside the inner ones
     # vertical order of the features
     assert y[17:27].min() > y[36:48].max() > y[36:48].min() > y[30] > y[48:68].max() > y[48:68].min() > y[8]
-    # the eye and lip corners are the template's loop corners
-    eye = np.asarray(asset.eye_loops[int(np.argmax(asset.vertices[asset.eye_loops[:, 0], 0]))])
-    np.testing.assert_allclose(pts[45], asset.vertices[eye[np.argmax(asset.vertices[eye, 0])]])
-    mouth = np.asarray(asset.mouth_loop)
-    np.testing.assert_allclose(pts[64], asset.vertices[mouth[np.argmax(asset.vertices[mouth, 0])]])
+
+
+def test_each_landmark_lies_in_its_region(asset, emb, pts):
+    v, f = asset.vertices, asset.faces
+    face_regions = [set(np.asarray(asset.region_names)[asset.regions[f[emb.faces[k]]]]) for k in range(68)]
+    for k in range(17, 27):
+        assert "brows" in face_regions[k], (k, face_regions[k])
+    for k in range(27, 36):
+        assert "nose" in face_regions[k] or (k == 27 and face_regions[k] & {"forehead", "brows", "eyelids"}), k
+    for k in range(48, 60):
+        assert "lips" in face_regions[k], (k, face_regions[k])
+    for k in range(17):
+        assert face_regions[k] & {"cheeks", "jaw", "chin"}, (k, face_regions[k])
+    assert "chin" in face_regions[CHIN]
+    # eyes on the eyelid rims, the inner lip on the mouth loop
+    right_eye, left_eye = sorted(range(2), key=lambda i: v[asset.eye_loops[i], 0].mean())
+    for k in range(36, 48):
+        loop = asset.eye_loops[right_eye if k < 42 else left_eye]
+        assert _distance_to_loop(v, loop, pts[k]) < 1e-9, k
+    for k in range(60, 68):
+        assert _distance_to_loop(v, asset.mouth_loop, pts[k]) < 1e-9, k
+    # the lips lie between the nose base and the chin, the outer lip outside the inner one
+    assert pts[51, 1] > pts[62, 1] and pts[57, 1] < pts[66, 1] and pts[33, 1] > pts[51, 1] > pts[57, 1] > pts[CHIN, 1]
+
+
+def test_committed_corrections_reproduce_the_embedding(asset, emb, pts, heuristic_pts):
+    """Each row of the table moves the geometric placement onto a point of its surface (the fit picks
+    surface points): the corrected landmark is the placement plus the row, up to the row's rounding."""
+    assert LANDMARK_CORRECTIONS_MM, "the correction table is empty"
+    for k, delta in LANDMARK_CORRECTIONS_MM.items():
+        assert k == CHIN or 17 <= k < 68, k
+        assert heuristic_pts[k, 0] >= 0.0, f"{k}: rows are for the left side and the midline only"
+        assert len(delta) == 3 and all(round(d, 1) == d for d in delta), (k, delta)
+        if IBUG68_MIRROR[k] == k:
+            assert delta[0] == 0.0, k
+        target = heuristic_pts[k] + np.asarray(delta)
+        assert np.linalg.norm(pts[k] - target) < 0.1, (k, pts[k], target)  # 0.05 mm per axis of rounding
+        j = IBUG68_MIRROR[k]
+        np.testing.assert_allclose(pts[j], pts[k] * [-1, 1, 1], atol=1e-9)
+    # landmarks without a row keep their placement (62 and 66: the mouth loop's midline vertices)
+    rows = set(LANDMARK_CORRECTIONS_MM) | {IBUG68_MIRROR[k] for k in LANDMARK_CORRECTIONS_MM}
+    for k in set(range(17, 68)) - rows:
+        np.testing.assert_array_equal(pts[k], heuristic_pts[k])
+    assert {62, 66}.isdisjoint(rows)
+    # the contour angles are outline vertices' directions, in order along the outline
+    outline = ibug._outline(asset)
+    assert len(CONTOUR_ANGLES_DEG) == 8 and list(CONTOUR_ANGLES_DEG) == sorted(CONTOUR_ANGLES_DEG)
+    for k, angle in zip(range(16, 8, -1), CONTOUR_ANGLES_DEG):
+        c = int(np.argmin(np.abs(outline.angles - angle)))
+        assert abs(outline.angles[c] - angle) < 0.051
+        np.testing.assert_array_equal(pts[k], asset.vertices[outline.vertex_ids[c]])
+    # a pure function of the asset and the tables: rebuilt from scratch, the same faces and weights
+    rebuilt = ibug._build_embedding(asset, corrected=True)
+    np.testing.assert_array_equal(rebuilt.faces, emb.faces)
+    np.testing.assert_array_equal(rebuilt.barycentric, emb.barycentric)
+
+
+def test_geometric_placement_sits_on_the_lip_rims_and_bow(asset, heuristic_pts):
+    v, p = asset.vertices, heuristic_pts
+    ring = ibug._outer_lip_ring(asset)
+    lips = asset.region_mask("lips")
+    assert lips[ring].all() and len(ring) == len(asset.mouth_loop)
+    for k in range(48, 60):
+        assert _distance_to_loop(v, ring, p[k]) < 1e-9, k
+    # 52 is the Cupid's bow peak: the highest point of the upper border left of the midline
+    upper = ring[(v[ring, 1] > v[ring, 1].mean()) & (v[ring, 0] > 0)]
+    assert p[52, 1] == v[upper, 1].max()
+    np.testing.assert_allclose(p[[56, 63, 65], 0], p[52, 0])  # under the peak
+    np.testing.assert_allclose(p[55, 0], p[53, 0])
+
+
+def test_snap_domain_points(asset):
+    for k in [CHIN, 22, 27, 34, 45, 54, 63]:
+        q = snap_domain_points(asset, k)
+        assert q.ndim == 2 and q.shape[1] == 3 and len(q) > 10
+        if IBUG68_MIRROR[k] == k:
+            assert (q[:, 0] == 0.0).all()
+    with pytest.raises(KeyError):
+        snap_domain_points(asset, 62)
+    with pytest.raises(KeyError):
+        snap_domain_points(asset, 17)  # right side: its left partner's domain
 
 
 def test_landmark_positions_torch_matches_numpy_and_has_gradients(asset, emb, pts):
@@ -101,14 +209,20 @@ def _yaw_camera(deg, distance=600.0):
     return [distance * np.sin(t), -30.0, distance * np.cos(t)]
 
 
-def test_contour_frontal_stays_near_static_contour(asset, pts):
+@pytest.mark.parametrize("corrected", [True, False])
+def test_contour_frontal_stays_near_static_contour(asset, corrected):
+    pts = landmark_positions(asset.vertices, ibug68_embedding(asset, corrected=corrected), asset.faces)[0]
     v = torch.tensor(asset.vertices)
-    out = contour_landmarks(v, asset.faces, _yaw_camera(0.0), asset)
+    out = contour_landmarks(v, asset.faces, _yaw_camera(0.0), asset, corrected=corrected)
     assert out.shape == (17, 3)
     # as seen from the front (x, y), within a few mm of the static contour; the chin exactly
     assert np.linalg.norm(out[:, :2].numpy() - pts[:17, :2], axis=1).max() < 8.0
     np.testing.assert_array_equal(out[CHIN].numpy(), pts[CHIN])
-    cands = contour_candidates(asset)
+    # in order down to the chin and up again (x only below the cheekbones: 0 and 1 are both on the near-
+    # vertical outline by the ears, either may stick out further)
+    x, y = out[:, 0].numpy(), out[:, 1].numpy()
+    assert (np.diff(y[:9]) < 0).all() and (np.diff(y[8:]) > 0).all() and (np.diff(x[1:16]) > 0).all()
+    cands = contour_candidates(asset, corrected=corrected)
     assert len(cands) == 17 and len(cands[CHIN]) == 0 and all(len(c) >= 5 for i, c in enumerate(cands) if i != CHIN)
 
 
@@ -116,14 +230,17 @@ def test_contour_far_side_moves_towards_visible_silhouette(asset, pts):
     v = torch.tensor(asset.vertices, requires_grad=True)
     out = contour_landmarks(v, asset.faces, _yaw_camera(30.0), asset)  # camera on the subject's left (+X)
     far = slice(1, 8)  # right side (-X) turns away from the camera
-    # far-side points come forward (towards the face) and inwards
-    assert (out[1:7, 2].detach().numpy() > pts[1:7, 2] + 10.0).all()  # 7, by the chin, is already in front
-    assert (out[far, 0].detach().numpy() > pts[far, 0]).all()
+    p = out.detach().numpy()
+    # far-side points come forward (towards the face) and inwards, as long as they are behind the chin's front
+    static = pts[far]
+    moved = static[:, 2] < pts[CHIN, 2] - 10.0
+    assert moved[:3].all()
+    assert (p[far][moved, 2] > static[moved, 2] + 5.0).all() and (p[far, 0] > static[:, 0] - 1.0).all()
+    assert (p[far, 0] - static[:, 0])[:4].min() > 5.0  # the cheek's points (1-4) move well inwards
     # they sit near the silhouette: normals almost perpendicular to the view direction
     from rig.geometry import vertex_normals
     n = vertex_normals(asset.vertices, asset.faces)
     cam = np.array(_yaw_camera(30.0))
-    p = out.detach().numpy()
     ids = [int(np.argmin(np.linalg.norm(asset.vertices - q, axis=1))) for q in p[far]]
     view = (cam - p[far]) / np.linalg.norm(cam - p[far], axis=1, keepdims=True)
     assert np.abs((n[ids] * view).sum(1)).max() < 0.35

@@ -84,7 +84,7 @@ def sampled(views, asset):
     rng = np.random.default_rng(20240611)
     heads = population_split("heldout", 0).vertices
     low, high = (t.numpy() for t in expression_limits(torch.float64))
-    jaw = EXPRESSION_NAMES.index("jaw_open")
+    jaw = EXPRESSION_NAMES.index("jawOpen")
     out = []
     for k in range(400):
         head = heads[rng.integers(len(heads))] if k % 2 else asset.vertices
@@ -177,7 +177,7 @@ class TestAccepted:
         assert min(r.spread_ratio for r in reports) > MARGIN * MIN_SPREAD_RATIO
 
     @pytest.mark.parametrize("distance", [None, 300.0])
-    @pytest.mark.parametrize("expression", [{}, {"jaw_open": 1.0}, {"mouth_smile_left": 1.0, "eye_blink_right": 1.0}])
+    @pytest.mark.parametrize("expression", [{}, {"jawOpen": 1.0}, {"mouthSmileLeft": 1.0, "eyeBlinkRight": 1.0}])
     def test_extreme_poses(self, views, asset, distance, expression):
         head = views.expressive(asset.vertices, coefficients_from_dict(expression).numpy())
         rng = np.random.default_rng(1)

@@ -14,8 +14,8 @@ from landmarks.points3d import (
 )
 from rig.geometry import Similarity
 
-GOLDEN = {"left_eye_outer": 1735, "left_eye_inner": 1727, "right_eye_inner": 1717, "right_eye_outer": 1709,
-          "nose_tip": 2730, "mouth_left": 3576, "mouth_right": 3564, "chin": 4242}
+GOLDEN = {"left_eye_outer": 3240, "left_eye_inner": 3254, "right_eye_inner": 1104, "right_eye_outer": 1090,
+          "nose_tip": 1497, "mouth_left": 2730, "mouth_right": 527, "chin": 991}
 
 
 def test_landmark_order_and_vertices_are_pinned(asset):
@@ -35,7 +35,7 @@ def test_landmarks_sit_where_their_names_say(asset):
 
 def test_match_landmarks_checks_names_and_count(asset):
     ids, pos, names = match_landmarks({"chin": [0, 0, 0], "nose_tip": [1, 2, 3], "mouth_left": [4, 5, 6]}, asset)
-    assert names == ("nose_tip", "mouth_left", "chin") and ids.tolist() == [2730, 3576, 4242]
+    assert names == ("nose_tip", "mouth_left", "chin") and ids.tolist() == [1497, 2730, 991]
     np.testing.assert_array_equal(pos[0], [1, 2, 3])
     with pytest.raises(LandmarkError, match="unknown"):
         match_landmarks({"nose": [0, 0, 0]}, asset)
@@ -108,7 +108,7 @@ def test_implausible_landmarks_are_rejected_with_what_was_wrong(template_marks, 
     elif case == "mirrored":  # x negated in the template's frame: every left/right label swapped
         placed, _ = _placed(marks * [-1.0, 1.0, 1.0])
     elif case == "shuffled":
-        placed = placed[[7, 1, 2, 3, 4, 5, 6, 0]]
+        placed = placed[[0, 1, 2, 3, 7, 5, 6, 4]]  # nose tip and chin swapped
     elif case == "swapped_flat":  # eyes and mouth corners only (nearly coplanar), left and right swapped
         flat = [0, 1, 2, 3, 5, 6]
         placed, names = placed[[3, 2, 1, 0, 6, 5]], [names[i] for i in flat]

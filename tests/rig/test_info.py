@@ -8,14 +8,16 @@ from rig.parameters import NUM_PARAMETERS
 def test_rig_info_counts_the_asset(asset):
     info = rig_info(asset)
     assert list(info) == ["vertices", "faces", "joints", "free_parameters", "free_parameters_symmetric",
-                          "skinning_floats", "skinning_nonzeros", "max_influences", "model_floats", "regions",
-                          "units", "asset_version"]
+                          "skinning_floats", "skinning_nonzeros", "max_influences", "model_floats", "expressions",
+                          "expression_names", "regions", "units", "asset_version"]
     assert (info["vertices"], info["faces"], info["joints"]) == (len(asset.vertices), len(asset.faces), 52)
     assert info["free_parameters"] == NUM_PARAMETERS and 0 < info["free_parameters_symmetric"] < NUM_PARAMETERS
     assert info["skinning_floats"] == len(asset.weight_free) and info["skinning_nonzeros"] == len(asset.weight_rows)
     assert 1 <= info["max_influences"] <= 52
     assert info["model_floats"] == asset.vertices.size + asset.joint_positions.size + len(asset.weight_free)
     assert info["regions"] == list(asset.region_names) and info["units"] == "mm"
+    assert info["expressions"] == 52 and info["expression_names"][:2] == ["eyeBlinkLeft", "eyeLookDownLeft"]
+    assert 4500 <= info["vertices"] <= 5500
     assert rig_info() == info  # the committed asset by default
 
 

@@ -114,7 +114,7 @@ def synthetic_head(models):
     rig, neural = models
     theta = random_theta(torch.Generator().manual_seed(1), spread=0.2)
     expr = ExpressionModel(rig.asset)
-    c = coefficients_from_dict({"jaw_open": 0.3, "mouth_smile_left": 0.5})
+    c = coefficients_from_dict({"jawOpen": 0.3, "mouthSmileLeft": 0.5})
     rot, t = _head_pose(15.0), np.array([5.0, -10.0, 600.0])
     f = default_focal(W, H)
     faces, emb = rig.asset.faces, ibug68_embedding(rig.asset)
@@ -141,7 +141,7 @@ class TestFitLandmarks:
     def test_cardinality(self, fitted):
         assert fitted.theta.shape == (NUM_PARAMETERS,)
         assert fitted.z.shape == (LATENT,)
-        assert fitted.expressions.shape == (24,)
+        assert fitted.expressions.shape == (52,)
         assert fitted.rotation.shape == (3, 3) and fitted.translation.shape == (3,)
         assert fitted.landmarks_px.shape == (68, 2) and fitted.error_px.shape == (68,)
         assert fitted.landmarks3d.shape == (68, 3)
@@ -163,7 +163,7 @@ class TestFitLandmarks:
         assert err_fit < 0.5 * err_template
         angle = np.degrees(Rotation.from_matrix(fitted.rotation @ synthetic_head["rotation"].T).magnitude())
         print(f"pose: rotation off by {angle:.1f} deg, translation {fitted.translation.round(1)}")
-        jaw = fitted.expressions[list(ExpressionModel().names).index("jaw_open")]
+        jaw = fitted.expressions[list(ExpressionModel().names).index("jawOpen")]
         assert jaw > 0.1  # the open mouth is taken up by the expression
 
     def test_bad_input(self, models):

@@ -27,7 +27,7 @@ from rig.template import FACE_REGIONS
 
 CLEAN = ScanSettings(noise_mm_at_1m=0.0, noise_floor_mm=0.0, lateral_jitter_px=0.0, hole_fraction=(0.0, 0.0),
                      outlier_fraction=0.0)
-TRUE_EXPRESSION = {"jaw_open": 0.4, "mouth_smile_left": 0.7, "brow_raise_right": 0.6, "eye_blink_left": 0.5}
+TRUE_EXPRESSION = {"jawOpen": 0.4, "mouthSmileLeft": 0.7, "browOuterUpRight": 0.6, "eyeBlinkLeft": 0.5}
 SHORT_YAML = """
 stages:
   - {name: coarse, free: [pose, expressions], iterations: 10}
@@ -65,9 +65,10 @@ def test_recovers_a_known_pose_and_expression_from_its_own_scan(known_head, asse
     scan = simulate_scan(known_head, asset.faces, rng=5, settings=CLEAN, yaw_deg=25.0)
     fit = fit_scan(validate_points(scan.points, scan.normals))
     err, start = _face_error(fit, scan, asset), _template_error(fit, scan, asset)
-    assert err < 1.1 and err < 0.35 * start, (err, start)  # measured 0.88 vs 3.17
-    jaw = EXPRESSION_NAMES.index("jaw_open")
-    assert abs(fit.expressions[jaw] - TRUE_EXPRESSION["jaw_open"]) < 0.15
+    # measured 1.36 vs 4.41 mm on the MakeHuman rig (0.88 vs 3.17 on the first, procedural template)
+    assert err < 1.6 and err < 0.35 * start, (err, start)
+    jaw = EXPRESSION_NAMES.index("jawOpen")
+    assert abs(fit.expressions[jaw] - TRUE_EXPRESSION["jawOpen"]) < 0.15
     assert [s.name for s in fit.stages][:2] == ["coarse", "joints 1.1"]
     assert np.median(scan_to_mesh_distances(scan.points, fit.vertices, asset.faces)) < 0.3
 
@@ -78,7 +79,8 @@ def test_robust_to_noise_outliers_and_a_30_percent_hole(known_head, asset):
     assert scan.hole_fraction > 0.25
     fit = fit_scan(validate_points(scan.points, scan.normals))
     err, start = _face_error(fit, scan, asset), _template_error(fit, scan, asset)
-    assert err < 1.8 and err < 0.6 * start, (err, start)  # measured 1.50 vs 3.21
+    # measured 2.68 vs 3.98 mm on the MakeHuman rig (1.50 vs 3.21 on the first template)
+    assert err < 3.0 and err < 0.75 * start, (err, start)
 
 
 def test_config_yaml_overrides_and_rejects_unknown_keys(tmp_path):
@@ -130,7 +132,7 @@ def test_cli_fit_scan_writes_outputs_that_reload(scan_file, asset, capsys):
     rebuilt = mesh_from_params(out / "params.json")
     np.testing.assert_allclose(rebuilt, mesh.vertices, atol=2e-3)  # float32 PLY vs float32 rig
     params = json.loads((out / "params.json").read_text())
-    assert len(params["joints"]) == 105 and len(params["latent_z"]) == 50 and len(params["expressions"]) == 24
+    assert len(params["joints"]) == 105 and len(params["latent_z"]) == 50 and len(params["expressions"]) == 52
     report = json.loads((out / "report.json").read_text())
     assert [s["name"] for s in report["stages"]] == ["coarse", "joints", "latent", "expressions"]
     # every loss term is logged per stage, and they add up to the stage's total
@@ -300,7 +302,7 @@ def landmark_scan(asset):
 @pytest.mark.parametrize("case, message", [
     ("coincident", "'left_eye_outer' and 'left_eye_inner' are 0 mm apart"),
     ("mirrored", "look mirrored"),
-    ("metres", r"0\.001 x the size of the template's"),
+    ("metres", r"0\.001\d* x the size of the template's"),
     ("far", "mm from the nearest cloud point"),
 ])
 def test_fit_scan_rejects_implausible_landmarks_before_fitting(landmark_scan, rig32, case, message):

@@ -1,4 +1,4 @@
-"""pipeline.synthetic.population: seeded synthetic identity heads in the template's topology."""
+"""pipeline.synthetic.population: seeded MakeHuman identity heads in the template's topology."""
 
 from __future__ import annotations
 
@@ -6,52 +6,40 @@ import json
 
 import numpy as np
 import pytest
-import scipy.sparse as sp
-from scipy.spatial import cKDTree
 
 from pipeline.synthetic import population as pop
 from pipeline.synthetic.population import (
     FEATURE_NAMES,
     FEATURES,
+    PHENOTYPE_NAMES,
     SPLIT_SIZES,
     build_basis,
+    default_phenotype,
     feature_basis,
+    feature_mask,
+    flipped_skin_faces,
+    mirror_coefficients,
+    phenotype_displacements,
+    phenotype_of,
     population_split,
     read_population,
     sample_coefficients,
+    sample_head,
+    sample_phenotypes,
     synthesize_heads,
     write_population,
 )
+from rig.makehuman import (
+    Phenotype,
+    data_dir,
+    head_mesh,
+    phenotype_offsets,
+    target_on_head,
+)
+from rig.template import HIDDEN_REGIONS
 
 MIRROR_X = np.array([-1.0, 1.0, 1.0])
-
-# For every symmetric feature: the regions it must move most (the largest displacement is in one of
-# them) and regions that must stay still (< 0.05 mm at the extreme of the feature's range).
-_FACE_NOT_NOSE = ("ears", "neck", "scalp", "eyeballs", "chin", "jaw", "forehead")
-LOCALITY = {
-    "nose_length": (("nose",), _FACE_NOT_NOSE + ("lips", "mouth_interior")),
-    "nose_width": (("nose",), _FACE_NOT_NOSE + ("lips", "mouth_interior")),
-    "nose_hump": (("nose",), _FACE_NOT_NOSE + ("lips", "mouth_interior")),
-    "nostril_flare": (("nose",), _FACE_NOT_NOSE + ("lips", "mouth_interior")),
-    "lip_volume_upper": (("lips", "mouth_interior"), ("ears", "neck", "scalp", "eyeballs", "eyelids", "nose")),
-    "lip_volume_lower": (("lips", "mouth_interior"), ("ears", "neck", "scalp", "eyeballs", "eyelids", "nose")),
-    "mouth_width": (("lips", "mouth_interior"), ("ears", "neck", "scalp", "eyeballs", "eyelids", "nose")),
-    "cheek_fullness": (("cheeks",), ("ears", "neck", "scalp", "eyeballs", "nose", "lips")),
-    "cheekbone": (("cheeks",), ("ears", "neck", "scalp", "eyeballs", "nose", "lips")),
-    "brow_ridge": (("brows",), ("ears", "neck", "scalp", "eyeballs", "nose", "lips", "chin")),
-    "chin_projection": (("chin",), ("ears", "scalp", "eyeballs", "eyelids", "nose", "neck")),
-    "chin_width": (("chin",), ("ears", "scalp", "eyeballs", "eyelids", "nose", "lips")),
-    "jaw_angle_width": (("jaw",), ("ears", "scalp", "eyeballs", "eyelids", "nose", "lips", "chin")),
-    "forehead_slope": (("forehead", "scalp"), ("ears", "eyeballs", "eyelids", "nose", "lips", "chin", "neck")),
-    "ear_size": (("ears",), ("nose", "eyeballs", "eyelids", "lips", "chin", "neck", "scalp", "forehead")),
-    "ear_angle": (("ears",), ("nose", "eyeballs", "eyelids", "lips", "chin", "neck", "scalp", "forehead")),
-    "ear_shape": (("ears",), ("nose", "eyeballs", "eyelids", "lips", "chin", "neck", "scalp", "forehead")),
-    "eye_size": (("eyelids", "eyeballs"), ("ears", "neck", "scalp", "nose", "lips", "chin")),
-    "eye_spacing": (("eyelids", "eyeballs"), ("ears", "neck", "scalp", "nose", "lips", "chin")),
-    "skull_width": (("scalp",), ("nose", "eyeballs", "eyelids", "lips", "chin", "neck")),
-    "occiput_projection": (("scalp",), ("nose", "eyeballs", "eyelids", "lips", "chin", "ears", "forehead")),
-    "face_length": (("chin", "lips", "jaw", "cheeks", "neck", "mouth_interior"), ("ears", "forehead", "brows")),
-}
+ASYMMETRIC = ("antisymmetric", "mirror_negated")
 
 
 @pytest.fixture(scope="module")
@@ -64,140 +52,248 @@ def splits(asset):
     return {name: population_split(name, seed=0, asset=asset) for name in SPLIT_SIZES}
 
 
-@pytest.fixture(scope="module")
-def samples(asset, splits):
-    """20 heads from the training split and 20 from the held-out set."""
-    return np.concatenate([splits["train"].vertices[:20], splits["heldout"].vertices[:20]])
+def _mirror(v, asset):
+    return v[..., asset.mirror, :] * MIRROR_X
 
 
-@pytest.fixture(scope="module")
-def adjacency(asset):
-    f = asset.faces
-    e = np.unique(np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1), axis=0)
-    n = len(asset.vertices)
-    a = sp.coo_matrix((np.ones(2 * len(e)), (np.r_[e[:, 0], e[:, 1]], np.r_[e[:, 1], e[:, 0]])), shape=(n, n))
-    return a.tocsr()
+def _rms(d) -> float:
+    return float(np.sqrt((np.asarray(d) ** 2).sum(-1).mean()))
 
 
-def _uniform_laplacian(adjacency, d):
-    degree = np.asarray(adjacency.sum(axis=1)).ravel()
-    return d - (adjacency @ d) / degree[:, None]
+def _symmetric_part(coefficients):
+    """The coefficients with every asymmetric term removed: right = left, the rest of the asymmetric ones 0."""
+    c = np.array(coefficients, float)
+    for i, f in enumerate(FEATURES):
+        if f.symmetry in ASYMMETRIC:
+            c[..., i] = 0.0
+        elif f.symmetry == "right":
+            c[..., i] = c[..., FEATURE_NAMES.index(f.mirror)]
+    return c
 
 
-def _face_normals(v, faces):
-    tri = v[faces]
-    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    return n / np.linalg.norm(n, axis=1, keepdims=True)
+def _skin_normal_dots(heads, asset):
+    """Cosine between every skin triangle's normal and the template's, ``(n, F_skin)``."""
+    faces = asset.faces[~asset.region_mask(*HIDDEN_REGIONS)[asset.faces].any(1)]
+
+    def normals(v):
+        t = v[..., faces, :]
+        n = np.cross(t[..., 1, :] - t[..., 0, :], t[..., 2, :] - t[..., 0, :])
+        return n / np.linalg.norm(n, axis=-1, keepdims=True)
+
+    return (normals(heads) * normals(asset.vertices)).sum(-1)
 
 
 # ----------------------------------------------------------------------------------------------------
 # The feature table and basis
 # ----------------------------------------------------------------------------------------------------
 
-def test_feature_table(basis, asset):
-    assert basis.names == FEATURE_NAMES == tuple(f.name for f in FEATURES)
-    assert len(set(FEATURE_NAMES)) == len(FEATURE_NAMES)
-    symmetric = [f for f in FEATURES if f.symmetry == "symmetric"]
-    assert len(symmetric) >= 14
-    assert set(LOCALITY) == {f.name for f in symmetric}
-    assert any(f.symmetry == "antisymmetric" for f in FEATURES)
+def test_feature_table():
+    assert FEATURE_NAMES == tuple(f.name for f in FEATURES) and len(set(FEATURE_NAMES)) == len(FEATURES) == 170
+    kinds = {k: int(feature_mask(k).sum()) for k in pop.KINDS}
+    assert kinds == {"local": 134, "asym": 29, "head_shape": 7}
+    local = [f for f in FEATURES if f.kind == "local"]
+    assert {g: sum(f.group == g for f in local) for g in pop.LOCAL_GROUPS} == {
+        "cheek": 8, "chin": 7, "ears": 22, "eyebrows": 3, "eyes": 32, "forehead": 4, "head": 7, "mouth": 22,
+        "neck": 8, "nose": 21}  # as counted in the MakeHuman note
+    assert not {f.name.removeprefix("l-").removeprefix("r-") for f in FEATURES} & set(pop.TRANSLATING_TARGETS)
+    assert {f.name for f in FEATURES if f.symmetry == "antisymmetric"} == set(pop.ANTISYMMETRIC_TARGETS)
+    assert {f.name for f in FEATURES if f.kind == "head_shape"} == set(pop.HEAD_SHAPES)
+    by_name = {f.name: f for f in FEATURES}
     for f in FEATURES:
-        assert f.unit in ("mm", "deg") and f.low < 0.0 < f.high and f.sd > 0 and 0 < f.p_active <= 1, f
-    assert basis.fields.shape == (len(FEATURES), len(asset.vertices), 3)
-    assert basis.fields.dtype == np.float64 and np.isfinite(basis.fields).all()
-    # mm features are normalised: coefficient = peak displacement
-    for f, field in zip(FEATURES, basis.fields):
-        peak = np.linalg.norm(field, axis=1).max()
-        partner = f.name.startswith("asym_") and f.name[5:] in FEATURE_NAMES  # scaled like its feature
-        if f.unit == "mm" and not partner:
-            assert peak == pytest.approx(1.0), f.name
-        else:
-            assert 0.0 < peak < 2.0, f.name
+        partner = by_name[f.mirror]
+        assert partner.mirror == f.name and partner.kind == f.kind
+        assert (f.mirror != f.name) == (f.symmetry in ("left", "right"))
+        if f.symmetry == "left":
+            assert f.name.startswith("l-") and partner.symmetry == "right"
+        assert (f.low, f.high) == ((0.0, 1.0) if f.kind == "head_shape" else (-1.0, 1.0))
+        assert (f.negative is None) == (f.kind == "head_shape")
+    assert by_name["asym-eye-1"].positive == "asym/asym-eye-1-r.target.gz"  # c < 0: the -l file, c > 0: -r
+    assert by_name["asym-eye-1"].negative == "asym/asym-eye-1-l.target.gz"
+    assert by_name["l-cheek-volume-decr-incr"].positive == "cheek/l-cheek-volume-incr.target.gz"
 
 
-def test_basis_is_cached_and_reproducible(asset, basis):
+def test_basis_is_cached_read_only_and_reproducible(asset, basis):
     assert feature_basis(asset) is basis
-    fresh = build_basis(asset)
-    assert np.array_equal(fresh.fields, basis.fields)
+    assert basis.names == FEATURE_NAMES
+    assert basis.positive.shape == basis.negative.shape == (len(FEATURES), len(asset.vertices), 3)
+    assert np.array_equal(build_basis(asset).positive, basis.positive)
     with pytest.raises(ValueError):
-        basis.fields[0, 0, 0] = 1.0  # read-only
+        basis.positive[0, 0, 0] = 1.0
+    assert not basis.negative[feature_mask("head_shape")].any()
+    peak = np.linalg.norm(basis.positive, axis=2).max(1)
+    assert (peak > 0.05).all() and (peak < 60.0).all()  # every target moves the head, none absurdly
 
 
-def test_symmetric_and_antisymmetric_fields(basis, asset):
-    m = asset.mirror
-    for f, field in zip(FEATURES, basis.fields):
-        mirrored = field[m] * MIRROR_X
+def test_fields_are_exactly_mirror_consistent(asset, basis):
+    index = {n: i for i, n in enumerate(FEATURE_NAMES)}
+    for i, f in enumerate(FEATURES):
+        pos, neg = basis.positive[i], basis.negative[i]
         if f.symmetry == "symmetric":
-            assert np.abs(mirrored - field).max() <= 1e-9, f.name
+            assert np.abs(_mirror(pos, asset) - pos).max() < 1e-12, f.name
+            assert np.abs(_mirror(neg, asset) - neg).max() < 1e-12, f.name
+        elif f.symmetry == "antisymmetric":
+            assert np.abs(_mirror(pos, asset) + pos).max() < 1e-12 and np.array_equal(neg, -pos), f.name
+        elif f.symmetry == "mirror_negated":
+            assert np.abs(_mirror(pos, asset) - neg).max() < 1e-12, f.name
         else:
-            assert np.abs(mirrored + field).max() <= 1e-9, f.name  # antisymmetric ...
-            assert np.abs(mirrored - field).max() > 0.1, f.name  # ... hence not symmetric
+            j = index[f.mirror]
+            assert np.abs(_mirror(pos, asset) - basis.positive[j]).max() < 1e-12, f.name
+            assert np.abs(_mirror(neg, asset) - basis.negative[j]).max() < 1e-12, f.name
+    # a left target is on the left
+    left = asset.vertices[:, 0] > 0
+    for i, f in enumerate(FEATURES):
+        if f.symmetry == "left" and f.group != "head":
+            d = np.linalg.norm(basis.positive[i], axis=1)
+            assert d[left].sum() > 0.9 * d.sum(), f.name
 
 
-def test_features_are_local(basis, asset):
-    for f, field in zip(FEATURES, basis.fields):
-        if f.symmetry != "symmetric":
-            continue
-        moves, still = LOCALITY[f.name]
-        d = np.linalg.norm(field, axis=1) * max(abs(f.low), abs(f.high))
-        assert d[asset.region_mask(*moves)].max() >= 0.9 * d.max(), f.name
-        assert d[asset.region_mask(*still)].max() < 0.05, (f.name, d[asset.region_mask(*still)].max())
-    # and the partners of paired features stay where their feature is
-    for f, field in zip(FEATURES, basis.fields):
-        if f.name.startswith("asym_") and f.name[5:] in LOCALITY:
-            d = np.linalg.norm(field, axis=1) * max(abs(f.low), abs(f.high))
-            assert d[asset.region_mask(*LOCALITY[f.name[5:]][1])].max() < 0.05, f.name
-
-
-def test_paired_partner_gives_left_and_right_coefficients(basis, asset):
-    i, j = FEATURE_NAMES.index("ear_angle"), FEATURE_NAMES.index("asym_ear_angle")
-    c = np.zeros(len(FEATURES))
-    c[i], c[j] = 6.0, 2.0  # left ear 8 degrees, right ear 4
-    d = synthesize_heads(c, asset) - asset.vertices
-    left = asset.region_mask("ears") & (asset.vertices[:, 0] > 0)
-    right_of_left = asset.mirror[left]
-    ratio = np.linalg.norm(d[left], axis=1).sum() / np.linalg.norm(d[right_of_left], axis=1).sum()
-    assert ratio == pytest.approx(2.0, rel=1e-9)
+def test_symmetrisation_of_makehuman_pairs(asset, basis):
+    """L' = (L + mirror(R)) / 2, and MakeHuman's own pairs were close to mirror images already."""
+    head, folder = head_mesh(), data_dir() / "mpfb2" / "targets"
+    i = FEATURE_NAMES.index("l-eye-height1-decr-incr")  # the least symmetric pair (7 %)
+    f, g = FEATURES[i], FEATURES[FEATURE_NAMES.index("r-eye-height1-decr-incr")]
+    left, right = target_on_head(folder / f.negative, head), target_on_head(folder / g.negative, head)
+    expected = 0.5 * (left + _mirror(right, asset))
+    assert np.abs(basis.negative[i] - expected).max() < 1e-12
+    assert 0.0 < _rms(basis.negative[i] - left) < 0.1 * _rms(left)
+    asym = FEATURE_NAMES.index("asym-nose-2")
+    raw_l = target_on_head(folder / FEATURES[asym].negative, head)
+    raw_r = target_on_head(folder / FEATURES[asym].positive, head)
+    assert np.abs(basis.negative[asym] - 0.5 * (raw_l + _mirror(raw_r, asset))).max() < 1e-12
+    assert _rms(raw_l - _mirror(raw_r, asset)) < 0.2 * _rms(raw_l)
+    # an antisymmetric target really is (nearly) antisymmetric in MakeHuman's file
+    nose = target_on_head(folder / FEATURES[FEATURE_NAMES.index("nose-trans-in-out")].positive, head)
+    assert _rms(nose + _mirror(nose, asset)) < 0.01 * _rms(nose)
 
 
 # ----------------------------------------------------------------------------------------------------
-# Sampling, synthesis and the splits
+# Phenotypes
+# ----------------------------------------------------------------------------------------------------
+
+def test_sample_phenotypes():
+    p = sample_phenotypes(np.random.default_rng(3), 3000)
+    assert p.shape == (3000, len(PHENOTYPE_NAMES)) and PHENOTYPE_NAMES[:2] == ("gender", "age")
+    col = {n: p[:, i] for i, n in enumerate(PHENOTYPE_NAMES)}
+    assert 0.0 <= col["gender"].min() < 0.02 and 0.98 < col["gender"].max() <= 1.0
+    assert col["age"].min() >= Phenotype.age_value(18) and col["age"].max() <= Phenotype.age_value(80)
+    assert abs(np.median(col["age"]) - Phenotype.age_value(49)) < 0.02
+    for name in ("muscle", "weight"):
+        assert 0.3 <= col[name].min() and col[name].max() <= 0.7 and 0.09 < col[name].std() < 0.11
+    assert 0.25 <= col["height"].min() and col["height"].max() <= 0.75
+    assert (col["proportions"] == 0.5).all()
+    race = p[:, -3:]
+    assert np.abs(race.sum(1) - 1.0).max() < 1e-12 and (race > 0).all()
+    assert np.abs(race.mean(0) - 1 / 3).max() < 0.02  # uniform on the simplex
+    assert np.array_equal(p, sample_phenotypes(np.random.default_rng(3), 3000))
+    assert sample_phenotypes(0, 0).shape == (0, len(PHENOTYPE_NAMES))
+    phenotype_of(p[0])  # a valid rig.makehuman.Phenotype
+    for bad in (-1, 2.5, True):
+        with pytest.raises(ValueError):
+            sample_phenotypes(0, bad)
+
+
+def test_phenotype_part(asset):
+    p = np.array([0.9, Phenotype.age_value(70), 0.6, 0.4, 0.7, 0.5, 0.1, 0.7, 0.2])
+    d = phenotype_displacements(p, asset)
+    raw = phenotype_offsets(phenotype_of(p)) - phenotype_offsets()  # rig.makehuman's own mixing
+    raw = 0.5 * (raw + _mirror(raw, asset))
+    eyes = asset.region_mask("eyeballs")
+    shift = raw[eyes].mean(0)
+    assert abs(shift[1]) > 10.0  # the macro targets do move the head with the body ...
+    assert np.abs(d - (raw - [0.0, shift[1], shift[2]])).max() < 1e-9  # ... and that is taken out
+    assert np.abs(d[eyes].mean(0)).max() < 1e-9
+    assert np.abs(_mirror(d, asset) - d).max() < 1e-9
+    assert 2.0 < _rms(d - d.mean(0)) < 15.0
+    assert not phenotype_displacements(default_phenotype(), asset).any()
+    heads = synthesize_heads(np.zeros((2, len(FEATURES))), np.stack([default_phenotype(), p]), asset)
+    assert np.array_equal(heads[0], asset.vertices) and np.abs(heads[1] - asset.vertices - d).max() < 1e-12
+    with pytest.raises(ValueError, match="phenotypes must have shape"):
+        synthesize_heads(np.zeros(len(FEATURES)), np.zeros(4), asset)
+    with pytest.raises(ValueError, match="within"):
+        phenotype_displacements(np.full(len(PHENOTYPE_NAMES), 1.5), asset)
+
+
+# ----------------------------------------------------------------------------------------------------
+# Feature coefficients and synthesis
 # ----------------------------------------------------------------------------------------------------
 
 def test_sample_coefficients():
-    c = sample_coefficients(np.random.default_rng(5), 2000)
-    assert c.shape == (2000, len(FEATURES))
-    low = np.array([f.low for f in FEATURES])
-    high = np.array([f.high for f in FEATURES])
+    c = sample_coefficients(np.random.default_rng(5), 4000)
+    assert c.shape == (4000, len(FEATURES))
+    low, high = np.array([f.low for f in FEATURES]), np.array([f.high for f in FEATURES])
     assert (c >= low).all() and (c <= high).all()
-    active = (c != 0).mean(axis=0)
-    p = np.array([f.p_active for f in FEATURES])
-    assert np.abs(active - p).max() < 0.05
-    assert (p < 1).any()  # some features are sparse
-    assert np.array_equal(c, sample_coefficients(np.random.default_rng(5), 2000))
+    assert not c[:, ~feature_mask("local")].any()  # the unshifted distribution never uses asym / head shapes
+    sd = c.std(0)
+    sym = np.array([f.symmetry == "symmetric" and f.kind == "local" for f in FEATURES])
+    anti = np.array([f.symmetry == "antisymmetric" for f in FEATURES])
+    assert np.abs(sd[sym] - pop.LOCAL_SD).max() < 0.02 and np.abs(sd[anti] - pop.ASYM_NOISE_SD).max() < 0.005
+    for i, f in enumerate(FEATURES):
+        if f.symmetry == "left":  # tied: a shared value plus a little noise per side
+            diff = c[:, i] - c[:, FEATURE_NAMES.index(f.mirror)]
+            assert abs(diff.std() - np.sqrt(2) * pop.ASYM_NOISE_SD) < 0.005, f.name
+            assert np.corrcoef(c[:, i], c[:, FEATURE_NAMES.index(f.mirror)])[0, 1] > 0.9
+    shifted = sample_coefficients(np.random.default_rng(5), 4000, shifted=True)
+    asym, shapes = feature_mask("asym"), feature_mask("head_shape")
+    assert (shifted[:, asym] != 0).all() and np.abs(shifted[:, asym].std(0) - pop.ASYM_SLIDER_SD).max() < 0.02
+    assert (shifted[:, shapes] >= 0).all() and (shifted[:, shapes] <= 1).all()
+    assert np.abs(shifted[:, shapes].mean(0) - pop.HEAD_SHAPE_SD * np.sqrt(2 / np.pi)).max() < 0.02
     assert np.array_equal(sample_coefficients(7, 3), sample_coefficients(np.random.default_rng(7), 3))
-    assert sample_coefficients(np.random.default_rng(0), 0).shape == (0, len(FEATURES))
+    assert sample_coefficients(0, 0).shape == (0, len(FEATURES))
     for bad in (-1, 2.5, True):
         with pytest.raises(ValueError):
-            sample_coefficients(np.random.default_rng(0), bad)
+            sample_coefficients(0, bad)
     with pytest.raises(ValueError):
         sample_coefficients("seed", 2)
 
 
-def test_synthesize_heads_is_linear_in_the_coefficients(asset, basis):
-    assert np.array_equal(synthesize_heads(np.zeros(len(FEATURES)), asset), asset.vertices)
-    c = sample_coefficients(np.random.default_rng(1), 3)
-    heads = synthesize_heads(c, asset)
+def test_synthesis_is_piecewise_linear_in_the_coefficients(asset, basis):
+    assert np.array_equal(synthesize_heads(np.zeros(len(FEATURES)), asset=asset), asset.vertices)
+    c = sample_coefficients(np.random.default_rng(1), 3, shifted=True)
+    heads = synthesize_heads(c, asset=asset)
     assert heads.shape == (3, len(asset.vertices), 3) and heads.dtype == np.float64
-    expected = asset.vertices + np.tensordot(c, basis.fields, axes=1)
+    expected = asset.vertices + np.tensordot(np.maximum(c, 0), basis.positive, 1) \
+        + np.tensordot(np.maximum(-c, 0), basis.negative, 1)
     assert np.abs(heads - expected).max() < 1e-9
-    assert np.abs(synthesize_heads(c[1], asset) - heads[1]).max() < 1e-12
-    assert np.abs(basis.displacements(c) - (heads - asset.vertices)).max() < 1e-9
+    assert np.abs(synthesize_heads(c[1], asset=asset) - heads[1]).max() < 1e-12
+    i = FEATURE_NAMES.index("chin-height-decr-incr")  # MakeHuman's two files differ: not an odd function
+    one = np.zeros(len(FEATURES))
+    one[i] = 0.5
+    up = synthesize_heads(one, asset=asset) - asset.vertices
+    down = synthesize_heads(-one, asset=asset) - asset.vertices
+    assert np.abs(up - 0.5 * basis.positive[i]).max() < 1e-12 and np.abs(down - 0.5 * basis.negative[i]).max() < 1e-12
+    assert _rms(up + down) > 0.1 * _rms(up)
     with pytest.raises(ValueError, match="coefficients must have shape"):
-        synthesize_heads(np.zeros((2, len(FEATURES) + 1)), asset)
+        synthesize_heads(np.zeros((2, len(FEATURES) + 1)), asset=asset)
     with pytest.raises(ValueError, match="finite"):
-        synthesize_heads(np.full(len(FEATURES), np.nan), asset)
+        synthesize_heads(np.full(len(FEATURES), np.nan), asset=asset)
 
+
+def test_a_head_without_asymmetric_terms_is_exactly_symmetric(asset):
+    for seed in (1, 2):
+        phenotype, c = sample_head(seed, shifted=True, asset=asset)  # any phenotype, head shapes included
+        head = synthesize_heads(_symmetric_part(c), phenotype, asset)
+        assert np.abs(_mirror(head, asset) - head).max() < 1e-9
+        full = synthesize_heads(c, phenotype, asset)
+        assert _rms(_mirror(full, asset) - full) > 0.2  # the asymmetric terms do break the symmetry
+        # and the mirror image of any head is the head of the mirrored coefficients
+        mirrored = synthesize_heads(mirror_coefficients(c), phenotype, asset)
+        assert np.abs(mirrored - _mirror(full, asset)).max() < 1e-9
+    assert np.array_equal(mirror_coefficients(mirror_coefficients(c)), c)
+
+
+def test_flipped_skin_faces_counts_turned_triangles(asset):
+    assert flipped_skin_faces(asset.vertices, asset) == 0
+    head = asset.vertices.copy()
+    skin = ~asset.region_mask(*HIDDEN_REGIONS)[asset.faces].any(1)
+    a, b, c = asset.faces[np.where(skin)[0][100]]
+    head[a] = head[b] + head[c] - head[a]  # reflect one corner across the opposite edge: that face turns over
+    assert flipped_skin_faces(np.stack([asset.vertices, head]), asset).tolist()[0] == 0
+    assert flipped_skin_faces(head, asset) >= 1
+
+
+# ----------------------------------------------------------------------------------------------------
+# The splits
+# ----------------------------------------------------------------------------------------------------
 
 def test_split_sizes_and_names(splits):
     assert {k: len(v) for k, v in splits.items()} == {"train": 85, "val": 2, "test": 7, "heldout": 100}
@@ -205,81 +301,76 @@ def test_split_sizes_and_names(splits):
     assert len(names) == len(set(names)) == 194
     assert splits["train"].names[0] == "train_000" and splits["heldout"].names[-1] == "heldout_099"
     for name, p in splits.items():
-        assert p.split == name and p.expression == "neutral"
-        assert p.feature_names == FEATURE_NAMES
-        assert p.coefficients.shape == (len(p), len(FEATURES))
+        assert p.split == name and p.expression == "neutral" and p.shifted == (name == "heldout")
+        assert p.feature_names == FEATURE_NAMES and p.phenotype_names == PHENOTYPE_NAMES
+        assert p.coefficients.shape == (len(p), len(FEATURES)) and p.phenotypes.shape == (len(p), 9)
         assert p.vertices.shape[0] == len(p) and p.vertices.dtype == np.float64
-        for seed, coefficients in zip(p.seeds[:3], p.coefficients[:3]):  # per-head seeds reproduce the head
-            assert np.array_equal(sample_coefficients(np.random.default_rng(int(seed)), 1)[0], coefficients)
 
 
-def test_determinism_and_independent_splits(asset, splits):
+def test_heads_are_reproducible_from_their_seeds(asset, splits):
+    for name in ("val", "heldout"):
+        p = splits[name]
+        for i in (0, len(p) - 1):
+            phenotype, c = sample_head(int(p.seeds[i]), shifted=p.shifted, asset=asset)
+            assert np.array_equal(phenotype, p.phenotypes[i]) and np.array_equal(c, p.coefficients[i])
+            assert np.array_equal(synthesize_heads(c, phenotype, asset), p.vertices[i])
     again = population_split("test", seed=0, asset=asset)
     assert np.array_equal(again.vertices, splits["test"].vertices)
-    assert np.array_equal(again.coefficients, splits["test"].coefficients)
-    other_seed = population_split("test", seed=1, asset=asset)
-    assert not np.allclose(other_seed.vertices, splits["test"].vertices)
+    assert np.array_equal(again.seeds, splits["test"].seeds)
+    other = population_split("test", seed=1, asset=asset)
+    assert np.abs(other.vertices - splits["test"].vertices).max() > 1.0
     # no two heads in different splits are alike
     all_c = np.concatenate([p.coefficients for p in splits.values()])
     d = np.linalg.norm(all_c[:, None] - all_c[None], axis=-1) + np.eye(len(all_c)) * 1e9
-    assert d.min() > 1.0
-    assert not np.allclose(splits["val"].vertices[0], splits["test"].vertices[0])
+    assert d.min() > 0.5
     for bad_name, bad_seed in (("training", 0), ("val", -1), ("val", 1.5)):
         with pytest.raises(ValueError):
             population_split(bad_name, seed=bad_seed, asset=asset)
 
 
-# ----------------------------------------------------------------------------------------------------
-# Quality of the heads
-# ----------------------------------------------------------------------------------------------------
+def test_heldout_is_shifted(asset, splits):
+    extra = ~feature_mask("local")
+    for name in ("train", "val", "test"):
+        assert not splits[name].coefficients[:, extra].any(), name
+    held = splits["heldout"].coefficients
+    assert (held[:, feature_mask("asym")] != 0).all() and (held[:, feature_mask("head_shape")] > 0).mean() > 0.95
+    assert splits["heldout"].coefficients[:, feature_mask("asym")].std() > 0.2
 
-def test_heads_are_smooth_and_unflipped(asset, samples, adjacency):
-    n0 = _face_normals(asset.vertices, asset.faces)
-    for head in samples:
-        d = head - asset.vertices
-        lap = np.linalg.norm(_uniform_laplacian(adjacency, d), axis=1)
-        nd = np.linalg.norm(d, axis=1)
-        assert np.sqrt((lap ** 2).mean() / (nd ** 2).mean()) < 0.4  # a noise field gives ~1.1
-        assert lap.max() < 0.75 * nd.max()  # a one-vertex spike gives 1.0
-        dots = (_face_normals(head, asset.faces) * n0).sum(axis=1)
-        assert dots.min() > 0.3  # no face flips (or even turns steeply)
-    # the measure does tell a spike from a smooth field
-    spike = np.zeros_like(asset.vertices)
-    spike[1000] = (0.0, 0.0, 3.0)
-    assert np.linalg.norm(_uniform_laplacian(adjacency, spike), axis=1).max() == pytest.approx(3.0)
+    def asymmetry(p):
+        return np.sqrt(((_mirror(p.vertices, asset) - p.vertices) ** 2).sum(-1).mean(-1)) / 2
+
+    train, heldout = asymmetry(splits["train"]), asymmetry(splits["heldout"])
+    assert 0.1 < np.median(train) < 1.0 and np.median(heldout) > 2.0 * np.median(train)
 
 
-def test_nearby_surfaces_never_collapse(asset, samples):
-    """Vertices within 8 mm (across the mouth slit, eyelids over the eyeballs, ears and skull) keep apart."""
-    v = asset.vertices
-    pairs = np.array(sorted(cKDTree(v).query_pairs(8.0)))
-    d0 = np.linalg.norm(v[pairs[:, 0]] - v[pairs[:, 1]], axis=1)
-    inner = asset.region_mask("eyeballs", "mouth_interior")
-    across = inner[pairs[:, 0]] != inner[pairs[:, 1]]  # interior vertex next to skin (lids, lips)
-    assert across.sum() > 50
-    for head in samples:
-        ratio = np.linalg.norm(head[pairs[:, 0]] - head[pairs[:, 1]], axis=1) / d0
-        assert ratio.min() > 0.35
-        assert ratio[across].min() > 0.5
-
-
-def test_plausible_magnitudes_and_proportions(asset, splits):
+def test_population_spread(asset, splits):
+    """~7 mm RMS around the mean head (the MakeHuman note's figure for N(0, 0.25) plus phenotypes)."""
+    for name in ("train", "heldout"):
+        v = splits[name].vertices
+        spread = _rms(v - v.mean(0))
+        assert 5.5 < spread < 9.5, (name, spread)
+        per_head = np.sqrt(((v - asset.vertices) ** 2).sum(-1).mean(-1))
+        assert per_head.min() > 2.0 and per_head.max() < 20.0
+    train, held = splits["train"].vertices, splits["heldout"].vertices
+    assert _rms(held - held.mean(0)) > _rms(train - train.mean(0))  # the extra terms add variation
     heads = np.concatenate([p.vertices for p in splits.values()])
-    d = np.linalg.norm(heads - asset.vertices, axis=2)
-    assert (d.max(axis=1) > 1.0).all() and (d.max(axis=1) < 20.0).all()
-    assert 3.0 < np.median(d.max(axis=1)) < 10.0
-    mean = d.mean(axis=1)
-    assert (mean > 0.2).all() and (mean < 5.0).all()
-    head = ~asset.region_mask("neck", "ears")
-    chin = asset.region_mask("chin")
-    width = 2 * np.abs(heads[:, head, 0]).max(axis=1)
-    height = heads[:, :, 1].max(axis=1) - heads[:, chin, 1].min(axis=1)
-    assert (width > 135).all() and (width < 175).all()
-    assert (height > 215).all() and (height < 250).all()
-    assert width.std() > 2.0 and height.std() > 1.0  # the population varies
-    # the face still points forward: the nose tip is the front-most point
-    tip = np.argmax(heads[:, :, 2], axis=1)
-    assert (asset.regions[tip] == asset.region_names.index("nose")).all()
+    width = 2 * np.abs(heads[:, ~asset.region_mask("neck", "ears"), 0]).max(1)
+    assert width.min() > 110 and width.max() < 190 and width.std() > 4.0
+    front = asset.regions[np.argmax(heads[:, :, 2], axis=1)]
+    assert np.isin(front, [asset.region_names.index(r) for r in ("nose", "lips")]).all()
+
+
+def test_no_flipped_faces_on_the_skin(asset, splits):
+    heads = np.concatenate([splits["train"].vertices[:10], splits["heldout"].vertices[:10]])
+    dots = _skin_normal_dots(heads, asset)
+    assert dots.min() > 0.0  # every skin triangle within 90 degrees of the template's
+    assert (flipped_skin_faces(heads, asset) == 0).all()
+    # the rejection is needed (MakeHuman's creases fold under about half of the raw draws), not a formality
+    rng = np.random.default_rng(11)
+    raw = synthesize_heads(sample_coefficients(rng, 40), sample_phenotypes(rng, 40), asset)
+    folded = (_skin_normal_dots(raw, asset) <= 0).any(1)
+    assert 0.2 < folded.mean() < 0.8
+    assert np.array_equal(folded, flipped_skin_faces(raw, asset) > 0)
 
 
 # ----------------------------------------------------------------------------------------------------
@@ -298,19 +389,24 @@ def test_write_and_read_round_trip(tmp_path, asset, splits):
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]  # no temporary left
 
     manifest = json.loads(manifest_path.read_text())
-    assert manifest["units"] == "mm" and manifest["generator_version"] == pop.GENERATOR_VERSION
+    assert manifest["units"] == "mm" and manifest["generator_version"] == pop.GENERATOR_VERSION == 2
     assert manifest["coordinates"]["up"] == "+Y" and manifest["feature_names"] == list(FEATURE_NAMES)
+    assert manifest["phenotype_names"] == list(PHENOTYPE_NAMES) and manifest["shifted_splits"] == ["heldout"]
+    assert [f["name"] for f in manifest["features"]] == list(FEATURE_NAMES)
+    assert {"phenotype", "local", "asym", "head_shape"} <= set(manifest["distributions"])
     head = manifest["heads"][0]
     assert head["split"] == "val" and head["name"] == "val_000" and head["file"] == "val/val_000.ply"
     assert head["vertex_count"] == len(asset.vertices) and set(head["coefficients"]) == set(FEATURE_NAMES)
+    assert set(head["phenotype"]) == set(PHENOTYPE_NAMES) and 18.0 <= head["age_years"] <= 80.0
     assert isinstance(head["seed"], int)
 
     loaded = read_population(manifest_path)
     assert list(loaded) == ["val", "test"]
     for name, p in loaded.items():
         assert p.names == splits[name].names
-        assert np.abs(p.vertices - splits[name].vertices).max() < 1e-5
+        assert np.abs(p.vertices - splits[name].vertices).max() < 1e-5  # float32 PLY
         assert np.array_equal(p.coefficients, splits[name].coefficients)
+        assert np.array_equal(p.phenotypes, splits[name].phenotypes)
         assert np.array_equal(p.seeds, splits[name].seeds)
     assert read_population(out)["val"].names == ("val_000", "val_001")  # the directory works too
 
@@ -327,6 +423,13 @@ def test_write_and_read_round_trip(tmp_path, asset, splits):
     expected = population_split("val", seed=1, asset=asset)
     assert np.abs(again.vertices - expected.vertices).max() < 1e-5
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
+
+    # a manifest of another generator version is refused (its heads are other heads)
+    manifest = json.loads((out / "manifest.json").read_text())
+    manifest["generator_version"] = 1
+    (out / "manifest.json").write_text(json.dumps(manifest))
+    with pytest.raises(ValueError, match="version 1"):
+        read_population(out)
 
 
 def test_failed_write_leaves_nothing(tmp_path):
@@ -357,3 +460,17 @@ def test_write_population_rejects_bad_arguments(tmp_path):
         write_population(tmp_path / "file", splits=("val",))
     with pytest.raises(FileNotFoundError):
         read_population(tmp_path / "missing.json")
+
+
+def test_similarity_normalised_undoes_a_known_similarity():
+    from scipy.spatial.transform import Rotation
+
+    from pipeline.synthetic.population import similarity_normalised
+    from rig.asset import load_asset
+
+    template = load_asset().vertices
+    rot = Rotation.from_euler("xyz", [4.0, -7.0, 3.0], degrees=True).as_matrix()
+    moved = 1.08 * template @ rot.T + np.array([3.0, -12.0, 40.0])
+    out = similarity_normalised(np.stack([moved, template]), template)
+    np.testing.assert_allclose(out[0], template, atol=1e-9)
+    np.testing.assert_allclose(out[1], template, atol=1e-9)

@@ -325,3 +325,37 @@ def test_failed_write_leaves_nothing(sphere, tmp_path, monkeypatch):
     with pytest.raises(OSError, match="disk full"):
         _export_sphere_gltf(sphere, tmp_path / "a.glb")
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("suffix", [".glb", ".gltf"])
+def test_gltf_morph_targets_round_trip_sparse(sphere, tmp_path, suffix):
+    v = sphere["vertices"]
+    rng = np.random.default_rng(3)
+    targets = np.zeros((3, len(v), 3))
+    targets[0, v[:, 0] > 0] = [1.0, 2.0, 3.0]  # half the vertices move
+    targets[1, :5] = rng.normal(size=(5, 3))  # five move
+    # target 2 moves nothing (glTF needs one stored element: an explicit zero)
+    path = tmp_path / f"morph{suffix}"
+    _export_sphere_gltf(sphere, path, morph_targets=targets, morph_names=["a", "b", "still"], morph_weights=[0.5, 0, 1])
+    out = read_skinned_gltf(path)
+    assert out["morph_names"] == ["a", "b", "still"]
+    np.testing.assert_allclose(out["morph_targets"], targets, atol=1e-6)
+    np.testing.assert_array_equal(out["morph_weights"], [0.5, 0.0, 1.0])
+    gltf = pygltflib.GLTF2().load(str(path))
+    primitive = gltf.meshes[0].primitives[0]
+    accessors = [gltf.accessors[t["POSITION"] if isinstance(t, dict) else t.POSITION] for t in primitive.targets]
+    assert [a.sparse.count for a in accessors] == [int((v[:, 0] > 0).sum()), 5, 1]  # only moved vertices stored
+    assert all(a.min is not None and a.max is not None for a in accessors)  # POSITION needs min/max
+    material = gltf.materials[primitive.material].pbrMetallicRoughness
+    assert material.metallicFactor == 0.0  # not shown as metal (three.js's default is metallic)
+
+
+def test_gltf_morph_targets_are_checked(sphere, tmp_path):
+    v = sphere["vertices"]
+    with pytest.raises(ValueError, match="morph_targets"):
+        _export_sphere_gltf(sphere, tmp_path / "x.glb", morph_targets=np.zeros((2, len(v) + 1, 3)), morph_names=["a", "b"])
+    with pytest.raises(ValueError, match="unique names"):
+        _export_sphere_gltf(sphere, tmp_path / "x.glb", morph_targets=np.zeros((2, len(v), 3)), morph_names=["a", "a"])
+    with pytest.raises(ValueError, match="without morph_targets"):
+        _export_sphere_gltf(sphere, tmp_path / "x.glb", morph_names=["a"])
+    assert not (tmp_path / "x.glb").exists()
