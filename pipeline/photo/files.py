@@ -72,9 +72,10 @@ def sidecar_landmarks(photo: str | Path) -> Path:
     raise InputError(f"--landmarks auto: no {'/'.join(LANDMARK_SUFFIXES)} file beside {photo}")
 
 
-def _photo_landmarks(photo, landmarks_path: Path | None, face: int | None):
-    """``(landmarks (68, 2) in the working image's pixels, report.json's description of their source)``."""
-    from landmarks.detect import detect_landmarks
+def _photo_landmarks(photo, landmarks_path: Path | None, face: int | None, detector: str = "auto"):
+    """``(landmarks (68, 2) in the working image's pixels, report.json's description of their source)``:
+    with detection, every face found (box in the photo's pixels, score, detector) and the one fitted."""
+    from landmarks.detect import DetectionError, detect_faces
     from landmarks.formats import read_landmarks
     from landmarks.plausibility import check_landmarks_2d
 
@@ -83,16 +84,30 @@ def _photo_landmarks(photo, landmarks_path: Path | None, face: int | None):
         points = read_landmarks(landmarks_path)
         check_landmarks_2d(points, width, height, source=str(landmarks_path))
         return photo.to_working(points), {"landmarks": str(landmarks_path)}
-    detection = detect_landmarks(photo.image, face=face)
-    box = photo.to_original(detection.box.reshape(2, 2)).reshape(-1).tolist()
-    return detection.landmarks, {"landmarks": "dlib 68-point detector", "face_box": box,
-                                 "face_score": detection.score, "face_index": 0 if face is None else face}
+    t0 = time.perf_counter()
+    faces = detect_faces(photo.image, detector=detector)
+    seconds = time.perf_counter() - t0
+    if not faces:
+        tried = "HOG and CNN detectors" if detector == "auto" else f"{detector.upper()} detector"
+        raise DetectionError(f"no face found in the image (dlib's {tried}); pass --landmarks FILE to give the "
+                             "68 landmarks yourself")
+    index = 0 if face is None else int(face)
+    if not 0 <= index < len(faces):
+        noun = "face" if len(faces) == 1 else "faces"
+        raise DetectionError(f"found {len(faces)} {noun}; --face must be 0..{len(faces) - 1}, got {index}")
+    listed = [{"box": photo.to_original(f.box.reshape(2, 2)).reshape(-1).tolist(), "score": f.score,
+               "detector": f.detector} for f in faces]
+    chosen = faces[index]
+    return chosen.landmarks, {"landmarks": "dlib 68-point detector", "detector": chosen.detector,
+                              "detector_option": detector, "detection_seconds": round(seconds, 3),
+                              "face_box": listed[index]["box"], "face_score": chosen.score, "face_index": index,
+                              "faces": listed}
 
 
 def fit_photo_file(photo_path: str | Path, out: str | Path, *, config=None, landmarks: str | Path | None = None,
                    face: int | None = None, focal: float | None = None, force: bool = False,
                    progress: Callable[[str, int, int], None] | None = None, rig=None, neural=None,
-                   command: str = "jnr fit", inputs: Iterable[str | Path] = ()) -> dict:
+                   command: str = "jnr fit", inputs: Iterable[str | Path] = (), detector: str = "auto") -> dict:
     """Detect (or read) the landmarks of one photo file, fit it and write its output folder.
 
     Everything that can be checked cheaply is checked before the fit: the output path (not an input,
@@ -111,6 +126,8 @@ def fit_photo_file(photo_path: str | Path, out: str | Path, *, config=None, land
             file), ``"auto"`` for the one beside the photo (:func:`sidecar_landmarks`), or None to
             detect them (dlib).
         face: which detected face, 0 = the largest (default 0); not with ``landmarks``.
+        detector: dlib's face detector, one of :data:`landmarks.detect.DETECTORS` (default ``"auto"``:
+            HOG, and the slower CNN only when HOG finds no face).
         focal: the focal length in pixels of the photo file (default: 1.4 x its longer side).
         force: replace an existing output folder (only one jnr wrote).
         progress: ``progress(stage, iteration, iterations)`` during the fit.
@@ -148,7 +165,7 @@ def fit_photo_file(photo_path: str | Path, out: str | Path, *, config=None, land
         width, height = photo.original_size
         if focal is not None:
             check_focal(focal, width, height)
-        points, source = _photo_landmarks(photo, landmarks_path, face)
+        points, source = _photo_landmarks(photo, landmarks_path, face, detector)
     except DetectionError as exc:  # name the photo (the other InputErrors name their file or option)
         message = str(exc)
         raise DetectionError(message if str(photo_path) in message else f"{photo_path}: {message}") from None
@@ -187,6 +204,7 @@ class PhotoTask:
     force: bool = False
     command: str = "jnr fit"
     inputs: tuple[str, ...] = ()
+    detector: str = "auto"
 
 
 @dataclass(frozen=True)
@@ -212,7 +230,7 @@ def fit_photo_task(task: PhotoTask, *, rig=None, neural=None,
     try:
         summary = fit_photo_file(task.photo, task.out, config=task.config, landmarks=task.landmarks,
                                  focal=task.focal, force=task.force, command=task.command, inputs=task.inputs,
-                                 rig=rig, neural=neural, progress=progress)
+                                 rig=rig, neural=neural, progress=progress, detector=task.detector)
         return PhotoFileResult(task.photo, summary)
     except InputError as exc:
         return PhotoFileResult(task.photo, error=str(exc), bad_input=True)
@@ -241,8 +259,8 @@ def fit_photo_files(photos: Sequence[str | Path], out: str | Path, *, folders: S
                     config=None, landmarks: str | None = None, focal: float | None = None, force: bool = False,
                     command: str = "jnr fit", rig=None, neural=None,
                     progress: Callable[[str, int, int], None] | None = None,
-                    run: Callable[[list[PhotoTask]], Iterable[PhotoFileResult]] | None = None
-                    ) -> list[PhotoFileResult]:
+                    run: Callable[[list[PhotoTask]], Iterable[PhotoFileResult]] | None = None,
+                    detector: str = "auto") -> list[PhotoFileResult]:
     """Fit several photo files, each into ``out/<name>/`` (:func:`output_names`).
 
     The output folder is created if missing and every ``out/<name>`` is checked before any fit; a photo
@@ -281,7 +299,7 @@ def fit_photo_files(photos: Sequence[str | Path], out: str | Path, *, folders: S
         if created:
             shutil.rmtree(out, ignore_errors=True)
         raise
-    tasks = [PhotoTask(str(p), str(o), config, landmarks, focal, force, command, inputs)
+    tasks = [PhotoTask(str(p), str(o), config, landmarks, focal, force, command, inputs, detector)
              for p, o in zip(photos, outputs)]
     order = {t.photo: i for i, t in reversed(list(enumerate(tasks)))}
     results: list[PhotoFileResult] = []

@@ -9,6 +9,7 @@ skimage_data = pytest.importorskip("skimage.data")
 from PIL import Image
 
 from landmarks.detect import (
+    CNN_MIN_CONFIDENCE,
     DetectionError,
     FaceDetection,
     detect_faces,
@@ -128,6 +129,41 @@ class TestSeveralFaces:
             detect_landmarks(two_faces, face=2)
         with pytest.raises(DetectionError, match=r"0\.\.1"):
             detect_landmarks(two_faces, face=-1)
+
+
+@pytest.fixture(scope="module")
+def tilted(astronaut):
+    """The portrait rotated 45 degrees counter-clockwise: HOG finds nothing in it."""
+    return np.asarray(Image.fromarray(astronaut).rotate(45, resample=Image.BILINEAR))
+
+
+class TestDetectors:
+    """dlib's CNN (MMOD) detector, on request or when HOG finds nothing (``detector="auto"``)."""
+
+    def test_cnn_finds_the_upright_face_where_hog_does(self, astronaut, astronaut_face):
+        (face,) = detect_faces(astronaut, detector="cnn")
+        assert face.detector == "cnn" and face.score >= CNN_MIN_CONFIDENCE
+        a, b = face.box, astronaut_face.box
+        inter = max(0.0, min(a[2], b[2]) - max(a[0], b[0])) * max(0.0, min(a[3], b[3]) - max(a[1], b[1]))
+        assert inter / (face.area + astronaut_face.area - inter) > 0.5  # the same face
+        assert np.abs(face.landmarks - astronaut_face.landmarks).mean() < 5.0
+
+    def test_auto_falls_back_to_the_cnn_when_hog_finds_nothing(self, astronaut, astronaut_face, tilted):
+        assert detect_faces(tilted, detector="hog") == []
+        face = detect_landmarks(tilted)  # auto, the default
+        assert face.detector == "cnn"
+        # where the upright face's landmarks go under the same 45 degree rotation about the image centre
+        h, w = astronaut.shape[:2]
+        c = np.array([(w - 1) / 2, (h - 1) / 2])
+        t = np.deg2rad(45.0)
+        rot = np.array([[np.cos(t), np.sin(t)], [-np.sin(t), np.cos(t)]])  # counter-clockwise on screen (y down)
+        expected = (astronaut_face.landmarks - c) @ rot.T + c
+        assert np.linalg.norm(face.landmarks - expected, axis=1).mean() < 8.0
+        assert detect_landmarks(astronaut).detector == "hog"  # HOG finds it: the CNN is not run
+
+    def test_unknown_detector(self, astronaut):
+        with pytest.raises(DetectionError, match="detector must be one of"):
+            detect_faces(astronaut, detector="yolo")
 
 
 class TestExceptions:
