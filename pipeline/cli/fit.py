@@ -91,6 +91,7 @@ def _fit_one(args: argparse.Namespace, photo: Path, config, out: Path) -> int:
     print(f"fitted {photo} in {summary['fit_seconds']:.1f} s: landmark error {summary['mean_error_px']:.2f} px "
           f"(NME {summary['nme']:.4f})")
     print(f"wrote {out}/: mesh.obj, mesh.ply, mesh.glb, params.json, overlay.png, render.png, landmarks.pts, "
+          "landmarks_fitted.pts, landmarks3d.json, expressions.csv, "
           "report.json, config.yaml")
     return EXIT_OK
 
@@ -151,7 +152,8 @@ FIT_EPILOG = (
     "moved into place atomically, and nothing is left behind on an error, Ctrl-C or SIGTERM.\n"
     "Outputs: mesh.obj, mesh.ply "
     "(rig space, mm, +Y up, vertex colours = albedo), mesh.glb (skinned glTF), params.json (joints "
-    "by name, Z, expressions, camera, pose, light), overlay.png, render.png, landmarks.pts, "
+    "by name, Z, expressions, camera, pose, light), overlay.png, render.png, landmarks.pts (input), "
+    "landmarks_fitted.pts, landmarks3d.json (camera frame, mm), expressions.csv (ARKit), "
     "report.json (landmark error in px and NME, loss terms per stage, timings), config.yaml (the "
     "settings used; --config on it repeats the fit).\nLandmarks: --landmarks "
     "FILE (.pts 1-based as in iBUG 300-W, .json {\"landmarks\": [[x, y], ...]} or .csv index,x,y; 0-based "

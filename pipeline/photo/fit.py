@@ -269,6 +269,9 @@ class PhotoFit:
             unit direction the light travels, in rig space and in the camera frame.
         landmarks2d: ``(68, 2)`` the input landmarks; landmarks_px: ``(68, 2)`` fitted, pixels;
             error_px ``(68,)``; nme: mean error / outer-eye-corner distance.
+        landmarks3d_camera: ``(68, 3)`` the fitted landmarks in 3D, camera frame (OpenCV: x right, y down,
+            z forward), mm: the static embedding and the jaw contour as this camera sees it; projected with
+            the camera they are ``landmarks_px``.
         landmark_fit: the landmark-only fit it started from.
         stages: one :class:`~pipeline.fitting.engine.StageLog` per photometric stage: every loss term,
             and the metrics ``photo`` (mean Charbonnier residual over the counted face pixels, linear RGB),
@@ -301,6 +304,7 @@ class PhotoFit:
     stages: tuple[StageLog, ...]
     crop: Crop | None
     timings: dict
+    landmarks3d_camera: np.ndarray | None = None
 
 
 def check_photo(image) -> np.ndarray:
@@ -410,6 +414,7 @@ def fit_photo(image, landmarks2d, *, focal: float | None = None, config: FitPhot
     with torch.no_grad():
         v = state.rig_vertices()
         projected = term.project(state, v)
+        landmarks3d_camera = state.to_camera(term.points3d(state, v)).double().numpy()
         translation = state.translation.double().numpy()
     values = state.arrays()
     rotation = values["rotation"]
@@ -421,7 +426,7 @@ def fit_photo(image, landmarks2d, *, focal: float | None = None, config: FitPhot
                     irradiance=irradiance_np, light_direction_camera=light_cam,
                     light_direction_rig=camera_direction_to_rig(light_cam, rotation),
                     landmarks2d=lm, landmarks_px=projected, error_px=error, nme=nme, landmark_fit=lfit,
-                    stages=stages, crop=crop,
+                    stages=stages, crop=crop, landmarks3d_camera=landmarks3d_camera,
                     timings={"landmarks": t_landmarks, "photometric": t_photo,
                              "total": time.perf_counter() - t0})
 

@@ -3,26 +3,30 @@
 The output folder (written to a temporary folder beside it, then moved into place, so a failure
 leaves nothing half-written):
 
-=====================  ===========================================================================
+========================  ===========================================================================
 file                   contents
-=====================  ===========================================================================
-``mesh.obj``           the fitted head in rig space (mm, +Y up, +Z out of the face), vertex colours
-                       = fitted albedo (sRGB), UVs
-``mesh.ply``           the same, binary PLY with vertex colours
-``mesh.glb``           skinned glTF 2.0 (metres): the template with the 52 ARKit shapes as morph targets
-                       named by ARKit, weighted by the fitted coefficients; the 52 joints posed by the
-                       fitted parameters, the fitted skinning weights, linear vertex colours
-``params.json``        joints by name (deg, mm, factor), latent Z, expressions by name, the camera
-                       (focal, principal point, image size, rig -> camera extrinsics), the head pose,
-                       the light (ambient, irradiance, direction in rig space and camera frame);
-                       its ``joints`` key is also a valid ``jnr rig edit`` parameter file
-``overlay.png``        the photo with the fitted head rendered over it (60 %), the input landmarks
-                       (green) and the fitted ones (red)
-``render.png``         the fitted head, albedo and light, rendered alone at the photo's size
-``landmarks.pts``      the 68 input landmarks (iBUG .pts, 1-based pixels)
-``report.json``        landmark error (px, NME), every loss term per stage, timings, input, configuration
-``config.yaml``        the configuration used, every field resolved (``--config`` repeats the fit)
-=====================  ===========================================================================
+========================  ===========================================================================
+``mesh.obj``              the fitted head in rig space (mm, +Y up, +Z out of the face), vertex colours
+                          = fitted albedo (sRGB), UVs
+``mesh.ply``              the same, binary PLY with vertex colours
+``mesh.glb``              skinned glTF 2.0 (metres): the template with the 52 ARKit shapes as morph targets
+                          named by ARKit, weighted by the fitted coefficients; the 52 joints posed by the
+                          fitted parameters, the fitted skinning weights, linear vertex colours
+``params.json``           joints by name (deg, mm, factor), latent Z, expressions by name, the camera
+                          (focal, principal point, image size, rig -> camera extrinsics), the head pose,
+                          the light (ambient, irradiance, direction in rig space and camera frame);
+                          its ``joints`` key is also a valid ``jnr rig edit`` parameter file
+``overlay.png``           the photo with the fitted head rendered over it (60 %), the input landmarks
+                          (green) and the fitted ones (red)
+``render.png``            the fitted head, albedo and light, rendered alone at the photo's size
+``landmarks.pts``         the 68 input landmarks (iBUG .pts, 1-based pixels)
+``landmarks_fitted.pts``  the 68 fitted landmarks: the fitted head's, projected (iBUG .pts, 1-based)
+``landmarks3d.json``      the 68 fitted landmarks in 3D, camera frame (OpenCV: x right, y down, z forward),
+                          mm, with their iBUG names (projected with ``params.json``'s camera: the .pts)
+``expressions.csv``       the 52 ARKit expression coefficients as one CSV row under their ARKit names
+``report.json``           landmark error (px, NME), every loss term per stage, timings, input, configuration
+``config.yaml``           the configuration used, every field resolved (``--config`` repeats the fit)
+========================  ===========================================================================
 """
 
 from __future__ import annotations
@@ -48,9 +52,26 @@ from rig.skinning.neural import NeuralSkinning, load_neural
 
 PARAMS_FORMAT = "jnr-photo-params/1"
 OUTPUT_FILES = ("mesh.obj", "mesh.ply", "mesh.glb", "params.json", "overlay.png", "render.png", "landmarks.pts",
+                "landmarks_fitted.pts", "landmarks3d.json", "expressions.csv",
                 "report.json", CONFIG_FILE)
 INPUT_COLOUR = (40, 220, 60)
 FIT_COLOUR = (235, 40, 40)
+
+
+def landmarks3d_payload(fit: PhotoFit) -> dict:
+    """``landmarks3d.json``: the fitted 3D landmarks in the camera frame (mm), by iBUG-68 name."""
+    from landmarks.ibug68 import IBUG68_NAMES
+
+    points = np.asarray(fit.landmarks3d_camera, np.float64)
+    return {"format": "jnr-landmarks3d/1", "frame": "camera (OpenCV: x right, y down, z forward)", "units": "mm",
+            "names": list(IBUG68_NAMES), "points": [[float(c) for c in p] for p in points]}
+
+
+def expressions_csv(coefficients) -> str:
+    """One CSV row of the 52 ARKit coefficients under a header of their ARKit names (the Live Link Face
+    column names, without its timecode columns)."""
+    values = np.asarray(coefficients, np.float64)
+    return ",".join(EXPRESSION_NAMES) + "\n" + ",".join(f"{v:.6f}" for v in values) + "\n"
 
 
 def params_payload(fit: PhotoFit, image_factor: int = 1, original_size: tuple[int, int] | None = None) -> dict:
@@ -270,6 +291,9 @@ def write_photo_outputs(out_dir: str | Path, photo: np.ndarray, fit: PhotoFit, *
         _save_png(overlay_image(photo, render, mask, fit.landmarks2d, fit.landmarks_px), tmp / "overlay.png")
         k = image_factor
         write_landmarks(tmp / "landmarks.pts", np.asarray(fit.landmarks2d, float) * k + (k - 1) / 2)
+        write_landmarks(tmp / "landmarks_fitted.pts", np.asarray(fit.landmarks_px, float) * k + (k - 1) / 2)
+        (tmp / "landmarks3d.json").write_text(json.dumps(landmarks3d_payload(fit), indent=2) + "\n")
+        (tmp / "expressions.csv").write_text(expressions_csv(fit.expressions))
         report = report_payload(fit, config=config, extra=extra, image_factor=k)
         (tmp / "report.json").write_text(json.dumps(report, indent=2) + "\n")
         dump_config(config or FitPhotoConfig(), tmp / CONFIG_FILE, command=(extra or {}).get("command"))

@@ -210,6 +210,22 @@ def test_outputs_reload_to_the_same_mesh(known_photo, known_fit, tmp_path):
     f, (cx, cy) = params["camera"]["focal_px"], params["camera"]["principal_point_px"]
     uv = cam_points[:, :2] / cam_points[:, 2:] * f + np.array([cx, cy])
     assert uv.min() > -50 and uv.max() < known_photo.width + 50 and (cam_points[:, 2] > 0).all()
+    # the fitted landmarks: 2D (.pts, 1-based) = the 3D ones (camera frame) projected with the params' camera
+    from landmarks.formats import read_landmarks
+    from landmarks.ibug68 import IBUG68_NAMES
+
+    fitted = read_landmarks(out / "landmarks_fitted.pts")
+    np.testing.assert_allclose(fitted, known_fit.landmarks_px, atol=1e-3)
+    l3 = json.loads((out / "landmarks3d.json").read_text())
+    assert l3["names"] == list(IBUG68_NAMES) and l3["units"] == "mm"
+    p3 = np.asarray(l3["points"])
+    np.testing.assert_allclose(p3[:, :2] / p3[:, 2:] * f + np.array([cx, cy]), fitted, atol=1e-3)
+    nose_tip = p3[IBUG68_NAMES.index("nose_bridge_3")]
+    assert np.linalg.norm(cam_points - nose_tip, axis=1).min() < 4.0  # on the fitted surface (edges ~5 mm)
+    header, row = (out / "expressions.csv").read_text().splitlines()
+    assert header.split(",")[:2] == ["eyeBlinkLeft", "eyeLookDownLeft"] and len(row.split(",")) == 52
+    np.testing.assert_allclose([float(x) for x in row.split(",")],
+                               [params["expressions"][n] for n in header.split(",")], atol=1e-6)
     ply = trimesh.load(out / "mesh.ply", process=False)
     assert np.abs(np.asarray(ply.vertices)[: len(known_fit.rig_vertices)] - known_fit.rig_vertices).max() < 1e-3
     assert np.asarray(ply.visual.vertex_colors).shape[0] >= len(known_fit.rig_vertices)
