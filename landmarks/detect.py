@@ -203,23 +203,27 @@ def load_image(path: str | Path) -> np.ndarray:
     return load_working_image(path, max_side=1 << 30).image
 
 
+def _model_path(filename: str, what: str, function: str) -> Path:
+    """Path of one of dlib's model files that ``face-recognition-models`` ships, found without importing the
+    package (its ``__init__`` needs ``pkg_resources``). Raises :class:`DetectionError` when it is missing."""
+    hint = f"pip install face-recognition-models (it ships dlib's {what})"
+    spec = importlib.util.find_spec("face_recognition_models")
+    if spec is None or not spec.submodule_search_locations:
+        raise DetectionError(f"{function}: package face_recognition_models not found; {hint}")
+    for folder in spec.submodule_search_locations:
+        path = Path(folder) / "models" / filename
+        if path.is_file():
+            return path
+    raise DetectionError(f"{function}: {filename} not found in face_recognition_models; {hint}")
+
+
 def shape_predictor_path() -> Path:
     """Path of dlib's 68-point ``shape_predictor_68_face_landmarks.dat`` from ``face-recognition-models``.
-
-    The package is located without importing it (its ``__init__`` needs ``pkg_resources``).
 
     Raises:
         DetectionError: the package or the file is missing.
     """
-    hint = "pip install face-recognition-models (it ships dlib's 68-landmark shape predictor)"
-    spec = importlib.util.find_spec("face_recognition_models")
-    if spec is None or not spec.submodule_search_locations:
-        raise DetectionError(f"shape_predictor_path: package face_recognition_models not found; {hint}")
-    for folder in spec.submodule_search_locations:
-        path = Path(folder) / "models" / PREDICTOR_FILE
-        if path.is_file():
-            return path
-    raise DetectionError(f"shape_predictor_path: {PREDICTOR_FILE} not found in face_recognition_models; {hint}")
+    return _model_path(PREDICTOR_FILE, "68-landmark shape predictor", "shape_predictor_path")
 
 
 def cnn_detector_path() -> Path:
@@ -228,15 +232,7 @@ def cnn_detector_path() -> Path:
     Raises:
         DetectionError: the package or the file is missing.
     """
-    hint = "pip install face-recognition-models (it ships dlib's CNN face detector)"
-    spec = importlib.util.find_spec("face_recognition_models")
-    if spec is None or not spec.submodule_search_locations:
-        raise DetectionError(f"cnn_detector_path: package face_recognition_models not found; {hint}")
-    for folder in spec.submodule_search_locations:
-        path = Path(folder) / "models" / CNN_DETECTOR_FILE
-        if path.is_file():
-            return path
-    raise DetectionError(f"cnn_detector_path: {CNN_DETECTOR_FILE} not found in face_recognition_models; {hint}")
+    return _model_path(CNN_DETECTOR_FILE, "CNN face detector", "cnn_detector_path")
 
 
 def _import_dlib():
