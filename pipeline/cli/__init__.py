@@ -69,7 +69,8 @@ def main(argv: list[str] | None = None) -> int:
     """Run ``jnr`` with ``argv`` (default: ``sys.argv[1:]``); returns the exit status: 0, 2 for bad input
     (:class:`rig.errors.InputError`, a missing or refused file), 1 for other failures
     (:class:`rig.errors.JnrError`, render's ``LLVMError``, OSError, ValueError), 130 on Ctrl-C, 143 on
-    SIGTERM; errors are one line on stderr."""
+    SIGTERM, 141 when the reader of its output goes away (``| head``); errors are one line on stderr."""
+    import os
     import signal
     import threading
     import warnings
@@ -97,6 +98,10 @@ def main(argv: list[str] | None = None) -> int:
             PermissionError) as exc:
         print(f"jnr: error: {_one_line(exc)}", file=sys.stderr)
         return EXIT_USAGE
+    except BrokenPipeError:  # the reader went away (``jnr rig info --json | head``): stop quietly, as on SIGPIPE
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())  # so that the interpreter's final flush does not fail again
+        return 141
     except (JnrError, LLVMError, OSError, ValueError) as exc:
         print(f"jnr: error: {_one_line(exc)}", file=sys.stderr)
         return EXIT_FAILURE

@@ -26,3 +26,16 @@ def test_rig_info_imports_nothing_outside_rig():
             "('pipeline', 'landmarks', 'render')); print(bad); sys.exit(bool(bad))")
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=False)
     assert proc.returncode == 0, proc.stdout + proc.stderr
+
+
+def test_a_reader_that_goes_away_is_not_an_error():
+    """``jnr rig info --json | head``: when the pipe's reader has gone, jnr stops quietly (exit 141, as a
+    process ended by SIGPIPE), not with "jnr: error: [Errno 32] Broken pipe"."""
+    import os
+
+    read, write = os.pipe()
+    os.close(read)  # the reader is gone before jnr writes
+    proc = subprocess.run([sys.executable, "-m", "pipeline.cli", "rig", "info", "--json"], stdout=write,
+                          stderr=subprocess.PIPE, text=True, timeout=120)
+    os.close(write)
+    assert proc.returncode == 141 and proc.stderr == "", (proc.returncode, proc.stderr)
