@@ -408,16 +408,21 @@ def feature_basis(asset: RigAsset | None = None) -> FeatureBasis:
 # Phenotypes
 # ----------------------------------------------------------------------------------------------------
 
+def _check_rows(values, columns: int, what: str, order: str) -> np.ndarray:
+    """``(n, columns)`` float copy of ``values`` (one row may be given as ``(columns,)``); ValueError for
+    another shape or a non-finite value. ``what`` and ``order`` name them in the message."""
+    v = np.asarray(values, dtype=float)
+    if v.ndim == 1:
+        v = v[None]
+    if v.ndim != 2 or v.shape[1] != columns:
+        raise ValueError(f"{what} must have shape (n, {columns}) or ({columns},) ({order}); got {np.shape(values)}")
+    if not np.isfinite(v).all():
+        raise ValueError(f"{what} must be finite")
+    return v
+
+
 def _check_phenotypes(phenotypes) -> np.ndarray:
-    p = np.asarray(phenotypes, dtype=float)
-    if p.ndim == 1:
-        p = p[None]
-    if p.ndim != 2 or p.shape[1] != len(PHENOTYPE_NAMES):
-        raise ValueError(f"phenotypes must have shape (n, {len(PHENOTYPE_NAMES)}) or ({len(PHENOTYPE_NAMES)},) "
-                         f"(columns {PHENOTYPE_NAMES}); got {np.shape(phenotypes)}")
-    if not np.isfinite(p).all():
-        raise ValueError("phenotypes must be finite")
-    return p
+    return _check_rows(phenotypes, len(PHENOTYPE_NAMES), "phenotypes", f"columns {PHENOTYPE_NAMES}")
 
 
 def phenotype_of(row) -> Phenotype:
@@ -491,15 +496,7 @@ def phenotype_displacements(phenotypes, asset: RigAsset | None = None) -> np.nda
 # ----------------------------------------------------------------------------------------------------
 
 def _check_coefficients(coefficients, m: int) -> np.ndarray:
-    c = np.asarray(coefficients, dtype=float)
-    if c.ndim == 1:
-        c = c[None]
-    if c.ndim != 2 or c.shape[1] != m:
-        raise ValueError(f"coefficients must have shape (n, {m}) or ({m},) (one per feature in "
-                         f"FEATURE_NAMES order); got {np.shape(coefficients)}")
-    if not np.isfinite(c).all():
-        raise ValueError("coefficients must be finite")
-    return c
+    return _check_rows(coefficients, m, "coefficients", "one per feature in FEATURE_NAMES order")
 
 
 def _check_count(n) -> int:
