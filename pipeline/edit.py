@@ -98,19 +98,24 @@ def write_head(path: str | Path, fmt: str, theta, rig=None, fit_arrays: tuple | 
 
 
 def write_skinned_head(path: str | Path, asset, weights: np.ndarray, tau: np.ndarray,
-                       coefficients: np.ndarray | None = None, vertex_colors: np.ndarray | None = None) -> None:
+                       coefficients: np.ndarray | None = None, vertex_colors: np.ndarray | None = None,
+                       base_color_texture: bytes | None = None) -> None:
     """The skinned glTF of a head: the template as the bind mesh, the 52 ARKit shapes as morph targets named
     by ARKit (:func:`rig.expressions.morph_targets`) with ``coefficients (E,)`` as their weights (zeros when
-    None), ``weights (V, J)``, the joint channel transforms ``tau (J, 4, 4)`` as the joints' pose, and
-    ``vertex_colors (V, 3)`` linear RGB in [0, 1] (glTF's ``COLOR_0`` is linear)."""
+    None), ``weights (V, J)``, the joint channel transforms ``tau (J, 4, 4)`` as the joints' pose,
+    ``vertex_colors (V, 3)`` linear RGB in [0, 1] (glTF's ``COLOR_0`` is linear) and ``base_color_texture``
+    the bytes of a PNG in the asset's UVs as the material's base colour (glTF multiplies it with
+    ``COLOR_0``, so a textured head takes no vertex colours: ValueError)."""
     from rig.expressions import EXPRESSION_NAMES, morph_targets
     from rig.io.gltf import export_skinned_gltf
 
+    if base_color_texture is not None and vertex_colors is not None:
+        raise ValueError("write_skinned_head: a textured head takes no vertex colours (glTF would multiply them)")
     export_skinned_gltf(path, asset.vertices, asset.faces, joint_names=list(asset.joint_names),
                         parents=asset.parents, joint_positions=asset.joint_positions, weights=weights,
                         face_uvs=asset.face_uvs, vertex_colors=vertex_colors, joint_transforms=tau,
                         morph_targets=morph_targets(asset), morph_names=EXPRESSION_NAMES,
-                        morph_weights=coefficients)
+                        morph_weights=coefficients, base_color_texture=base_color_texture)
 
 
 def write_edited_head(params: str | Path | None, out: str | Path, fmt: str, *, clamp: bool = False,

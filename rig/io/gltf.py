@@ -8,6 +8,10 @@ Conventions: rig space is right-handed, +Y up, +Z forward out of the face, in mi
 vectors and 4x4 homogeneous matrices. glTF shares the axes but uses metres, so positions, node
 translations and inverse bind matrices are scaled by 0.001 on export (and by 1000 when read back).
 
+A base-colour texture (``base_color_texture``: PNG bytes) is stored in the binary buffer (``.glb``) or as
+a data URI (``.gltf``) and used as the material's ``pbrMetallicRoughness.baseColorTexture`` through
+``TEXCOORD_0``, whose ``v`` is flipped from OBJ's (glTF: ``(0, 0)`` is the image's top-left corner).
+
 UV seams are split as in :mod:`rig.io.mesh` (:func:`rig.io.mesh.split_uv_seams`): the ``V`` input
 vertices come first, in order, then one duplicate per extra (vertex, UV) pair; the mesh node's
 ``extras`` record ``V`` and the source vertex of each duplicate. Files are written atomically
@@ -55,6 +59,7 @@ MAX_DROPPED_WEIGHT = 1e-3
 
 GLTF_UNITS_NOTE = "metres (rig space is millimetres)"
 
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 _EXTRAS_SOURCE_COUNT = "jnr_source_vertex_count"
 _EXTRAS_SPLIT_SOURCE = "jnr_split_source"
 
@@ -332,6 +337,7 @@ def export_skinned_gltf(
     morph_targets: np.ndarray | None = None,
     morph_names: Sequence[str] | None = None,
     morph_weights: np.ndarray | None = None,
+    base_color_texture: bytes | None = None,
 ) -> None:
     """Write a skinned mesh with its joint hierarchy as glTF 2.0 (``.glb`` or ``.gltf``).
 
@@ -381,6 +387,11 @@ def export_skinned_gltf(
         (``M`` unique names, written to the mesh's ``extras.targetNames``, which Blender, three.js
         and Babylon read as the shape-key names) and takes ``morph_weights`` ``(M,)`` as the mesh's
         default weights (zeros when omitted).
+    base_color_texture : bytes, optional
+        A PNG file's bytes, stored as it is (``image/png``) and used as the material's
+        ``baseColorTexture`` (``texCoord`` 0: needs ``face_uvs``; the image's top row is ``v = 1`` in
+        ``face_uvs``, i.e. ``TEXCOORD_0`` ``v = 0``; linear filtering with mipmaps, clamped at the edges). glTF
+        multiplies the texture with ``COLOR_0``: pass no ``vertex_colors`` to show the texture as it is.
 
     Raises
     ------
@@ -413,6 +424,11 @@ def export_skinned_gltf(
     joints4, weights4 = _top_influences(func, w)
     normals = unit_normals(v, f)
     targets, target_names, target_weights = _check_morphs(func, n_vertices, morph_targets, morph_names, morph_weights)
+    if base_color_texture is not None:
+        if not isinstance(base_color_texture, (bytes, bytearray)) or not bytes(base_color_texture).startswith(_PNG_SIGNATURE):
+            raise ValueError(f"{func}: base_color_texture must be the bytes of a PNG file")
+        if uv is None:
+            raise ValueError(f"{func}: base_color_texture needs face_uvs (TEXCOORD_0)")
 
     if uv is not None:
         f, uvs, source = split_uv_seams(f, uv, n_vertices)
@@ -440,8 +456,9 @@ def export_skinned_gltf(
         },
     )
     morph = (morphs, target_names, target_weights)
+    texture_view = None if base_color_texture is None else builder._view(bytes(base_color_texture))
     write_bytes_atomic(path, _encode(fmt, builder, joint_nodes, roots, mesh_node, attributes, indices, ibm_accessor,
-                                     morph))
+                                     morph, texture_view))
 
 
 def _check_morphs(func: str, n_vertices: int, targets, names, weights
@@ -524,8 +541,9 @@ def _joint_nodes(func: str, names: list[str], par: np.ndarray, pos: np.ndarray,
 
 def _encode(fmt: str, builder: _BufferBuilder, joint_nodes: list[pygltflib.Node], roots: list[int],
             mesh_node: pygltflib.Node, attributes: pygltflib.Attributes, indices: int, ibm_accessor: int,
-            morph: tuple[list[dict], list[str], list[float]] = ([], [], [])) -> bytes:
-    """The glTF document (joint nodes ``0 .. K-1``, the mesh node ``K``) as ``.glb`` or ``.gltf`` bytes."""
+            morph: tuple[list[dict], list[str], list[float]] = ([], [], []), texture_view: int | None = None) -> bytes:
+    """The glTF document (joint nodes ``0 .. K-1``, the mesh node ``K``) as ``.glb`` or ``.gltf`` bytes; with
+    ``texture_view`` (the buffer view of a PNG image) the material's base colour is that texture."""
     targets, target_names, target_weights = morph
     k = len(joint_nodes)
     mesh_node_index = k
@@ -559,11 +577,17 @@ def _encode(fmt: str, builder: _BufferBuilder, joint_nodes: list[pygltflib.Node]
             )
         ],
         materials=[pygltflib.Material(name="skin", doubleSided=False, pbrMetallicRoughness=pygltflib.PbrMetallicRoughness(
-            baseColorFactor=[1.0, 1.0, 1.0, 1.0], metallicFactor=0.0, roughnessFactor=0.6))],
+            baseColorFactor=[1.0, 1.0, 1.0, 1.0], metallicFactor=0.0, roughnessFactor=0.6,
+            baseColorTexture=None if texture_view is None else pygltflib.TextureInfo(index=0, texCoord=0)))],
         accessors=builder.accessors,
         bufferViews=builder.buffer_views,
         buffers=[buffer],
     )
+    if texture_view is not None:
+        gltf.images = [pygltflib.Image(bufferView=texture_view, mimeType="image/png", name="baseColor")]
+        gltf.samplers = [pygltflib.Sampler(magFilter=pygltflib.LINEAR, minFilter=pygltflib.LINEAR_MIPMAP_LINEAR,
+                                           wrapS=pygltflib.CLAMP_TO_EDGE, wrapT=pygltflib.CLAMP_TO_EDGE)]
+        gltf.textures = [pygltflib.Texture(sampler=0, source=0, name="baseColor")]
     if fmt == "glb":
         gltf.set_binary_blob(blob)
         return b"".join(gltf.save_to_bytes())
@@ -679,6 +703,8 @@ def read_skinned_gltf(path: str | os.PathLike) -> dict[str, Any]:
             ``TEXCOORD_0`` converted back to v-up, i.e. ``(u, 1 - v_gltf)``.
         ``colors`` : (N, 3) float64 or None
             ``COLOR_0`` RGB.
+        ``base_color_texture`` : bytes or None
+            The encoded image (e.g. PNG) of the primitive's material's ``baseColorTexture``, as stored.
         ``extras`` : dict
             The mesh node's ``extras``.
         ``morph_targets`` : (M, V, 3) float64, ``morph_names`` : list of M str, ``morph_weights`` : (M,)
@@ -747,11 +773,32 @@ def read_skinned_gltf(path: str | os.PathLike) -> dict[str, Any]:
         "normals": None if normals is None else normals.astype(np.float64),
         "texcoords": None if texcoords is None else texcoords.astype(np.float64),
         "colors": None if colors is None else colors[:, :3].astype(np.float64),
+        "base_color_texture": _base_color_image(gltf, primitive, directory, cache),
         "extras": extras,
         "morph_targets": np.stack(targets)[:, :n_source] if targets else np.zeros((0, n_source, 3)),
         "morph_names": target_names,
         "morph_weights": np.asarray(mesh.weights or [0.0] * len(targets), dtype=np.float64),
     }
+
+
+def _base_color_image(gltf: pygltflib.GLTF2, primitive: pygltflib.Primitive, directory: Path, cache: dict
+                      ) -> bytes | None:
+    """The encoded image of the primitive's ``baseColorTexture`` (buffer view, data URI or file), or None."""
+    if primitive.material is None:
+        return None
+    pbr = gltf.materials[primitive.material].pbrMetallicRoughness
+    info = None if pbr is None else pbr.baseColorTexture
+    if info is None:
+        return None
+    image = gltf.images[gltf.textures[info.index].source]
+    if image.bufferView is not None:
+        view = gltf.bufferViews[image.bufferView]
+        data = _buffer_bytes(gltf, view.buffer, directory, cache)
+        start = view.byteOffset or 0
+        return bytes(data[start:start + view.byteLength])
+    if image.uri.startswith("data:"):
+        return base64.b64decode(image.uri.split(",", 1)[1])
+    return (directory / image.uri).read_bytes()
 
 
 def _load(func: str, path: Path) -> pygltflib.GLTF2:

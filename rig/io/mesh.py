@@ -1,6 +1,8 @@
 """Writing a triangle mesh as Wavefront OBJ (text) or binary PLY, through ``trimesh``.
 
-* :func:`export_mesh` writes the mesh (optionally with face-varying UVs and vertex colours).
+* :func:`export_mesh` writes the mesh (optionally with face-varying UVs, vertex colours and, for OBJ,
+  a material library and material name).
+* :func:`write_mtl` writes a Wavefront material library with one textured material (``map_Kd``).
 * :func:`check_mesh_arrays`, :func:`shape_error`, :func:`resolve_format` and :func:`split_uv_seams` are
   the argument checks and the UV-seam split shared with the glTF writer (:mod:`rig.io.gltf`).
 
@@ -31,7 +33,7 @@ import trimesh
 from rig.errors import shape_error
 from rig.io.atomic import write_bytes_atomic
 
-__all__ = ["OBJ_DIGITS", "check_mesh_arrays", "export_mesh", "resolve_format", "split_uv_seams"]
+__all__ = ["OBJ_DIGITS", "check_mesh_arrays", "export_mesh", "resolve_format", "split_uv_seams", "write_mtl"]
 
 OBJ_DIGITS = 10
 """Decimal places written for OBJ coordinates (fixed-point; 1e-10 mm for positions)."""
@@ -264,6 +266,58 @@ def _ply_bytes(vertices, faces, uvs, colors) -> bytes:
     return trimesh.exchange.ply.export_ply(mesh, encoding="binary", vertex_normal=False)
 
 
+def _check_obj_name(func: str, arg: str, value: str) -> str:
+    """A material or file name as one OBJ/MTL token: a non-empty string without whitespace or ``#``."""
+    if not isinstance(value, str) or not value or any(ch.isspace() or ch == "#" for ch in value):
+        raise ValueError(f"{func}: {arg} must be a non-empty name without whitespace or '#', got {value!r}")
+    return value
+
+
+def _with_material(text: str, mtllib: str, material: str) -> str:
+    """OBJ text with ``mtllib`` after the leading comment lines and ``usemtl`` before the first face."""
+    lines = text.split("\n")
+    head = 0
+    while head < len(lines) and lines[head].startswith("#"):
+        head += 1
+    first_face = next((i for i, ln in enumerate(lines) if ln.startswith("f ")), len(lines))
+    return "\n".join([*lines[:head], f"mtllib {mtllib}", *lines[head:first_face], f"usemtl {material}",
+                      *lines[first_face:]])
+
+
+def write_mtl(path: str | os.PathLike, material: str, texture: str, *, diffuse=(1.0, 1.0, 1.0)) -> None:
+    """Write a Wavefront material library (``.mtl``) with one material whose diffuse colour is a texture.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Destination (written atomically); an OBJ refers to it by ``mtllib <its name>``
+        (:func:`export_mesh`'s ``mtllib``).
+    material : str
+        The material's name (``newmtl``; the OBJ's ``usemtl``), one token.
+    texture : str
+        The image file of ``map_Kd``, relative to the ``.mtl`` file, one token (no spaces).
+    diffuse : 3 floats in [0, 1]
+        ``Kd``, which viewers multiply with the texture (white: the texture as it is).
+
+    Raises
+    ------
+    ValueError
+        A name with whitespace or ``#``, or a diffuse colour outside [0, 1].
+    """
+    func = "write_mtl"
+    material = _check_obj_name(func, "material", material)
+    texture = _check_obj_name(func, "texture", texture)
+    kd = np.asarray(diffuse, dtype=np.float64)
+    if kd.shape != (3,) or not np.isfinite(kd).all() or kd.min() < 0 or kd.max() > 1:
+        raise ValueError(f"{func}: diffuse must be 3 numbers in [0, 1], got {diffuse!r}")
+    text = "\n".join([
+        "# jnr", f"newmtl {material}", "Ka 0.000000 0.000000 0.000000",
+        "Kd " + " ".join(f"{x:.6f}" for x in kd), "Ks 0.000000 0.000000 0.000000", "d 1.000000", "illum 1",
+        f"map_Kd {texture}", "",
+    ])
+    write_bytes_atomic(Path(path), text.encode("utf-8"))
+
+
 def export_mesh(
     path: str | os.PathLike,
     vertices: np.ndarray,
@@ -272,6 +326,8 @@ def export_mesh(
     face_uvs: np.ndarray | None = None,
     vertex_colors: np.ndarray | None = None,
     file_format: str | None = None,
+    mtllib: str | None = None,
+    material: str | None = None,
 ) -> None:
     """Write a triangle mesh as Wavefront OBJ (text) or PLY (binary little-endian).
 
@@ -298,11 +354,16 @@ def export_mesh(
         ``blue`` (plus ``alpha`` = 255 when no UVs are given).
     file_format : {"obj", "ply"}, optional
         Overrides the format inferred from the suffix of ``path``.
+    mtllib, material : str, optional
+        OBJ only, both or neither, and only with ``face_uvs``: the material library's file name
+        (relative to the OBJ; written by :func:`write_mtl`) and the material the faces use: an
+        ``mtllib`` line after the header comment and ``usemtl`` before the faces.
 
     Raises
     ------
     ValueError
-        Unsupported format, or an argument with the wrong shape, dtype or range.
+        Unsupported format, an argument with the wrong shape, dtype or range, or a material for a
+        PLY file, without UVs, or with a name that is not one token.
 
     Notes
     -----
@@ -314,6 +375,15 @@ def export_mesh(
     path = Path(path)
     fmt = resolve_format(func, path, file_format, ("obj", "ply"))
     v, f, uv, colors = check_mesh_arrays(func, vertices, faces, face_uvs, vertex_colors)
+    if (mtllib is None) != (material is None):
+        raise ValueError(f"{func}: mtllib and material go together, got mtllib={mtllib!r}, material={material!r}")
+    if mtllib is not None:
+        if fmt != "obj":
+            raise ValueError(f"{func}: a material (mtllib, material) is written to OBJ files only, not {fmt!r}")
+        if uv is None:
+            raise ValueError(f"{func}: a textured material needs face_uvs")
+        _check_obj_name(func, "mtllib", mtllib)
+        _check_obj_name(func, "material", material)
 
     if uv is not None:
         f, uvs, source = split_uv_seams(f, uv, v.shape[0])
@@ -327,6 +397,8 @@ def export_mesh(
             text = _obj_text_uv_and_colors(v, f, uvs, colors)
         else:
             text = _obj_text_trimesh(v, f, uvs, colors)
+        if mtllib is not None:
+            text = _with_material(text, mtllib, material)
         data = text.encode("utf-8")
     else:
         data = _ply_bytes(v, f, uvs, colors)

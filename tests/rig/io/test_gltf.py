@@ -257,6 +257,67 @@ def test_gltf_without_uvs_or_colors(sphere, tmp_path):
     np.testing.assert_array_equal(out["gltf_faces"], f)
 
 
+def _png(image: np.ndarray) -> bytes:
+    import io
+
+    from PIL import Image
+
+    buffer = io.BytesIO()
+    Image.fromarray(image).save(buffer, format="PNG")
+    return buffer.getvalue()
+
+
+@pytest.mark.parametrize("suffix", [".glb", ".gltf"])
+def test_gltf_base_color_texture_round_trip(sphere, tmp_path, suffix):
+    """The PNG is stored as it is and is the material's baseColorTexture on TEXCOORD_0 = (u, 1 - v)."""
+    image = np.zeros((8, 8, 3), np.uint8)
+    image[:4] = (255, 0, 0)  # top half red: OBJ v > 0.5, glTF v < 0.5
+    image[4:] = (0, 0, 255)
+    png = _png(image)
+    path = tmp_path / f"textured{suffix}"
+    export_skinned_gltf(path, sphere["vertices"], sphere["faces"], joint_names=JOINT_NAMES, parents=PARENTS,
+                        joint_positions=JOINT_POSITIONS, weights=sphere["weights"], face_uvs=sphere["face_uvs"],
+                        base_color_texture=png)
+    out = read_skinned_gltf(path)
+    assert out["base_color_texture"] == png and out["colors"] is None
+    np.testing.assert_allclose(out["texcoords"][out["gltf_faces"]], sphere["face_uvs"], atol=1e-6)
+
+    gltf = pygltflib.GLTF2.load(str(path))
+    pbr = gltf.materials[gltf.meshes[0].primitives[0].material].pbrMetallicRoughness
+    assert pbr.baseColorTexture.index == 0 and (pbr.baseColorTexture.texCoord or 0) == 0
+    assert gltf.images[gltf.textures[0].source].mimeType == "image/png"
+    raw_uv = _raw_accessor(gltf, path, gltf.meshes[0].primitives[0].attributes.TEXCOORD_0)
+    np.testing.assert_allclose(raw_uv[:, 1], 1.0 - out["texcoords"][:, 1], atol=1e-6)  # glTF's v points down
+
+    # a viewer's reading (trimesh): the same image, and a vertex high on the sphere (OBJ v near 1) is red
+    scene = trimesh.load(path, process=False)
+    mesh = next(iter(scene.geometry.values()))
+    np.testing.assert_array_equal(np.asarray(mesh.visual.material.baseColorTexture.convert("RGB")), image)
+    colours = mesh.visual.to_color().vertex_colors[:, :3]
+    top, bottom = np.argmax(mesh.vertices[:, 1]), np.argmin(mesh.vertices[:, 1])
+    assert tuple(colours[top]) == (255, 0, 0) and tuple(colours[bottom]) == (0, 0, 255)
+
+
+def _raw_accessor(gltf, path, index):
+    import base64
+
+    blob = gltf.binary_blob() if path.suffix == ".glb" else base64.b64decode(gltf.buffers[0].uri.split(",", 1)[1])
+    acc = gltf.accessors[index]
+    view = gltf.bufferViews[acc.bufferView]
+    return np.frombuffer(blob, "<f4", acc.count * 2, view.byteOffset).reshape(acc.count, 2)
+
+
+def test_gltf_texture_is_checked(sphere, tmp_path):
+    args = dict(joint_names=JOINT_NAMES, parents=PARENTS, joint_positions=JOINT_POSITIONS, weights=sphere["weights"])
+    with pytest.raises(ValueError, match="bytes of a PNG"):
+        export_skinned_gltf(tmp_path / "a.glb", sphere["vertices"], sphere["faces"], face_uvs=sphere["face_uvs"],
+                            base_color_texture=b"GIF89a", **args)
+    with pytest.raises(ValueError, match="needs face_uvs"):
+        export_skinned_gltf(tmp_path / "a.glb", sphere["vertices"], sphere["faces"],
+                            base_color_texture=_png(np.zeros((2, 2, 3), np.uint8)), **args)
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_gltf_too_many_influences(sphere, tmp_path):
     v, f = sphere["vertices"], sphere["faces"]
     k = 6

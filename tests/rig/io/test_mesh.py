@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from rig.io.mesh import export_mesh, split_uv_seams
+from rig.io.mesh import export_mesh, split_uv_seams, write_mtl
 from tests.rig.io.conftest import merge_duplicates
 
 
@@ -64,6 +64,49 @@ def test_obj_with_uvs_and_colors(sphere, tmp_path):
     np.testing.assert_allclose(loaded.visual.uv[loaded.faces], uv, rtol=0, atol=1e-8)
     first_v = next(line for line in path.read_text().splitlines() if line.startswith("v "))
     assert len(first_v.split()) == 7  # v x y z r g b
+
+
+def test_obj_with_a_textured_material_reloads_with_its_image(sphere, tmp_path):
+    """mtllib after the header comment, usemtl before the faces; trimesh finds the material's image."""
+    from PIL import Image
+
+    v, f, uv = sphere["vertices"], sphere["faces"], sphere["face_uvs"]
+    image = np.random.default_rng(0).integers(0, 256, (16, 32, 3), dtype=np.uint8)
+    Image.fromarray(image).save(tmp_path / "texture.png")
+    write_mtl(tmp_path / "head.mtl", "skin", "texture.png")
+    export_mesh(tmp_path / "head.obj", v, f, face_uvs=uv, vertex_colors=sphere["colors"], mtllib="head.mtl",
+                material="skin")
+    lines = (tmp_path / "head.obj").read_text().splitlines()
+    assert lines[:2] == ["# jnr", "mtllib head.mtl"]
+    assert lines.index("usemtl skin") == next(i for i, ln in enumerate(lines) if ln.startswith("f ")) - 1
+    assert "map_Kd texture.png" in (tmp_path / "head.mtl").read_text().splitlines()
+
+    loaded = trimesh.load(tmp_path / "head.obj", process=False)
+    np.testing.assert_allclose(loaded.vertices[: len(v)], v, rtol=0, atol=1e-5)
+    np.testing.assert_allclose(loaded.visual.uv[loaded.faces], uv, rtol=0, atol=1e-8)
+    np.testing.assert_array_equal(np.asarray(loaded.visual.material.image.convert("RGB")), image)
+    # without colours (trimesh's own OBJ text) the material lines are placed the same way
+    export_mesh(tmp_path / "plain.obj", v, f, face_uvs=uv, mtllib="head.mtl", material="skin")
+    plain = (tmp_path / "plain.obj").read_text().splitlines()
+    assert plain[1] == "mtllib head.mtl" and plain.count("usemtl skin") == 1
+    assert trimesh.load(tmp_path / "plain.obj", process=False).visual.material.image.size == (32, 16)
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    ({"mtllib": "a.mtl"}, "go together"),
+    ({"mtllib": "a.mtl", "material": "skin", "file_format": "ply"}, "OBJ files only"),
+    ({"mtllib": "a.mtl", "material": "skin", "face_uvs": None}, "needs face_uvs"),
+    ({"mtllib": "my head.mtl", "material": "skin"}, "without whitespace"),
+])
+def test_bad_materials(sphere, tmp_path, kwargs, match):
+    args = {"face_uvs": sphere["face_uvs"], **kwargs}
+    with pytest.raises(ValueError, match=match):
+        export_mesh(tmp_path / "bad.obj", sphere["vertices"], sphere["faces"], **args)
+    with pytest.raises(ValueError, match="without whitespace"):
+        write_mtl(tmp_path / "bad.mtl", "skin", "my texture.png")
+    with pytest.raises(ValueError, match="diffuse"):
+        write_mtl(tmp_path / "bad.mtl", "skin", "texture.png", diffuse=(2.0, 1.0, 1.0))
+    assert list(tmp_path.iterdir()) == []
 
 
 @pytest.mark.parametrize("uint8", [False, True])
