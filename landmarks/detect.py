@@ -43,6 +43,10 @@ class DetectionError(InputError):
     """No face found, an unreadable image, or bad arguments to the detector."""
 
 
+class NoFaceError(DetectionError):
+    """The detector found no face in the image (a photo that was read, unlike an unreadable one)."""
+
+
 @dataclass(frozen=True)
 class FaceDetection:
     """One detected face."""
@@ -339,15 +343,13 @@ def detect_landmarks(image: np.ndarray, face: int | None = None, upsample: int =
         The chosen :class:`FaceDetection`; ``landmarks`` is ``(68, 2)`` float64 0-based OpenCV pixels.
 
     Raises:
-        DetectionError: no face was found, or ``face`` is out of range.
+        DetectionError: ``face`` is out of range; :class:`NoFaceError` (a DetectionError): no face was found.
     """
     if face is not None and (isinstance(face, bool) or not isinstance(face, (int, np.integer))):
         raise DetectionError(f"detect_landmarks: face must be an integer index or None; got {face!r}")
     faces = detect_faces(image, upsample=upsample, min_score=min_score, detector=detector)
     if not faces:
-        raise DetectionError(
-            "no face found in the image; pass --landmarks FILE to give the 68 landmarks yourself"
-        )
+        raise NoFaceError("no face found in the image; pass --landmarks FILE to give the 68 landmarks yourself")
     index = 0 if face is None else int(face)
     if not 0 <= index < len(faces):
         noun = "face" if len(faces) == 1 else "faces"

@@ -4,6 +4,7 @@ The public entry points (imported lazily, so ``import pipeline`` stays cheap)::
 
     from pipeline import fit_photo, FitPhotoConfig           # one photo in memory -> PhotoFit
     from pipeline import fit_photo_file, fit_photo_files     # photo files -> output folders
+    from pipeline import fit_photo_faces                     # every face of a photo -> face_<k>/ folders
     from pipeline import fit_scan, FitScanConfig             # a point cloud -> ScanFit
     from pipeline import read_point_cloud, load_config
 
@@ -24,6 +25,7 @@ _PUBLIC = {
     "LandmarkFitConfig": "pipeline.photo.landmark_fit",
     "fit_photo_file": "pipeline.photo.files",
     "fit_photo_files": "pipeline.photo.files",
+    "fit_photo_faces": "pipeline.photo.files",
     "fit_scan": "pipeline.scan.fit",
     "FitScanConfig": "pipeline.scan.fit",
     "ScanFit": "pipeline.scan.fit",
@@ -32,7 +34,8 @@ _PUBLIC = {
 }
 
 __all__ = ["FitPhotoConfig", "FitScanConfig", "LandmarkFitConfig", "PhotoFit", "ScanFit", "fit_landmarks",
-           "fit_photo", "fit_photo_file", "fit_photo_files", "fit_scan", "load_config", "read_point_cloud"]
+           "fit_photo", "fit_photo_faces", "fit_photo_file", "fit_photo_files", "fit_scan", "load_config",
+           "read_point_cloud"]
 
 
 def __getattr__(name: str):

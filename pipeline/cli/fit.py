@@ -22,7 +22,7 @@ from pipeline.cli.common import (
 
 def _fit_worker(task, threads: int):
     """One photo (:class:`pipeline.photo.files.PhotoTask`) in a worker process, or in this one for
-    ``--jobs 1``: its :class:`~pipeline.photo.files.PhotoFileResult`."""
+    ``--jobs 1``: its :class:`~pipeline.photo.files.PhotoFileResult` (one per face with ``--face all``)."""
     import torch
 
     from pipeline.photo.files import fit_photo_task
@@ -76,6 +76,60 @@ def _runner(jobs: int, threads: int, quiet: bool):
     return one_by_one if jobs == 1 else in_processes
 
 
+OUTPUT_NAMES = ("mesh.obj, mesh.ply, mesh.glb, params.json, overlay.png, render.png, landmarks.pts, "
+                "landmarks_fitted.pts, landmarks3d.json, expressions.csv, report.json, config.yaml")
+
+
+def _face_option(text: str | None) -> int | str | None:
+    """``--face``: None, a face number or ``all``."""
+    from pipeline.photo.files import FACE_ALL
+
+    if text is None or text == FACE_ALL:
+        return text
+    try:
+        return int(text)
+    except ValueError:
+        raise CliError(f"--face must be a face number (0 = the largest) or '{FACE_ALL}', got {text!r}") from None
+
+
+def _print_results(results) -> list:
+    """One line per fitted photo (or face) on stdout, one ``jnr: error:`` line per failure on stderr;
+    returns the failures."""
+    failed = [r for r in results if r.error is not None]
+    for r in results:
+        if r.summary is not None:
+            face = "" if r.face is None or r.faces_found is None else f" face {r.face} of {r.faces_found}"
+            print(f"{r.photo}{face}: {r.summary['mean_error_px']:.2f} px (NME {r.summary['nme']:.4f}), "
+                  f"{r.summary['fit_seconds']:.1f} s -> {r.summary['output']}")
+    for r in failed:
+        print(f"jnr: error: {r.error}", file=sys.stderr)
+    return failed
+
+
+def _exit_status(failed) -> int:
+    if failed:
+        return max(EXIT_USAGE if r.bad_input else EXIT_FAILURE for r in failed)
+    return EXIT_OK
+
+
+def _fit_faces(args: argparse.Namespace, photo: Path, config, out: Path) -> int:
+    """``jnr fit PHOTO --face all``: every face into OUT/face_<k>/ and OUT/summary.csv."""
+    from pipeline.photo.files import SUMMARY_FILE, fit_photo_faces
+
+    bars = StageBars(args.quiet)
+    try:
+        results = fit_photo_faces(photo, out, config=config, focal=args.focal, force=args.force, progress=bars,
+                                  command=command_line("jnr fit"), detector=args.detector)
+    except FloatingPointError as exc:  # every face's fit diverged
+        raise CliError(str(exc), EXIT_FAILURE) from None
+    finally:
+        bars.close()
+    failed = _print_results(results)
+    print(f"fitted {len(results) - len(failed)} of {len(results)} faces in {photo}; wrote {out}/: face_<k>/ "
+          f"({OUTPUT_NAMES}) and {SUMMARY_FILE}")
+    return _exit_status(failed)
+
+
 def _fit_one(args: argparse.Namespace, photo: Path, config, out: Path) -> int:
     from pipeline.photo.files import fit_photo_file
 
@@ -90,48 +144,48 @@ def _fit_one(args: argparse.Namespace, photo: Path, config, out: Path) -> int:
         bars.close()
     print(f"fitted {photo} in {summary['fit_seconds']:.1f} s: landmark error {summary['mean_error_px']:.2f} px "
           f"(NME {summary['nme']:.4f})")
-    print(f"wrote {out}/: mesh.obj, mesh.ply, mesh.glb, params.json, overlay.png, render.png, landmarks.pts, "
-          "landmarks_fitted.pts, landmarks3d.json, expressions.csv, "
-          "report.json, config.yaml")
+    print(f"wrote {out}/: {OUTPUT_NAMES}")
     return EXIT_OK
 
 
 def _fit_several(args: argparse.Namespace, photos: list[Path], folders: list[Path], config, out: Path) -> int:
-    from pipeline.photo.files import fit_photo_files
+    from pipeline.photo.files import FACE_ALL, SUMMARY_FILE, fit_photo_files
 
-    if (args.landmarks and args.landmarks != "auto") or args.face is not None:
-        raise CliError("--landmarks FILE and --face apply to a single photo; for several, use --landmarks auto "
-                       "(a .pts/.json/.csv file beside each photo) or detection")
+    if (args.landmarks and args.landmarks != "auto") or args.face not in (None, FACE_ALL):
+        raise CliError("--landmarks FILE and --face N apply to a single photo; for several, use --landmarks auto "
+                       "(a .pts/.json/.csv file beside each photo), detection or --face all")
     jobs = max(1, min(args.jobs or (os.cpu_count() or 1), len(photos)))
     threads = max(1, (os.cpu_count() or 1) // jobs)
     results = fit_photo_files(photos, out, folders=folders, config=config, landmarks=args.landmarks,
                               focal=args.focal, force=args.force, command=command_line("jnr fit"),
-                              run=_runner(jobs, threads, args.quiet), detector=args.detector)
-    failed = [r for r in results if r.error is not None]
-    for r in results:
-        if r.summary is not None:
-            print(f"{r.photo}: {r.summary['mean_error_px']:.2f} px (NME {r.summary['nme']:.4f}), "
-                  f"{r.summary['fit_seconds']:.1f} s -> {r.summary['output']}")
-    for r in failed:
-        print(f"jnr: error: {r.error}", file=sys.stderr)
-    print(f"fitted {len(results) - len(failed)} of {len(results)} photos with {jobs} process(es); outputs in {out}/")
-    if failed:
-        return max(EXIT_USAGE if r.bad_input else EXIT_FAILURE for r in failed)
-    return EXIT_OK
+                              run=_runner(jobs, threads, args.quiet), detector=args.detector, face=args.face)
+    failed = _print_results(results)
+    if args.face == FACE_ALL:
+        photos_done = len({r.photo for r in results if r.summary})
+        done = f"{len(results) - len(failed)} faces in {photos_done} of {len(photos)} photos"
+    else:
+        done = f"{len(results) - len(failed)} of {len(results)} photos"
+    written = f"outputs and {SUMMARY_FILE} in {out}/" if out.is_dir() else "nothing written"
+    print(f"fitted {done} with {jobs} process(es); {written}")
+    return _exit_status(failed)
 
 
 def cmd_fit(args: argparse.Namespace) -> int:
     """``jnr fit PHOTO... --out DIR``: single-photo reconstruction (see pipeline.photo.fit)."""
-    from pipeline.photo.files import photo_inputs
+    from pipeline.photo.files import FACE_ALL, photo_inputs
 
     if args.jobs is not None and args.jobs < 1:
         raise CliError(f"--jobs must be at least 1, got {args.jobs}")
     if args.focal is not None and not math.isfinite(args.focal):
         raise CliError(f"--focal must be a number of pixels, got {args.focal}")
+    args.face = _face_option(args.face)
+    if args.face is not None and args.landmarks:
+        raise CliError("--face picks among the faces the detector finds; it cannot be used with --landmarks")
     photos, folders = photo_inputs(args.photos)
     config = load_fit_photo_config(args)
     if len(photos) == 1 and not folders:
-        return _fit_one(args, photos[0], config, Path(args.out))
+        fit = _fit_faces if args.face == FACE_ALL else _fit_one
+        return fit(args, photos[0], config, Path(args.out))
     return _fit_several(args, photos, folders, config, Path(args.out))
 
 
@@ -144,7 +198,14 @@ FIT_DESCRIPTION = (
 FIT_EPILOG = (
     "Inputs: one or more image files (.jpg .jpeg .png .bmp .gif .tif .tiff .webp .ppm .pgm .pnm) or "
     "folders of them. Several photos are fitted in parallel processes (--jobs); each gets "
-    "OUT/<name>/.\nLimits: images up to 120 megapixels; photos longer than 2048 px are fitted reduced "
+    "OUT/<name>/, and OUT/summary.csv lists them, one row per photo (per face with --face all): photo, "
+    "face, status (ok/error), error, output folder, landmark error px, NME, seconds, faces detected, face "
+    "box and score. It is written also when some photos fail (the exit status is then 2, or 1 when every "
+    "failure is a diverged fit).\n"
+    "Faces: --face N fits the N-th face the detector finds (0 = the largest); --face all fits every face, "
+    "into OUT/face_<k>/ (k = 0, 1, ... as --face numbers them), or OUT/<name>/face_<k>/ for several "
+    "photos, each with all the outputs below, and summary.csv beside them (one row per face)."
+    "\nLimits: images up to 120 megapixels; photos longer than 2048 px are fitted reduced "
     "by a power of two (camera and landmarks are still written in the photo's pixels); --focal within "
     "0.25-25 x the longer side; landmark files must look like a face in iBUG-68 order, in or near the "
     "image, not mirrored.\nSafety: --out must not be, contain or lie in an input or the working "
@@ -173,7 +234,9 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     fit.add_argument("--landmarks", metavar="FILE|auto",
                      help="68 landmarks file (.pts, .json, .csv) instead of detection (one photo); 'auto': the "
                           "file with the photo's name beside each photo (face.png -> face.pts), as in iBUG 300-W")
-    fit.add_argument("--face", type=int, help="which detected face, 0 = the largest (default: 0; not with --landmarks)")
+    fit.add_argument("--face", metavar="N|all",
+                     help="which detected face, 0 = the largest (default: 0), or 'all': every face, into "
+                          "OUT/face_<k>/ with OUT/summary.csv (not with --landmarks)")
     fit.add_argument("--detector", choices=DETECTORS, default="auto",
                      help="dlib's face detector: hog (fast, frontal faces), cnn (finds turned, tilted and "
                           "low-contrast faces; about 5 s for a 512 x 512 photo on 2 cores), auto (default: "

@@ -1,4 +1,5 @@
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -209,8 +210,87 @@ def test_fit_a_folder_in_parallel_with_sidecar_landmarks(capsys, tmp_path, photo
                             *_fast())
     # the two good photos are fitted, the broken one is reported and makes the exit status 2
     assert code == 2 and "broken.png" in err
-    assert sorted(p.name for p in out.iterdir()) == ["face0", "face1"]
+    assert sorted(p.name for p in out.iterdir()) == ["face0", "face1", "summary.csv"]
     for name in ("face0", "face1"):
         report = json.loads((out / name / "report.json").read_text())
         assert report["input"]["landmarks"].endswith(f"{name}.pts")
     assert "fitted 2 of 3 photos with 2 process(es)" in stdout
+    # summary.csv: a row per photo, the broken one with its error
+    rows = _summary_rows(out / "summary.csv")
+    assert [(Path(r["photo"]).name, r["status"]) for r in rows] == [
+        ("broken.png", "error"), ("face0.png", "ok"), ("face1.png", "ok")]
+    assert "broken.png" in rows[0]["error"] and rows[0]["output"] == "" and rows[0]["nme"] == ""
+    for row in rows[1:]:
+        report = json.loads((Path(row["output"]) / "report.json").read_text())
+        assert float(row["mean_error_px"]) == pytest.approx(report["landmarks"]["mean_error_px"], abs=1e-3)
+        assert float(row["nme"]) == pytest.approx(report["landmarks"]["nme_inter_ocular"], abs=1e-5)
+        assert row["face"] == row["faces_found"] == "" and float(row["seconds"]) > 0  # landmarks from files
+
+
+def _summary_rows(path):
+    import csv
+
+    with open(path, newline="") as handle:
+        return list(csv.DictReader(handle))
+
+
+def test_fit_face_all_writes_every_face(capsys, tmp_path, two_faces_photo):
+    from pipeline.photo.outputs import OUTPUT_FILES, mesh_from_photo_params
+
+    out = tmp_path / "faces"
+    code, stdout, err = run(capsys, "fit", str(two_faces_photo), "--face", "all", "--out", str(out), *_fast())
+    assert code == 0, err
+    assert "fitted 2 of 2 faces" in stdout
+    assert sorted(p.name for p in out.iterdir()) == [".jnr-output", "face_0", "face_1", "summary.csv"]
+    rows = _summary_rows(out / "summary.csv")
+    assert [(r["face"], r["status"], r["faces_found"], r["output"]) for r in rows] == [
+        ("0", "ok", "2", str(out / "face_0")), ("1", "ok", "2", str(out / "face_1"))]
+    boxes = []
+    for k, row in enumerate(rows):
+        folder = out / f"face_{k}"
+        assert set(OUTPUT_FILES) <= {p.name for p in folder.iterdir()}
+        report = json.loads((folder / "report.json").read_text())
+        assert report["input"]["face_index"] == k and len(report["input"]["faces"]) == 2
+        box = [float(row[f"box_{side}"]) for side in ("left", "top", "right", "bottom")]
+        assert box == pytest.approx(report["input"]["face_box"], abs=0.05)
+        boxes.append(box)
+        assert float(row["nme"]) == pytest.approx(report["landmarks"]["nme_inter_ocular"], abs=1e-5)
+        # the outputs re-load: the parameters rebuild the mesh that mesh.obj holds
+        params = json.loads((folder / "params.json").read_text())
+        assert params["format"].startswith("jnr-photo-params")
+        obj = trimesh.load(folder / "mesh.obj", process=False)
+        rebuilt = mesh_from_photo_params(folder / "params.json")
+        assert np.abs(np.asarray(obj.vertices)[: len(rebuilt)] - rebuilt).max() < 1e-3
+    # largest first, as --face numbers them; the two boxes are the two portraits
+    (l0, t0, r0, b0), (l1, t1, r1, b1) = boxes
+    assert (r0 - l0) * (b0 - t0) > (r1 - l1) * (b1 - t1) and r0 < 256 <= l1
+    # an existing output is refused, untouched
+    before = (out / "summary.csv").read_bytes()
+    code, _, err = run(capsys, "fit", str(two_faces_photo), "--face", "all", "--out", str(out), *_fast())
+    assert code == 2 and "exists" in err and (out / "summary.csv").read_bytes() == before
+
+
+@pytest.mark.parametrize("case, message", [
+    ("landmarks", "cannot be used with --landmarks"),
+    ("landmarks_auto", "cannot be used with --landmarks"),
+    ("not_a_number", "--face must be a face number"),
+    ("no_face", "no face found"),
+])
+def test_fit_face_all_errors_are_one_line(capsys, tmp_path, photo_dir, case, message):
+    from PIL import Image
+
+    photo, args = photo_dir / "face0.png", ["--face", "all"]
+    if case == "landmarks":
+        args += ["--landmarks", str(photo_dir / "face0.pts")]
+    elif case == "landmarks_auto":
+        args += ["--landmarks", "auto"]
+    elif case == "not_a_number":
+        args = ["--face", "two"]
+    elif case == "no_face":
+        photo = tmp_path / "blank.png"
+        Image.fromarray(np.full((120, 160, 3), 128, np.uint8)).save(photo)
+    out = tmp_path / "out"
+    code, stdout, err = run(capsys, "fit", str(photo), "--out", str(out), *_fast(*args))
+    assert code == 2 and message in err
+    assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
+    assert not out.exists() and not [p for p in tmp_path.iterdir() if p.name.startswith(".out")]

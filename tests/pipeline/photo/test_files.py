@@ -1,3 +1,4 @@
+import csv
 import json
 import shutil
 
@@ -5,6 +6,8 @@ import pytest
 
 from pipeline.config import load_config
 from pipeline.photo.files import (
+    SUMMARY_COLUMNS,
+    fit_photo_faces,
     fit_photo_file,
     fit_photo_files,
     output_names,
@@ -79,5 +82,69 @@ def test_fit_photo_files_reports_each_photo(tmp_path, photo_dir, fast_config):
     assert good.error is None and good.summary["output"] == str(tmp_path / "out" / "b")
     assert bad.summary is None and bad.bad_input and "a.png" in bad.error
     assert seen == [("photos", 1, 2), ("photos", 2, 2)]
-    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["b"]
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["b", "summary.csv"]
+    # summary.csv: one row per photo in the order given, the failure with its message
+    rows = _rows(tmp_path / "out" / "summary.csv")
+    assert [(r["photo"], r["status"], r["output"]) for r in rows] == [
+        (str(folder / "b.png"), "ok", str(tmp_path / "out" / "b")), (str(folder / "a.png"), "error", "")]
+    assert rows[1]["error"] == bad.error and float(rows[1]["seconds"]) >= 0
+    assert float(rows[0]["mean_error_px"]) == pytest.approx(good.summary["mean_error_px"], abs=1e-3)
     assert output_names(["x/face.png", "y/face.jpg", "z/other.png"]) == ["face_0", "face_1", "other"]
+
+
+def _rows(path):
+    with open(path, newline="") as handle:
+        assert handle.readline().strip() == ",".join(SUMMARY_COLUMNS)
+        handle.seek(0)
+        return list(csv.DictReader(handle))
+
+
+def test_fit_photo_files_with_every_face(tmp_path, two_faces_photo, fast_config):
+    from PIL import Image
+
+    from pipeline.files import OutputError
+
+    folder = tmp_path / "photos"
+    folder.mkdir()
+    shutil.copy(two_faces_photo, folder / "two.png")
+    Image.new("RGB", (120, 90), (128, 128, 128)).save(folder / "blank.png")
+    out = tmp_path / "out"
+    results = fit_photo_files([folder / "two.png", folder / "blank.png"], out, folders=[folder],
+                              config=fast_config, face="all", detector="hog", command="test")
+    # a row per face of two.png, then the blank photo's failure (no face: 0 found)
+    assert [(r.face, r.faces_found, r.error is None) for r in results] == [(0, 2, True), (1, 2, True), (None, 0, False)]
+    assert "no face found" in results[2].error and results[2].bad_input
+    assert [r.output for r in results] == [str(out / "two" / "face_0"), str(out / "two" / "face_1"), None]
+    assert results[0].face_box != results[1].face_box and results[0].face_score > 0
+    rows = _rows(out / "summary.csv")
+    assert [(r["face"], r["status"], r["faces_found"]) for r in rows] == [("0", "ok", "2"), ("1", "ok", "2"),
+                                                                        ("", "error", "0")]
+    assert _rows(out / "two" / "summary.csv") == rows[:2]  # the photo's own folder lists its faces too
+    for k in (0, 1):
+        report = json.loads((out / "two" / f"face_{k}" / "report.json").read_text())
+        assert report["input"]["face_index"] == k and report["command"] == "test"
+    assert sorted(p.name for p in out.iterdir()) == ["summary.csv", "two"]
+
+    # nothing is replaced without force; force replaces only a summary.csv jnr wrote, checked before any fit
+    with pytest.raises(OutputError, match="exists"):
+        fit_photo_files([folder / "blank.png"], out, folders=[folder], config=fast_config, face="all")
+    (out / "summary.csv").write_text("my,own,table\n")
+    with pytest.raises(OutputError, match="not a summary jnr wrote"):
+        fit_photo_files([folder / "blank.png"], out, folders=[folder], config=fast_config, face="all", force=True)
+    assert (out / "summary.csv").read_text() == "my,own,table\n"
+
+
+def test_fit_photo_faces_refuses_before_writing(tmp_path, fast_config):
+    from PIL import Image
+
+    from landmarks.detect import NoFaceError
+
+    blank = tmp_path / "blank.png"
+    Image.new("RGB", (120, 90), (128, 128, 128)).save(blank)
+    with pytest.raises(NoFaceError, match="blank.png: no face found"):
+        fit_photo_faces(blank, tmp_path / "o", config=fast_config, detector="hog")
+    with pytest.raises(InputError, match="fit_photo_faces"):
+        fit_photo_file(blank, tmp_path / "o", face="all")
+    with pytest.raises(InputError, match="cannot be used with --landmarks"):
+        fit_photo_files([blank], tmp_path / "o", face="all", landmarks="auto")
+    assert [p.name for p in tmp_path.iterdir()] == ["blank.png"]
