@@ -7,24 +7,32 @@ leaves nothing half-written):
 file                   contents
 ========================  ===========================================================================
 ``mesh.obj``              the fitted head in rig space (mm, +Y up, +Z out of the face), vertex colours
-                          = fitted albedo (sRGB), UVs
+                          = fitted albedo (sRGB), the template's UVs, the material ``skin`` of ``mesh.mtl``
+``mesh.mtl``              the material: ``map_Kd texture.png`` (white ``Kd``)
+``texture.png``           the face unwrapped from the photo into the template's UVs (1024 x 1024 sRGB,
+                          :mod:`pipeline.photo.texture`); texels the camera does not see take the fitted
+                          albedo (the median skin colour seen without photometric stages)
 ``mesh.ply``              the same, binary PLY with vertex colours
 ``mesh.glb``              skinned glTF 2.0 (metres): the template with the 52 ARKit shapes as morph targets
                           named by ARKit, weighted by the fitted coefficients; the 52 joints posed by the
-                          fitted parameters, the fitted skinning weights, linear vertex colours
+                          fitted parameters, the fitted skinning weights, ``texture.png`` as the material's
+                          ``baseColorTexture`` (``TEXCOORD_0``, v flipped from OBJ's); no ``COLOR_0``,
+                          which glTF would multiply with the texture
 ``params.json``           joints by name (deg, mm, factor), latent Z, expressions by name, the camera
                           (focal, principal point, image size, rig -> camera extrinsics), the head pose,
                           the light (ambient, irradiance, direction in rig space and camera frame);
                           its ``joints`` key is also a valid ``jnr rig edit`` parameter file
-``overlay.png``           the photo with the fitted head rendered over it (60 %), the input landmarks
-                          (green) and the fitted ones (red)
+``overlay.png``           the photo with the fitted face rendered over it (60 %; the face regions only,
+                          those of the photometric loss: no neck, scalp or ears over the photo), the input
+                          landmarks (green) and the fitted ones (red)
 ``render.png``            the fitted head, albedo and light, rendered alone at the photo's size
 ``landmarks.pts``         the 68 input landmarks (iBUG .pts, 1-based pixels)
 ``landmarks_fitted.pts``  the 68 fitted landmarks: the fitted head's, projected (iBUG .pts, 1-based)
 ``landmarks3d.json``      the 68 fitted landmarks in 3D, camera frame (OpenCV: x right, y down, z forward),
                           mm, with their iBUG names (projected with ``params.json``'s camera: the .pts)
 ``expressions.csv``       the 52 ARKit expression coefficients as one CSV row under their ARKit names
-``report.json``           landmark error (px, NME), every loss term per stage, timings, input, configuration
+``report.json``           landmark error (px, NME), every loss term per stage, timings, input, configuration,
+                          the texture's seen fraction and fill
 ``config.yaml``           the configuration used, every field resolved (``--config`` repeats the fit)
 ========================  ===========================================================================
 """
@@ -43,6 +51,7 @@ from pipeline.files import check_output, json_safe, staged_folder
 from pipeline.photo.camera import camera_from_head_pose
 from pipeline.photo.colour import linear_to_srgb
 from pipeline.photo.fit import FitPhotoConfig, PhotoFit
+from pipeline.photo.texture import TEXTURE_SIZE, UVTexture, texture_from_fit
 from pipeline.scan.outputs import rig_vertices_from_params
 from rig.asset import RigAsset, load_asset
 from rig.expressions import EXPRESSION_NAMES
@@ -51,9 +60,11 @@ from rig.parameters import theta_to_params
 from rig.skinning.neural import NeuralSkinning, load_neural
 
 PARAMS_FORMAT = "jnr-photo-params/1"
-OUTPUT_FILES = ("mesh.obj", "mesh.ply", "mesh.glb", "params.json", "overlay.png", "render.png", "landmarks.pts",
-                "landmarks_fitted.pts", "landmarks3d.json", "expressions.csv",
+OUTPUT_FILES = ("mesh.obj", "mesh.mtl", "texture.png", "mesh.ply", "mesh.glb", "params.json", "overlay.png",
+                "render.png", "landmarks.pts", "landmarks_fitted.pts", "landmarks3d.json", "expressions.csv",
                 "report.json", CONFIG_FILE)
+MATERIAL_NAME = "skin"
+"""The material of ``mesh.obj`` (``usemtl``) in ``mesh.mtl``."""
 INPUT_COLOUR = (40, 220, 60)
 FIT_COLOUR = (235, 40, 40)
 
@@ -138,35 +149,52 @@ def mesh_from_photo_params(params: dict | str | Path, *, rig: JointRig | None = 
     return v
 
 
-def render_fit(fit: PhotoFit, *, spp: int = 16, seed: int = 0, asset: RigAsset | None = None
-               ) -> tuple[np.ndarray, np.ndarray]:
+def render_fit(fit: PhotoFit, *, spp: int = 16, seed: int = 0, asset: RigAsset | None = None,
+               mask_regions: tuple[str, ...] | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The fitted head rendered at the photo's size with its albedo and light.
 
     Args:
         asset: the rig asset of the fit, for its faces (default: the committed one).
+        mask_regions: region names (:data:`rig.template.REGION_NAMES`): the mask then covers only the
+            pixels whose visible triangle belongs to one of them (e.g. :data:`rig.template.FACE_REGIONS`);
+            None: every pixel the head covers.
 
     Returns:
-        ``(image (H, W, 3) float32 linear RGB, coverage mask (H, W) float32)``.
+        ``(image (H, W, 3) float32 linear RGB, mask (H, W) float32)``: the mask is 1 where the ray through
+        the pixel centre hits the head (in ``mask_regions``), else 0.
+
+    Raises:
+        ValueError: an unknown region name.
     """
     from render.lighting import Lighting
     from render.renderer import DifferentiableRenderer
 
     asset = asset or load_asset()
+    region_ids = None
+    if mask_regions is not None:
+        unknown = [r for r in mask_regions if r not in asset.region_names]
+        if unknown:
+            raise ValueError(f"render_fit: unknown mask_regions {unknown}; the regions are {list(asset.region_names)}")
+        region_ids = [asset.region_names.index(r) for r in mask_regions]
     v = torch.as_tensor(fit.rig_vertices, dtype=torch.float32)
     albedo = torch.as_tensor(fit.albedo, dtype=torch.float32)
     light = Lighting(torch.as_tensor(fit.ambient, dtype=torch.float32),
                      torch.as_tensor(fit.irradiance, dtype=torch.float32),
                      torch.as_tensor(fit.light_direction_rig, dtype=torch.float32))
-    renderer = DifferentiableRenderer(v, asset.faces, albedo, fit.camera, light, spp=spp, seed=seed)
+    renderer = DifferentiableRenderer(v, asset.faces, albedo, fit.camera, light, spp=spp, seed=seed,
+                                      regions=None if region_ids is None else asset.regions)
     with torch.no_grad():
-        out = renderer.render(v, albedo, light, seed=seed)
-    return out.image.numpy(), out.mask.numpy()
+        out = renderer.render(v, albedo, light, seed=seed, aovs=region_ids is not None)
+    if region_ids is None:
+        return out.image.numpy(), out.mask.numpy()
+    return out.image.numpy(), np.isin(out.region_ids.numpy(), region_ids).astype(np.float32)
 
 
 def overlay_image(photo: np.ndarray, render: np.ndarray, mask: np.ndarray, landmarks_in: np.ndarray,
                   landmarks_fit: np.ndarray, alpha: float = 0.6) -> np.ndarray:
-    """``(H, W, 3)`` uint8: the render (linear RGB) blended over the photo (uint8 sRGB) where covered, with
-    the input landmarks as green dots and the fitted ones as red crosses."""
+    """``(H, W, 3)`` uint8: the render (linear RGB) blended over the photo (uint8 sRGB) by ``alpha * mask``
+    (``mask`` ``(H, W)`` in [0, 1]; where it is 0 the photo is unchanged), with the input landmarks as
+    green dots and the fitted ones as red crosses."""
     import cv2
 
     rendered = (linear_to_srgb(render) * 255.0).astype(np.float32)
@@ -187,10 +215,30 @@ def _save_png(image: np.ndarray, path: Path) -> None:
     Image.fromarray(np.ascontiguousarray(image)).save(path)
 
 
+def _png_bytes(image: np.ndarray) -> bytes:
+    """``image`` encoded as a PNG file (the same bytes go to ``texture.png`` and into ``mesh.glb``)."""
+    import io
+
+    from PIL import Image
+
+    buffer = io.BytesIO()
+    Image.fromarray(np.ascontiguousarray(image)).save(buffer, format="PNG")
+    return buffer.getvalue()
+
+
+def texture_payload(texture: UVTexture) -> dict:
+    """``report.json``'s ``texture`` entry: the file, its size, how much of it the photo gives, the fill."""
+    return {"file": "texture.png", "size_px": int(texture.image.shape[0]),
+            "seen_fraction": round(texture.visible_fraction, 4),
+            "description": "share of the texels inside the UV triangles whose point the camera sees",
+            "fill": texture.fill, "seconds": round(texture.seconds, 3)}
+
+
 def report_payload(fit: PhotoFit, *, config: FitPhotoConfig | None = None, extra: dict | None = None,
-                   image_factor: int = 1) -> dict:
+                   image_factor: int = 1, texture: UVTexture | None = None) -> dict:
     """The ``report.json`` content of a fit (without the input description, see ``extra``); pixel errors
-    in the photo file's pixels (the fit's ones times ``image_factor``)."""
+    in the photo file's pixels (the fit's ones times ``image_factor``); with ``texture`` its
+    :func:`texture_payload`."""
     lfit = fit.landmark_fit
     f = float(image_factor)
     report = {
@@ -207,6 +255,8 @@ def report_payload(fit: PhotoFit, *, config: FitPhotoConfig | None = None, extra
         "timings_s": fit.timings,
         "config": config_to_dict(config) if config is not None else None,
     }
+    if texture is not None:
+        report["texture"] = texture_payload(texture)
     report.update(extra or {})
     return json_safe(report)
 
@@ -241,7 +291,7 @@ def write_photo_outputs(out_dir: str | Path, photo: np.ndarray, fit: PhotoFit, *
                         config: FitPhotoConfig | None = None, force: bool = False, extra: dict | None = None,
                         spp: int = 16, inputs: tuple = (), image_factor: int = 1,
                         original_size: tuple[int, int] | None = None, rig: JointRig | None = None,
-                        neural: NeuralSkinning | None = None) -> Path:
+                        neural: NeuralSkinning | None = None, texture_size: int = TEXTURE_SIZE) -> Path:
     """Write the output folder of a fit (see the module docstring) atomically.
 
     Args:
@@ -255,12 +305,13 @@ def write_photo_outputs(out_dir: str | Path, photo: np.ndarray, fit: PhotoFit, *
         image_factor: ``k`` when the photo was fitted reduced by ``k``
             (:class:`landmarks.detect.LoadedImage`): ``params.json``'s camera, ``landmarks.pts`` and the
             pixel errors of ``report.json`` are given in the photo file's pixels; ``overlay.png`` and
-            ``render.png`` are at the reduced size.
+            ``render.png`` are at the reduced size (``texture.png`` is sampled from the reduced photo).
         original_size: ``(W, H)`` of the photo file (default: the fitted image's size).
         rig, neural: the models the fit ran with (the rig's asset gives the faces, UVs, joints and
             expressions; the learned skinning the glTF's weights); :func:`output_models` computes the
             files in float64 from them, so they are the same whether the fit's float32 models are
             given or the defaults (the committed rig and learned skinning) are loaded here.
+        texture_size: side of ``texture.png`` in texels.
 
     Raises:
         pipeline.files.OutputError: ``out_dir`` is refused (exists without ``force``, not jnr's, an
@@ -268,33 +319,40 @@ def write_photo_outputs(out_dir: str | Path, photo: np.ndarray, fit: PhotoFit, *
     """
     from landmarks.formats import write_landmarks
     from pipeline.edit import write_skinned_head
-    from rig.io.mesh import export_mesh
+    from rig.io.mesh import export_mesh, write_mtl
 
     out_dir = Path(out_dir)
     check_output(out_dir, force=force, inputs=inputs)  # before the rendering below
     rig, neural = output_models(rig, neural)
     asset = rig.asset
     colours = np.clip(np.round(linear_to_srgb(fit.albedo) * 255.0), 0, 255).astype(np.uint8)
-    render, mask = render_fit(fit, spp=spp, asset=asset)
+    face_regions = tuple((config or FitPhotoConfig()).photometric.face_regions)
+    render, face_mask = render_fit(fit, spp=spp, asset=asset, mask_regions=face_regions)
+    texture = texture_from_fit(photo, fit, asset.faces, asset.face_uvs, regions=asset.regions,
+                               skin_region_ids=[asset.region_names.index(r) for r in face_regions], size=texture_size)
+    texture_png = _png_bytes(texture.image)
 
     with torch.no_grad():
         weights = neural(torch.as_tensor(fit.z)[None])[0].numpy()
         tau = rig.channel_transforms(torch.as_tensor(fit.theta)[None])[0].numpy()
 
     with staged_folder(out_dir, force, inputs=inputs, marker={"command": (extra or {}).get("command")}) as tmp:
-        export_mesh(tmp / "mesh.obj", fit.rig_vertices, asset.faces, face_uvs=asset.face_uvs, vertex_colors=colours)
+        export_mesh(tmp / "mesh.obj", fit.rig_vertices, asset.faces, face_uvs=asset.face_uvs, vertex_colors=colours,
+                    mtllib="mesh.mtl", material=MATERIAL_NAME)
+        write_mtl(tmp / "mesh.mtl", MATERIAL_NAME, "texture.png")
+        (tmp / "texture.png").write_bytes(texture_png)
         export_mesh(tmp / "mesh.ply", fit.rig_vertices, asset.faces, vertex_colors=colours)
         write_skinned_head(tmp / "mesh.glb", asset, weights, tau, np.asarray(fit.expressions, np.float64),
-                           vertex_colors=np.clip(np.asarray(fit.albedo, np.float64), 0.0, 1.0))
+                           base_color_texture=texture_png)
         (tmp / "params.json").write_text(json.dumps(params_payload(fit, image_factor, original_size), indent=2) + "\n")
         _save_png(np.clip(np.round(linear_to_srgb(render) * 255), 0, 255).astype(np.uint8), tmp / "render.png")
-        _save_png(overlay_image(photo, render, mask, fit.landmarks2d, fit.landmarks_px), tmp / "overlay.png")
+        _save_png(overlay_image(photo, render, face_mask, fit.landmarks2d, fit.landmarks_px), tmp / "overlay.png")
         k = image_factor
         write_landmarks(tmp / "landmarks.pts", np.asarray(fit.landmarks2d, float) * k + (k - 1) / 2)
         write_landmarks(tmp / "landmarks_fitted.pts", np.asarray(fit.landmarks_px, float) * k + (k - 1) / 2)
         (tmp / "landmarks3d.json").write_text(json.dumps(landmarks3d_payload(fit), indent=2) + "\n")
         (tmp / "expressions.csv").write_text(expressions_csv(fit.expressions))
-        report = report_payload(fit, config=config, extra=extra, image_factor=k)
+        report = report_payload(fit, config=config, extra=extra, image_factor=k, texture=texture)
         (tmp / "report.json").write_text(json.dumps(report, indent=2) + "\n")
         dump_config(config or FitPhotoConfig(), tmp / CONFIG_FILE, command=(extra or {}).get("command"))
     return out_dir

@@ -1,0 +1,231 @@
+"""Tests of pipeline/photo/outputs.py: the texture in mesh.obj / mesh.mtl / mesh.glb, the face-only overlay.
+
+A hand-made fit (the template, a known head pose and camera) over a photo whose colour encodes the pixel
+(red = column, green = row) keeps these tests to seconds and the expected values exact.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from rig.geometry import head_rotation
+from rig.template import FACE_REGIONS
+
+WIDTH = HEIGHT = 192
+FOCAL = 400.0
+TEXTURE = 256
+
+
+def coordinate_photo() -> np.ndarray:
+    photo = np.zeros((HEIGHT, WIDTH, 3), np.uint8)
+    photo[..., 0] = np.arange(WIDTH)[None, :]
+    photo[..., 1] = np.arange(HEIGHT)[:, None]
+    photo[..., 2] = 60
+    return photo
+
+
+@pytest.fixture(scope="module")
+def asset():
+    from rig.asset import load_asset
+
+    return load_asset()
+
+
+@pytest.fixture(scope="module")
+def hand_fit(asset):
+    """A PhotoFit of the template turned 20 degrees (yaw), 600 mm away, without photometric stages."""
+    from landmarks.ibug68 import ibug68_embedding, landmark_positions
+    from pipeline.photo.camera import make_camera
+    from pipeline.photo.fit import PhotoFit
+    from pipeline.photo.landmark_fit import LandmarkFit
+    from rig.expressions import EXPRESSION_NAMES
+    from rig.parameters import NUM_PARAMETERS
+
+    rotation, translation = head_rotation(20.0, 0.0, 0.0), np.array([0.0, 20.0, 600.0])
+    camera = make_camera(WIDTH, HEIGHT, FOCAL, rotation=rotation, translation=translation)
+    v = np.asarray(asset.vertices, np.float64)
+    points = landmark_positions(v, ibug68_embedding(asset), asset.faces)[0]
+    points = np.asarray(points, np.float64)
+    cam = points @ (np.diag([1.0, -1, -1]) @ rotation).T + translation
+    px = cam[:, :2] / cam[:, 2:] * FOCAL + (WIDTH - 1) / 2
+    theta, z, expressions = np.zeros(NUM_PARAMETERS), np.zeros(50), np.zeros(len(EXPRESSION_NAMES))
+    lfit = LandmarkFit(theta=theta, z=z, expressions=expressions, rotation=rotation, translation=translation,
+                       camera=camera, landmarks_px=px, error_px=np.zeros(68), nme=0.0, landmarks3d=points, losses={},
+                       stages=(), seconds=0.0)
+    return PhotoFit(theta=theta, z=z, expressions=expressions, rotation=rotation, translation=translation,
+                    focal=FOCAL, width=WIDTH, height=HEIGHT, camera=camera, rig_vertices=v,
+                    albedo=np.full((len(v), 3), 0.5), ambient=np.full(3, 0.6), irradiance=np.zeros(3),
+                    light_direction_rig=np.array([0.0, 0.0, -1.0]), light_direction_camera=np.array([0.0, 0.0, 1.0]),
+                    landmarks2d=px, landmarks_px=px, error_px=np.zeros(68), nme=0.0, landmark_fit=lfit, stages=(),
+                    crop=None, timings={}, landmarks3d_camera=cam)
+
+
+@pytest.fixture(scope="module")
+def out_dir(hand_fit, tmp_path_factory):
+    from pipeline.photo.outputs import write_photo_outputs
+
+    return write_photo_outputs(tmp_path_factory.mktemp("fit") / "out", coordinate_photo(), hand_fit, spp=1,
+                               texture_size=TEXTURE)
+
+
+@pytest.fixture(scope="module")
+def face_render(hand_fit, asset):
+    """``(image, face mask, coverage)`` of the hand-made fit."""
+    from pipeline.photo.outputs import render_fit
+
+    image, face = render_fit(hand_fit, spp=1, asset=asset, mask_regions=FACE_REGIONS)
+    _, coverage = render_fit(hand_fit, spp=1, asset=asset)
+    return image, face, coverage
+
+
+def _project(fit, points):
+    cam = points @ (np.diag([1.0, -1, -1]) @ fit.rotation).T + fit.translation
+    return cam[:, :2] / cam[:, 2:] * fit.focal + (WIDTH - 1) / 2
+
+
+class TestTextureFiles:
+    def test_texture_png_reloads_at_its_size_and_is_the_unwrap(self, out_dir, hand_fit, asset):
+        from PIL import Image
+
+        from pipeline.photo.outputs import OUTPUT_FILES
+        from pipeline.photo.texture import texture_from_fit
+
+        assert {"texture.png", "mesh.mtl"} <= set(OUTPUT_FILES) <= {p.name for p in out_dir.iterdir()}
+        image = np.asarray(Image.open(out_dir / "texture.png"))
+        assert image.shape == (TEXTURE, TEXTURE, 3) and image.dtype == np.uint8
+        skin = [asset.region_names.index(r) for r in FACE_REGIONS]  # the median fill's texels
+        again = texture_from_fit(coordinate_photo(), hand_fit, asset.faces, asset.face_uvs, regions=asset.regions,
+                                 skin_region_ids=skin, size=TEXTURE)
+        np.testing.assert_array_equal(image, again.image)
+        # without photometric stages the fill is the median seen colour, recorded in the report
+        report = json.loads((out_dir / "report.json").read_text())["texture"]
+        assert report["size_px"] == TEXTURE and report["fill"] == "median of visible texels"
+        assert 0.1 < report["seen_fraction"] < 0.6
+
+    def test_obj_reloads_with_uvs_and_the_texture(self, out_dir, asset):
+        import trimesh
+        from PIL import Image
+
+        assert "map_Kd texture.png" in (out_dir / "mesh.mtl").read_text().splitlines()
+        lines = (out_dir / "mesh.obj").read_text().splitlines()
+        assert lines[:2] == ["# jnr", "mtllib mesh.mtl"] and "usemtl skin" in lines
+        obj = trimesh.load(out_dir / "mesh.obj", process=False)
+        assert isinstance(obj.visual, trimesh.visual.TextureVisuals)
+        np.testing.assert_allclose(obj.visual.uv[obj.faces], asset.face_uvs, atol=1e-8)
+        np.testing.assert_array_equal(np.asarray(obj.visual.material.image.convert("RGB")),
+                                      np.asarray(Image.open(out_dir / "texture.png")))
+
+    def test_glb_carries_the_same_texture_and_flipped_uvs(self, out_dir, asset):
+        import pygltflib
+        import trimesh
+
+        from rig.io.gltf import read_skinned_gltf
+
+        glb = read_skinned_gltf(out_dir / "mesh.glb")
+        assert glb["base_color_texture"] == (out_dir / "texture.png").read_bytes()
+        assert glb["colors"] is None  # no COLOR_0 to multiply the texture with
+        np.testing.assert_allclose(glb["texcoords"][glb["gltf_faces"]], asset.face_uvs, atol=1e-6)
+        gltf = pygltflib.GLTF2.load(str(out_dir / "mesh.glb"))
+        accessor = gltf.accessors[gltf.meshes[0].primitives[0].attributes.TEXCOORD_0]
+        view = gltf.bufferViews[accessor.bufferView]
+        raw = np.frombuffer(gltf.binary_blob(), "<f4", accessor.count * 2, view.byteOffset).reshape(-1, 2)
+        np.testing.assert_allclose(raw[:, 1], 1.0 - glb["texcoords"][:, 1], atol=1e-6)  # glTF's v points down
+
+        # a viewer reads the same colour for every vertex from both files
+        obj = trimesh.load(out_dir / "mesh.obj", process=False)
+        mesh = next(iter(trimesh.load(out_dir / "mesh.glb", process=False).geometry.values()))
+        n = len(asset.vertices)
+        from_obj = obj.visual.to_color().vertex_colors[:n, :3]
+        from_glb = mesh.visual.to_color().vertex_colors[:n, :3]
+        np.testing.assert_array_equal(from_obj, from_glb)
+
+    def test_seen_faces_show_the_photo_where_they_project(self, out_dir, hand_fit, asset):
+        """Through the OBJ's texture as a viewer reads it (trimesh: the nearest texel, ~2.4 photo px here), the
+        centres of the forehead and cheek triangles that face the camera show the photo where they project."""
+        import trimesh
+        from trimesh.visual.color import uv_to_color
+
+        obj = trimesh.load(out_dir / "mesh.obj", process=False)
+        corners = obj.vertices[obj.faces]
+        centres, centre_uvs = corners.mean(1), obj.visual.uv[obj.faces].mean(1)
+        normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+        to_camera = -hand_fit.rotation.T @ np.diag([1.0, -1, -1]) @ hand_fit.translation - centres
+        cos = (normals * to_camera).sum(1) / np.linalg.norm(normals, axis=1) / np.linalg.norm(to_camera, axis=1)
+        ids = [asset.region_names.index(r) for r in ("forehead", "cheeks")]
+        pick = np.isin(asset.regions[asset.faces[:, 0]], ids) & (cos > 0.5)
+        assert pick.sum() > 300  # measured 765
+        colours = uv_to_color(centre_uvs[pick], obj.visual.material.image)[:, :3].astype(float)
+        error = np.linalg.norm(colours[:, :2] - _project(hand_fit, centres[pick]), axis=1)
+        assert np.median(error) < 2.0 and np.percentile(error, 95) < 3.5, np.percentile(error, [50, 95])  # 1.4, 2.7
+
+
+def test_a_photometric_fit_fills_with_its_albedo(hand_fit, asset):
+    """With photometric stages the unseen texels take the fitted albedo, sRGB-encoded."""
+    from dataclasses import replace
+
+    from pipeline.photo.colour import linear_to_srgb
+    from pipeline.photo.texture import texture_from_fit
+
+    fit = replace(hand_fit, stages=("a stage",), albedo=np.tile([0.2, 0.1, 0.05], (len(asset.vertices), 1)))
+    tex = texture_from_fit(coordinate_photo(), fit, asset.faces, asset.face_uvs, size=128)
+    unseen = (tex.face >= 0) & (tex.photo_weight == 0)
+    assert tex.fill == "vertex colours" and unseen.sum() > 1000
+    expected = np.round(linear_to_srgb(np.array([0.2, 0.1, 0.05])) * 255)
+    np.testing.assert_array_equal(np.unique(tex.image[unseen], axis=0), [expected])
+    with pytest.raises(ValueError, match="the fit's camera"):
+        texture_from_fit(coordinate_photo()[:100], fit, asset.faces, asset.face_uvs, size=128)
+
+
+class TestOverlay:
+    def test_the_face_mask_is_the_face_regions_of_the_coverage(self, face_render, hand_fit, asset):
+        _, face, coverage = face_render
+        assert face.shape == coverage.shape == (HEIGHT, WIDTH)
+        assert (face <= coverage).all() and 0.2 * coverage.sum() < face.sum() < 0.8 * coverage.sum()
+        nose_tip = _project(hand_fit, asset.vertices[[np.argmax(asset.vertices[:, 2])]])[0]
+        neck = asset.vertices[asset.regions == asset.region_names.index("neck")]
+        front_neck = _project(hand_fit, neck[[np.argmax(neck[:, 2] - 0.1 * neck[:, 1])]])[0]
+        assert face[round(nose_tip[1]), round(nose_tip[0])] == 1
+        assert coverage[round(front_neck[1]), round(front_neck[0])] == 1
+        assert face[round(front_neck[1]), round(front_neck[0])] == 0
+
+    def test_overlay_leaves_the_photo_outside_the_face(self, face_render):
+        from pipeline.photo.outputs import overlay_image
+
+        image, face, _ = face_render
+        photo = coordinate_photo()
+        none = np.zeros((0, 2))
+        out = overlay_image(photo, image, face, none, none)
+        np.testing.assert_array_equal(out[face == 0], photo[face == 0])
+        assert (out[face == 1] != photo[face == 1]).any(axis=1).mean() > 0.9
+
+    def test_overlay_png_is_the_photo_outside_the_face_and_the_markers(self, out_dir, face_render, hand_fit):
+        from PIL import Image
+
+        _, face, _ = face_render
+        overlay = np.asarray(Image.open(out_dir / "overlay.png"))
+        ys, xs = np.mgrid[0:HEIGHT, 0:WIDTH]
+        near_marker = np.zeros((HEIGHT, WIDTH), bool)
+        for x, y in hand_fit.landmarks_px:
+            near_marker |= (xs - x) ** 2 + (ys - y) ** 2 < 6.0**2
+        keep = (face == 0) & ~near_marker
+        np.testing.assert_array_equal(overlay[keep], coordinate_photo()[keep])
+        assert (overlay[(face == 1) & ~near_marker] != coordinate_photo()[(face == 1) & ~near_marker]).any()
+
+    def test_unknown_region_is_an_error(self, hand_fit, asset):
+        from pipeline.photo.outputs import render_fit
+
+        with pytest.raises(ValueError, match="unknown mask_regions"):
+            render_fit(hand_fit, spp=1, asset=asset, mask_regions=("face",))
+
+
+def test_a_textured_head_takes_no_vertex_colours(asset, tmp_path):
+    from pipeline.edit import write_skinned_head
+
+    with pytest.raises(ValueError, match="no vertex colours"):
+        write_skinned_head(tmp_path / "a.glb", asset, asset.weights, torch.eye(4).repeat(52, 1, 1).numpy(),
+                           vertex_colors=np.zeros((len(asset.vertices), 3)), base_color_texture=b"\x89PNG")
+    assert list(tmp_path.iterdir()) == []
