@@ -425,7 +425,8 @@ def export_skinned_gltf(
     normals = unit_normals(v, f)
     targets, target_names, target_weights = _check_morphs(func, n_vertices, morph_targets, morph_names, morph_weights)
     if base_color_texture is not None:
-        if not isinstance(base_color_texture, (bytes, bytearray)) or not bytes(base_color_texture).startswith(_PNG_SIGNATURE):
+        png = base_color_texture if isinstance(base_color_texture, (bytes, bytearray)) else b""
+        if not bytes(png).startswith(_PNG_SIGNATURE):
             raise ValueError(f"{func}: base_color_texture must be the bytes of a PNG file")
         if uv is None:
             raise ValueError(f"{func}: base_color_texture needs face_uvs (TEXCOORD_0)")
@@ -552,6 +553,9 @@ def _encode(fmt: str, builder: _BufferBuilder, joint_nodes: list[pygltflib.Node]
     if fmt == "gltf":
         buffer.uri = "data:application/octet-stream;base64," + base64.b64encode(blob).decode("ascii")
 
+    material_pbr = pygltflib.PbrMetallicRoughness(
+        baseColorFactor=[1.0, 1.0, 1.0, 1.0], metallicFactor=0.0, roughnessFactor=0.6,
+        baseColorTexture=None if texture_view is None else pygltflib.TextureInfo(index=0, texCoord=0))
     gltf = pygltflib.GLTF2(
         asset=pygltflib.Asset(version="2.0", generator="jnr"),
         scene=0,
@@ -576,9 +580,7 @@ def _encode(fmt: str, builder: _BufferBuilder, joint_nodes: list[pygltflib.Node]
                 skeleton=roots[0] if len(roots) == 1 else None,
             )
         ],
-        materials=[pygltflib.Material(name="skin", doubleSided=False, pbrMetallicRoughness=pygltflib.PbrMetallicRoughness(
-            baseColorFactor=[1.0, 1.0, 1.0, 1.0], metallicFactor=0.0, roughnessFactor=0.6,
-            baseColorTexture=None if texture_view is None else pygltflib.TextureInfo(index=0, texCoord=0)))],
+        materials=[pygltflib.Material(name="skin", doubleSided=False, pbrMetallicRoughness=material_pbr)],
         accessors=builder.accessors,
         bufferViews=builder.buffer_views,
         buffers=[buffer],

@@ -153,7 +153,8 @@ class TestUnwrap:
         v = asset.vertices[asset.faces[tri]]
         normal = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
         centre = -e[:3, :3].T @ e[:3, 3]
-        cos = (normal * (centre - points)).sum(1) / np.linalg.norm(normal, axis=1) / np.linalg.norm(centre - points, axis=1)
+        to_camera = centre - points
+        cos = (normal * to_camera).sum(1) / np.linalg.norm(normal, axis=1) / np.linalg.norm(to_camera, axis=1)
         away = cos < -0.2
         assert away.sum() > 40
         np.testing.assert_array_equal(tex.image[rows[pick][away], cols[pick][away]], [[0, 0, 255]] * away.sum())
@@ -201,7 +202,8 @@ class TestUnwrap:
         back_tex = tex.image[:, :32]
         assert (back_tex[behind] == [0, 0, 255]).all()
         assert (back_tex[clear, 2] == 0).all()
-        assert np.abs(back_tex[clear, 0] - xp[clear]).max() <= 1.0 and np.abs(back_tex[clear, 1] - yp[clear]).max() <= 1.0
+        assert np.abs(back_tex[clear, 0] - xp[clear]).max() <= 1.0
+        assert np.abs(back_tex[clear, 1] - yp[clear]).max() <= 1.0
         assert (tex.image[:, 32:, 2] == 0).all()  # the front quad is all seen
 
     def test_points_outside_the_photo_get_the_fill(self):
@@ -258,7 +260,8 @@ class TestUnwrap:
         ({"fill_colours": np.zeros((3, 3))}, ShapeError, "fill_colours"),
     ])
     def test_bad_input(self, change, error, match):
-        args = {"photo": np.zeros((8, 8, 3), np.uint8), "vertices": np.array([[0.0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]]),
+        args = {"photo": np.zeros((8, 8, 3), np.uint8),
+                "vertices": np.array([[0.0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]]),
                 "faces": np.array([[0, 1, 2]]), "face_uvs": np.array([[[0.0, 0], [1, 0], [1, 1]]]),
                 "intrinsics": np.eye(3), "extrinsics": np.eye(4), "size": 16}
         args.update(change)
