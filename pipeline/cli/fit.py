@@ -76,8 +76,11 @@ def _runner(jobs: int, threads: int, quiet: bool):
     return one_by_one if jobs == 1 else in_processes
 
 
-OUTPUT_NAMES = ("mesh.obj, mesh.ply, mesh.glb, params.json, overlay.png, render.png, landmarks.pts, "
-                "landmarks_fitted.pts, landmarks3d.json, expressions.csv, report.json, config.yaml")
+def _output_names() -> str:
+    """The files of one fit's folder, as printed."""
+    from pipeline.photo.outputs import OUTPUT_FILES
+
+    return ", ".join(OUTPUT_FILES)
 
 
 def _face_option(text: str | None) -> int | str | None:
@@ -126,7 +129,7 @@ def _fit_faces(args: argparse.Namespace, photo: Path, config, out: Path) -> int:
         bars.close()
     failed = _print_results(results)
     print(f"fitted {len(results) - len(failed)} of {len(results)} faces in {photo}; wrote {out}/: face_<k>/ "
-          f"({OUTPUT_NAMES}) and {SUMMARY_FILE}")
+          f"({_output_names()}) and {SUMMARY_FILE}")
     return _exit_status(failed)
 
 
@@ -144,7 +147,7 @@ def _fit_one(args: argparse.Namespace, photo: Path, config, out: Path) -> int:
         bars.close()
     print(f"fitted {photo} in {summary['fit_seconds']:.1f} s: landmark error {summary['mean_error_px']:.2f} px "
           f"(NME {summary['nme']:.4f})")
-    print(f"wrote {out}/: {OUTPUT_NAMES}")
+    print(f"wrote {out}/: {_output_names()}")
     return EXIT_OK
 
 
@@ -211,8 +214,8 @@ FIT_EPILOG = (
     "image, not mirrored.\nSafety: --out must not be, contain or lie in an input or the working "
     "directory; --force replaces only a folder jnr wrote (it holds a .jnr-output file); outputs are "
     "moved into place atomically, and nothing is left behind on an error, Ctrl-C or SIGTERM.\n"
-    "Outputs: mesh.obj, mesh.ply "
-    "(rig space, mm, +Y up, vertex colours = albedo), mesh.glb (skinned glTF), params.json (joints "
+    "Outputs: mesh.obj (with mesh.mtl and texture.png: the face unwrapped from the photo), mesh.ply "
+    "(rig space, mm, +Y up, vertex colours = albedo), mesh.glb (skinned glTF, textured), params.json (joints "
     "by name, Z, expressions, camera, pose, light), overlay.png, render.png, landmarks.pts (input), "
     "landmarks_fitted.pts, landmarks3d.json (camera frame, mm), expressions.csv (ARKit), "
     "report.json (landmark error in px and NME, loss terms per stage, timings), config.yaml (the "
