@@ -701,16 +701,31 @@ def contour_landmarks(vertices: torch.Tensor, faces, camera_center, asset: RigAs
     if cam.shape != (3,):
         raise ShapeError(f"contour_landmarks: camera_center must have shape (3,), got {tuple(cam.shape)}")
     faces_np = np.asarray(faces.cpu() if isinstance(faces, torch.Tensor) else faces, dtype=np.int64)
+    picked = contour_vertex_ids(vertices, faces_np, cam.detach().cpu().double().numpy(), asset, corrected=corrected)
+    out = vertices[torch.as_tensor(picked, device=vertices.device)]
+    static = landmark_positions(vertices, ibug68_embedding(asset, corrected=corrected), faces_np)[0, CHIN]
+    return torch.cat([out[:CHIN], static[None], out[CHIN + 1:]])
+
+
+def contour_vertex_ids(vertices, faces, camera_center, asset: RigAsset | None = None, *,
+                       corrected: bool = True) -> list[int]:
+    """The 17 vertex ids :func:`contour_landmarks` picks for the jaw contour as seen from ``camera_center``
+    (``(V, 3)`` torch or numpy vertices, rig space, mm); the chin's entry (8) is the vertex its static
+    landmark would start from and is not used by :func:`contour_landmarks`."""
+    asset = load_asset() if asset is None else asset
+    faces_np = np.asarray(faces.cpu() if isinstance(faces, torch.Tensor) else faces, dtype=np.int64)
     data = _contour(asset) if corrected else _contour_heuristic(asset)
     lines = _contour_lines(asset, faces_np, corrected)
-    v = vertices.detach().cpu().double().numpy()
+    v = (vertices.detach().cpu().double().numpy() if isinstance(vertices, torch.Tensor)
+         else np.asarray(vertices, np.float64))
+    cam = np.asarray(camera_center, np.float64)
     # area-weighted normals of the candidate vertices only, from their incident faces (= vertex_normals there)
     tri = v[lines.faces]
     fn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     n = np.stack([np.bincount(lines.corner_slot, weights=np.repeat(fn[:, c], 3)[lines.corner_keep],
                               minlength=len(lines.vertices)) for c in range(3)], 1)
     n /= np.linalg.norm(n, axis=1, keepdims=True).clip(1e-12)
-    to_cam = np.asarray(cam.detach().cpu().double().numpy()) - v[lines.vertices]
+    to_cam = cam - v[lines.vertices]
     to_cam /= np.linalg.norm(to_cam, axis=1, keepdims=True).clip(1e-12)
     facing = (n * to_cam).sum(1)
     score = np.where(facing > 0, facing, np.inf)
@@ -718,6 +733,4 @@ def contour_landmarks(vertices: torch.Tensor, faces, camera_center, asset: RigAs
     for k, (lo, hi) in enumerate(lines.bounds):
         if hi > lo and np.isfinite(score[lo:hi]).any():
             picked[k] = int(lines.vertices[lo + int(np.argmin(score[lo:hi]))])
-    out = vertices[torch.as_tensor(picked, device=vertices.device)]
-    static = landmark_positions(vertices, ibug68_embedding(asset, corrected=corrected), faces_np)[0, CHIN]
-    return torch.cat([out[:CHIN], static[None], out[CHIN + 1:]])
+    return picked

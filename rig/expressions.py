@@ -319,19 +319,23 @@ class ExpressionModel(nn.Module):
     def num_expressions(self) -> int:
         return len(EXPRESSION_NAMES)
 
-    def forward(self, coefficients: torch.Tensor) -> torch.Tensor:
-        """``coefficients (B, E)`` (unitless, see :func:`expression_limits`) -> offsets ``(B, V, 3)`` mm."""
+    def forward(self, coefficients: torch.Tensor, vertex_ids: torch.Tensor | None = None) -> torch.Tensor:
+        """``coefficients (B, E)`` (unitless, see :func:`expression_limits`) -> offsets ``(B, V, 3)`` mm.
+
+        ``vertex_ids`` ``(U,)`` int64: only those vertices' offsets, ``(B, U, 3)`` (a landmark fit needs ~200)."""
         if coefficients.dim() != 2 or coefficients.shape[1] != len(EXPRESSION_NAMES):
             raise ExpressionError(f"ExpressionModel: coefficients must have shape (B, {len(EXPRESSION_NAMES)}), "
                                   f"got {tuple(coefficients.shape)}")
         c = coefficients.to(self.basis.dtype)
-        out = torch.einsum("be,evk->bvk", c, self.basis)
+        basis, template, jaw_weight = ((self.basis, self.template, self.jaw_weight) if vertex_ids is None else
+                                       (self.basis[:, vertex_ids], self.template[vertex_ids], self.jaw_weight[vertex_ids]))
+        out = torch.einsum("be,evk->bvk", c, basis)
         angle = c[:, JAW_INDEX] * math.radians(JAW_ANGLE_DEG)  # (B,)
         cos, sin = torch.cos(angle)[:, None], torch.sin(angle)[:, None]
-        q = self.template - self.jaw_pivot  # (V, 3)
+        q = template - self.jaw_pivot  # (V, 3)
         dy = (cos - 1.0) * q[:, 1] - sin * q[:, 2]
         dz = sin * q[:, 1] + (cos - 1.0) * q[:, 2]
-        jaw = torch.stack([torch.zeros_like(dy), dy, dz], dim=-1) * self.jaw_weight[:, None]
+        jaw = torch.stack([torch.zeros_like(dy), dy, dz], dim=-1) * jaw_weight[:, None]
         return out + jaw
 
     def vertices(self, coefficients: torch.Tensor) -> torch.Tensor:

@@ -27,6 +27,19 @@ def head_rotation(yaw_deg: float, pitch_deg: float, roll_deg: float) -> np.ndarr
     return Rotation.from_euler("yxz", [yaw_deg, pitch_deg, roll_deg], degrees=True).as_matrix()
 
 
+def head_angles(rotation: np.ndarray) -> tuple[float, float, float]:
+    """``(yaw, pitch, roll)`` in degrees of a ``(3, 3)`` head rotation: the inverse of :func:`head_rotation`.
+
+    Example:
+        >>> [round(a, 6) for a in head_angles(head_rotation(20.0, -5.0, 3.0))]
+        [20.0, -5.0, 3.0]
+    """
+    from scipy.spatial.transform import Rotation
+
+    yaw, pitch, roll = Rotation.from_matrix(np.asarray(rotation, np.float64)).as_euler("yxz", degrees=True)
+    return float(yaw), float(pitch), float(roll)
+
+
 def face_edges(faces: np.ndarray) -> np.ndarray:
     """``(3F, 2)`` the directed edges of every triangle, ``(a, b), (b, c), (c, a)`` stacked by corner
     pair (all ``(a, b)`` first), each interior edge twice (once per side)."""

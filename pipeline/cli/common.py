@@ -87,11 +87,16 @@ def parse_overrides(items: list[str] | None) -> dict:
 # ------------------------------------------------------------------------------------------------------
 
 def fit_photo_overrides(args: argparse.Namespace) -> dict:
-    """The photo fit's overrides: ``--set`` items, and ``--landmarks-only`` (``photometric.enabled: false``)."""
+    """The photo fit's overrides: ``--set`` items, ``--landmarks-only`` (``photometric.enabled: false``) and
+    ``--photometric`` (``photometric.enabled: true``)."""
     overrides = parse_overrides(args.set)
-    if args.landmarks_only:
+    photometric = getattr(args, "photometric", False)
+    if args.landmarks_only and photometric:
+        raise CliError("--landmarks-only and --photometric contradict each other; give one")
+    if args.landmarks_only or photometric:
         group = overrides.get("photometric")
-        overrides["photometric"] = {**group, "enabled": False} if isinstance(group, dict) else {"enabled": False}
+        value = bool(photometric)
+        overrides["photometric"] = {**group, "enabled": value} if isinstance(group, dict) else {"enabled": value}
     return overrides
 
 

@@ -66,7 +66,8 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     demo.add_argument("--spread", type=float, default=0.3,
                       help="random edit strength, a fraction of each parameter's range (default: 0.3)")
     demo.add_argument("--spp", type=int, default=32, help="samples per pixel of the picture (default: 32)")
-    demo.add_argument("--landmarks-only", action="store_true", help="fit the photos without the photometric stages")
+    demo.add_argument("--landmarks-only", action="store_true", help="fit the photos with the landmark fit only (default)")
+    demo.add_argument("--photometric", action="store_true", help="add the photometric stages to the photo fits")
     demo.add_argument("--config", help="YAML overriding the photo-fitting settings (configs/fit_photo.yaml)")
     demo.add_argument("--set", action="append", metavar="KEY=VALUE", help="override one photo-fitting setting")
     demo.add_argument("--quiet", action="store_true", help="no progress bar")

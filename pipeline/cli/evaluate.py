@@ -93,7 +93,8 @@ def cmd_eval_photos(args: argparse.Namespace) -> int:
         check_output(Path(args.out), args.force)
     config = load_fit_photo_config(args)
     return _run_evaluation(args, "synthetic photos", lambda progress: evaluate_photos(
-        args.neutral, args.expressive, first=args.first, seed=args.seed, config=config, progress=progress))
+        args.neutral, args.expressive, first=args.first, seed=args.seed, config=config,
+        landmarks="dlib" if args.detected else "noisy", progress=progress))
 
 
 def _add_outputs(parser: argparse.ArgumentParser) -> None:
@@ -160,7 +161,10 @@ def _add_photos(ev_sub: argparse._SubParsersAction) -> None:
     ph.add_argument("--first", type=int, default=20,
                     help="first held-out head (default: 20; the defaults were chosen on heads 0-5)")
     ph.add_argument("--seed", type=int, default=0, help="seed of the photos (default: 0)")
-    ph.add_argument("--landmarks-only", action="store_true", help="skip the photometric stages")
+    ph.add_argument("--landmarks-only", action="store_true", help="the landmark fit only (the default)")
+    ph.add_argument("--photometric", action="store_true", help="the 'jnr' rows with the photometric stages")
+    ph.add_argument("--detected", action="store_true",
+                    help="fit dlib's detections on the renders instead of the true landmarks + 1 px noise")
     ph.add_argument("--config", help="YAML overriding the fitting settings")
     ph.add_argument("--set", action="append", metavar="KEY=VALUE", help="override one fitting setting")
     _add_outputs(ph)

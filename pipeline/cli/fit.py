@@ -245,7 +245,12 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
                           "low-contrast faces; about 5 s for a 512 x 512 photo on 2 cores), auto (default: "
                           "hog, and cnn only when hog finds no face); report.json lists every face found")
     fit.add_argument("--focal", type=float, help="focal length in pixels (default: 1.4 x max(width, height))")
-    fit.add_argument("--landmarks-only", action="store_true", help="skip the photometric stages (~2 s a photo)")
+    fit.add_argument("--landmarks-only", action="store_true",
+                     help="the landmark fit only (the default; kept for scripts)")
+    fit.add_argument("--photometric", action="store_true",
+                     help="after the landmark fit, the photometric stages (render + photo loss, ~20 s a photo; off by "
+                          "default: on synthetic validation photos they did not improve the geometry, see "
+                          "docs/fit_photo.md)")
     fit.add_argument("--config", help="YAML overriding the fitting settings (e.g. configs/fit_photo.yaml)")
     fit.add_argument("--set", action="append", metavar="KEY=VALUE", help="override one setting (repeatable)")
     fit.add_argument("--jobs", type=int, help="parallel processes for several photos (default: the CPU count)")

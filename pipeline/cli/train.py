@@ -15,10 +15,28 @@ from pipeline.cli.common import (
 )
 
 
+def cmd_identity_prior(args: argparse.Namespace) -> int:
+    from pipeline.fitting.identity import default_identity_prior_path, train_identity_prior
+
+    if args.config or args.set or args.log:
+        raise CliError("--identity-prior takes only --out, --force and --quiet")
+    out = Path(args.out) if args.out else default_identity_prior_path()
+    check_output(out, args.force or args.out is None)
+    bars = StageBars(args.quiet)
+    try:
+        prior = train_identity_prior(out, progress=bars)
+    finally:
+        bars.close()
+    print(json.dumps({"artifact": str(out), **prior.meta}, indent=2))
+    return EXIT_OK
+
+
 def cmd_train(args: argparse.Namespace) -> int:
     from pipeline.train import load_config, train
     from rig.asset import default_skinning_path
 
+    if args.identity_prior:
+        return cmd_identity_prior(args)
     try:
         config = load_config(args.config, parse_overrides(args.set))
     except (TypeError, ValueError) as exc:
@@ -43,6 +61,10 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
                         description="Fit joints, learn global linear weights (alternating), synthesise "
                                     "skinning-weight sets, train the auto-encoder and fine-tune the decoder "
                                     "WGAN-style. Writes rig/assets/jnr_skinning_v2.npz unless --out is given.")
+    tr.add_argument("--identity-prior", action="store_true",
+                    help="instead: fit the joints of the training population (85 train heads + 215 more from the "
+                         "same distribution, ~3 min) and write the identity prior of the photo fit, a PPCA Gaussian "
+                         "of the fitted joints (rig/assets/jnr_identity_prior_v2.npz unless --out is given)")
     tr.add_argument("--config", help="YAML file overriding TrainConfig fields (configs/train.yaml)")
     tr.add_argument("--set", action="append", metavar="KEY=VALUE", help="override one setting (repeatable)")
     tr.add_argument("--out", help="artifact path (default: the packaged rig/assets/jnr_skinning_v2.npz)")

@@ -13,6 +13,13 @@ samples per pixel) at yaw within +-30 deg; its landmarks are the projected true 
    cheeks, lips, chin) to the fitted surface is reported (median, mean, std, mm;
    :func:`pipeline.evaluation.metrics.distance_stats`).
 
+The **pose error** is the angle of the rotation that best aligns (rigidly, face region) the fitted
+head as the fit places it in the camera frame onto the true head in the camera frame
+(:func:`pose_error_deg`): how far the fitted face is turned from the true one, whatever the rig-space
+shape. The photo's landmarks are either the projected true ones plus 1 px Gaussian noise
+(``landmarks="noisy"``) or dlib's own detections on the render (``landmarks="dlib"``; a photo where dlib
+finds no face is left out and counted).
+
 Because the true head has the template's topology, the **true vertex error** (same vertex, after
 the same alignment) is reported too; it also measures sliding along the surface, which the
 scan-to-mesh distance does not see. The template head, aligned the same way, is the reference that
@@ -54,8 +61,9 @@ INNER_LANDMARKS = tuple(range(17, 68))
 KINDS: tuple[str, ...] = ("neutral", "expressive")
 METHODS: tuple[str, ...] = ("jnr", "landmarks", "template")
 #: Per-photo metrics summarised by :meth:`PhotoEvaluation.summary` (mean, std and median over photos).
-METRICS: tuple[str, ...] = ("s2m_median_mm", "s2m_mean_mm", "s2m_std_mm", "vertex_mean_mm", "landmark_error_px",
-                            "seconds")
+METRICS: tuple[str, ...] = ("s2m_median_mm", "s2m_mean_mm", "s2m_std_mm", "vertex_mean_mm", "pose_error_deg",
+                            "landmark_error_px", "seconds")
+LANDMARK_SOURCES: tuple[str, ...] = ("noisy", "dlib")
 
 
 @dataclass(frozen=True)
@@ -70,6 +78,7 @@ class PhotoRecord:
         s2m_median_mm, s2m_mean_mm, s2m_std_mm: statistics of the distances from every true
             face-region vertex to the aligned fitted surface (std over the vertices, ddof=0), mm.
         vertex_mean_mm: true per-vertex error over the face region after the same alignment, mm.
+        pose_error_deg: :func:`pose_error_deg` (``template``: the template placed by solvePnP).
         landmark_error_px: mean landmark error of the fit, px (NaN for ``template``).
         seconds: wall time of the fit, s (``landmarks``: that stage alone; ``template``: 0).
     """
@@ -82,6 +91,7 @@ class PhotoRecord:
     s2m_mean_mm: float
     s2m_std_mm: float
     vertex_mean_mm: float
+    pose_error_deg: float
     landmark_error_px: float
     seconds: float
 
@@ -104,7 +114,7 @@ class PhotoEvaluation(Evaluation):
     COLUMNS: ClassVar[tuple[Column, ...]] = (
         Column("s2m median mm", "s2m_median_mm"), Column("s2m mean mm", "s2m_mean_mm"),
         Column("s2m std mm", "s2m_std_mm"), Column("vertex mean mm", "vertex_mean_mm"),
-        Column("landmarks px", "landmark_error_px"), Column("seconds", "seconds", digits=1),
+        Column("pose error deg", "pose_error_deg"), Column("landmarks px", "landmark_error_px"), Column("seconds", "seconds", digits=1),
     )
 
 
@@ -138,6 +148,28 @@ def now_style_error(fitted: np.ndarray, truth: np.ndarray, faces: np.ndarray, fa
     return {**stats.as_dict("s2m_"), "vertex_mean_mm": float(vertex), "scale": float(s)}
 
 
+def pose_error_deg(fitted: np.ndarray, rotation: np.ndarray, translation: np.ndarray, truth: np.ndarray,
+                   true_rotation: np.ndarray, true_translation: np.ndarray, asset=None) -> float:
+    """Angle (deg) of the best rigid rotation (Kabsch, face-region vertices) taking the fitted head, as its pose
+    places it in the camera frame, onto the true head in the camera frame.
+
+    Args:
+        fitted, truth: ``(V, 3)`` rig-space heads, mm; rotation/translation and true_rotation/true_translation:
+            their head poses (:mod:`pipeline.photo.camera`).
+    """
+    from rig.geometry import RIG_TO_OPENCV
+
+    asset = load_asset() if asset is None else asset
+    face = asset.region_mask(*FACE_REGIONS)
+    a = np.asarray(fitted, np.float64)[face] @ (RIG_TO_OPENCV @ rotation).T + translation
+    b = np.asarray(truth, np.float64)[face] @ (RIG_TO_OPENCV @ true_rotation).T + true_translation
+    a, b = a - a.mean(0), b - b.mean(0)
+    u, _, vt = np.linalg.svd(a.T @ b)
+    d = np.sign(np.linalg.det(u @ vt))
+    r = (u @ np.diag([1.0, 1.0, d]) @ vt).T
+    return float(np.degrees(np.arccos(np.clip((np.trace(r) - 1.0) / 2.0, -1.0, 1.0))))
+
+
 def face_error(fitted: np.ndarray, truth: np.ndarray, asset=None) -> dict:
     """:func:`now_style_error` of a fitted head against the true head (both template topology, mm): aligned
     on the inner landmarks (:data:`INNER_LANDMARKS`), scored over the face regions
@@ -154,7 +186,7 @@ def face_error(fitted: np.ndarray, truth: np.ndarray, asset=None) -> dict:
 
 
 def evaluate_photos(n_neutral: int = 5, n_expressive: int = 5, *, first: int = 0, seed: int = 0,
-                    config: FitPhotoConfig | None = None, settings=None,
+                    config: FitPhotoConfig | None = None, settings=None, landmarks: str = "noisy",
                     progress: Callable[[PhotoRecord], None] | None = None) -> PhotoEvaluation:
     """Fit synthetic photos of the first held-out heads and score them (module docstring).
 
@@ -166,6 +198,8 @@ def evaluate_photos(n_neutral: int = 5, n_expressive: int = 5, *, first: int = 0
         seed: seed of the photos (placement, light, albedo, landmark noise).
         config: fitting settings (default :class:`FitPhotoConfig`).
         settings: :class:`pipeline.synthetic.photos.PhotoSettings` (default ones).
+        landmarks: ``"noisy"`` (the true landmarks + 1 px noise) or ``"dlib"`` (dlib's detection on the
+            render, HOG then the CNN; photos without a detection are skipped and listed in the settings).
         progress: called with each record as it is made.
 
     Returns:
@@ -183,12 +217,21 @@ def evaluate_photos(n_neutral: int = 5, n_expressive: int = 5, *, first: int = 0
     if first + max(n_neutral, n_expressive) > 100:
         raise ValueError(f"evaluate_photos: heads {first}..{first + max(n_neutral, n_expressive) - 1} exceed the "
                          "100 held-out heads")
+    if landmarks not in LANDMARK_SOURCES:
+        raise ValueError(f"evaluate_photos: landmarks must be one of {list(LANDMARK_SOURCES)}, got {landmarks!r}")
+    from landmarks.detect import NoFaceError, detect_landmarks
+    from pipeline.photo.camera import solve_pose
+
     config = config or FitPhotoConfig()
     settings = settings or PhotoSettings()
+    missed: list[str] = []
     asset = load_asset()
     rig = JointRig()
     neural, _ = load_neural(rig)
     template = head_vertices(rig, neural, np.zeros(NUM_PARAMETERS), np.zeros(LATENT), np.zeros(len(EXPRESSION_NAMES)))
+    from landmarks.ibug68 import ibug68_embedding, landmark_positions
+
+    template_landmarks = landmark_positions(template, ibug68_embedding(asset), asset.faces)[0]
     records: list[PhotoRecord] = []
 
     def add(**fields) -> None:
@@ -202,19 +245,29 @@ def evaluate_photos(n_neutral: int = 5, n_expressive: int = 5, *, first: int = 0
             photo = synthetic_photo(index, expressive=kind == "expressive", seed=scan_seed(seed, "photo-" + kind, index),
                                     settings=settings)
             truth = photo.gt_vertices
+            target = photo.landmarks2d
+            if landmarks == "dlib":
+                try:
+                    target = detect_landmarks(photo.image, detector="auto").landmarks
+                except NoFaceError:
+                    missed.append(photo.name)
+                    continue
             t0 = time.perf_counter()
-            fit = fit_photo(photo.image, photo.landmarks2d, focal=photo.focal, config=config, rig=rig, neural=neural)
+            fit = fit_photo(photo.image, target, focal=photo.focal, config=config, rig=rig, neural=neural)
             seconds = time.perf_counter() - t0
             common = {"name": photo.name, "kind": kind, "yaw_deg": float(photo.yaw_deg)}
             lfit = fit.landmark_fit
-            for method, vertices, lm_px, secs in (
-                    ("jnr", fit.rig_vertices, float(fit.error_px.mean()), seconds),
-                    ("landmarks", head_vertices(rig, neural, lfit.theta, lfit.z, lfit.expressions),
-                     float(lfit.error_px.mean()), lfit.seconds),
-                    ("template", template, math.nan, 0.0)):
+            t_rot, t_trans = solve_pose(target, template_landmarks, photo.width, photo.height, photo.focal)
+            for method, vertices, rot, trans, lm_px, secs in (
+                    ("jnr", fit.rig_vertices, fit.rotation, fit.translation, float(fit.error_px.mean()), seconds),
+                    ("landmarks", head_vertices(rig, neural, lfit.theta, lfit.z, lfit.expressions), lfit.rotation,
+                     lfit.translation, float(lfit.error_px.mean()), lfit.seconds),
+                    ("template", template, t_rot, t_trans, math.nan, 0.0)):
                 err = face_error(vertices, truth, asset)
+                pose = pose_error_deg(vertices, rot, trans, truth, photo.rotation, photo.translation, asset)
                 add(**common, method=method, s2m_median_mm=err["s2m_median_mm"], s2m_mean_mm=err["s2m_mean_mm"],
-                    s2m_std_mm=err["s2m_std_mm"], vertex_mean_mm=err["vertex_mean_mm"], landmark_error_px=lm_px,
-                    seconds=secs)
+                    s2m_std_mm=err["s2m_std_mm"], vertex_mean_mm=err["vertex_mean_mm"], pose_error_deg=pose,
+                    landmark_error_px=lm_px, seconds=secs)
     return PhotoEvaluation(tuple(records), settings={"first": first, "n_neutral": n_neutral, "n_expressive": n_expressive,
-                                                     "seed": seed, "photo_settings": dict(settings.__dict__)})
+                                                     "seed": seed, "landmarks": landmarks, "missed_by_dlib": missed,
+                                                     "photo_settings": dict(settings.__dict__)})

@@ -3,8 +3,10 @@
 Every fit regularises the same parameters: the joints by JNR's L_m (eq. 4, deviation from the rest
 pose in deg / mm / scale - 1) and L_x (eq. 5, the joint-limit penalty), the latent by ``|Z|^2`` (it
 stays where the decoder was trained), the expression coefficients by ``|c|^2``, and optionally the
-joints' asymmetry ``|theta - mirror(theta)|^2 / P``. Their weights are a :class:`PriorWeights` group
-of each fit's config (``prior:`` in YAML).
+joints' asymmetry ``|theta - mirror(theta)|^2 / P``. The photo fit replaces L_m by the identity prior
+learned from the training population (:mod:`pipeline.fitting.identity`): ``lambda_identity`` times the
+Gaussian's negative log-density ``0.5 |M (theta / span - mu)|^2``. Their weights are a
+:class:`PriorWeights` group of each fit's config (``prior:`` in YAML).
 """
 
 from __future__ import annotations
@@ -13,6 +15,7 @@ from dataclasses import dataclass
 
 import torch
 
+from pipeline.fitting.identity import IdentityPrior, load_identity_prior
 from pipeline.fitting.state import FitState
 from rig.losses import limit_loss, regularizer
 from rig.parameters import mirror_theta
@@ -32,9 +35,12 @@ class PriorWeights:
     """|c|^2 on the expression coefficients."""
     lambda_symmetry: float = 0.0
     """Optional symmetry prior ``|theta - mirror(theta)|^2 / P`` (0: off)."""
+    lambda_identity: float = 0.0
+    """The learned identity prior (:mod:`pipeline.fitting.identity`), its negative log-density (0: off)."""
 
 
-def rig_prior_terms(state: FitState, weights: PriorWeights, *, lambda_m: float | None = None) -> dict[str, torch.Tensor]:
+def rig_prior_terms(state: FitState, weights: PriorWeights, *, lambda_m: float | None = None,
+                    identity: IdentityPrior | None = None) -> dict[str, torch.Tensor]:
     """The weighted prior terms of ``state``: ``L_m``, ``L_x``, ``latent``, ``expressions`` (and
     ``symmetry`` when its weight is not 0), scalar tensors.
 
@@ -42,6 +48,8 @@ def rig_prior_terms(state: FitState, weights: PriorWeights, *, lambda_m: float |
         state: the fit state (joints ``theta (P,)``, ``z (50,)``, ``c (E,)``).
         weights: their weights.
         lambda_m: overrides ``weights.lambda_m`` (the point-cloud fit lowers it as correspondences settle).
+        identity: the identity prior; default :func:`pipeline.fitting.identity.load_identity_prior` when
+            ``weights.lambda_identity`` is not 0 (term ``identity``).
     """
     theta = state.theta
     terms = {
@@ -50,6 +58,19 @@ def rig_prior_terms(state: FitState, weights: PriorWeights, *, lambda_m: float |
         "latent": weights.lambda_z * state.z.square().sum(),
         "expressions": weights.lambda_expressions * state.c.square().sum(),
     }
+    if weights.lambda_identity:
+        identity = identity or cached_identity_prior()
+        terms["identity"] = 0.5 * weights.lambda_identity * identity.whiten(state.theta_n).square().sum()
     if weights.lambda_symmetry:
         terms["symmetry"] = weights.lambda_symmetry * (theta - mirror_theta(theta)).square().mean()
     return terms
+
+
+_IDENTITY: list[IdentityPrior] = []
+
+
+def cached_identity_prior() -> IdentityPrior:
+    """The committed identity prior, read once per process."""
+    if not _IDENTITY:
+        _IDENTITY.append(load_identity_prior())
+    return _IDENTITY[0]

@@ -72,15 +72,18 @@ from rig.template import FACE_REGIONS
 PHOTO_GROUPS = FREE_GROUPS + ("albedo", "light")
 
 
-PHOTO_LAMBDA_M = 100.0
-"""L_m weight of the photo fit (the landmark fit's own default, 0.3, suits heads far from the template).
+PHOTO_LAMBDA_IDENTITY = 0.03
+"""Weight of the learned identity prior (:mod:`pipeline.fitting.identity`) in the photo fit, against the
+landmark term (mean over the 68 landmarks of half the squared pixel error, Huber); L_m is off.
 
-Measured on synthetic renders of held-out heads 0-5 (neutral and expressive, 1 px landmark noise,
-landmark-only fit, NoW-style alignment): true face-vertex error 1.05 / 0.98 / 0.91 / 0.89 mm for
-L_m = 10 / 30 / 100 / 300, and 1.46 mm at 0.3; the template itself scores ~0.85 mm. From 68
-landmarks with pixel noise, the joints mostly fit the noise: a strong prior keeps the head near the
-template unless the landmarks insist. 100 rather than 300 leaves the joints some freedom for faces
-farther from the template than the synthetic population."""
+Chosen on synthetic validation photos (held-out heads 0-5, neutral and expressive, 1 px landmark noise,
+true focal; ``benchmarks/bench_fit_photo.py`` scores heads 20 on): NoW-style scan-to-mesh median,
+mean over the 12 photos, LM landmark fit: see ``docs/fit_photo.md`` for the table. The previous
+prior, L_m = 100 towards the template, scored 0.83 mm (Adam: 0.84) against the template's 0.94 mm."""
+
+PHOTO_PRIOR = PriorWeights(lambda_m=0.0, lambda_identity=PHOTO_LAMBDA_IDENTITY)
+"""The rig priors of the photo fit: the identity prior instead of L_m, the other weights as
+:class:`~pipeline.fitting.priors.PriorWeights`."""
 
 
 @dataclass(frozen=True)
@@ -136,8 +139,9 @@ class AlbedoPrior:
 class PhotometricConfig:
     """The photometric stages of :func:`fit_photo` (``photometric:`` in YAML)."""
 
-    enabled: bool = True
-    """Run them (false, or ``jnr fit --landmarks-only``: the landmark fit only)."""
+    enabled: bool = False
+    """Run them (``jnr fit --photometric``). Off by default: on synthetic photos rendered with another light
+    model they did not improve the geometry over the landmark fit (``docs/fit_photo.md``) and cost ~20 s."""
     stages: tuple[PhotoStage, ...] = field(default_factory=photo_schedule)
     render_size: int = 128
     """Side of the square face crop the photometric loss is computed on, pixels."""
@@ -158,8 +162,8 @@ class PhotometricConfig:
     """Rig regions whose pixels the photometric loss counts (default: no scalp/hair, ears, neck, eyes, mouth)."""
     albedo_prior: AlbedoPrior = field(default_factory=AlbedoPrior)
     lr: PhotoLearningRates = PHOTO_LEARNING_RATES
-    prior: PriorWeights = field(default_factory=lambda: PriorWeights(lambda_m=PHOTO_LAMBDA_M))
-    """The rig priors during the photometric stages (:data:`PHOTO_LAMBDA_M` for L_m)."""
+    prior: PriorWeights = PHOTO_PRIOR
+    """The rig priors during the photometric stages (:data:`PHOTO_PRIOR`)."""
     light_directions: int = 64
     """Candidate light directions re-picked before each stage."""
     seed: int = 0
@@ -189,10 +193,8 @@ class PhotometricConfig:
 class FitPhotoConfig:
     """Settings of :func:`fit_photo` (``configs/fit_photo.yaml`` holds the defaults)."""
 
-    landmarks: LandmarkFitConfig = field(
-        default_factory=lambda: LandmarkFitConfig(prior=PriorWeights(lambda_m=PHOTO_LAMBDA_M)))
-    """The landmark-only fit that starts the photometric one (with a strong joint prior, see
-    :data:`PHOTO_LAMBDA_M`)."""
+    landmarks: LandmarkFitConfig = field(default_factory=lambda: LandmarkFitConfig(prior=PHOTO_PRIOR))
+    """The landmark fit (Levenberg-Marquardt with the identity prior, :data:`PHOTO_PRIOR`)."""
     photometric: PhotometricConfig = field(default_factory=PhotometricConfig)
     """The photometric stages."""
 

@@ -21,8 +21,9 @@ There is no global scale: from one photo it is interchangeable with the distance
 
 from __future__ import annotations
 
+import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import torch
@@ -32,14 +33,15 @@ from landmarks.ibug68 import contour_landmarks, ibug68_embedding, landmark_posit
 from landmarks.loss import landmark_reprojection_loss, project_points
 from pipeline.evaluation.metrics import landmark_errors
 from pipeline.fitting.engine import LearningRates, Loss, Stage, StageLog, run_schedule
+from pipeline.fitting.least_squares import LMSettings, levenberg_marquardt
 from pipeline.fitting.priors import PriorWeights, rig_prior_terms
 from pipeline.fitting.state import PhotoState
 from pipeline.photo.camera import default_focal, make_camera, solve_pose
 from rig.expressions import ExpressionModel
-from rig.lbs import ShapeError
+from rig.lbs import ShapeError, skin_vertices
 from rig.model import JointRig
 from rig.optim import Progress
-from rig.parameters import NUM_PARAMETERS
+from rig.parameters import NUM_PARAMETERS, mirror_theta
 from rig.skinning.neural import LATENT, NeuralSkinning, load_neural
 
 NUM_LANDMARKS = 68
@@ -59,12 +61,40 @@ def landmark_schedule(pose_iterations: int = 20, coarse_iterations: int = 20, jo
     return tuple(s for s in stages if s.iterations > 0)
 
 
+def lm_schedule(pose_iterations: int = 6, expression_iterations: int = 8, joint_iterations: int = 20
+                ) -> tuple[Stage, ...]:
+    """The default Levenberg-Marquardt schedule (at most 34 Jacobians): pose; pose + expressions (an open
+    jaw is taken up by ``jawOpen`` before the joints move); then pose, joints and expressions together.
+    Each stage's ``iterations`` is its largest number of LM iterations; a stage stops earlier when it has
+    converged."""
+    stages = (Stage("pose", ("pose",), pose_iterations),
+              Stage("expressions", ("pose", "expressions"), expression_iterations),
+              Stage("joints", ("pose", "joints", "expressions"), joint_iterations))
+    return tuple(s for s in stages if s.iterations > 0)
+
+
+SOLVERS = ("lm", "adam")
+
+CONTOUR_UPDATES = 4
+"""LM iterations per stage that re-pick the jaw contour's silhouette vertices; later ones keep the last
+pick. A pick is discrete: re-picked every iteration, neighbouring vertices took turns near the minimum and
+the cost cycled (seen on synthetic heads) instead of converging."""
+
+
 @dataclass(frozen=True)
 class LandmarkFitConfig:
     """Settings of :func:`fit_landmarks`."""
 
+    solver: str = "lm"
+    """``lm``: Levenberg-Marquardt on :attr:`lm_stages` (:mod:`pipeline.fitting.least_squares`), the
+    default; ``adam``: first-order steps on :attr:`stages` (JNR's schedule)."""
+    lm_stages: tuple[Stage, ...] = field(default_factory=lm_schedule)
+    """The LM schedule; ``free`` groups are ``pose``, ``joints``, ``expressions`` (the latent Z is not
+    fitted to landmarks: 136 coordinates do not determine a 50-d skinning code)."""
+    lm: LMSettings = field(default_factory=LMSettings)
+    """Damping and stopping of each LM stage (``max_iterations`` comes from the stage)."""
     stages: tuple[Stage, ...] = field(default_factory=landmark_schedule)
-    """The schedule; ``free`` groups are ``pose``, ``joints``, ``latent``, ``expressions``."""
+    """The Adam schedule; ``free`` groups are ``pose``, ``joints``, ``latent``, ``expressions``."""
     lr: LearningRates = field(default_factory=LearningRates)
     """Adam steps per parameter group."""
     prior: PriorWeights = field(default_factory=PriorWeights)
@@ -73,6 +103,14 @@ class LandmarkFitConfig:
     """Huber threshold of the reprojection loss, pixels."""
     use_neural: bool = True
     """Use the neural skinning (learned linear + decoded residual); else the rig's own weights."""
+
+    def __post_init__(self) -> None:
+        if self.solver not in SOLVERS:
+            raise ValueError(f"landmarks.solver must be one of {list(SOLVERS)}, got {self.solver!r}")
+        bad = [st.name for st in self.lm_stages if "latent" in st.free]
+        if bad:
+            raise ValueError(f"landmarks.lm_stages: the LM solver does not fit the latent (stages {bad}); "
+                             "use solver: adam for a latent stage")
 
 
 @dataclass(frozen=True)
@@ -210,8 +248,201 @@ def fit_landmarks(landmarks2d, width: int, height: int, *, focal: float | None =
         data = term(state, state.rig_vertices(free), free)
         return Loss({"landmarks_px2": data, **rig_prior_terms(state, config.prior)})
 
-    stages = run_schedule(state, config.stages, objective, config.lr, label="fit_landmarks", progress=progress)
+
+    if config.solver == "lm":
+        stages = _run_lm(state, term, config, objective, progress)
+    else:
+        stages = run_schedule(state, config.stages, objective, config.lr, label="fit_landmarks", progress=progress)
     return _landmark_result(state, term, lm, width, height, focal, stages, t_start)
+
+
+class _LandmarkLeastSquares:
+    """The landmark fit as batched residuals of one float64 vector ``x`` = the free groups' parameters,
+    packed ``rotvec (3), translation (3) | theta_n (P) | c (E)`` (only the groups of the stage).
+
+    Residual rows: the 68 landmarks' pixel errors (x and y) weighted by ``sqrt(w_i / sum w)`` times the
+    Huber reweighting ``min(1, sqrt(delta / r_i))`` (so ``0.5 |r|^2`` is the Adam objective's Huber mean at
+    the fixed point), then the priors: ``sqrt(lambda_identity) M (theta_n - mu)``, ``sqrt(2
+    lambda_expressions) c``, the L1 prior ``lambda_m L_m`` reweighted the same way, and the optional
+    symmetry rows. Joint and expression limits are the solver's box. Only the ~200 vertices the landmarks
+    sit on are skinned, with the weights of the state's latent (fixed here).
+    """
+
+    ORDER = ("pose", "joints", "expressions")
+
+    def __init__(self, state: PhotoState, term: LandmarkTerm, config: LandmarkFitConfig, free: tuple[str, ...],
+                 identity, weights: torch.Tensor, expressions64: ExpressionModel) -> None:
+        from landmarks.ibug68 import CHIN
+        from landmarks.loss import default_landmark_weights
+
+        f64 = torch.float64
+        self.state, self.term, self.config, self.free = state, term, config, free
+        self.chin = CHIN
+        cam = term.camera.intrinsics[0].to(f64)
+        self.focal = cam[[0, 1], [0, 1]]
+        self.centre = cam[[0, 1], [2, 2]]
+        self.target = term.target[0].to(f64)
+        base = default_landmark_weights(f64)
+        self.base_w = base / base.sum()
+        self.robust = torch.ones(68, dtype=f64)
+        self.l1 = torch.ones(NUM_PARAMETERS, dtype=f64)
+        self.weights = weights
+        self.expressions = expressions64
+        self.flip = state.flip.to(f64)
+        self.span = state.span.to(f64)
+        emb = term.embedding
+        self.static_ids = torch.as_tensor(np.asarray(term.faces)[emb.faces], dtype=torch.long)  # (68, 3)
+        self.static_bary = torch.as_tensor(emb.barycentric, dtype=f64)  # (68, 3)
+        if identity is not None:
+            self.whiten = torch.as_tensor(identity.whitening_matrix, dtype=f64)
+            self.mu = torch.as_tensor(identity.mean, dtype=f64)
+        self.sizes = {"pose": 6, "joints": NUM_PARAMETERS, "expressions": state.c.numel()}
+        self.prepared, self.contour = 0, None
+        with torch.no_grad():
+            self.fixed = {"pose": torch.cat([state.rotvec, state.translation]).double(),
+                          "joints": state.theta_n.double(), "expressions": state.c.double()}
+
+    # -- packing ------------------------------------------------------------------------------------
+    def pack(self) -> torch.Tensor:
+        return torch.cat([self.fixed[g] for g in self.ORDER if g in self.free])
+
+    def unpack(self, x: torch.Tensor) -> dict[str, torch.Tensor]:
+        """``x (B, n)`` -> each group ``(B, size)``."""
+        out, at = {}, 0
+        for g in self.ORDER:
+            if g in self.free:
+                out[g] = x[:, at:at + self.sizes[g]]
+                at += self.sizes[g]
+            else:
+                out[g] = self.fixed[g][None].expand(x.shape[0], -1)
+        return out
+
+    def write(self, x: torch.Tensor) -> None:
+        p = self.unpack(x[None])
+        s = self.state
+        with torch.no_grad():
+            s.rotvec.copy_(p["pose"][0, :3])
+            s.translation.copy_(p["pose"][0, 3:])
+            s.theta_n.copy_(p["joints"][0])
+            s.c.copy_(p["expressions"][0])
+
+    def bounds(self) -> tuple[torch.Tensor, torch.Tensor]:
+        s = self.state
+        inf = torch.full((6,), float("inf"), dtype=torch.float64)
+        low = {"pose": -inf, "joints": (s.low / s.span).double(), "expressions": s.c_low.double()}
+        high = {"pose": inf, "joints": (s.high / s.span).double(), "expressions": s.c_high.double()}
+        order = [g for g in self.ORDER if g in self.free]
+        return torch.cat([low[g] for g in order]), torch.cat([high[g] for g in order])
+
+    # -- the residuals ------------------------------------------------------------------------------
+    def prepare(self, x: torch.Tensor) -> None:
+        """Re-pick the jaw contour from the current camera centre (the first :data:`CONTOUR_UPDATES` times
+        in a stage), and the robust (IRLS) weights."""
+        from landmarks.ibug68 import contour_vertex_ids
+
+        self.write(x)
+        s = self.state
+        p = self.unpack(x[None])
+        self.prepared += 1
+        if self.prepared <= CONTOUR_UPDATES or self.contour is None:
+            with torch.no_grad():
+                rest = s.models.expressions.vertices(p["expressions"].float())[0]
+                _, skinning = s.rig.joint_transforms((p["joints"] * self.span).float())
+                v = skin_vertices(rest, self.weights.float(), skinning)[0]
+                self.contour = contour_vertex_ids(v, self.term.faces, s.camera_center(), self.term.asset)
+        contour = self.contour
+        ids = self.static_ids.clone()
+        bary = self.static_bary.clone()
+        for k in range(17):
+            if k != self.chin:
+                ids[k] = contour[k]
+                bary[k] = torch.tensor([1.0, 0.0, 0.0], dtype=torch.float64)
+        self.vertex_ids, inverse = torch.unique(ids.reshape(-1), return_inverse=True)
+        self.local_ids = inverse.reshape(68, 3)
+        self.bary = bary
+        self.rest_weights = self.weights[self.vertex_ids]
+        with torch.no_grad():
+            err = (self._project(x[None])[0] - self.target).norm(dim=-1)
+        delta = self.config.huber_delta_px
+        self.robust = torch.where(err > delta, delta / err.clamp_min(1e-12), torch.ones_like(err))
+        theta = (p["joints"][0] * self.span).abs()
+        self.l1 = 1.0 / theta.clamp_min(1e-3)
+
+    def _project(self, x: torch.Tensor) -> torch.Tensor:
+        """``x (B, n)`` -> ``(B, 68, 2)`` pixels."""
+        from kornia.geometry.conversions import axis_angle_to_rotation_matrix
+
+        p = self.unpack(x)
+        c = p["expressions"]
+        rest = self.expressions.template[self.vertex_ids] + self.expressions(c, self.vertex_ids)  # (B, U, 3)
+        _, skinning = self.state.rig.joint_transforms(p["joints"] * self.span)
+        weights = self.rest_weights[None].expand(x.shape[0], -1, -1)
+        posed = skin_vertices(rest, weights, skinning)  # (B, U, 3)
+        points = (posed[:, self.local_ids] * self.bary[..., None]).sum(2)  # (B, 68, 3)
+        rotation = axis_angle_to_rotation_matrix(p["pose"][:, :3])  # (B, 3, 3)
+        cam = points @ (self.flip @ rotation).transpose(1, 2) + p["pose"][:, None, 3:]
+        return cam[..., :2] / cam[..., 2:] * self.focal + self.centre
+
+    def __call__(self, x: torch.Tensor) -> torch.Tensor:
+        """``x (B, n)`` -> residuals ``(B, m)``."""
+        w = self.config.prior
+        p = self.unpack(x)
+        error = (self._project(x) - self.target) * (self.base_w * self.robust).sqrt()[:, None]
+        rows = [error.reshape(x.shape[0], -1)]
+        if w.lambda_identity:
+            rows.append(math.sqrt(w.lambda_identity) * (p["joints"] - self.mu) @ self.whiten.T)
+        theta = p["joints"] * self.span
+        if w.lambda_m:
+            rows.append(theta * (w.lambda_m / 52.0 * self.l1).sqrt())
+        if w.lambda_symmetry:
+            rows.append(math.sqrt(w.lambda_symmetry / NUM_PARAMETERS) * (theta - mirror_theta(theta)))
+        if w.lambda_expressions:
+            rows.append(math.sqrt(2.0 * w.lambda_expressions) * p["expressions"])
+        return torch.cat(rows, dim=1)
+
+
+_EXPRESSIONS64: dict[int, ExpressionModel] = {}
+
+
+def _expressions64(asset) -> ExpressionModel:
+    if id(asset) not in _EXPRESSIONS64:
+        _EXPRESSIONS64.clear()
+        _EXPRESSIONS64[id(asset)] = ExpressionModel(asset, dtype=torch.float64)
+    return _EXPRESSIONS64[id(asset)]
+
+
+def _run_lm(state: PhotoState, term: LandmarkTerm, config: LandmarkFitConfig, objective,
+            progress: Progress | None) -> tuple[StageLog, ...]:
+    """Each stage of ``config.lm_stages`` by Levenberg-Marquardt; logs every term of ``objective`` (the
+    Adam objective) at each stage's start and end, so both solvers report the same figures."""
+    from pipeline.fitting.priors import cached_identity_prior
+
+    identity = cached_identity_prior() if config.prior.lambda_identity else None
+    with torch.no_grad():
+        weights = state.weights().double()
+    expressions64 = _expressions64(state.rig.asset)
+    logs = []
+    for stage in config.lm_stages:
+        t0 = time.perf_counter()
+        with torch.no_grad():
+            start = float(objective(stage.free).total)
+        problem = _LandmarkLeastSquares(state, term, config, stage.free, identity, weights, expressions64)
+        low, high = problem.bounds()
+        settings = replace(config.lm, max_iterations=stage.iterations)
+        result = levenberg_marquardt(problem, problem.pack(), lower=low, upper=high, settings=settings,
+                                     prepare=problem.prepare)
+        problem.write(result.x)
+        state._basis = None  # the rest shape or weights may have changed
+        with torch.no_grad():
+            end = objective(stage.free)
+        if progress is not None:
+            progress(stage.name, stage.iterations, stage.iterations)
+        logs.append(StageLog(name=stage.name, free=stage.free, iterations=result.iterations, loss_start=start,
+                             loss_end=float(end.total), terms={k: float(v) for k, v in end.terms.items()},
+                             metrics={"lm_cost": result.cost, "lm_converged": result.converged,
+                                      "lm_costs": [round(c, 4) for c in result.costs]},
+                             seconds=time.perf_counter() - t0))
+    return tuple(logs)
 
 
 def _landmark_result(state: PhotoState, term: LandmarkTerm, lm: np.ndarray, width: int, height: int,

@@ -154,7 +154,8 @@ def _short_config(**kw):
 
     base = FitPhotoConfig()
     return FitPhotoConfig(landmarks=replace(base.landmarks, stages=landmark_schedule(20, 20, 30, 10, 30, 20)),
-                          photometric=replace(base.photometric, stages=photo_schedule(8, 8, 0, 8, 0), render_size=64, **kw))
+                          photometric=replace(base.photometric, enabled=True, stages=photo_schedule(8, 8, 0, 8, 0),
+                                              render_size=64, **kw))
 
 
 @pytest.fixture(scope="module")

@@ -1,0 +1,270 @@
+"""An identity prior learned from data: where the joints of real-looking heads are (issue 14).
+
+JNR regularises a fit by L_m (eq. 4), a pull of every joint channel towards the rest pose with one
+weight: a photo can then move any joint as cheaply as any other, whatever faces actually do. Here the
+rig is fitted to the synthetic training population instead (known correspondence, the heads
+similarity-normalised onto the template, :func:`fit_population_joints`), and the distribution of the
+fitted joint channels becomes the prior: a **probabilistic PCA** Gaussian (Tipping & Bishop 1999) in
+range-normalised units ``u = theta / span`` (each channel over its range, so degrees, millimetres and
+scale factors are comparable),
+
+    Sigma = W W^T + sigma^2 I,      W = U_k (Lambda_k - sigma^2 I)^(1/2),
+
+with the ``k`` leading principal directions ``U_k`` of the fitted parameters, their variances
+``Lambda_k``, and ``sigma^2`` the mean of the discarded variances. ``k`` is chosen by five-fold
+cross-validated log-likelihood on the training fits (:func:`build_identity_prior`). The fit's prior term
+is the negative log-density up to a constant, ``0.5 (u - mu)^T Sigma^-1 (u - mu)``, written as the
+squared norm of whitened residuals ``r = L^T (u - mu)`` with ``L L^T = Sigma^-1``
+(:meth:`IdentityPrior.whiten`), so a least-squares solver can use it as rows of its residual vector.
+
+The committed prior is ``rig/assets/jnr_identity_prior_v<version>.npz``, made by
+``jnr train --identity-prior`` (:func:`train_identity_prior`).
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass
+from functools import cached_property
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from rig.lbs import ShapeError
+from rig.optim import Progress
+from rig.parameters import NUM_PARAMETERS
+
+PRIOR_COMPONENTS = (2, 4, 8, 16, 32, 48, 64, 80, 96)
+"""The ranks tried by the cross-validation of :func:`build_identity_prior`."""
+
+
+def default_identity_prior_path() -> Path:
+    """The committed prior (``rig/assets/jnr_identity_prior_v<template version>.npz``)."""
+    from rig.asset import ASSET_DIR, TEMPLATE_VERSION
+
+    return ASSET_DIR / f"jnr_identity_prior_v{TEMPLATE_VERSION}.npz"
+
+
+@dataclass(frozen=True)
+class IdentityPrior:
+    """A Gaussian over range-normalised joint channels ``u = theta / span`` (module docstring).
+
+    Attributes:
+        mean: ``(P,)`` mean of ``u``.
+        components: ``(k, P)`` orthonormal principal directions.
+        variances: ``(k,)`` their variances (``> noise``).
+        noise: ``sigma^2``, the isotropic variance of every other direction.
+        span: ``(P,)`` each channel's range (deg, mm, scale), the unit of ``u``.
+        meta: how it was made (heads, seconds, the cross-validation table).
+    """
+
+    mean: np.ndarray
+    components: np.ndarray
+    variances: np.ndarray
+    noise: float
+    span: np.ndarray
+    meta: dict
+
+    @property
+    def rank(self) -> int:
+        return int(len(self.variances))
+
+    @property
+    def mean_theta(self) -> np.ndarray:
+        """``(P,)`` the mean in joint units (deg, mm, ``scale - 1``)."""
+        return self.mean * self.span
+
+    @cached_property
+    def whitening_matrix(self) -> np.ndarray:
+        """:meth:`whitening`, computed once."""
+        return self.whitening()
+
+    def whitening(self) -> np.ndarray:
+        """``(P, P)`` matrix ``M`` with ``|M (u - mean)|^2 = (u - mean)^T Sigma^-1 (u - mean)``.
+
+        ``Sigma^-1 = I / sigma^2 - U_k diag(1/sigma^2 - 1/lambda) U_k^T``, so
+        ``M = I / sigma - U_k diag(1/sigma - 1/sqrt(lambda)) U_k^T`` (symmetric; its square is the precision).
+        """
+        s = np.sqrt(self.noise)
+        shrink = 1.0 / s - 1.0 / np.sqrt(self.variances)
+        return np.eye(len(self.mean)) / s - (self.components.T * shrink) @ self.components
+
+    def whiten(self, theta_n: torch.Tensor) -> torch.Tensor:
+        """Whitened residuals ``(..., P)`` of normalised channels ``theta_n (..., P)`` (``theta / span``): half
+        their squared norm is the negative log-density up to a constant."""
+        m = torch.as_tensor(self.whitening_matrix, dtype=theta_n.dtype)
+        mu = torch.as_tensor(self.mean, dtype=theta_n.dtype)
+        return (theta_n - mu) @ m.T
+
+    def log_likelihood(self, theta: np.ndarray) -> np.ndarray:
+        """``(N,)`` Gaussian log-density of joint channels ``theta (N, P)`` (deg, mm, ``scale - 1``)."""
+        u = np.asarray(theta, np.float64) / self.span
+        r = (u - self.mean) @ self.whitening().T
+        p = len(self.mean)
+        logdet = np.log(self.variances).sum() + (p - self.rank) * np.log(self.noise)
+        return -0.5 * ((r * r).sum(-1) + logdet + p * np.log(2 * np.pi))
+
+    def sample(self, rng: np.random.Generator, n: int) -> np.ndarray:
+        """``(n, P)`` joint channels (deg, mm, ``scale - 1``) drawn from the prior."""
+        k, p = self.rank, len(self.mean)
+        coeff = rng.standard_normal((n, k)) * np.sqrt(self.variances - self.noise)
+        u = self.mean + coeff @ self.components + np.sqrt(self.noise) * rng.standard_normal((n, p))
+        return u * self.span
+
+    def save(self, path: str | Path) -> None:
+        """Write the prior as one ``.npz`` of named float64 arrays (atomic)."""
+        from rig.asset import write_npz_atomic
+
+        write_npz_atomic(path, {"mean": self.mean, "components": self.components, "variances": self.variances,
+                                "noise": np.array(self.noise), "span": self.span,
+                                "meta_json": np.array(json.dumps(self.meta))})
+
+
+def load_identity_prior(path: str | Path | None = None) -> IdentityPrior:
+    """Read a prior written by :meth:`IdentityPrior.save` (default: :func:`default_identity_prior_path`).
+
+    Raises:
+        rig.asset.AssetError: the file is missing or does not match the rig's parameters.
+    """
+    from rig.asset import AssetError
+
+    path = Path(path) if path else default_identity_prior_path()
+    if not path.is_file():
+        raise AssetError(f"identity prior not found: {path} (make it with `jnr train --identity-prior`)")
+    with np.load(path, allow_pickle=False) as data:
+        prior = IdentityPrior(mean=data["mean"], components=data["components"], variances=data["variances"],
+                              noise=float(data["noise"]), span=data["span"], meta=json.loads(str(data["meta_json"])))
+    if prior.mean.shape != (NUM_PARAMETERS,) or prior.components.shape[1:] != (NUM_PARAMETERS,):
+        raise AssetError(f"{path} has {prior.mean.shape[0]} joint channels, the rig {NUM_PARAMETERS}; rebuild it")
+    return prior
+
+
+def _ppca(u: np.ndarray, k: int, floor: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    mean = u.mean(0)
+    _, s, vt = np.linalg.svd(u - mean, full_matrices=True)
+    n, p = u.shape
+    eig = np.zeros(p)
+    eig[:len(s)] = s * s / max(n - 1, 1)
+    k = min(k, n - 1, p - 1)
+    noise = max(float(eig[k:].mean()), floor)
+    keep = eig[:k] > noise
+    return mean, vt[:k][keep], eig[:k][keep], noise
+
+
+def build_identity_prior(theta: np.ndarray, span: np.ndarray, *, components: tuple[int, ...] = PRIOR_COMPONENTS,
+                         folds: int = 5, seed: int = 0, noise_floor: float = 1e-4, meta: dict | None = None
+                         ) -> IdentityPrior:
+    """The PPCA prior of fitted joint channels, its rank chosen by cross-validated log-likelihood.
+
+    Args:
+        theta: ``(N, P)`` fitted joint channels of training heads (deg, mm, ``scale - 1``), ``N >= 2 folds``.
+        span: ``(P,)`` the channels' ranges (:func:`rig.skinning.joint_fit.parameter_span`).
+        components: ranks to try. folds: cross-validation folds. seed: of the fold split.
+        noise_floor: the least isotropic variance (in ``u`` units^2), so channels that never moved in
+            training stay movable.
+        meta: recorded with the prior (the cross-validation table is added).
+
+    Returns:
+        :class:`IdentityPrior` fitted on all of ``theta`` with the best rank.
+    """
+    theta = np.asarray(theta, np.float64)
+    span = np.asarray(span, np.float64)
+    if theta.ndim != 2 or theta.shape[1] != span.shape[0]:
+        raise ShapeError(f"build_identity_prior: theta must be (N, {span.shape[0]}), got {theta.shape}")
+    if len(theta) < 2 * folds:
+        raise ValueError(f"build_identity_prior: need at least {2 * folds} heads for {folds}-fold validation, "
+                         f"got {len(theta)}")
+    u = theta / span
+    order = np.random.default_rng(seed).permutation(len(u))
+    table = {}
+    for k in components:
+        if k >= len(u) * (folds - 1) // folds:
+            continue
+        ll = []
+        for f in range(folds):
+            test = order[f::folds]
+            train = np.setdiff1d(order, test)
+            mean, comp, var, noise = _ppca(u[train], k, noise_floor)
+            prior = IdentityPrior(mean, comp, var, noise, np.ones_like(span), {})
+            ll.append(prior.log_likelihood(u[test]).mean())
+        table[k] = float(np.mean(ll))
+    best = max(table, key=table.get)
+    mean, comp, var, noise = _ppca(u, best, noise_floor)
+    return IdentityPrior(mean, comp, var, noise, span,
+                         {**(meta or {}), "rank": int(len(var)), "heads": int(len(u)),
+                          "cv_log_likelihood": {str(k): v for k, v in table.items()}})
+
+
+def clip_to_limits(theta: np.ndarray) -> np.ndarray:
+    """Joint channels ``(N, P)`` clipped into the rig's limits: the known-correspondence fits keep them there
+    by a soft penalty only (5 % of the values fall outside, the ears' translations by up to 4 mm), while
+    the photo fit projects into the limits, so the prior describes what a photo fit can reach."""
+    from rig.parameters import theta_limits
+
+    low, high = (t.numpy() for t in theta_limits(torch.float64))
+    return np.clip(np.asarray(theta, np.float64), low, high)
+
+
+def fit_population_joints(vertices: np.ndarray, *, iterations: int = 400, chunk: int = 32,
+                          progress: Progress | None = None) -> np.ndarray:
+    """Joint channels of heads in the template's topology (known correspondence).
+
+    Each head is similarity-normalised onto the template (:func:`pipeline.synthetic.population.similarity_normalised`:
+    a photo or scan fit has its own pose and scale), then fitted by eq. 7 with the learned linear weights
+    (:func:`rig.skinning.joint_fit.fit_joints`; the latent Z adds 0.02 mm here, see ``jnr eval capacity``).
+
+    Args:
+        vertices: ``(N, V, 3)`` heads, mm.
+        iterations: Adam steps per head. chunk: heads per batch.
+
+    Returns:
+        ``(N, P)`` float64 joint channels (deg, mm, ``scale - 1``).
+    """
+    from pipeline.synthetic.population import similarity_normalised
+    from rig.model import JointRig
+    from rig.skinning.joint_fit import fit_joints
+    from rig.skinning.neural import load_neural
+
+    rig = JointRig()
+    neural, _ = load_neural(rig)
+    weights = neural.linear_weights().detach()
+    targets = torch.as_tensor(similarity_normalised(vertices, rig.asset.vertices), dtype=rig.template.dtype)
+    out = []
+    for start in range(0, len(targets), chunk):
+        out.append(fit_joints(rig, targets[start:start + chunk], weights=weights, iterations=iterations).theta)
+        if progress is not None:
+            progress("identity prior: joints", min(start + chunk, len(targets)), len(targets))
+    return torch.cat(out).double().numpy()
+
+
+def train_identity_prior(out_path: str | Path | None = None, *, seed: int = 0, extra_heads: int = 215,
+                         iterations: int = 400, progress: Progress | None = None) -> IdentityPrior:
+    """Fit the training population's joints and write the prior (``jnr train --identity-prior``).
+
+    The heads: the 85 of the ``train`` split plus ``extra_heads`` more drawn from the same (unshifted)
+    distribution with seeds of their own stream (never the ``val``, ``test`` or ``heldout`` seeds).
+    """
+    from pipeline.synthetic.population import population_split, sample_head, split_seeds, synthesize_heads
+    from rig.skinning.joint_fit import parameter_span
+
+    t0 = time.perf_counter()
+    train = population_split("train", seed=seed)
+    vertices = [train.vertices]
+    if extra_heads:
+        used = set().union(*(set(split_seeds(s, seed).tolist()) for s in ("train", "val", "test", "heldout")))
+        ss = np.random.SeedSequence([seed, 0x1D_E7_17])
+        seeds = [int(s) for s in ss.generate_state(extra_heads + 16, dtype=np.uint32) if int(s) not in used]
+        drawn = [sample_head(s) for s in seeds[:extra_heads]]
+        vertices.append(synthesize_heads(np.stack([d[1] for d in drawn]), np.stack([d[0] for d in drawn])))
+    vertices = np.concatenate(vertices)
+    theta = fit_population_joints(vertices, iterations=iterations, progress=progress)
+    prior = build_identity_prior(clip_to_limits(theta), parameter_span(torch.float64).numpy(),
+                                 meta={"seed": seed, "train_heads": int(len(train.vertices)),
+                                       "extra_heads": int(extra_heads), "iterations": iterations})
+    prior = IdentityPrior(prior.mean, prior.components, prior.variances, prior.noise, prior.span,
+                          {**prior.meta, "seconds": round(time.perf_counter() - t0, 1)})
+    prior.save(out_path or default_identity_prior_path())
+    return prior
+
