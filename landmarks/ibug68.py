@@ -675,6 +675,17 @@ def _contour_lines(asset: RigAsset, faces: np.ndarray, corrected: bool = True) -
     return _build_lines(_contour(asset) if corrected else _contour_heuristic(asset), faces)
 
 
+def contour_support_ids(asset: RigAsset | None = None, *, corrected: bool = True) -> np.ndarray:
+    """``(N,)`` sorted ids of the vertices :func:`contour_vertex_ids` reads (the candidates, their incident
+    faces' corners, and the fallback vertices): a fit that only skins these can pick the contour."""
+    asset = load_asset() if asset is None else asset
+    faces = np.asarray(asset.faces, np.int64)
+    lines = _contour_lines(asset, faces, corrected)
+    data = _contour(asset) if corrected else _contour_heuristic(asset)
+    return np.unique(np.concatenate([np.asarray(lines.faces, np.int64).ravel(), np.asarray(lines.vertices, np.int64),
+                                     np.asarray(data.vertex_ids, np.int64)]))
+
+
 def contour_landmarks(vertices: torch.Tensor, faces, camera_center, asset: RigAsset | None = None, *,
                       corrected: bool = True) -> torch.Tensor:
     """Dynamic jaw contour (landmarks 0-16) as seen from a camera, for turned heads.

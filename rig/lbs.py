@@ -218,3 +218,31 @@ __all__ = [
     "skin_with_basis",
     "skinning_basis",
 ]
+
+
+def skin_vertices_shared_weights(vertices: torch.Tensor, weights: torch.Tensor, skinning: torch.Tensor) -> torch.Tensor:
+    """Linear blend skinning of a few vertices with one set of weights for a large batch of poses.
+
+    The per-vertex blended transforms ``M_v = sum_k w_vk A_k`` are one matrix product
+    ``(V, K) @ (K, B * 12)``, then ``v' = M_v [v, 1]``: for ``B`` in the hundreds and ``V`` in the hundreds
+    this is several times faster than :func:`skin_vertices`, which builds a ``(B, V, 4K)`` basis.
+
+    Args:
+        vertices: ``(V, 3)`` or ``(B, V, 3)`` rest vertices, mm.
+        weights: ``(V, K)`` skinning weights, shared by the batch.
+        skinning: ``(B, K, 4, 4)`` skinning transforms.
+
+    Returns:
+        ``(B, V, 3)`` posed vertices, mm (equal to :func:`skin_vertices`).
+    """
+    check_shape(skinning.dim() == 4 and skinning.shape[-2:] == (4, 4), "skin_vertices_shared_weights", "skinning",
+                "(B, K, 4, 4)", tuple(skinning.shape))
+    batch, K = skinning.shape[:2]
+    check_shape(weights.dim() == 2 and weights.shape[1] == K, "skin_vertices_shared_weights", "weights",
+                f"(V, {K})", tuple(weights.shape))
+    check_shape(vertices.shape[-1] == 3 and vertices.shape[-2] == weights.shape[0] and vertices.dim() in (2, 3),
+                "skin_vertices_shared_weights", "vertices", f"(V, 3) or (B, V, 3) with V = {weights.shape[0]}",
+                tuple(vertices.shape))
+    top = skinning[:, :, :3, :].permute(1, 0, 2, 3).reshape(K, batch * 12)
+    blended = (weights.to(top.dtype) @ top).view(-1, batch, 3, 4).transpose(0, 1)  # (B, V, 3, 4)
+    return (blended[..., :3] @ vertices.unsqueeze(-1)).squeeze(-1) + blended[..., 3]

@@ -157,7 +157,16 @@ def pose_error_deg(fitted: np.ndarray, rotation: np.ndarray, translation: np.nda
         fitted, truth: ``(V, 3)`` rig-space heads, mm; rotation/translation and true_rotation/true_translation:
             their head poses (:mod:`pipeline.photo.camera`).
     """
-    from rig.geometry import RIG_TO_OPENCV
+    return pose_error_angles(fitted, rotation, translation, truth, true_rotation, true_translation, asset)[0]
+
+
+def pose_error_angles(fitted: np.ndarray, rotation: np.ndarray, translation: np.ndarray, truth: np.ndarray,
+                      true_rotation: np.ndarray, true_translation: np.ndarray, asset=None
+                      ) -> tuple[float, float, float, float]:
+    """:func:`pose_error_deg` and the signed ``(yaw, pitch, roll)`` (deg, :func:`rig.geometry.head_angles`'
+    convention, in the camera's axes) of the rotation that corrects the fitted face: positive pitch means
+    the true face is tipped further down than the fitted one."""
+    from rig.geometry import RIG_TO_OPENCV, head_angles
 
     asset = load_asset() if asset is None else asset
     face = asset.region_mask(*FACE_REGIONS)
@@ -167,7 +176,8 @@ def pose_error_deg(fitted: np.ndarray, rotation: np.ndarray, translation: np.nda
     u, _, vt = np.linalg.svd(a.T @ b)
     d = np.sign(np.linalg.det(u @ vt))
     r = (u @ np.diag([1.0, 1.0, d]) @ vt).T
-    return float(np.degrees(np.arccos(np.clip((np.trace(r) - 1.0) / 2.0, -1.0, 1.0))))
+    angle = float(np.degrees(np.arccos(np.clip((np.trace(r) - 1.0) / 2.0, -1.0, 1.0))))
+    return (angle, *head_angles(RIG_TO_OPENCV.T @ r @ RIG_TO_OPENCV))
 
 
 def face_error(fitted: np.ndarray, truth: np.ndarray, asset=None) -> dict:

@@ -191,13 +191,14 @@ class PhotoState(FitState):
         translation: ``(3,)`` head position in the camera frame, mm.
 
     Extra parameters: ``translation (3,)`` mm (group ``pose``); ``albedo (V, 3)`` linear RGB (group
-    ``albedo``), ``ambient (3,)`` and ``irradiance (3,)`` (group ``light``), set by :meth:`add_appearance`.
+    ``albedo``), ``ambient (3,)``, ``irradiance (3,)`` and ``sh (9, 3)`` (group ``light``), set by
+    :meth:`add_appearance`.
     """
 
     GROUPS: ClassVar[dict[str, tuple[tuple[str, str], ...]]] = {**FitState.GROUPS,
               "pose": (("rotvec", "rotation"), ("translation", "translation")),
               "albedo": (("albedo", "albedo"),),
-              "light": (("ambient", "light"), ("irradiance", "light"))}
+              "light": (("ambient", "light"), ("irradiance", "light"), ("sh", "light"))}
 
     def __init__(self, rig: JointRig, neural: NeuralSkinning | None, expressions: ExpressionModel,
                  rotation: np.ndarray, translation: np.ndarray) -> None:
@@ -205,11 +206,14 @@ class PhotoState(FitState):
         self.register_buffer("flip", torch.tensor(RIG_TO_OPENCV, dtype=self.dtype))
         self.translation = nn.Parameter(torch.tensor(translation, dtype=self.dtype))
 
-    def add_appearance(self, albedo: torch.Tensor, ambient: torch.Tensor, irradiance: torch.Tensor) -> None:
-        """The photometric parameters: ``albedo (V, 3)``, ``ambient (3,)``, ``irradiance (3,)``, linear RGB."""
+    def add_appearance(self, albedo: torch.Tensor, ambient: torch.Tensor, irradiance: torch.Tensor,
+                       sh: torch.Tensor | None = None) -> None:
+        """The photometric parameters: ``albedo (V, 3)``, ``ambient (3,)``, ``irradiance (3,)``, linear RGB, and
+        the spherical-harmonic light ``sh (9, 3)`` (zeros by default; used by the ``sh`` light model only)."""
         self.albedo = nn.Parameter(albedo.detach().clone())
         self.ambient = nn.Parameter(ambient.detach().clone())
         self.irradiance = nn.Parameter(irradiance.detach().clone())
+        self.sh = nn.Parameter(torch.zeros(9, 3, dtype=albedo.dtype) if sh is None else sh.detach().clone())
 
     def project(self, free: tuple[str, ...]) -> None:
         """Albedo into [0, 1] and the light non-negative, then :meth:`FitState.project`."""

@@ -70,6 +70,7 @@ from rig.skinning.neural import NeuralSkinning, load_neural
 from rig.template import FACE_REGIONS
 
 PHOTO_GROUPS = FREE_GROUPS + ("albedo", "light")
+LIGHT_MODELS = ("directional", "sh")
 
 
 PHOTO_LAMBDA_IDENTITY = 0.03
@@ -164,6 +165,12 @@ class PhotometricConfig:
     lr: PhotoLearningRates = PHOTO_LEARNING_RATES
     prior: PriorWeights = PHOTO_PRIOR
     """The rig priors during the photometric stages (:data:`PHOTO_PRIOR`)."""
+    light_model: str = "directional"
+    """``directional``: ambient + one directional light (:mod:`render.lighting`), its direction re-picked
+    before each stage; ``sh``: second-order spherical harmonics, 9 coefficients per channel on the
+    vertex normals (:mod:`pipeline.photo.sh`), least squares before each stage, then optimised."""
+    sh_ridge: float = 1e-3
+    """Ridge weight of the SH least squares (relative to the design's mean diagonal)."""
     light_directions: int = 64
     """Candidate light directions re-picked before each stage."""
     seed: int = 0
@@ -180,6 +187,8 @@ class PhotometricConfig:
             raise ValueError(f"spp must be >= 1, got {self.spp}")
         if not self.crop_margin >= 0:
             raise ValueError(f"crop_margin must be >= 0, got {self.crop_margin}")
+        if self.light_model not in LIGHT_MODELS:
+            raise ValueError(f"light_model must be one of {list(LIGHT_MODELS)}, got {self.light_model!r}")
         if self.light_directions < 1:
             raise ValueError(f"light_directions must be >= 1, got {self.light_directions}")
         from rig.asset import REGION_NAMES
@@ -397,7 +406,7 @@ def fit_photo(image, landmarks2d, *, focal: float | None = None, config: FitPhot
     state = PhotoState(rig, neural, ExpressionModel(asset, dtype=dtype), lfit.rotation, lfit.translation)
     state.load(lfit.theta, lfit.z, lfit.expressions)
     term = LandmarkTerm(asset, lm, make_camera(width, height, focal, dtype=dtype, pose=False),
-                        config.landmarks.huber_delta_px)
+                        config.landmarks.huber_delta_px, config.landmarks.contour_weight)
     settings = config.photometric
     stages: tuple[StageLog, ...] = ()
     crop = None
@@ -492,6 +501,7 @@ class PhotometricObjective:
         state.add_appearance(self.start_colour.repeat(n_vertices, 1), torch.full((3,), 1.0, dtype=dtype),
                              torch.zeros(3, dtype=dtype))
         self.direction = np.array([0.0, 0.0, 1.0])
+        self.faces = torch.as_tensor(np.asarray(asset.faces, np.int64))
         self.edges = torch.as_tensor(mesh_edges(asset.faces))
         self.mirror = torch.as_tensor(np.asarray(asset.mirror, np.int64))
         self.candidates = hemisphere_directions(settings.light_directions)
@@ -505,7 +515,20 @@ class PhotometricObjective:
     def light(self):
         from render.lighting import Lighting
 
+        if self.settings.light_model == "sh":  # the shading is in the albedo: the renderer only emits it
+            return Lighting(torch.ones(3, dtype=self.dtype), torch.zeros(3, dtype=self.dtype),
+                            torch.as_tensor(self.direction, dtype=self.dtype))
         return Lighting(self.state.ambient, self.state.irradiance, torch.as_tensor(self.direction, dtype=self.dtype))
+
+    def shaded_albedo(self, v_cam: torch.Tensor, albedo: torch.Tensor) -> torch.Tensor:
+        """``(V, 3)`` what the renderer is given as albedo: the albedo itself (directional light), or the albedo
+        times the SH irradiance of each vertex normal (``sh``; differentiable in vertices, albedo and light)."""
+        if self.settings.light_model != "sh":
+            return albedo
+        from pipeline.photo.sh import sh_basis, vertex_normals_torch
+
+        irradiance = sh_basis(vertex_normals_torch(v_cam, self.faces)) @ self.state.sh.to(v_cam.dtype)
+        return albedo * irradiance.clamp_min(0.0)
 
     def residual_norm(self, image: torch.Tensor) -> torch.Tensor:
         return (image - self.target).square().sum(-1)
@@ -522,13 +545,20 @@ class PhotometricObjective:
             flat = self.renderer.render(v_cam, albedo, Lighting(torch.ones(3), torch.zeros(3),
                                                                 torch.as_tensor(self.direction, dtype=dtype)), aovs=True)
             m = self.face_mask(flat.region_ids) > 0
-            self.direction, amb, irr = fit_light(flat.image[m].double().numpy(), flat.normals[m].double().numpy(),
-                                                 self.target[m].double().numpy(), self.candidates)
-            if self.stages_started == 0:
-                state.ambient.copy_(torch.as_tensor(amb, dtype=dtype))
-                state.irradiance.copy_(torch.as_tensor(irr, dtype=dtype))
+            if self.settings.light_model == "sh":
+                from pipeline.photo.sh import fit_sh
+
+                state.sh.copy_(torch.as_tensor(fit_sh(flat.image[m].double().numpy(), flat.normals[m].double().numpy(),
+                                                      self.target[m].double().numpy(), self.settings.sh_ridge),
+                                               dtype=dtype))
+            else:
+                self.direction, amb, irr = fit_light(flat.image[m].double().numpy(), flat.normals[m].double().numpy(),
+                                                     self.target[m].double().numpy(), self.candidates)
+                if self.stages_started == 0:
+                    state.ambient.copy_(torch.as_tensor(amb, dtype=dtype))
+                    state.irradiance.copy_(torch.as_tensor(irr, dtype=dtype))
             self.stages_started += 1
-            shaded = self.renderer.render(v_cam, albedo, self.light(), aovs=True)
+            shaded = self.renderer.render(v_cam, self.shaded_albedo(v_cam, albedo), self.light(), aovs=True)
             m = self.face_mask(shaded.region_ids) > 0
             e = self.residual_norm(shaded.image).sqrt()
             med = e[m].median()
@@ -552,7 +582,7 @@ class PhotometricObjective:
         geometry = tuple(g for g in free if g in FREE_GROUPS)
         v = state.rig_vertices(geometry)
         v_cam = state.to_camera(v, geometry).to(self.dtype)
-        out = self.renderer.render(v_cam, state.albedo, self.light(), aovs=True)
+        out = self.renderer.render(v_cam, self.shaded_albedo(v_cam, state.albedo), self.light(), aovs=True)
         weight = self.face_mask(out.region_ids) * self.inlier
         count = weight.sum().clamp_min(1.0)
         rho = (self.residual_norm(out.image) + s.charbonnier_eps ** 2).sqrt() - s.charbonnier_eps

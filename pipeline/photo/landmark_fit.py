@@ -30,7 +30,7 @@ import torch
 from kornia.geometry.camera import PinholeCamera
 
 from landmarks.ibug68 import contour_landmarks, ibug68_embedding, landmark_positions
-from landmarks.loss import landmark_reprojection_loss, project_points
+from landmarks.loss import CONTOUR_WEIGHT, default_landmark_weights, landmark_reprojection_loss, project_points
 from pipeline.evaluation.metrics import landmark_errors
 from pipeline.fitting.engine import LearningRates, Loss, Stage, StageLog, run_schedule
 from pipeline.fitting.least_squares import LMSettings, levenberg_marquardt
@@ -38,7 +38,7 @@ from pipeline.fitting.priors import PriorWeights, rig_prior_terms
 from pipeline.fitting.state import PhotoState
 from pipeline.photo.camera import default_focal, make_camera, solve_pose
 from rig.expressions import ExpressionModel
-from rig.lbs import ShapeError, skin_vertices
+from rig.lbs import ShapeError, skin_vertices, skin_vertices_shared_weights
 from rig.model import JointRig
 from rig.optim import Progress
 from rig.parameters import NUM_PARAMETERS, mirror_theta
@@ -101,6 +101,9 @@ class LandmarkFitConfig:
     """Weights of the rig priors against the reprojection loss in px^2 (:mod:`pipeline.fitting.priors`)."""
     huber_delta_px: float = 5.0
     """Huber threshold of the reprojection loss, pixels."""
+    contour_weight: float = CONTOUR_WEIGHT
+    """Weight of the 16 jaw-contour landmarks (0-16 but the chin) against 1 for the others: annotators and
+    detectors put the face outline only approximately where the template's silhouette is."""
     use_neural: bool = True
     """Use the neural skinning (learned linear + decoded residual); else the rig's own weights."""
 
@@ -158,8 +161,10 @@ class LandmarkTerm:
         huber_delta_px: Huber threshold, pixels.
     """
 
-    def __init__(self, asset, landmarks2d: np.ndarray, camera: PinholeCamera, huber_delta_px: float) -> None:
+    def __init__(self, asset, landmarks2d: np.ndarray, camera: PinholeCamera, huber_delta_px: float,
+                 contour_weight: float = CONTOUR_WEIGHT) -> None:
         self.asset, self.camera, self.delta = asset, camera, float(huber_delta_px)
+        self.weights = landmark_weights(contour_weight, camera.intrinsics.dtype)
         self.faces = asset.faces
         self.embedding = ibug68_embedding(asset)
         self.target = torch.as_tensor(np.array(landmarks2d, np.float64), dtype=camera.intrinsics.dtype)[None]
@@ -174,13 +179,25 @@ class LandmarkTerm:
         """Scalar loss, px^2 (:func:`landmarks.loss.landmark_reprojection_loss`)."""
         points = model.to_camera(self.points3d(model, v), free)
         return landmark_reprojection_loss(points[None], self.target.to(points.dtype), self.camera,
-                                          delta_px=self.delta)[0]
+                                          weights=self.weights.to(points.dtype), delta_px=self.delta)[0]
 
     def project(self, model: PhotoState, v: torch.Tensor) -> np.ndarray:
         """``(68, 2)`` float64 pixels of the model's landmarks."""
         with torch.no_grad():
             points = model.to_camera(self.points3d(model, v))
             return project_points(points[None], self.camera)[0].double().numpy()
+
+
+def landmark_weights(contour_weight: float = CONTOUR_WEIGHT, dtype: torch.dtype = torch.float32) -> torch.Tensor:
+    """``(68,)`` weights of the landmark term: 1, ``contour_weight`` for the jaw contour, the chin (8)
+    :data:`landmarks.loss.CONTOUR_WEIGHT` whatever ``contour_weight`` (a static landmark, not a silhouette)."""
+    from landmarks.ibug68 import CHIN, JAW_CONTOUR
+
+    if not contour_weight >= 0:
+        raise ValueError(f"contour_weight must be >= 0, got {contour_weight}")
+    w = default_landmark_weights(dtype).clone()
+    w[[i for i in JAW_CONTOUR if i != CHIN]] = float(contour_weight)
+    return w
 
 
 def check_landmarks_2d_shape(landmarks2d, function: str = "fit_landmarks") -> np.ndarray:
@@ -238,7 +255,7 @@ def fit_landmarks(landmarks2d, width: int, height: int, *, focal: float | None =
     with torch.no_grad():
         weights0 = neural(torch.zeros(1, LATENT, dtype=dtype))[0] if neural is not None else None
         start = rig(torch.zeros(1, NUM_PARAMETERS, dtype=dtype), weights=weights0).vertices[0]
-    term = LandmarkTerm(asset, lm, intrinsic_camera, config.huber_delta_px)
+    term = LandmarkTerm(asset, lm, intrinsic_camera, config.huber_delta_px, config.contour_weight)
     model_points = landmark_positions(start.double().numpy(), term.embedding, term.faces)[0]
     rotation0, translation0 = solve_pose(lm, model_points, width, height, focal)
     state = PhotoState(rig, neural, ExpressionModel(asset, dtype=dtype), rotation0, translation0)
@@ -250,7 +267,7 @@ def fit_landmarks(landmarks2d, width: int, height: int, *, focal: float | None =
 
 
     if config.solver == "lm":
-        stages = _run_lm(state, term, config, objective, progress)
+        stages = _run_lm(state, term, config, objective, progress, weights0)
     else:
         stages = run_schedule(state, config.stages, objective, config.lr, label="fit_landmarks", progress=progress)
     return _landmark_result(state, term, lm, width, height, focal, stages, t_start)
@@ -273,7 +290,6 @@ class _LandmarkLeastSquares:
     def __init__(self, state: PhotoState, term: LandmarkTerm, config: LandmarkFitConfig, free: tuple[str, ...],
                  identity, weights: torch.Tensor, expressions64: ExpressionModel) -> None:
         from landmarks.ibug68 import CHIN
-        from landmarks.loss import default_landmark_weights
 
         f64 = torch.float64
         self.state, self.term, self.config, self.free = state, term, config, free
@@ -282,7 +298,7 @@ class _LandmarkLeastSquares:
         self.focal = cam[[0, 1], [0, 1]]
         self.centre = cam[[0, 1], [2, 2]]
         self.target = term.target[0].to(f64)
-        base = default_landmark_weights(f64)
+        base = term.weights.to(f64)
         self.base_w = base / base.sum()
         self.robust = torch.ones(68, dtype=f64)
         self.l1 = torch.ones(NUM_PARAMETERS, dtype=f64)
@@ -298,6 +314,9 @@ class _LandmarkLeastSquares:
             self.mu = torch.as_tensor(identity.mean, dtype=f64)
         self.sizes = {"pose": 6, "joints": NUM_PARAMETERS, "expressions": state.c.numel()}
         self.prepared, self.contour = 0, None
+        self._rest: torch.Tensor | None = None
+        self._skinning: torch.Tensor | None = None
+        self.support_ids = _support_ids(term.asset)
         with torch.no_grad():
             self.fixed = {"pose": torch.cat([state.rotvec, state.translation]).double(),
                           "joints": state.theta_n.double(), "expressions": state.c.double()}
@@ -345,10 +364,12 @@ class _LandmarkLeastSquares:
         p = self.unpack(x[None])
         self.prepared += 1
         if self.prepared <= CONTOUR_UPDATES or self.contour is None:
-            with torch.no_grad():
-                rest = s.models.expressions.vertices(p["expressions"].float())[0]
-                _, skinning = s.rig.joint_transforms((p["joints"] * self.span).float())
-                v = skin_vertices(rest, self.weights.float(), skinning)[0]
+            with torch.no_grad():  # only the vertices the contour's pick reads are skinned
+                ids = self.support_ids
+                rest = self.expressions.template[ids] + self.expressions(p["expressions"], ids)[0]
+                _, skinning = s.rig.joint_transforms(p["joints"] * self.span)
+                v = torch.zeros(len(self.expressions.template), 3, dtype=torch.float64)
+                v[ids] = skin_vertices_shared_weights(rest, self.weights[ids], skinning)[0]
                 self.contour = contour_vertex_ids(v, self.term.faces, s.camera_center(), self.term.asset)
         contour = self.contour
         ids = self.static_ids.clone()
@@ -358,6 +379,7 @@ class _LandmarkLeastSquares:
                 ids[k] = contour[k]
                 bary[k] = torch.tensor([1.0, 0.0, 0.0], dtype=torch.float64)
         self.vertex_ids, inverse = torch.unique(ids.reshape(-1), return_inverse=True)
+        self._rest = None
         self.local_ids = inverse.reshape(68, 3)
         self.bary = bary
         self.rest_weights = self.weights[self.vertex_ids]
@@ -373,11 +395,27 @@ class _LandmarkLeastSquares:
         from kornia.geometry.conversions import axis_angle_to_rotation_matrix
 
         p = self.unpack(x)
-        c = p["expressions"]
-        rest = self.expressions.template[self.vertex_ids] + self.expressions(c, self.vertex_ids)  # (B, U, 3)
-        _, skinning = self.state.rig.joint_transforms(p["joints"] * self.span)
-        weights = self.rest_weights[None].expand(x.shape[0], -1, -1)
-        posed = skin_vertices(rest, weights, skinning)  # (B, U, 3)
+        batch = x.shape[0]
+        # groups the stage does not move are the same in every row: computed once per stage (the rest
+        # shape once per contour pick, which changes the vertices)
+        if "expressions" in self.free:
+            rest = self.expressions.template[self.vertex_ids] + self.expressions(p["expressions"], self.vertex_ids)
+        else:
+            if self._rest is None:
+                self._rest = (self.expressions.template[self.vertex_ids]
+                              + self.expressions(p["expressions"][:1], self.vertex_ids))
+            rest = self._rest  # (1, U, 3)
+        if "joints" in self.free:
+            _, skinning = self.state.rig.joint_transforms(p["joints"] * self.span)
+        else:
+            if self._skinning is None:
+                self._skinning = self.state.rig.joint_transforms(p["joints"][:1] * self.span)[1]
+            skinning = self._skinning
+        if skinning.shape[0] != batch:
+            skinning = skinning.expand(batch, -1, -1, -1)
+        if rest.shape[0] != batch:
+            rest = rest.expand(batch, -1, -1)
+        posed = skin_vertices_shared_weights(rest, self.rest_weights, skinning)  # (B, U, 3)
         points = (posed[:, self.local_ids] * self.bary[..., None]).sum(2)  # (B, 68, 3)
         rotation = axis_angle_to_rotation_matrix(p["pose"][:, :3])  # (B, 3, 3)
         cam = points @ (self.flip @ rotation).transpose(1, 2) + p["pose"][:, None, 3:]
@@ -401,6 +439,18 @@ class _LandmarkLeastSquares:
         return torch.cat(rows, dim=1)
 
 
+_SUPPORT: dict[int, torch.Tensor] = {}
+
+
+def _support_ids(asset) -> torch.Tensor:
+    from landmarks.ibug68 import contour_support_ids
+
+    if id(asset) not in _SUPPORT:
+        _SUPPORT.clear()
+        _SUPPORT[id(asset)] = torch.as_tensor(contour_support_ids(asset), dtype=torch.long)
+    return _SUPPORT[id(asset)]
+
+
 _EXPRESSIONS64: dict[int, ExpressionModel] = {}
 
 
@@ -412,20 +462,22 @@ def _expressions64(asset) -> ExpressionModel:
 
 
 def _run_lm(state: PhotoState, term: LandmarkTerm, config: LandmarkFitConfig, objective,
-            progress: Progress | None) -> tuple[StageLog, ...]:
+            progress: Progress | None, weights: torch.Tensor | None = None) -> tuple[StageLog, ...]:
     """Each stage of ``config.lm_stages`` by Levenberg-Marquardt; logs every term of ``objective`` (the
     Adam objective) at each stage's start and end, so both solvers report the same figures."""
     from pipeline.fitting.priors import cached_identity_prior
 
     identity = cached_identity_prior() if config.prior.lambda_identity else None
-    with torch.no_grad():
-        weights = state.weights().double()
+    with torch.no_grad():  # the skinning weights of the state's latent (given: those of Z = 0, already decoded)
+        weights = (state.weights() if weights is None else weights).double()
     expressions64 = _expressions64(state.rig.asset)
     logs = []
+    start = None
     for stage in config.lm_stages:
         t0 = time.perf_counter()
-        with torch.no_grad():
-            start = float(objective(stage.free).total)
+        if start is None:  # later stages start where the previous one ended
+            with torch.no_grad():
+                start = float(objective(stage.free).total)
         problem = _LandmarkLeastSquares(state, term, config, stage.free, identity, weights, expressions64)
         low, high = problem.bounds()
         settings = replace(config.lm, max_iterations=stage.iterations)
@@ -442,6 +494,7 @@ def _run_lm(state: PhotoState, term: LandmarkTerm, config: LandmarkFitConfig, ob
                              metrics={"lm_cost": result.cost, "lm_converged": result.converged,
                                       "lm_costs": [round(c, 4) for c in result.costs]},
                              seconds=time.perf_counter() - t0))
+        start = float(end.total)
     return tuple(logs)
 
 

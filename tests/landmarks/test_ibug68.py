@@ -278,3 +278,25 @@ def test_contour_checks_shapes(asset):
         contour_landmarks(torch.tensor(asset.vertices), asset.faces, [0.0, 1.0], asset)
     with pytest.raises(ShapeError, match="vertices"):
         contour_landmarks(asset.vertices, asset.faces, [0.0, 0.0, 600.0], asset)
+
+
+def test_contour_picks_need_only_the_support_vertices():
+    """``contour_support_ids`` lists every vertex the pick reads: a mesh with only those filled in picks the same."""
+    import torch as _torch
+
+    from landmarks.ibug68 import contour_support_ids, contour_vertex_ids
+    from rig.asset import load_asset
+    from rig.geometry import head_rotation
+    from rig.model import JointRig
+    from rig.parameters import random_theta
+
+    asset = load_asset()
+    support = contour_support_ids(asset)
+    assert 0 < len(support) < len(asset.vertices) // 2
+    v = JointRig(dtype=_torch.float64)(random_theta(_torch.Generator().manual_seed(2), 1, spread=0.4,
+                                                    dtype=_torch.float64)).vertices[0].numpy()
+    only = np.zeros_like(v)
+    only[support] = v[support]
+    for yaw in (-35.0, 0.0, 25.0):
+        centre = head_rotation(yaw, 5.0, 0.0).T @ np.array([0.0, 0.0, 650.0])
+        assert contour_vertex_ids(only, asset.faces, centre, asset) == contour_vertex_ids(v, asset.faces, centre, asset)

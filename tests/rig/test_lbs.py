@@ -9,6 +9,7 @@ from rig.lbs import (
     joint_world_transforms,
     local_transforms,
     skin_vertices,
+    skin_vertices_shared_weights,
 )
 from rig.parameters import NUM_PARAMETERS, random_theta
 
@@ -74,6 +75,27 @@ def test_lbs_equals_naive_per_vertex_loop(rig64, asset):
                 acc += W[i, k] * (A[b, k, :3, :3] @ V[i] + A[b, k, :3, 3])
             expected[i] = acc
         assert np.abs(out.vertices[b].numpy() - expected).max() < 1e-9
+
+
+def test_shared_weights_skinning_equals_naive_loop(rig64, asset):
+    """The blended-transform path (one weight set, many poses, per-row rest vertices) against a per-vertex loop."""
+    gen = torch.Generator().manual_seed(9)
+    theta = random_theta(gen, 5, spread=0.5, dtype=torch.float64)
+    A = rig64.joint_transforms(theta)[1]
+    ids = np.arange(0, len(asset.vertices), 37)
+    rest = torch.as_tensor(asset.vertices[ids])[None] + torch.randn(5, len(ids), 3, generator=gen, dtype=torch.float64)
+    W = torch.as_tensor(asset.weights[ids])
+    out = skin_vertices_shared_weights(rest, W, A).numpy()
+    An, Wn, Rn = A.numpy(), W.numpy(), rest.numpy()
+    for b in range(5):
+        for i in range(len(ids)):
+            expected = sum(Wn[i, k] * (An[b, k, :3, :3] @ Rn[b, i] + An[b, k, :3, 3]) for k in np.flatnonzero(Wn[i]))
+            assert np.abs(out[b, i] - expected).max() < 1e-9
+    # one rest shape for the whole batch, and the same result as skin_vertices
+    np.testing.assert_allclose(skin_vertices_shared_weights(rest[0], W, A).numpy(),
+                               skin_vertices(rest[0], W, A).numpy(), atol=1e-9)
+    with pytest.raises(ShapeError, match="weights"):
+        skin_vertices_shared_weights(rest[0], W[:, :5], A)
 
 
 def test_skin_vertices_shapes_and_errors():

@@ -1,0 +1,94 @@
+"""Choose the weight of the identity prior in the photo fit on synthetic validation photos.
+
+    .venv/bin/python benchmarks/tune_photo_prior.py [--heads 6] [--weights 0.01 0.03 0.1 0.3 1]
+                                                   [--adam] [--json FILE]
+
+Validation photos: held-out heads 0..heads-1, neutral and expressive (the photo benchmark and the README's
+table use heads 20 on), rendered as in ``benchmarks/bench_fit_photo.py`` (path tracing, point light +
+environment, random skin and background, 1 px landmark noise, true focal). For each weight of
+``landmarks.prior.lambda_identity`` the landmark fit (Levenberg-Marquardt, the default) is scored
+NoW-style (pipeline.evaluation.photos): s2m median over the face region, true vertex error, the
+camera-frame pose error; also the previous prior (L_m = 100 towards the template) with LM and, with
+``--adam``, with JNR's Adam schedule. Printed: per weight the mean over photos, the worst ratio to the
+unfitted template's s2m median, and the mean landmark fit time.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shlex
+import sys
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from pipeline.evaluation.photos import face_error, pose_error_deg  # noqa: E402
+from pipeline.evaluation.scans import scan_seed  # noqa: E402
+from pipeline.fitting.priors import PriorWeights  # noqa: E402
+from pipeline.fitting.state import head_vertices  # noqa: E402
+from pipeline.photo.fit import FitPhotoConfig  # noqa: E402
+from pipeline.photo.landmark_fit import fit_landmarks  # noqa: E402
+from pipeline.synthetic.photos import synthetic_photo  # noqa: E402
+from rig.model import JointRig  # noqa: E402
+from rig.skinning.neural import load_neural  # noqa: E402
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--heads", type=int, default=6)
+    parser.add_argument("--weights", type=float, nargs="+", default=[0.01, 0.03, 0.1, 0.3, 1.0])
+    parser.add_argument("--adam", action="store_true", help="also the previous prior with JNR's Adam schedule")
+    parser.add_argument("--json", type=Path, default=None)
+    args = parser.parse_args()
+    torch.set_num_threads(2)
+    rig = JointRig()
+    neural, _ = load_neural(rig)
+    template = head_vertices(rig, neural, np.zeros(105), np.zeros(50), np.zeros(52))
+    base = FitPhotoConfig().landmarks
+    configs = {f"identity {w:g}": replace(base, prior=replace(base.prior, lambda_m=0.0, lambda_identity=w))
+               for w in args.weights}
+    configs["L_m 100 (LM)"] = replace(base, prior=PriorWeights(lambda_m=100.0))
+    if args.adam:
+        configs["L_m 100 (Adam)"] = replace(base, solver="adam", prior=PriorWeights(lambda_m=100.0))
+    rows: dict[str, list] = {"template": []}
+    for kind in ("neutral", "expressive"):
+        for i in range(args.heads):
+            photo = synthetic_photo(i, expressive=kind == "expressive", seed=scan_seed(0, "photo-" + kind, i))
+            rows["template"].append({"name": photo.name, "s2m": face_error(template, photo.gt_vertices)["s2m_median_mm"]})
+            for name, config in configs.items():
+                t0 = time.perf_counter()
+                fit = fit_landmarks(photo.landmarks2d, photo.width, photo.height, focal=photo.focal, config=config,
+                                    rig=rig, neural=neural)
+                seconds = time.perf_counter() - t0
+                v = head_vertices(rig, neural, fit.theta, fit.z, fit.expressions)
+                err = face_error(v, photo.gt_vertices)
+                rows.setdefault(name, []).append({
+                    "name": photo.name, "s2m": err["s2m_median_mm"], "vertex": err["vertex_mean_mm"],
+                    "pose": pose_error_deg(v, fit.rotation, fit.translation, photo.gt_vertices, photo.rotation,
+                                           photo.translation),
+                    "px": float(fit.error_px.mean()), "seconds": seconds})
+            print(photo.name, {k: round(v[-1]["s2m"], 3) for k, v in rows.items()}, flush=True)
+    t = np.array([r["s2m"] for r in rows["template"]])
+    print("\n| prior | s2m median mm (mean) | worst / template | vertex mm | pose deg | landmarks px | seconds |")
+    print("|---|---|---|---|---|---|---|")
+    print(f"| template (no fit) | {t.mean():.3f} | 1.00 | | | | |")
+    for name, rs in rows.items():
+        if name == "template":
+            continue
+        s2m = np.array([r["s2m"] for r in rs])
+        print(f"| {name} | {s2m.mean():.3f} | {(s2m / t).max():.2f} | {np.mean([r['vertex'] for r in rs]):.3f} | "
+              f"{np.mean([r['pose'] for r in rs]):.2f} | {np.mean([r['px'] for r in rs]):.2f} | "
+              f"{np.mean([r['seconds'] for r in rs]):.2f} |")
+    print("command: " + " ".join(shlex.quote(a) for a in [sys.executable, *sys.argv]))
+    if args.json:
+        args.json.write_text(json.dumps({"rows": rows, "command": sys.argv}, indent=1))
+
+
+if __name__ == "__main__":
+    main()
