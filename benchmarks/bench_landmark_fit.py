@@ -15,9 +15,7 @@ landmark error in pixels. Torch on 2 threads.
 from __future__ import annotations
 
 import argparse
-import json
 import platform
-import shlex
 import sys
 import time
 from dataclasses import replace
@@ -27,6 +25,7 @@ import numpy as np
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from landmarks.ibug68 import CHIN, contour_vertex_ids, ibug68_embedding, landmark_positions  # noqa: E402
 from pipeline.photo.camera import camera_center_in_rig  # noqa: E402
@@ -34,8 +33,7 @@ from pipeline.photo.fit import FitPhotoConfig  # noqa: E402
 from pipeline.photo.landmark_fit import fit_landmarks  # noqa: E402
 from pipeline.synthetic.population import population_split  # noqa: E402
 from rig.geometry import RIG_TO_OPENCV, head_rotation  # noqa: E402
-from rig.model import JointRig  # noqa: E402
-from rig.skinning.neural import load_neural  # noqa: E402
+from common import finish, load_models  # noqa: E402
 
 SIZE = 384
 FOCAL = 1.4 * SIZE
@@ -63,9 +61,7 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--json", type=Path, default=None)
     args = parser.parse_args()
-    torch.set_num_threads(2)
-    rig = JointRig()
-    neural, _ = load_neural(rig)
+    rig, neural = load_models()
     heads = population_split("heldout", 0).vertices[args.first:args.first + args.heads]
     rng = np.random.default_rng(args.seed)
     targets = [projected_landmarks(h, rig.asset, rng) for h in heads]
@@ -98,9 +94,7 @@ def main() -> None:
     print(f"\ngoal: landmark fit <= 0.3 s: LM median {np.median([r['seconds'] for r in rows['lm']]):.3f} s")
     print(f"torch {torch.__version__}, {torch.get_num_threads()} threads, {platform.processor() or platform.machine()}, "
           f"python {platform.python_version()}")
-    print("command: " + " ".join(shlex.quote(a) for a in [sys.executable, *sys.argv]))
-    if args.json:
-        args.json.write_text(json.dumps({"rows": rows, "command": sys.argv}, indent=1))
+    finish({"rows": rows}, args.json)
 
 
 if __name__ == "__main__":

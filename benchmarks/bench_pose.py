@@ -16,16 +16,14 @@ placed by solvePnP.
 from __future__ import annotations
 
 import argparse
-import json
-import shlex
 import sys
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
-import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from landmarks.detect import NoFaceError, detect_landmarks  # noqa: E402
 from landmarks.ibug68 import ibug68_embedding, landmark_positions  # noqa: E402
@@ -37,8 +35,7 @@ from pipeline.photo.camera import default_focal, solve_pose  # noqa: E402
 from pipeline.photo.fit import FitPhotoConfig  # noqa: E402
 from pipeline.photo.landmark_fit import fit_landmarks  # noqa: E402
 from pipeline.synthetic.photos import synthetic_photo  # noqa: E402
-from rig.model import JointRig  # noqa: E402
-from rig.skinning.neural import load_neural  # noqa: E402
+from common import finish, load_models  # noqa: E402
 
 
 def main() -> None:
@@ -47,9 +44,7 @@ def main() -> None:
     parser.add_argument("--first", type=int, default=0)
     parser.add_argument("--json", type=Path, default=None)
     args = parser.parse_args()
-    torch.set_num_threads(2)
-    rig = JointRig()
-    neural, _ = load_neural(rig)
+    rig, neural = load_models()
     asset = rig.asset
     template = head_vertices(rig, neural, np.zeros(105), np.zeros(50), np.zeros(52))
     template_landmarks = landmark_positions(template, ibug68_embedding(asset), asset.faces)[0]
@@ -85,10 +80,7 @@ def main() -> None:
         source, name = key.split(" | ")
         print(f"| {source} | {name} | {a[:, 0].mean():.2f} | {a[:, 0].max():.2f} | {a[:, 2].mean():+.2f} | "
               f"{np.abs(a[:, 2]).mean():.2f} | {len(a)} |")
-    print("command: " + " ".join(shlex.quote(a) for a in [sys.executable, *sys.argv]))
-    if args.json:
-        args.json.write_text(json.dumps({"rows": {k: np.asarray(v).tolist() for k, v in rows.items()},
-                                         "command": sys.argv}, indent=1))
+    finish({"rows": {k: np.asarray(v).tolist() for k, v in rows.items()}}, args.json)
 
 
 if __name__ == "__main__":

@@ -10,24 +10,24 @@ environment, random skin and background, 1 px landmark noise, true focal). For e
 NoW-style (pipeline.evaluation.photos): s2m median over the face region, true vertex error, the
 camera-frame pose error; also the previous prior (L_m = 100 towards the template) with LM and, with
 ``--adam``, with JNR's Adam schedule. Printed: per weight the mean over photos, the worst ratio to the
-unfitted template's s2m median, and the mean landmark fit time.
+unfitted template's s2m median, and the mean landmark fit time. ``--detected`` fits dlib's detections on
+the renders instead (what a real photo gives).
 """
 
 from __future__ import annotations
 
 import argparse
-import json
-import shlex
 import sys
 import time
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
-import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 
+from landmarks.detect import NoFaceError, detect_landmarks  # noqa: E402
 from pipeline.evaluation.photos import face_error, pose_error_deg  # noqa: E402
 from pipeline.evaluation.scans import scan_seed  # noqa: E402
 from pipeline.fitting.priors import PriorWeights  # noqa: E402
@@ -35,8 +35,7 @@ from pipeline.fitting.state import head_vertices  # noqa: E402
 from pipeline.photo.fit import FitPhotoConfig  # noqa: E402
 from pipeline.photo.landmark_fit import fit_landmarks  # noqa: E402
 from pipeline.synthetic.photos import synthetic_photo  # noqa: E402
-from rig.model import JointRig  # noqa: E402
-from rig.skinning.neural import load_neural  # noqa: E402
+from common import finish, load_models  # noqa: E402
 
 
 def main() -> None:
@@ -44,13 +43,18 @@ def main() -> None:
     parser.add_argument("--heads", type=int, default=6)
     parser.add_argument("--weights", type=float, nargs="+", default=[0.01, 0.03, 0.1, 0.3, 1.0])
     parser.add_argument("--adam", action="store_true", help="also the previous prior with JNR's Adam schedule")
+    parser.add_argument("--detected", action="store_true",
+                        help="fit dlib's detections on the renders (HOG, then the CNN) instead of the true "
+                             "landmarks + 1 px noise; photos without a detection are left out")
+    parser.add_argument("--contour-weight", type=float, default=None,
+                        help="landmarks.contour_weight for every fit (default: the config's)")
     parser.add_argument("--json", type=Path, default=None)
     args = parser.parse_args()
-    torch.set_num_threads(2)
-    rig = JointRig()
-    neural, _ = load_neural(rig)
+    rig, neural = load_models()
     template = head_vertices(rig, neural, np.zeros(105), np.zeros(50), np.zeros(52))
     base = FitPhotoConfig().landmarks
+    if args.contour_weight is not None:
+        base = replace(base, contour_weight=args.contour_weight)
     configs = {f"identity {w:g}": replace(base, prior=replace(base.prior, lambda_m=0.0, lambda_identity=w))
                for w in args.weights}
     configs["L_m 100 (LM)"] = replace(base, prior=PriorWeights(lambda_m=100.0))
@@ -60,10 +64,17 @@ def main() -> None:
     for kind in ("neutral", "expressive"):
         for i in range(args.heads):
             photo = synthetic_photo(i, expressive=kind == "expressive", seed=scan_seed(0, "photo-" + kind, i))
+            target = photo.landmarks2d
+            if args.detected:
+                try:
+                    target = detect_landmarks(photo.image).landmarks
+                except NoFaceError:
+                    print(photo.name, "no face found by dlib: left out", flush=True)
+                    continue
             rows["template"].append({"name": photo.name, "s2m": face_error(template, photo.gt_vertices)["s2m_median_mm"]})
             for name, config in configs.items():
                 t0 = time.perf_counter()
-                fit = fit_landmarks(photo.landmarks2d, photo.width, photo.height, focal=photo.focal, config=config,
+                fit = fit_landmarks(target, photo.width, photo.height, focal=photo.focal, config=config,
                                     rig=rig, neural=neural)
                 seconds = time.perf_counter() - t0
                 v = head_vertices(rig, neural, fit.theta, fit.z, fit.expressions)
@@ -85,9 +96,7 @@ def main() -> None:
         print(f"| {name} | {s2m.mean():.3f} | {(s2m / t).max():.2f} | {np.mean([r['vertex'] for r in rs]):.3f} | "
               f"{np.mean([r['pose'] for r in rs]):.2f} | {np.mean([r['px'] for r in rs]):.2f} | "
               f"{np.mean([r['seconds'] for r in rs]):.2f} |")
-    print("command: " + " ".join(shlex.quote(a) for a in [sys.executable, *sys.argv]))
-    if args.json:
-        args.json.write_text(json.dumps({"rows": rows, "command": sys.argv}, indent=1))
+    finish({"rows": rows}, args.json)
 
 
 if __name__ == "__main__":

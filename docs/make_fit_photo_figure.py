@@ -20,18 +20,27 @@ from PIL import Image, ImageDraw
 TILE = 300
 
 
-def _crop_box(report: dict, size: tuple[int, int]) -> tuple[int, int, int, int]:
-    """The photometric crop of a fit (its report), clipped to the photo."""
-    crop = report["crop"]
+def _crop_box(report: dict, size: tuple[int, int], folder: Path) -> tuple[int, int, int, int]:
+    """The photometric crop of a fit (its report), or without photometric stages (jnr fit's default) a square
+    around its input landmarks with the same margins (:func:`pipeline.photo.fit.face_crop`), clipped to
+    the photo."""
+    crop = report.get("crop")
+    if crop is None:
+        from landmarks.formats import read_landmarks
+        from pipeline.photo.fit import PhotometricConfig, face_crop
+
+        settings = PhotometricConfig()
+        box = face_crop(read_landmarks(folder / "landmarks.pts"), settings.render_size, settings.crop_margin)
+        crop = {"x0": box.x0, "y0": box.y0, "side": box.side}
     w, h = size
-    x0, y0, side = crop["x0"], crop["y0"], crop["side"]
+    x0, y0, side = int(round(crop["x0"])), int(round(crop["y0"])), int(round(crop["side"]))
     return max(x0, 0), max(y0, 0), min(x0 + side, w), min(y0 + side, h)
 
 
 def _row(folder: Path, photo: Path, label: str) -> Image.Image:
     report = json.loads((folder / "report.json").read_text())
     images = [Image.open(photo).convert("RGB"), Image.open(folder / "overlay.png"), Image.open(folder / "render.png")]
-    box = _crop_box(report, images[0].size)
+    box = _crop_box(report, images[0].size, folder)
     tiles = [im.crop(box).resize((TILE, TILE), Image.LANCZOS) for im in images]
     row = Image.new("RGB", (3 * TILE, TILE + 22), "white")
     for i, tile in enumerate(tiles):

@@ -277,7 +277,9 @@ class PhotoFit:
         rig_vertices: ``(V, 3)`` the fitted head in rig space, mm.
         albedo: ``(V, 3)`` linear RGB per vertex (the start colour where never seen).
         ambient, irradiance: ``(3,)`` linear RGB of the light; light_direction_rig / _camera: ``(3,)``
-            unit direction the light travels, in rig space and in the camera frame.
+            unit direction the light travels, in rig space and in the camera frame. Without photometric
+            stages (the default) these are not fitted: grey albedo 0.5, ambient 0.35, irradiance 2 from the
+            camera's upper left, for the pictures.
         landmarks2d: ``(68, 2)`` the input landmarks; landmarks_px: ``(68, 2)`` fitted, pixels;
             error_px ``(68,)``; nme: mean error / outer-eye-corner distance.
         landmarks3d_camera: ``(68, 3)`` the fitted landmarks in 3D, camera frame (OpenCV: x right, y down,
@@ -410,9 +412,12 @@ def fit_photo(image, landmarks2d, *, focal: float | None = None, config: FitPhot
     settings = config.photometric
     stages: tuple[StageLog, ...] = ()
     crop = None
+    # Without photometric stages nothing of the appearance is fitted: a grey albedo and a key light from
+    # the camera's upper left (travelling right, down and forward) + fill, so that render.png and
+    # overlay.png show the fitted shape shaded rather than flat.
     albedo_np = np.full((len(asset.vertices), 3), 0.5)
-    light_cam = np.array([0.0, 0.3, 1.0]) / np.linalg.norm([0.0, 0.3, 1.0])
-    ambient_np, irradiance_np = np.full(3, 0.6), np.zeros(3)
+    light_cam = np.array([0.3, 0.4, 1.0]) / np.linalg.norm([0.3, 0.4, 1.0])
+    ambient_np, irradiance_np = np.full(3, 0.35), np.full(3, 2.0)
     t1 = time.perf_counter()
     if settings.enabled and any(s.iterations > 0 for s in settings.stages):
         crop = face_crop(lm, settings.render_size, settings.crop_margin)

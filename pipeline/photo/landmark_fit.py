@@ -38,7 +38,7 @@ from pipeline.fitting.priors import PriorWeights, rig_prior_terms
 from pipeline.fitting.state import PhotoState
 from pipeline.photo.camera import default_focal, make_camera, solve_pose
 from rig.expressions import ExpressionModel
-from rig.lbs import ShapeError, skin_vertices, skin_vertices_shared_weights
+from rig.lbs import ShapeError, skin_vertices_shared_weights
 from rig.model import JointRig
 from rig.optim import Progress
 from rig.parameters import NUM_PARAMETERS, mirror_theta

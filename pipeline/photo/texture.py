@@ -7,7 +7,7 @@ photo's colour where its point is seen: facing the camera (the cosine between th
 normal and the direction to the camera at least :data:`VISIBLE_COS`) and not hidden by another part
 of the head (a depth test against a z-buffer of the whole mesh rasterised at the photo's size). Every
 other texel takes the fill colour: the fitted per-vertex albedo (sRGB-encoded), or, for a fit without
-one (``--landmarks-only``), the median photo colour of the visible skin texels. Between
+one (the default landmark fit), the median photo colour of the visible skin texels. Between
 :data:`VISIBLE_COS` and :data:`FULL_WEIGHT_COS` the photo fades into the fill, since grazing texels
 stretch a few pixels over many texels. Texels outside every UV triangle take the colour of the
 nearest covered texel, so the texture has no holes for a viewer's filtering to bleed in.
@@ -371,7 +371,7 @@ def texture_from_fit(photo: np.ndarray, fit, faces: np.ndarray, face_uvs: np.nda
                      regions: np.ndarray | None = None, skin_region_ids=None,
                      size: int = TEXTURE_SIZE) -> UVTexture:
     """:func:`unwrap_texture` of a photo fit: its head (``fit.rig_vertices``), its camera, and its fitted
-    albedo as the fill (sRGB-encoded) when the photometric stages ran; otherwise (``--landmarks-only``,
+    albedo as the fill (sRGB-encoded) when the photometric stages ran; otherwise (the default landmark fit,
     whose albedo is a placeholder) the median colour of the seen skin texels.
 
     Args:

@@ -7,7 +7,6 @@ import torch
 from scipy.stats import multivariate_normal
 
 from pipeline.fitting.identity import (
-    IdentityPrior,
     build_identity_prior,
     clip_to_limits,
     load_identity_prior,
