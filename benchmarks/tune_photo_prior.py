@@ -48,6 +48,8 @@ def main() -> None:
                              "landmarks + 1 px noise; photos without a detection are left out")
     parser.add_argument("--contour-weight", type=float, default=None,
                         help="landmarks.contour_weight for every fit (default: the config's)")
+    parser.add_argument("--weighting", choices=("contour", "detector"), default=None,
+                        help="landmarks.landmark_weighting for every fit (default: the config's)")
     parser.add_argument("--json", type=Path, default=None)
     args = parser.parse_args()
     rig, neural = load_models()
@@ -55,6 +57,8 @@ def main() -> None:
     base = FitPhotoConfig().landmarks
     if args.contour_weight is not None:
         base = replace(base, contour_weight=args.contour_weight)
+    if args.weighting is not None:
+        base = replace(base, landmark_weighting=args.weighting)
     configs = {f"identity {w:g}": replace(base, prior=replace(base.prior, lambda_m=0.0, lambda_identity=w))
                for w in args.weights}
     configs["L_m 100 (LM)"] = replace(base, prior=PriorWeights(lambda_m=100.0))

@@ -16,6 +16,37 @@ ROBUST_KINDS = ("huber", "l2")
 CONTOUR_WEIGHT = 0.5
 
 
+DETECTOR_ERROR_PX: tuple[float, ...] = (
+    9.24, 8.31, 7.05, 6.43, 6.36, 7.42, 7.95, 5.80, 5.38, 5.41,
+    7.66, 6.96, 5.82, 6.61, 8.11, 9.31, 10.37, 4.73, 4.61, 5.31,
+    4.95, 4.74, 4.86, 4.86, 4.98, 4.50, 4.52, 3.13, 2.64, 1.91,
+    1.89, 2.26, 1.79, 1.55, 1.81, 2.30, 3.82, 3.44, 3.10, 3.40,
+    2.94, 3.39, 3.60, 3.10, 3.23, 3.68, 3.54, 3.13, 1.89, 1.96,
+    1.85, 2.00, 2.06, 2.11, 2.15, 1.98, 2.04, 1.96, 1.86, 1.84,
+    2.33, 2.74, 2.94, 2.95, 2.21, 2.50, 2.47, 2.51,
+)
+"""Mean per-view distance between dlib's 68 landmarks and the corrected embedding's projections, per landmark,
+at an inter-ocular distance of 100 px: 21 poses (yaw +-30 deg, pitch +-15) x 8 render seeds that the
+corrections were not fitted on (``docs/landmark_offsets.json``, ``corrected``; ``benchmarks/
+bench_landmark_offsets.py``). The jaw contour is off by 5-10 px, the brows by ~5, the eyes by ~3.5, the
+nose and mouth by ~2."""
+
+DETECTOR_REFERENCE_PX = 2.0
+"""The error that gets weight 1 in :func:`detector_landmark_weights` (about the nose's and the mouth's)."""
+
+
+def detector_landmark_weights(dtype: torch.dtype = torch.float32, device=None) -> torch.Tensor:
+    """``(68,)`` inverse-variance weights of dlib's landmarks: ``min(1, (DETECTOR_REFERENCE_PX / e_i)^2)`` with
+    ``e_i`` :data:`DETECTOR_ERROR_PX` averaged with its mirror landmark's (so the weights are symmetric),
+    at least 0.05. A landmark dlib places twice as badly counts a quarter as much."""
+    from landmarks.ibug68 import IBUG68_MIRROR
+
+    e = torch.tensor(DETECTOR_ERROR_PX, dtype=torch.float64)
+    e = 0.5 * (e + e[list(IBUG68_MIRROR)])
+    w = (DETECTOR_REFERENCE_PX / e).square().clamp(0.05, 1.0)
+    return w.to(dtype=dtype, device=device)
+
+
 def default_landmark_weights(dtype: torch.dtype = torch.float32, device=None) -> torch.Tensor:
     """``(68,)`` iBUG-68 weights: 1, and :data:`CONTOUR_WEIGHT` for the jaw contour (0-16), whose template
     points are only approximately where annotators put the face outline."""

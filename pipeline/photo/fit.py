@@ -408,7 +408,8 @@ def fit_photo(image, landmarks2d, *, focal: float | None = None, config: FitPhot
     state = PhotoState(rig, neural, ExpressionModel(asset, dtype=dtype), lfit.rotation, lfit.translation)
     state.load(lfit.theta, lfit.z, lfit.expressions)
     term = LandmarkTerm(asset, lm, make_camera(width, height, focal, dtype=dtype, pose=False),
-                        config.landmarks.huber_delta_px, config.landmarks.contour_weight)
+                        config.landmarks.huber_delta_px, config.landmarks.contour_weight,
+                        config.landmarks.landmark_weighting)
     settings = config.photometric
     stages: tuple[StageLog, ...] = ()
     crop = None

@@ -30,7 +30,13 @@ import torch
 from kornia.geometry.camera import PinholeCamera
 
 from landmarks.ibug68 import contour_landmarks, ibug68_embedding, landmark_positions
-from landmarks.loss import CONTOUR_WEIGHT, default_landmark_weights, landmark_reprojection_loss, project_points
+from landmarks.loss import (
+    CONTOUR_WEIGHT,
+    default_landmark_weights,
+    detector_landmark_weights,
+    landmark_reprojection_loss,
+    project_points,
+)
 from pipeline.evaluation.metrics import landmark_errors
 from pipeline.fitting.engine import LearningRates, Loss, Stage, StageLog, run_schedule
 from pipeline.fitting.least_squares import LMSettings, levenberg_marquardt
@@ -74,6 +80,7 @@ def lm_schedule(pose_iterations: int = 6, expression_iterations: int = 8, joint_
 
 
 SOLVERS = ("lm", "adam")
+WEIGHTINGS = ("contour", "detector")
 
 CONTOUR_UPDATES = 4
 """LM iterations per stage that re-pick the jaw contour's silhouette vertices; later ones keep the last
@@ -104,10 +111,19 @@ class LandmarkFitConfig:
     contour_weight: float = CONTOUR_WEIGHT
     """Weight of the 16 jaw-contour landmarks (0-16 but the chin) against 1 for the others: annotators and
     detectors put the face outline only approximately where the template's silhouette is."""
+    landmark_weighting: str = "detector"
+    """``detector`` (the default): each landmark by the inverse variance of dlib's error on it
+    (:func:`landmarks.loss.detector_landmark_weights`: the nose and mouth 1, the eyes ~0.35, the brows
+    ~0.18, the jaw contour 0.05-0.14; ``contour_weight`` scales the contour's on top, 0.5 = as measured);
+    ``contour``: every landmark 1, the jaw contour ``contour_weight``. On the validation photos
+    ``detector`` was better with the true landmarks + 1 px noise and with dlib's (docs/fit_photo.md)."""
     use_neural: bool = True
     """Use the neural skinning (learned linear + decoded residual); else the rig's own weights."""
 
     def __post_init__(self) -> None:
+        if self.landmark_weighting not in WEIGHTINGS:
+            raise ValueError(f"landmarks.landmark_weighting must be one of {list(WEIGHTINGS)}, "
+                             f"got {self.landmark_weighting!r}")
         if self.solver not in SOLVERS:
             raise ValueError(f"landmarks.solver must be one of {list(SOLVERS)}, got {self.solver!r}")
         bad = [st.name for st in self.lm_stages if "latent" in st.free]
@@ -162,9 +178,9 @@ class LandmarkTerm:
     """
 
     def __init__(self, asset, landmarks2d: np.ndarray, camera: PinholeCamera, huber_delta_px: float,
-                 contour_weight: float = CONTOUR_WEIGHT) -> None:
+                 contour_weight: float = CONTOUR_WEIGHT, weighting: str = "contour") -> None:
         self.asset, self.camera, self.delta = asset, camera, float(huber_delta_px)
-        self.weights = landmark_weights(contour_weight, camera.intrinsics.dtype)
+        self.weights = landmark_weights(contour_weight, camera.intrinsics.dtype, weighting)
         self.faces = asset.faces
         self.embedding = ibug68_embedding(asset)
         self.target = torch.as_tensor(np.array(landmarks2d, np.float64), dtype=camera.intrinsics.dtype)[None]
@@ -188,15 +204,23 @@ class LandmarkTerm:
             return project_points(points[None], self.camera)[0].double().numpy()
 
 
-def landmark_weights(contour_weight: float = CONTOUR_WEIGHT, dtype: torch.dtype = torch.float32) -> torch.Tensor:
-    """``(68,)`` weights of the landmark term: 1, ``contour_weight`` for the jaw contour, the chin (8)
-    :data:`landmarks.loss.CONTOUR_WEIGHT` whatever ``contour_weight`` (a static landmark, not a silhouette)."""
+def landmark_weights(contour_weight: float = CONTOUR_WEIGHT, dtype: torch.dtype = torch.float32,
+                     weighting: str = "contour") -> torch.Tensor:
+    """``(68,)`` weights of the landmark term. ``contour``: 1, ``contour_weight`` for the jaw contour, the chin
+    (8) :data:`landmarks.loss.CONTOUR_WEIGHT` whatever ``contour_weight`` (a static landmark, not a
+    silhouette). ``detector``: :func:`landmarks.loss.detector_landmark_weights`, the contour's (but the
+    chin's) times ``contour_weight / CONTOUR_WEIGHT``."""
     from landmarks.ibug68 import CHIN, JAW_CONTOUR
 
     if not contour_weight >= 0:
         raise ValueError(f"contour_weight must be >= 0, got {contour_weight}")
+    contour = [i for i in JAW_CONTOUR if i != CHIN]
+    if weighting == "detector":
+        w = detector_landmark_weights(dtype).clone()
+        w[contour] = w[contour] * (float(contour_weight) / CONTOUR_WEIGHT)
+        return w
     w = default_landmark_weights(dtype).clone()
-    w[[i for i in JAW_CONTOUR if i != CHIN]] = float(contour_weight)
+    w[contour] = float(contour_weight)
     return w
 
 
@@ -255,7 +279,8 @@ def fit_landmarks(landmarks2d, width: int, height: int, *, focal: float | None =
     with torch.no_grad():
         weights0 = neural(torch.zeros(1, LATENT, dtype=dtype))[0] if neural is not None else None
         start = rig(torch.zeros(1, NUM_PARAMETERS, dtype=dtype), weights=weights0).vertices[0]
-    term = LandmarkTerm(asset, lm, intrinsic_camera, config.huber_delta_px, config.contour_weight)
+    term = LandmarkTerm(asset, lm, intrinsic_camera, config.huber_delta_px, config.contour_weight,
+                        config.landmark_weighting)
     model_points = landmark_positions(start.double().numpy(), term.embedding, term.faces)[0]
     rotation0, translation0 = solve_pose(lm, model_points, width, height, focal)
     state = PhotoState(rig, neural, ExpressionModel(asset, dtype=dtype), rotation0, translation0)

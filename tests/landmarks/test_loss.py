@@ -134,3 +134,25 @@ def test_bad_arguments_raise():
         landmark_reprojection_loss(pts, target, cam, robust="cauchy")
     with pytest.raises(ShapeError, match="project_points"):
         project_points(pts[0], cam)
+
+
+def test_detector_weights_follow_the_measured_errors():
+    """Inverse variance of dlib's measured errors (docs/landmark_offsets.json), symmetric, within [0.05, 1]."""
+    import json
+    from pathlib import Path
+
+    from landmarks.ibug68 import IBUG68_MIRROR
+    from landmarks.loss import DETECTOR_ERROR_PX, detector_landmark_weights
+
+    table = json.loads((Path(__file__).resolve().parents[2] / "docs" / "landmark_offsets.json").read_text())
+    measured = [lm["error"] for lm in table["corrected"]["landmarks"]]
+    assert len(DETECTOR_ERROR_PX) == 68
+    np.testing.assert_allclose(DETECTOR_ERROR_PX, measured, atol=0.006)
+    w = detector_landmark_weights(torch.float64).numpy()
+    np.testing.assert_allclose(w, w[list(IBUG68_MIRROR)])
+    assert w.min() >= 0.05 and w.max() <= 1.0
+    # the nose tip (30) counts fully, the jaw's ends and the brows far less
+    assert w[30] == 1.0 and w[0] < 0.1 and w[19] < 0.25
+    e = 0.5 * (np.array(DETECTOR_ERROR_PX) + np.array(DETECTOR_ERROR_PX)[list(IBUG68_MIRROR)])
+    free = (w > 0.05) & (w < 1.0)
+    np.testing.assert_allclose(w[free], (2.0 / e[free]) ** 2)
