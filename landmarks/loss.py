@@ -47,6 +47,34 @@ def detector_landmark_weights(dtype: torch.dtype = torch.float32, device=None) -
     return w.to(dtype=dtype, device=device)
 
 
+WEIGHTINGS = ("contour", "detector")
+"""The landmark weightings of :func:`landmark_weights`."""
+
+
+def landmark_weights(weighting: str = "contour", contour_weight: float = CONTOUR_WEIGHT,
+                     dtype: torch.dtype = torch.float32) -> torch.Tensor:
+    """``(68,)`` weights of a landmark fit's term.
+
+    ``contour``: 1, ``contour_weight`` for the jaw contour, the chin (8) :data:`CONTOUR_WEIGHT` whatever
+    ``contour_weight`` (a static landmark, not a silhouette). ``detector``: :func:`detector_landmark_weights`,
+    the contour's (but the chin's) times ``contour_weight / CONTOUR_WEIGHT``.
+    """
+    from landmarks.ibug68 import CHIN
+
+    if weighting not in WEIGHTINGS:
+        raise ValueError(f"landmark_weights: weighting must be one of {list(WEIGHTINGS)}, got {weighting!r}")
+    if not contour_weight >= 0:
+        raise ValueError(f"contour_weight must be >= 0, got {contour_weight}")
+    contour = [i for i in JAW_CONTOUR if i != CHIN]
+    if weighting == "detector":
+        w = detector_landmark_weights(dtype).clone()
+        w[contour] = w[contour] * (float(contour_weight) / CONTOUR_WEIGHT)
+        return w
+    w = default_landmark_weights(dtype).clone()
+    w[contour] = float(contour_weight)
+    return w
+
+
 def default_landmark_weights(dtype: torch.dtype = torch.float32, device=None) -> torch.Tensor:
     """``(68,)`` iBUG-68 weights: 1, and :data:`CONTOUR_WEIGHT` for the jaw contour (0-16), whose template
     points are only approximately where annotators put the face outline."""

@@ -32,9 +32,9 @@ from kornia.geometry.camera import PinholeCamera
 from landmarks.ibug68 import contour_landmarks, ibug68_embedding, landmark_positions
 from landmarks.loss import (
     CONTOUR_WEIGHT,
-    default_landmark_weights,
-    detector_landmark_weights,
+    WEIGHTINGS,
     landmark_reprojection_loss,
+    landmark_weights,
     project_points,
 )
 from pipeline.evaluation.metrics import landmark_errors
@@ -80,7 +80,6 @@ def lm_schedule(pose_iterations: int = 6, expression_iterations: int = 8, joint_
 
 
 SOLVERS = ("lm", "adam")
-WEIGHTINGS = ("contour", "detector")
 
 CONTOUR_UPDATES = 4
 """LM iterations per stage that re-pick the jaw contour's silhouette vertices; later ones keep the last
@@ -180,7 +179,7 @@ class LandmarkTerm:
     def __init__(self, asset, landmarks2d: np.ndarray, camera: PinholeCamera, huber_delta_px: float,
                  contour_weight: float = CONTOUR_WEIGHT, weighting: str = "contour") -> None:
         self.asset, self.camera, self.delta = asset, camera, float(huber_delta_px)
-        self.weights = landmark_weights(contour_weight, camera.intrinsics.dtype, weighting)
+        self.weights = landmark_weights(weighting, contour_weight, camera.intrinsics.dtype)
         self.faces = asset.faces
         self.embedding = ibug68_embedding(asset)
         self.target = torch.as_tensor(np.array(landmarks2d, np.float64), dtype=camera.intrinsics.dtype)[None]
@@ -202,26 +201,6 @@ class LandmarkTerm:
         with torch.no_grad():
             points = model.to_camera(self.points3d(model, v))
             return project_points(points[None], self.camera)[0].double().numpy()
-
-
-def landmark_weights(contour_weight: float = CONTOUR_WEIGHT, dtype: torch.dtype = torch.float32,
-                     weighting: str = "contour") -> torch.Tensor:
-    """``(68,)`` weights of the landmark term. ``contour``: 1, ``contour_weight`` for the jaw contour, the chin
-    (8) :data:`landmarks.loss.CONTOUR_WEIGHT` whatever ``contour_weight`` (a static landmark, not a
-    silhouette). ``detector``: :func:`landmarks.loss.detector_landmark_weights`, the contour's (but the
-    chin's) times ``contour_weight / CONTOUR_WEIGHT``."""
-    from landmarks.ibug68 import CHIN, JAW_CONTOUR
-
-    if not contour_weight >= 0:
-        raise ValueError(f"contour_weight must be >= 0, got {contour_weight}")
-    contour = [i for i in JAW_CONTOUR if i != CHIN]
-    if weighting == "detector":
-        w = detector_landmark_weights(dtype).clone()
-        w[contour] = w[contour] * (float(contour_weight) / CONTOUR_WEIGHT)
-        return w
-    w = default_landmark_weights(dtype).clone()
-    w[contour] = float(contour_weight)
-    return w
 
 
 def check_landmarks_2d_shape(landmarks2d, function: str = "fit_landmarks") -> np.ndarray:
@@ -464,26 +443,27 @@ class _LandmarkLeastSquares:
         return torch.cat(rows, dim=1)
 
 
-_SUPPORT: dict[int, torch.Tensor] = {}
+_PER_ASSET: dict[tuple[str, int], object] = {}
+
+
+def _per_asset(kind: str, asset, make):
+    """``make(asset)`` computed once per asset and kind (the landmark fit runs many times per process)."""
+    key = (kind, id(asset))
+    if key not in _PER_ASSET:
+        for stale in [k for k in _PER_ASSET if k[0] == kind]:
+            del _PER_ASSET[stale]
+        _PER_ASSET[key] = make(asset)
+    return _PER_ASSET[key]
 
 
 def _support_ids(asset) -> torch.Tensor:
     from landmarks.ibug68 import contour_support_ids
 
-    if id(asset) not in _SUPPORT:
-        _SUPPORT.clear()
-        _SUPPORT[id(asset)] = torch.as_tensor(contour_support_ids(asset), dtype=torch.long)
-    return _SUPPORT[id(asset)]
-
-
-_EXPRESSIONS64: dict[int, ExpressionModel] = {}
+    return _per_asset("support", asset, lambda a: torch.as_tensor(contour_support_ids(a), dtype=torch.long))
 
 
 def _expressions64(asset) -> ExpressionModel:
-    if id(asset) not in _EXPRESSIONS64:
-        _EXPRESSIONS64.clear()
-        _EXPRESSIONS64[id(asset)] = ExpressionModel(asset, dtype=torch.float64)
-    return _EXPRESSIONS64[id(asset)]
+    return _per_asset("expressions64", asset, lambda a: ExpressionModel(a, dtype=torch.float64))
 
 
 def _run_lm(state: PhotoState, term: LandmarkTerm, config: LandmarkFitConfig, objective,

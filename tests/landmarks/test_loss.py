@@ -156,3 +156,21 @@ def test_detector_weights_follow_the_measured_errors():
     e = 0.5 * (np.array(DETECTOR_ERROR_PX) + np.array(DETECTOR_ERROR_PX)[list(IBUG68_MIRROR)])
     free = (w > 0.05) & (w < 1.0)
     np.testing.assert_allclose(w[free], (2.0 / e[free]) ** 2)
+
+
+def test_landmark_weights_of_both_weightings():
+    from landmarks.ibug68 import CHIN, JAW_CONTOUR
+    from landmarks.loss import CONTOUR_WEIGHT, detector_landmark_weights, landmark_weights
+
+    contour = [i for i in JAW_CONTOUR if i != CHIN]
+    inner = [i for i in range(68) if i not in JAW_CONTOUR]
+    w = landmark_weights("contour", 0.2, torch.float64)
+    assert (w[inner] == 1).all() and (w[contour] == 0.2).all() and w[CHIN] == CONTOUR_WEIGHT
+    d = landmark_weights("detector", 0.0, torch.float64)
+    ref = detector_landmark_weights(torch.float64)
+    assert (d[contour] == 0).all() and d[CHIN] == ref[CHIN] and torch.equal(d[inner], ref[inner])
+    torch.testing.assert_close(landmark_weights("detector", CONTOUR_WEIGHT, torch.float64), ref)
+    with pytest.raises(ValueError, match="weighting"):
+        landmark_weights("uniform")
+    with pytest.raises(ValueError, match="contour_weight"):
+        landmark_weights("contour", -1.0)

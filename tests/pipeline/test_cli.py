@@ -294,3 +294,12 @@ def test_fit_face_all_errors_are_one_line(capsys, tmp_path, photo_dir, case, mes
     assert code == 2 and message in err
     assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
     assert not out.exists() and not [p for p in tmp_path.iterdir() if p.name.startswith(".out")]
+
+
+def test_fit_photometric_and_landmarks_only_contradict(capsys, tmp_path, photo_dir):
+    out = tmp_path / "out"
+    code, _, err = run(capsys, "fit", str(photo_dir / "face0.png"), "--landmarks", str(photo_dir / "face0.pts"),
+                       "--out", str(out), "--landmarks-only", "--photometric", "--quiet")
+    assert code == 2 and "--landmarks-only and --photometric contradict" in err
+    assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
+    assert not out.exists()

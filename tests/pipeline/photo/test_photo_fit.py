@@ -150,10 +150,9 @@ def known_photo():
 
 def _short_config(**kw):
     from pipeline.photo.fit import photo_schedule
-    from pipeline.photo.landmark_fit import landmark_schedule
 
-    base = FitPhotoConfig()
-    return FitPhotoConfig(landmarks=replace(base.landmarks, stages=landmark_schedule(20, 20, 30, 10, 30, 20)),
+    base = FitPhotoConfig()  # the default landmark fit (LM, ~0.3 s), short photometric stages
+    return FitPhotoConfig(landmarks=base.landmarks,
                           photometric=replace(base.photometric, enabled=True, stages=photo_schedule(8, 8, 0, 8, 0),
                                               render_size=64, **kw))
 
