@@ -16,7 +16,35 @@ from pipeline.cli.common import (
     write_output_file,
 )
 
-CAPACITY_ROWS = ("initial", "learned_linear", "neural", "per_head_optimal_weights")
+CAPACITY_MODELS = ("jnr", "pca", "asm")
+"""``jnr eval capacity --models`` choices (:data:`pipeline.evaluation.capacity.MODEL_GROUPS`)."""
+
+
+def parse_models(text: str) -> tuple[str, ...]:
+    """``--models jnr,pca`` -> ``("jnr", "pca")``; ``all`` -> every model; an unknown name is a usage error."""
+    names = tuple(n.strip() for n in text.split(",") if n.strip())
+    if names == ("all",):
+        return CAPACITY_MODELS
+    unknown = [n for n in names if n not in CAPACITY_MODELS]
+    if unknown or not names:
+        raise argparse.ArgumentTypeError(f"expected a comma-separated subset of {','.join(CAPACITY_MODELS)} "
+                                         f"(or all), got {text!r}")
+    return names
+
+
+def capacity_table(result: dict) -> str:
+    """The capacity table of :func:`pipeline.evaluation.capacity.evaluate_capacity`'s result: one line per
+    split and row (error in mm over heads, model size in floats, fitting seconds per head)."""
+    from pipeline.evaluation.capacity import CAPACITY_ROWS
+
+    lines = [f"{'split':8s} {'row':26s} {'mean mm':>8s} {'std mm':>7s} {'median':>7s} {'heads':>5s} "
+             f"{'model floats':>12s} {'s/head':>9s}"]
+    for split, row in result["splits"].items():
+        for name in (n for n in CAPACITY_ROWS if n in row):
+            r = row[name]
+            lines.append(f"{split:8s} {name:26s} {r['mean_mm']:8.3f} {r['std_mm']:7.3f} {r['median_mm']:7.3f} "
+                         f"{r['heads']:5d} {r['model_floats']:12,d} {r['seconds_per_head']:9.4g}")
+    return "\n".join(lines)
 
 
 def cmd_eval_capacity(args: argparse.Namespace) -> int:
@@ -25,24 +53,19 @@ def cmd_eval_capacity(args: argparse.Namespace) -> int:
     if args.out:
         check_output(Path(args.out), args.force)
     settings = CapacitySettings(joint_iterations=args.joint_iterations, z_iterations=args.z_iterations,
-                                cycles=args.cycles, seed=args.seed)
+                                cycles=args.cycles, seed=args.seed, asm_iterations=args.asm_iterations)
+    if args.oracle and "jnr" not in args.models:
+        raise CliError("--oracle starts from the jnr rows' learned-linear fit; add jnr to --models")
     bars = StageBars(args.quiet)
     try:
         result = evaluate_capacity(tuple(args.splits), settings, neural_path=args.skinning, limit=args.limit,
-                                   progress=bars, oracle=args.oracle)
+                                   progress=bars, oracle=args.oracle, models=args.models)
     finally:
         bars.close()
     text = json.dumps(result, indent=2)
     if args.out:
         write_output_file(Path(args.out), args.force, lambda tmp: tmp.write_text(text + "\n"))
-    if args.json:
-        print(text)
-    else:
-        print(f"{'split':10s} {'weights':16s} {'mean mm':>9s} {'std mm':>8s} {'heads':>6s}")
-        for split, row in result["splits"].items():
-            for name in (n for n in CAPACITY_ROWS if n in row):
-                r = row[name]
-                print(f"{split:10s} {name:16s} {r['mean_mm']:9.3f} {r['std_mm']:8.3f} {r['heads']:6d}")
+    print(text if args.json else capacity_table(result))
     return EXIT_OK
 
 
@@ -109,9 +132,13 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     ev = sub.add_parser("eval", help="evaluations")
     ev_sub = ev.add_subparsers(dest="eval_command", metavar="EVAL_COMMAND")
     ev_sub.required = True
-    cap = ev_sub.add_parser("capacity", help="known-correspondence error of initial / learned linear / neural skinning",
-                            description="Fit the rig to the synthetic test and held-out heads with each skinning "
-                                        "variant; point-to-point error in mm (mean, std over heads) and model sizes.")
+    cap = ev_sub.add_parser("capacity", help="known-correspondence error of the rig's skinning variants, a PCA "
+                                             "model and ASM",
+                            description="Fit the rig (initial / learned linear / neural skinning), a PCA shape model "
+                                        "(k = 10, 50, 84, trained on the 85 training heads) and the Adaptive "
+                                        "Skinning Model's ablation rows to the synthetic test and held-out heads; "
+                                        "point-to-point error in mm (mean, std, median over heads), model size in "
+                                        "floats and fitting seconds per head.")
     cap.add_argument("--json", action="store_true", help="print JSON")
     cap.add_argument("--splits", nargs="+", default=["test", "heldout"], choices=["train", "val", "test", "heldout"])
     cap.add_argument("--limit", type=int, help="only the first N heads of each split")
@@ -119,6 +146,9 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     cap.add_argument("--joint-iterations", type=int, default=400)
     cap.add_argument("--z-iterations", type=int, default=300)
     cap.add_argument("--cycles", type=int, default=2)
+    cap.add_argument("--asm-iterations", type=int, help="iterations of each ASM fit (default: fit_asm's own)")
+    cap.add_argument("--models", type=parse_models, default=CAPACITY_MODELS, metavar="M[,M...]",
+                     help="models to evaluate, a comma-separated subset of jnr,pca,asm (default: all)")
     cap.add_argument("--seed", type=int, default=0, help="population seed (default: 0)")
     cap.add_argument("--oracle", action="store_true",
                      help="also report per-head optimal weights (the bound for any skinning model with this pattern)")

