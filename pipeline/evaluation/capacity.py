@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import functools
 import time
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -82,13 +83,23 @@ def _per_head_error(pred: torch.Tensor, target: torch.Tensor) -> np.ndarray:
     return mean_vertex_error(pred.detach().cpu(), target.detach().cpu())
 
 
-def _summary(errors: list[np.ndarray], seconds: float | None = None) -> dict:
+def _summary(errors: list[np.ndarray], seconds: float | None = None, row: str = "") -> dict:
     """Mean, sample std (ddof=1) and median over heads (:func:`pipeline.evaluation.metrics.summarize`);
-    with ``seconds`` (the row's total fitting time), also ``seconds_per_head``."""
-    s = summarize(np.concatenate([np.atleast_1d(e) for e in errors]))
+    with ``seconds`` (the row's total fitting time), also ``seconds_per_head``.
+
+    A fit that returned non-finite vertices gives a NaN error, which is kept (the mean is NaN: a failed
+    fit is not dropped silently); the row then also counts them in ``nonfinite_heads``, with a warning.
+    """
+    per_head = np.concatenate([np.atleast_1d(e) for e in errors])
+    s = summarize(per_head)
     out = {"mean_mm": round(s.mean, 4), "std_mm": round(s.std, 4), "median_mm": round(s.median, 4), "heads": s.n}
     if seconds is not None:
         out["seconds_per_head"] = round(seconds / s.n, 6) if s.n else float("nan")
+    bad = int((~np.isfinite(per_head)).sum())
+    if bad:
+        out["nonfinite_heads"] = bad
+        warnings.warn(f"jnr eval capacity: {row or 'a row'}: {bad} of {s.n} fits returned non-finite vertices",
+                      RuntimeWarning, stacklevel=2)
     return out
 
 
@@ -199,7 +210,7 @@ def _jnr_rows(rig, neural, targets: torch.Tensor, split: str, settings: Capacity
                 errs.append(_per_head_error(rig(fit.theta, weights=weights).vertices, chunk))
             if progress:
                 progress(f"{split}: {name}", min(start + EVAL_CHUNK, n), n)
-        rows[name] = _summary(errs, seconds)
+        rows[name] = _summary(errs, seconds, f"{split}: {name}")
     linear_theta = torch.cat(thetas)  # the last loop's: learned linear
     errs, seconds = [], 0.0
     for start in range(0, n, EVAL_CHUNK):
@@ -212,10 +223,10 @@ def _jnr_rows(rig, neural, targets: torch.Tensor, split: str, settings: Capacity
             errs.append(_per_head_error(rig(fit.theta, weights=neural(fit.z)).vertices, chunk))
         if progress:
             progress(f"{split}: neural", min(start + EVAL_CHUNK, n), n)
-    rows["neural"] = _summary(errs, seconds)
+    rows["neural"] = _summary(errs, seconds, f"{split}: neural")
     if oracle:
         errs, seconds = _oracle_errors(rig, targets, linear_theta, neural.linear_free, settings)
-        rows[ORACLE_ROW] = _summary(errs, seconds)
+        rows[ORACLE_ROW] = _summary(errs, seconds, f"{split}: {ORACLE_ROW}")
     return rows
 
 
@@ -227,7 +238,7 @@ def _pca_rows(models: dict, targets: torch.Tensor, split: str, progress) -> dict
         t0 = time.perf_counter()
         fitted = pca.fit(targets)
         seconds = time.perf_counter() - t0
-        rows[name] = _summary([_per_head_error(fitted, targets.to(fitted.dtype))], seconds)
+        rows[name] = _summary([_per_head_error(fitted, targets.to(fitted.dtype))], seconds, f"{split}: {name}")
         if progress:
             progress(f"{split}: pca", i + 1, len(models))
     return rows
@@ -251,7 +262,7 @@ def _asm_fit_rows(rig, asm, targets: torch.Tensor, split: str, settings: Capacit
             errs.append(_per_head_error(torch.as_tensor(fit.vertices).to(chunk.dtype), chunk))
             if progress:
                 progress(f"{split}: {name}", min(start + EVAL_CHUNK, n), n)
-        rows[name] = _summary(errs, seconds)
+        rows[name] = _summary(errs, seconds, f"{split}: {name}")
     return rows
 
 

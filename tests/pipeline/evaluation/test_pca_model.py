@@ -10,10 +10,10 @@ import pytest
 import torch
 
 from pipeline.cli import main
-from pipeline.evaluation.capacity import PCA_ROWS, evaluate_capacity, pca_training_heads
+from pipeline.evaluation.capacity import ASM_ROWS, PCA_ROWS, evaluate_capacity, pca_training_heads
 from pipeline.evaluation.metrics import mean_vertex_error
 from pipeline.evaluation.pca_model import PcaShapeModel, train_pca
-from rig.errors import InputError, ShapeError
+from rig.errors import InputError, SetupError, ShapeError
 
 
 @pytest.fixture(scope="module")
@@ -151,3 +151,67 @@ def test_cli_capacity_bad_models_are_usage_errors(capsys):
     assert exit_.value.code == 2 and "--models: expected a comma-separated subset" in capsys.readouterr().err
     assert main(["eval", "capacity", "--quiet", "--models", "pca", "--oracle"]) == 2
     assert "--oracle" in capsys.readouterr().err
+
+
+# ------------------------------------------------------------------------------------ the ASM rows' wiring
+
+class _FakeAsm:
+    """``rig.skinning.asm``'s API as ``jnr eval capacity`` uses it: every fit is the target moved by
+    ``K`` mm along x, plus 1 mm with dynamic binding, so each row's error says which model and variant
+    were fitted."""
+
+    from dataclasses import dataclass
+
+    @dataclass(frozen=True)
+    class AsmVariant:
+        dynamic_binding: bool = True
+        gmm_weights: bool = True
+
+    class AdaptiveSkinning:
+        def __init__(self, rig, components=2):
+            self.components = components
+
+        def num_floats(self, variant):
+            return {"fixed": 1000 * self.components, "per_head": 10 + variant.gmm_weights, "static_vertices": 7}
+
+    @dataclass(frozen=True)
+    class AsmFit:
+        vertices: torch.Tensor
+        seconds: float
+
+    @staticmethod
+    def fit_asm(model, targets, *, variant, iterations=400, progress=None):
+        shift = (model.components if variant.gmm_weights else 0.0) + (1.0 if variant.dynamic_binding else 0.0)
+        moved = targets.clone()
+        moved[..., 0] += shift
+        if shift == 3.0:  # asm_dynamic + gmm with K = 2: one failed fit
+            moved[0] = float("nan")
+        return _FakeAsm.AsmFit(vertices=moved, seconds=0.0)
+
+
+def test_asm_rows_call_the_asm_api(monkeypatch):
+    import types
+
+    fake = types.ModuleType("rig.skinning.asm")
+    for name in ("AsmVariant", "AdaptiveSkinning", "fit_asm"):
+        setattr(fake, name, getattr(_FakeAsm, name))
+    monkeypatch.setitem(__import__("sys").modules, "rig.skinning.asm", fake)
+    with pytest.warns(RuntimeWarning, match="test: asm_k2: 1 of 2 fits returned non-finite vertices"):
+        result = evaluate_capacity(("test",), limit=2, models=("asm",))
+    row = result["splits"]["test"]
+    assert [n for n in row if n != "seconds"] == list(ASM_ROWS)
+    expected = {"asm_static": 0.0, "asm_dynamic_binding": 1.0, "asm_gmm_k2": 2.0, "asm_gmm_k5": 5.0, "asm_k5": 6.0}
+    for name, shift in expected.items():
+        assert row[name]["mean_mm"] == pytest.approx(shift, abs=1e-4) and row[name]["heads"] == 2
+        assert "nonfinite_heads" not in row[name]
+    assert np.isnan(row["asm_k2"]["mean_mm"]) and row["asm_k2"]["nonfinite_heads"] == 1
+    assert result["model_floats"]["asm_k5"] == {"fixed": 5000, "per_head": 11, "static_vertices": 7}
+    assert row["asm_k5"]["model_floats"] == 5011 and row["asm_static"]["model_floats"] == 2010  # not the vertex count
+
+
+def test_missing_asm_module_is_a_clear_error(monkeypatch, capsys):
+    monkeypatch.setitem(__import__("sys").modules, "rig.skinning.asm", None)  # import fails
+    with pytest.raises(SetupError, match=r"rig.skinning.asm .* --models jnr,pca"):
+        evaluate_capacity(("test",), models=("pca", "asm"))
+    assert main(["eval", "capacity", "--quiet", "--models", "asm"]) == 1
+    assert "--models jnr,pca" in capsys.readouterr().err
