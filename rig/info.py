@@ -5,6 +5,10 @@ from __future__ import annotations
 from rig.asset import RigAsset, load_asset
 from rig.expressions import EXPRESSION_NAMES
 from rig.parameters import NUM_PARAMETERS, symmetric_groups
+from rig.skinning.asm import uv_domain
+
+#: The ``K`` (Gaussians per bone) whose ASM sizes ``jnr rig info`` prints.
+ASM_REPORTED_K = (2, 3, 5)
 
 
 def rig_info(asset: RigAsset | None = None) -> dict:
@@ -16,7 +20,11 @@ def rig_info(asset: RigAsset | None = None) -> dict:
         weights), ``"skinning_nonzeros"``, ``"max_influences"`` (joints per vertex), ``"model_floats"``
         (template coordinates + joint positions + skinning floats), ``"expressions"`` (52),
         ``"expression_names"`` (the ARKit names, in coefficient order), ``"regions"`` (names), ``"units"``
-        (``"mm"``), ``"asset_version"}``; ints except the lists and the strings, in this order.
+        (``"mm"``), ``"asset_version"``, then the ASM skinning model (:mod:`rig.skinning.asm`):
+        ``"asm_parameters_per_bone"`` (``{"K=2": 23, ...}``, ASM Table 1's ``11 + 6K``),
+        ``"asm_parameters"`` (the same times the 52 bones) and ``"asm_gmm_vertices"`` (vertices weighted by
+        the GMM; the others keep the painted weights)``}``; ints except the lists, dicts and strings, in
+        this order.
 
     Example:
         >>> rig_info()["joints"]
@@ -39,6 +47,9 @@ def rig_info(asset: RigAsset | None = None) -> dict:
         "regions": list(asset.region_names),
         "units": "mm",
         "asset_version": asset.version,
+        "asm_parameters_per_bone": {f"K={k}": 11 + 6 * k for k in ASM_REPORTED_K},
+        "asm_parameters": {f"K={k}": len(asset.joint_names) * (11 + 6 * k) for k in ASM_REPORTED_K},
+        "asm_gmm_vertices": len(uv_domain(asset).gmm_vertices),
     }
 
 

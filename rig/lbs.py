@@ -93,11 +93,13 @@ def joint_world_transforms(tau: torch.Tensor, bind_positions: torch.Tensor, pare
 
     Bind poses are translations ``B_k = T(p_k)`` (joint frames aligned with rig axes). With
     ``L_k = T(p_k - p_parent) @ tau_k`` the world frame is ``G_k = G_parent @ L_k`` and the skinning
-    transform is ``A_k = G_k @ B_k^-1`` (identity when every ``tau_k`` is).
+    transform is ``A_k = G_k @ B_k^-1`` (identity when every ``tau_k`` is). With per-head bind positions
+    ``(B, K, 3)`` this is ASM's dynamic bone binding (its eq. 13-16 with the rotation and scale of the
+    initial binding, the identity here).
 
     Args:
         tau: ``(B, K, 4, 4)`` local channel transforms.
-        bind_positions: ``(K, 3)`` joint positions in mm.
+        bind_positions: ``(K, 3)`` joint positions in mm, or ``(B, K, 3)`` one set per head.
         parents: ``(K,)`` int64 parent index, -1 for the root; parents come before children.
         levels: optional joint indices grouped by depth (from :func:`hierarchy_levels`); each level is
             composed in one batched matmul.
@@ -105,15 +107,19 @@ def joint_world_transforms(tau: torch.Tensor, bind_positions: torch.Tensor, pare
     Returns:
         ``(world (B, K, 4, 4), skinning (B, K, 4, 4))``.
     """
-    K = bind_positions.shape[0]
+    K = bind_positions.shape[-2]
     check_shape(tau.dim() == 4 and tau.shape[1:] == (K, 4, 4), "joint_world_transforms", "tau", f"(B, {K}, 4, 4)",
            tuple(tau.shape))
+    check_shape(bind_positions.shape[-1] == 3 and (bind_positions.dim() == 2 or (
+        bind_positions.dim() == 3 and bind_positions.shape[0] == tau.shape[0])), "joint_world_transforms",
+        "bind_positions", f"({K}, 3) or ({tau.shape[0]}, {K}, 3)", tuple(bind_positions.shape))
     check_shape(parents.shape == (K,), "joint_world_transforms", "parents", f"({K},)", tuple(parents.shape))
     if levels is None:
         levels = hierarchy_levels(parents)
-    parent_pos = torch.where((parents >= 0).unsqueeze(-1), bind_positions[parents.clamp(min=0)],
-                             torch.zeros_like(bind_positions))
-    offset = (bind_positions - parent_pos).to(tau.dtype)
+    bind = bind_positions.to(tau.dtype)
+    has_parent = (parents >= 0).unsqueeze(-1)
+    parent_pos = torch.where(has_parent, bind[..., parents.clamp(min=0), :], torch.zeros_like(bind))
+    offset = bind - parent_pos
     local = tau.clone()
     local[..., :3, 3] = local[..., :3, 3] + offset
     world = torch.empty_like(local)
@@ -122,8 +128,7 @@ def joint_world_transforms(tau: torch.Tensor, bind_positions: torch.Tensor, pare
         world[:, level] = world[:, parents[level]] @ local[:, level]
     skinning = world.clone()
     # A = G @ T(-p): the translation column gains -R' p.
-    skinning[..., :3, 3] = world[..., :3, 3] - (world[..., :3, :3] @ bind_positions.to(tau.dtype).unsqueeze(-1)
-                                                ).squeeze(-1)
+    skinning[..., :3, 3] = world[..., :3, 3] - (world[..., :3, :3] @ bind.unsqueeze(-1)).squeeze(-1)
     return world, skinning
 
 
@@ -245,4 +250,31 @@ def skin_vertices_shared_weights(vertices: torch.Tensor, weights: torch.Tensor, 
                 tuple(vertices.shape))
     top = skinning[:, :, :3, :].permute(1, 0, 2, 3).reshape(K, batch * 12)
     blended = (weights.to(top.dtype) @ top).view(-1, batch, 3, 4).transpose(0, 1)  # (B, V, 3, 4)
+    return (blended[..., :3] @ vertices.unsqueeze(-1)).squeeze(-1) + blended[..., 3]
+
+
+def skin_vertices_blended(vertices: torch.Tensor, weights: torch.Tensor, skinning: torch.Tensor) -> torch.Tensor:
+    """Linear blend skinning with per-head dense weights, by blending the transforms first:
+    ``M_v = sum_k w_vk A_k`` (one ``(V, K) @ (K, 12)`` product per head), then ``v' = M_v [v, 1]``.
+
+    Equal to :func:`skin_vertices`; cheaper when every head has its own dense weights (ASM's GMM
+    weights), since no ``(B, V, 4K)`` basis is built.
+
+    Args:
+        vertices: ``(V, 3)`` or ``(B, V, 3)`` rest vertices, mm.
+        weights: ``(B, V, K)`` skinning weights.
+        skinning: ``(B, K, 4, 4)`` skinning transforms.
+
+    Returns:
+        ``(B, V, 3)`` posed vertices, mm.
+    """
+    check_shape(skinning.dim() == 4 and skinning.shape[-2:] == (4, 4), "skin_vertices_blended", "skinning",
+                "(B, K, 4, 4)", tuple(skinning.shape))
+    batch, K = skinning.shape[:2]
+    check_shape(weights.dim() == 3 and weights.shape[0] == batch and weights.shape[2] == K, "skin_vertices_blended",
+                "weights", f"({batch}, V, {K})", tuple(weights.shape))
+    check_shape(vertices.shape[-1] == 3 and vertices.shape[-2] == weights.shape[1] and vertices.dim() in (2, 3),
+                "skin_vertices_blended", "vertices", f"(V, 3) or (B, V, 3) with V = {weights.shape[1]}",
+                tuple(vertices.shape))
+    blended = (weights.to(skinning.dtype) @ skinning[:, :, :3, :].reshape(batch, K, 12)).view(batch, -1, 3, 4)
     return (blended[..., :3] @ vertices.unsqueeze(-1)).squeeze(-1) + blended[..., 3]

@@ -31,10 +31,30 @@ def cmd_identity_prior(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def cmd_asm_init(args: argparse.Namespace) -> int:
+    from rig.skinning.asm import INIT_COMPONENTS, default_init_path, save_initial_gmm
+
+    if args.config or args.set or args.log or args.identity_prior:
+        raise CliError("--asm-init takes only --out, --force and --quiet")
+    out = Path(args.out) if args.out else default_init_path()
+    check_output(out, args.force or args.out is None)
+    bars = StageBars(args.quiet)
+    try:
+        arrays = save_initial_gmm(out, progress=bars)
+    finally:
+        bars.close()
+    report = {f"K={k}": dict(zip(("rms_weight_error", "max_weight_error", "seconds"),
+                                 (round(float(x), 4) for x in arrays[f"k{k}_report"]))) for k in INIT_COMPONENTS}
+    print(json.dumps({"artifact": str(out), **report}, indent=2))
+    return EXIT_OK
+
+
 def cmd_train(args: argparse.Namespace) -> int:
     from pipeline.train import load_config, train
     from rig.asset import default_skinning_path
 
+    if args.asm_init:
+        return cmd_asm_init(args)
     if args.identity_prior:
         return cmd_identity_prior(args)
     try:
@@ -65,6 +85,10 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
                     help="instead: fit the joints of the training population (85 train heads + 215 more from the "
                          "same distribution, ~3 min) and write the identity prior of the photo fit, a PPCA Gaussian "
                          "of the fitted joints (rig/assets/jnr_identity_prior_v2.npz unless --out is given)")
+    tr.add_argument("--asm-init", action="store_true",
+                    help="instead: fit the initial Gaussian mixtures of the ASM skinning model (K = 2, 3, 5 per "
+                         "bone) to the rig's painted weights in UV space, ~10 min (rig/assets/jnr_asm_init_v2.npz "
+                         "unless --out is given)")
     tr.add_argument("--config", help="YAML file overriding TrainConfig fields (configs/train.yaml)")
     tr.add_argument("--set", action="append", metavar="KEY=VALUE", help="override one setting (repeatable)")
     tr.add_argument("--out", help="artifact path (default: the packaged rig/assets/jnr_skinning_v2.npz)")

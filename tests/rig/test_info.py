@@ -9,7 +9,8 @@ def test_rig_info_counts_the_asset(asset):
     info = rig_info(asset)
     assert list(info) == ["vertices", "faces", "joints", "free_parameters", "free_parameters_symmetric",
                           "skinning_floats", "skinning_nonzeros", "max_influences", "model_floats", "expressions",
-                          "expression_names", "regions", "units", "asset_version"]
+                          "expression_names", "regions", "units", "asset_version",
+                          "asm_parameters_per_bone", "asm_parameters", "asm_gmm_vertices"]
     assert (info["vertices"], info["faces"], info["joints"]) == (len(asset.vertices), len(asset.faces), 52)
     assert info["free_parameters"] == NUM_PARAMETERS and 0 < info["free_parameters_symmetric"] < NUM_PARAMETERS
     assert info["skinning_floats"] == len(asset.weight_free) and info["skinning_nonzeros"] == len(asset.weight_rows)
@@ -18,6 +19,10 @@ def test_rig_info_counts_the_asset(asset):
     assert info["regions"] == list(asset.region_names) and info["units"] == "mm"
     assert info["expressions"] == 52 and info["expression_names"][:2] == ["eyeBlinkLeft", "eyeLookDownLeft"]
     assert 4500 <= info["vertices"] <= 5500
+    # ASM Table 1: 11 + 6K floats per bone, on the rig's 52 joints
+    assert info["asm_parameters_per_bone"] == {"K=2": 23, "K=3": 29, "K=5": 41}
+    assert info["asm_parameters"]["K=2"] == 52 * 23 == 1196
+    assert 3000 < info["asm_gmm_vertices"] < info["vertices"]
     assert rig_info() == info  # the committed asset by default
 
 

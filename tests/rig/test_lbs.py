@@ -142,3 +142,25 @@ def test_batched_weights_and_vertices(rig64, asset):
     w = torch.as_tensor(asset.weights).expand(2, -1, -1)
     v = torch.as_tensor(asset.vertices).expand(2, -1, -1)
     assert torch.abs(rig64(theta, weights=w, vertices=v).vertices - rig64(theta).vertices).max() < 1e-10
+
+
+def test_blended_skinning_equals_basis_skinning_and_batched_bind_positions_equal_shared():
+    from rig.lbs import skin_vertices, skin_vertices_blended
+
+    g = torch.Generator().manual_seed(11)
+    B, V, K = 3, 40, 5
+    verts = torch.randn(B, V, 3, generator=g, dtype=torch.float64)
+    w = torch.rand(B, V, K, generator=g, dtype=torch.float64)
+    w = w / w.sum(-1, keepdim=True)
+    A = torch.randn(B, K, 4, 4, generator=g, dtype=torch.float64)
+    A[:, :, 3] = torch.tensor([0.0, 0.0, 0.0, 1.0], dtype=torch.float64)
+    assert torch.allclose(skin_vertices_blended(verts, w, A), skin_vertices(verts, w, A), atol=1e-12)
+    # per-head bind positions: each head equals the shared call with its own positions
+    parents = torch.tensor([-1, 0, 0, 1, 3])
+    tau = torch.eye(4, dtype=torch.float64).repeat(B, K, 1, 1)
+    tau[..., :3, 3] = torch.randn(B, K, 3, generator=g, dtype=torch.float64)
+    bind = torch.randn(B, K, 3, generator=g, dtype=torch.float64)
+    world, skin = joint_world_transforms(tau, bind, parents)
+    for b in range(B):
+        w1, s1 = joint_world_transforms(tau[b:b + 1], bind[b], parents)
+        assert torch.allclose(world[b], w1[0]) and torch.allclose(skin[b], s1[0])
