@@ -173,6 +173,36 @@ def _fit_several(args: argparse.Namespace, photos: list[Path], folders: list[Pat
     return _exit_status(failed)
 
 
+def _fit_views(args: argparse.Namespace, photos: list[Path]) -> int:
+    """``jnr fit a b c --views --out DIR``: one head from several photos of one person
+    (:mod:`pipeline.photo.multiview_outputs`)."""
+    from pipeline.cli.common import fit_photo_overrides
+    from pipeline.config import ConfigError, load_config
+    from pipeline.photo.multiview import MultiViewConfig
+    from pipeline.photo.multiview_outputs import MIN_VIEWS, MULTIVIEW_OUTPUT_FILES, fit_multiview_files
+
+    if len(photos) < MIN_VIEWS:
+        raise CliError(f"--views needs at least {MIN_VIEWS} photos of the same person, got {len(photos)}")
+    if args.face is not None:
+        raise CliError("--face cannot be used with --views (each photo's largest face is fitted)")
+    overrides = fit_photo_overrides(args)
+    if args.skinning is not None:
+        overrides["skinning"] = args.skinning
+    try:
+        config = load_config(MultiViewConfig, args.config, overrides)
+    except ConfigError as exc:
+        raise CliError(str(exc)) from None
+    try:
+        summary = fit_multiview_files(photos, args.out, config=config, landmarks=args.landmarks, focal=args.focal,
+                                      force=args.force, command=command_line("jnr fit"), detector=args.detector)
+    except FloatingPointError as exc:
+        raise CliError(str(exc), EXIT_FAILURE) from None
+    print(f"fitted {summary['views']} views of one head in {summary['seconds']:.1f} s: landmark error "
+          f"{summary['mean_error_px']:.2f} px (mean over views)")
+    print(f"wrote {args.out}/: {', '.join(MULTIVIEW_OUTPUT_FILES)}")
+    return EXIT_OK
+
+
 def cmd_fit(args: argparse.Namespace) -> int:
     """``jnr fit PHOTO... --out DIR``: single-photo reconstruction (see pipeline.photo.fit)."""
     from pipeline.photo.files import FACE_ALL, photo_inputs
@@ -185,6 +215,10 @@ def cmd_fit(args: argparse.Namespace) -> int:
     if args.face is not None and args.landmarks:
         raise CliError("--face picks among the faces the detector finds; it cannot be used with --landmarks")
     photos, folders = photo_inputs(args.photos)
+    if args.views:
+        return _fit_views(args, photos)
+    if args.skinning is not None:
+        raise CliError("--skinning applies to --views (the multi-view fit)")
     config = load_fit_photo_config(args)
     if len(photos) == 1 and not folders:
         fit = _fit_faces if args.face == FACE_ALL else _fit_one
@@ -252,6 +286,12 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
                      help="after the landmark fit, the photometric stages (render + photo loss, ~20 s a photo; off by "
                           "default: on synthetic validation photos they did not improve the geometry, see "
                           "docs/fit_photo.md)")
+    fit.add_argument("--views", action="store_true",
+                     help="the photos are views of ONE person: fit one shared identity with a pose, expression and "
+                          "focal per view (at least 2 photos; OUT/ gets one mesh and overlay_<k>.png per view; "
+                          "--photometric adds photometric consistency between views; docs/multiview.md)")
+    fit.add_argument("--skinning", choices=("jnr", "asm"),
+                     help="with --views: the identity model, jnr (the rig's joints, default) or asm (adaptive skinning)")
     fit.add_argument("--config", help="YAML overriding the fitting settings (e.g. configs/fit_photo.yaml)")
     fit.add_argument("--set", action="append", metavar="KEY=VALUE", help="override one setting (repeatable)")
     fit.add_argument("--jobs", type=int, help="parallel processes for several photos (default: the CPU count)")

@@ -506,7 +506,8 @@ def _tint(tau: float) -> np.ndarray:
 
 def simulate_photo(vertices, rng: np.random.Generator | int, settings: PhotoSettings = PhotoSettings(),
                    asset: RigAsset | None = None, *, yaw_deg: float | None = None, pitch_deg: float | None = None,
-                   roll_deg: float | None = None, name: str = "") -> SyntheticPhoto:
+                   roll_deg: float | None = None, name: str = "", albedo: np.ndarray | None = None,
+                   render: bool = True) -> SyntheticPhoto:
     """Photograph a head: random albedo, pose, camera, light and background, path-traced.
 
     The head is turned by :func:`head_rotation`, its rig origin put ``distance`` mm in front of the
@@ -524,6 +525,11 @@ def simulate_photo(vertices, rng: np.random.Generator | int, settings: PhotoSett
         yaw_deg, pitch_deg, roll_deg: fixed head angles (degrees) instead of random ones (the random
             ones are drawn anyway, so everything else stays the same).
         name: stored in :attr:`SyntheticPhoto.name`.
+        albedo: ``(V, 3)`` linear RGB in [0, 1] to use instead of the random one (the random one is drawn
+            anyway, so everything else stays the same): several photos of one person
+            (:mod:`pipeline.synthetic.multiview`).
+        render: False: no path tracing (``image`` and ``image_linear`` are black, ``mask`` zeros); the pose,
+            camera and landmarks are the same as with it.
 
     Returns:
         :class:`SyntheticPhoto`.
@@ -568,7 +574,13 @@ def simulate_photo(vertices, rng: np.random.Generator | int, settings: PhotoSett
     key_tint = _tint(rng.uniform(-s.light_tint, s.light_tint))
     environment = float(rng.uniform(*s.environment_radiance_range))
     environment_tint = _tint(rng.uniform(-s.light_tint, s.light_tint))
-    albedo = synthesize_albedo(rng, asset, settings=s)
+    drawn_albedo = synthesize_albedo(rng, asset, settings=s)
+    if albedo is None:
+        albedo = drawn_albedo
+    else:
+        albedo = np.asarray(albedo, np.float64)
+        if albedo.shape != v.shape or not np.isfinite(albedo).all() or albedo.min() < 0 or albedo.max() > 1:
+            raise ValueError(f"{func}: albedo must be {v.shape} linear RGB within [0, 1], got shape {albedo.shape}")
     background = synthetic_background(rng, width, height)
     render_seed = int(rng.integers(0, 2**31 - 1))
     noise = rng.normal(0.0, 1.0, size=(68, 2)) * s.landmark_noise_px
@@ -611,6 +623,13 @@ def simulate_photo(vertices, rng: np.random.Generator | int, settings: PhotoSett
     light = ReferenceLight(position=light_rig, intensity=irradiance * light_distance ** 2 * key_tint,
                            environment=environment * environment_tint)
 
+    if not render:
+        image_linear = np.zeros((height, width, 3), np.float32)
+        return SyntheticPhoto(
+            image=_to_uint8(image_linear), image_linear=image_linear, landmarks2d=true2d + noise,
+            landmarks2d_true=true2d, gt_vertices=v, rotation=rotation, translation=translation, focal=focal,
+            width=width, height=height, albedo=albedo, light=light, name=str(name), yaw_deg=yaw, pitch_deg=pitch,
+            roll_deg=roll, mask=np.zeros((height, width), np.float32))
     start = time.perf_counter()
     rendered = render_reference(v, asset.faces, albedo, camera, light, spp=s.spp, seed=render_seed,
                                 background=background)

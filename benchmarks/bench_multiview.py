@@ -1,0 +1,153 @@
+"""Multi-view uncalibrated reconstruction on synthetic views with known truth (issue 15, ASM 4.2 / Table 6).
+
+    .venv/bin/python benchmarks/bench_multiview.py [--heads 5] [--first 20] [--photometric] [--asm]
+                                                   [--json docs/multiview_bench.json]
+
+Per held-out head ``first..first+heads-1``: 10 views (:func:`pipeline.synthetic.multiview.synthetic_views`:
+the same head and albedo, yaw within ±60°, pitch ±10°, roll ±5°, focal 1.2-1.7 x 384 px per view, small
+MakeHuman expressions per view, the projected true landmarks + 1 px noise; path-traced at 16 samples per
+pixel when ``--photometric`` needs the images). The fits are uncalibrated: every view starts from the
+default focal (1.4 x 384 px). Scored: the NoW-style face-region scan-to-mesh median
+(:func:`pipeline.evaluation.photos.face_error`: similarity alignment on the inner landmarks, ICP, face
+regions) of the fitted identity without expression against the true head without expression.
+
+Rows: 1 view (the best of the 10 single-view fits, an oracle pick; and their mean), 3, 5, 10 views (the
+first k of the 10). Columns: ``jnr`` (the landmark refinement, :func:`pipeline.photo.multiview.fit_multiview`),
+``jnr + photometric`` (with the photometric consistency, ``--photometric``), ``asm`` (``--asm``; its
+1-view row is the ASM pipeline on the view that was best for jnr).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from pipeline.evaluation.photos import face_error  # noqa: E402
+from pipeline.fitting.state import head_vertices  # noqa: E402
+from pipeline.photo.multiview import MultiViewConfig, fit_multiview  # noqa: E402
+from pipeline.synthetic.multiview import MultiViewSettings, synthetic_views  # noqa: E402
+from pipeline.synthetic.photos import PhotoSettings  # noqa: E402
+from common import finish, load_models  # noqa: E402
+
+VIEW_COUNTS = (3, 5, 10)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--heads", type=int, default=5)
+    parser.add_argument("--first", type=int, default=20)
+    parser.add_argument("--views", type=int, nargs="+", default=list(VIEW_COUNTS))
+    parser.add_argument("--photometric", action="store_true", help="also the fits with photometric consistency")
+    parser.add_argument("--asm", action="store_true", help="also the ASM identity model")
+    parser.add_argument("--spp", type=int, default=16)
+    parser.add_argument("--asm-register-iterations", type=int, default=300)
+    parser.add_argument("--asm-iterations", type=int, default=150)
+    parser.add_argument("--json", type=Path)
+    parser.add_argument("--figure", type=Path, help="grey renders (front, side) of the first head's fits")
+    args = parser.parse_args()
+    rig, neural = load_models()
+    settings = MultiViewSettings(photo=PhotoSettings(spp=args.spp))
+    base = MultiViewConfig()
+    methods = {"jnr": base}
+    if args.photometric:
+        methods["jnr + photometric"] = replace(base, photometric=replace(base.photometric, enabled=True))
+    if args.asm:
+        methods["asm"] = replace(base, skinning="asm", asm=replace(
+            base.asm, register_iterations=args.asm_register_iterations, iterations=args.asm_iterations))
+    most = max(args.views)
+    records = []
+    for head in range(args.first, args.first + args.heads):
+        t0 = time.perf_counter()
+        views = synthetic_views(head, most, settings=settings, render=args.photometric)
+        truth = views.neutral_vertices
+        lms = [p.landmarks2d for p in views.photos]
+        sizes = [(p.width, p.height) for p in views.photos]
+        images = [p.image for p in views.photos] if args.photometric else None
+        all_fit = fit_multiview(lms, sizes, rig=rig, neural=neural, config=base, min_views=1)
+        singles = all_fit.single_view_fits
+        single_errors = [face_error(head_vertices(rig, neural, s.theta, np.zeros(50), np.zeros(52)), truth)["s2m_median_mm"]
+                         for s in singles]
+        best = int(np.argmin(single_errors))
+        if head == args.first:
+            shown = {"truth": truth, "best single view": head_vertices(rig, neural, singles[best].theta,
+                                                                       np.zeros(50), np.zeros(52))}
+        records.append({"head": head, "views": 1, "method": "jnr", "s2m_median_mm": single_errors[best],
+                        "mean_single_mm": float(np.mean(single_errors)), "best_view": best,
+                        "yaw_deg": views.yaw_deg.tolist()})
+        for name, config in methods.items():
+            counts = [(n, list(range(n))) for n in args.views]
+            if name != "jnr":
+                counts = [(1, [best])] + counts
+            for n, index in counts:
+                t1 = time.perf_counter()
+                fit = all_fit if (name == "jnr" and n == most) else fit_multiview(
+                    [lms[i] for i in index], [sizes[i] for i in index], rig=rig, neural=neural, config=config,
+                    images=None if images is None else [images[i] for i in index], min_views=1,
+                    single_view_fits=tuple(singles[i] for i in index))
+                err = face_error(fit.identity_vertices, truth)
+                if head == args.first and n > 1 and n in (min(args.views), most):
+                    shown[f"{name}, {n} views"] = fit.identity_vertices
+                records.append({"head": head, "views": n, "method": name, "s2m_median_mm": err["s2m_median_mm"],
+                                "vertex_mean_mm": err["vertex_mean_mm"], "landmarks_px": fit.mean_error_px,
+                                "seconds": time.perf_counter() - t1})
+                print(f"head {head} {name:18s} {n:2d} views: {err['s2m_median_mm']:.3f} mm "
+                      f"({time.perf_counter() - t1:.1f} s)", flush=True)
+        print(f"head {head}: best single {single_errors[best]:.3f}, mean single {np.mean(single_errors):.3f} "
+              f"({time.perf_counter() - t0:.0f} s)", flush=True)
+
+    if args.figure:
+        figure(shown, args.figure)
+    names = list(methods)
+    rows = []
+    for n in [1, *args.views]:
+        row = {"views": n}
+        for name in names:
+            values = [r["s2m_median_mm"] for r in records if r["views"] == n and r["method"] == name]
+            row[name] = (float(np.mean(values)), float(np.std(values, ddof=1)) if len(values) > 1 else float("nan"),
+                         len(values)) if values else None
+        rows.append(row)
+    mean_single = float(np.mean([r["mean_single_mm"] for r in records if "mean_single_mm" in r]))
+    header = "| views | " + " | ".join(f"{n} s2m median mm" for n in names) + " |"
+    lines = [header, "|" + "---|" * (len(names) + 1)]
+    for row in rows:
+        label = "1 (best single view)" if row["views"] == 1 else str(row["views"])
+        cells = [f"{row[n][0]:.3f} ± {row[n][1]:.3f}" if row[n] else "—" for n in names]
+        lines.append(f"| {label} | " + " | ".join(cells) + " |")
+    lines.append(f"| 1 (mean single view) | {mean_single:.3f} |" + " |" * (len(names) - 1))
+    print("\n".join(lines))
+    finish({"table": rows, "mean_single_view_mm": mean_single, "records": records,
+            "settings": {"heads": list(range(args.first, args.first + args.heads)), "spp": args.spp,
+                         "photometric": args.photometric, "asm": args.asm,
+                         "views": settings.__dict__ | {"photo": settings.photo.__dict__}},
+            "markdown": "\n".join(lines)}, args.json)
+
+
+def figure(meshes: dict, path: Path) -> None:
+    """One column per mesh (front above, side below), grey, with its label."""
+    import cv2
+
+    from render.preview import render_preview, save_png
+    from rig.asset import load_asset
+
+    asset = load_asset()
+    faces = asset.faces[~asset.region_mask("mouth_interior", "eye_pockets", "teeth", "tongue")[asset.faces].all(1)]
+    kw = dict(size=(260, 320), spp=32, distance=620.0, target=(0.0, -25.0, 15.0))
+    columns = []
+    for label, v in meshes.items():
+        tiles = [render_preview(np.asarray(v), faces, view=view, **kw) for view in ("front", "side")]
+        column = np.ascontiguousarray(np.concatenate(tiles, 0))
+        cv2.putText(column, label, (6, 18), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (20, 20, 20), 1, cv2.LINE_AA)
+        columns.append(column)
+    save_png(np.concatenate(columns, 1), path)
+
+
+if __name__ == "__main__":
+    main()
