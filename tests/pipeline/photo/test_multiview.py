@@ -205,3 +205,45 @@ def test_cli_views_with_one_photo_is_a_one_line_error(capsys, tmp_path, view_pho
     assert code == 2
     assert err.strip().count("\n") == 0 and "at least 2 photos" in err
     assert not (tmp_path / "x").exists()
+
+
+def test_vertex_visibility_sees_the_face_not_the_back_of_the_head(asset):
+    from pipeline.photo.multiview import vertex_visibility
+    from rig.geometry import RIG_TO_OPENCV
+
+    v = np.asarray(asset.vertices, np.float64)
+    cam = v @ RIG_TO_OPENCV.T + np.array([0.0, 0.0, 600.0])
+    pixels = cam[:, :2] / cam[:, 2:] * 500.0 + 127.5
+    nose = np.flatnonzero(asset.region_mask("nose"))
+    back = np.flatnonzero(asset.region_mask("scalp") & (v[:, 2] < np.percentile(v[:, 2], 5)))
+    ids = np.concatenate([nose, back])
+    seen = vertex_visibility(cam, asset.faces, 256, 256, pixels, ids, 0.3, 2.0)
+    assert seen[:len(nose)].mean() > 0.6 and not seen[len(nose):].any()  # nostrils and the nose sides: grazing
+
+
+def test_asm_identity_model_runs_on_the_views(three_views, three_view_fit):
+    from dataclasses import replace
+
+    pytest.importorskip("rig.skinning.asm")
+    config = MultiViewConfig(skinning="asm", refine_iterations=2)
+    config = replace(config, asm=replace(config.asm, register_iterations=3, iterations=2))
+    lms = [p.landmarks2d for p in three_views.photos]
+    sizes = [(p.width, p.height) for p in three_views.photos]
+    fit = fit_multiview(lms, sizes, config=config, single_view_fits=three_view_fit.single_view_fits)
+    assert fit.skinning == "asm" and set(fit.asm_parameters) == {"tau", "zeta", "log_pi", "mu", "chol"}
+    assert [s.name for s in fit.stages] == ["average", "refine", "asm register", "asm refine"]
+    assert fit.identity_vertices.shape == three_views.neutral_vertices.shape
+    assert all(np.isfinite(v.rig_vertices).all() and v.error_px.mean() < 10.0 for v in fit.views)
+
+
+def test_cli_views_with_a_photo_without_a_face_is_a_one_line_error(capsys, tmp_path, view_photos):
+    from PIL import Image
+
+    root, _ = view_photos
+    blank = tmp_path / "wall.png"
+    Image.fromarray(np.full((64, 64, 3), 128, np.uint8)).save(blank)
+    code, _, err = run(capsys, "fit", str(root / "v0.png"), str(blank), "--views", "--detector", "hog", "--out",
+                       str(tmp_path / "x"))
+    assert code == 2, err
+    assert err.strip().count("\n") == 0 and "no face" in err
+    assert not (tmp_path / "x").exists()
