@@ -47,6 +47,9 @@ def load_edit_params(params: str | Path | None, clamp: bool = False) -> tuple[ob
         data = json.loads(path.read_text()) if path.is_file() else None
     except (json.JSONDecodeError, UnicodeDecodeError):
         data = None  # load_params_json reports it
+    if isinstance(data, dict) and data.get("skinning") == "asm":
+        raise ParameterError(f"{path} is the parameter file of an ASM fit (skinning: asm); joint edits and the "
+                             f"skinned export take JNR fits only (the ASM fit's mesh is its mesh.ply / mesh.obj)")
     if isinstance(data, dict) and (FIT_PARAMS_KEYS - {"joints"}) & set(data):
         missing = sorted(FIT_PARAMS_KEYS - set(data))
         if missing:

@@ -37,12 +37,16 @@ class PriorWeights:
     """Optional symmetry prior ``|theta - mirror(theta)|^2 / P`` (0: off)."""
     lambda_identity: float = 0.0
     """The learned identity prior (:mod:`pipeline.fitting.identity`), its negative log-density (0: off)."""
+    lambda_asm: float = 1e-2
+    """ASM fits only (``skinning: asm``): weight of ASM's regulariser (its eq. 19, :meth:`rig.skinning.asm.
+    AdaptiveSkinning.regularizer`), which replaces L_m, L_x and |Z|^2; it diminishes with L_m's schedule."""
 
 
 def rig_prior_terms(state: FitState, weights: PriorWeights, *, lambda_m: float | None = None,
                     identity: IdentityPrior | None = None) -> dict[str, torch.Tensor]:
     """The weighted prior terms of ``state``: ``L_m``, ``L_x``, ``latent``, ``expressions`` (and
-    ``symmetry`` when its weight is not 0), scalar tensors.
+    ``symmetry`` when its weight is not 0), scalar tensors; for an ASM state
+    (:class:`~pipeline.fitting.state.AsmScanState`) ``asm`` (eq. 19) and ``expressions``.
 
     Args:
         state: the fit state (joints ``theta (P,)``, ``z (50,)``, ``c (E,)``).
@@ -51,6 +55,12 @@ def rig_prior_terms(state: FitState, weights: PriorWeights, *, lambda_m: float |
         identity: the identity prior; default :func:`pipeline.fitting.identity.load_identity_prior` when
             ``weights.lambda_identity`` is not 0 (term ``identity``).
     """
+    if getattr(state, "asm", None) is not None:
+        # ASM's own regulariser replaces the joint priors; it follows L_m's diminishing schedule.
+        ratio = 1.0 if lambda_m is None or not weights.lambda_m else lambda_m / weights.lambda_m
+        reg = state.asm.regularizer(state.asm_parameters())[0]
+        return {"asm": weights.lambda_asm * ratio * reg,
+                "expressions": weights.lambda_expressions * state.c.square().sum()}
     theta = state.theta
     terms = {
         "L_m": (weights.lambda_m if lambda_m is None else lambda_m) * regularizer(theta[None])[0],

@@ -277,3 +277,72 @@ def head_vertices(rig: JointRig, neural: NeuralSkinning | None, theta, z, expres
             torch.as_tensor(np.asarray(z, np.float64), dtype=dtype)[None])[0]
         theta = torch.as_tensor(np.asarray(theta, np.float64), dtype=dtype)[None]
         return rig(theta, weights=weights, vertices=rest).vertices[0].double().numpy()
+
+
+class AsmScanState(ScanState):
+    """A point-cloud fit whose head is ASM (:mod:`rig.skinning.asm`) instead of the JNR joints and Z.
+
+    The groups keep their roles: ``joints`` frees ASM's bone transforms ``tau`` (9 per bone), ``latent``
+    its skinning parameters (the binding ``zeta`` and the mixtures ``log_pi``, ``mu``, ``chol``), so
+    JNR's schedule (joints, then skinning, then expressions) applies unchanged; ``pose`` and
+    ``expressions`` are as :class:`ScanState`. Parameters are stored in the units of
+    :data:`rig.skinning.asm.TAU_UNITS` and :data:`rig.skinning.asm.UV_UNIT`, so one step size fits each
+    group (``lr.asm_bones``, ``lr.asm_skinning``). ``theta`` and ``z`` stay at zero and unused.
+
+    Args:
+        model: the :class:`rig.skinning.asm.AdaptiveSkinning` (its rig is the state's rig).
+        expressions, rotation, translation, scale, fit_scale: as :class:`ScanState`.
+    """
+
+    def __init__(self, model, expressions: ExpressionModel, rotation: np.ndarray, translation: np.ndarray,
+                 scale: float, *, fit_scale: bool = True) -> None:
+        from rig.skinning.asm import TAU_UNITS, UV_UNIT
+
+        super().__init__(model.rig, None, expressions, rotation, translation, scale, fit_scale=fit_scale)
+        self.asm = model
+        init = model.initial(1)
+        self.register_buffer("tau_unit", torch.tensor(TAU_UNITS, dtype=self.dtype))
+        self.uv_unit = UV_UNIT
+        self.tau_n = nn.Parameter(torch.zeros_like(init.tau[0]))
+        self.zeta_n = nn.Parameter(init.zeta[0] / UV_UNIT)
+        self.log_pi = nn.Parameter(init.log_pi[0].clone())
+        self.mu_n = nn.Parameter(init.mu[0] / UV_UNIT)
+        self.chol = nn.Parameter(init.chol[0].clone())
+        self.GROUPS = {**self.GROUPS, "joints": (("tau_n", "asm_bones"),),
+                       "latent": (("zeta_n", "asm_skinning"), ("log_pi", "asm_skinning"), ("mu_n", "asm_skinning"),
+                                  ("chol", "asm_skinning"))}
+
+    def available(self, free: tuple[str, ...]) -> tuple[str, ...]:
+        return free
+
+    def project(self, free: tuple[str, ...]) -> None:
+        if "expressions" in free:
+            self.clamp_expressions()
+
+    def asm_parameters(self, free: tuple[str, ...] = ("joints", "latent")):
+        """The current :class:`rig.skinning.asm.AsmParameters` (batch 1); groups not in ``free`` detached."""
+        from rig.skinning.asm import AsmParameters
+
+        def grad(t: torch.Tensor, group: str) -> torch.Tensor:
+            return t if group in free else t.detach()
+
+        return AsmParameters(tau=grad(self.tau_n * self.tau_unit, "joints")[None],
+                             zeta=grad(self.zeta_n * self.uv_unit, "latent")[None],
+                             log_pi=grad(self.log_pi, "latent")[None], mu=grad(self.mu_n * self.uv_unit, "latent")[None],
+                             chol=grad(self.chol, "latent")[None])
+
+    def rig_vertices(self, free: tuple[str, ...] = ()) -> torch.Tensor:
+        """``(V, 3)`` rig-space vertices of the ASM head, mm; only the groups in ``free`` carry gradients."""
+        c = self.c if "expressions" in free else self.c.detach()
+        expr = self.models.expressions
+        rest = expr.template + expr(c[None])[0]
+        return self.asm(self.asm_parameters(free), vertices=rest).vertices[0]
+
+    def load_asm(self, params) -> None:
+        """Start from fitted :class:`rig.skinning.asm.AsmParameters` (batch 1)."""
+        with torch.no_grad():
+            self.tau_n.copy_(params.tau[0] / self.tau_unit)
+            self.zeta_n.copy_(params.zeta[0] / self.uv_unit)
+            self.log_pi.copy_(params.log_pi[0])
+            self.mu_n.copy_(params.mu[0] / self.uv_unit)
+            self.chol.copy_(params.chol[0])

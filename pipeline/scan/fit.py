@@ -46,7 +46,7 @@ from scipy.spatial import cKDTree
 
 from pipeline.fitting.engine import LearningRates, Loss, Stage, StageLog, run_schedule
 from pipeline.fitting.priors import PriorWeights, rig_prior_terms
-from pipeline.fitting.state import ScanState
+from pipeline.fitting.state import AsmScanState, ScanState
 from pipeline.scan.pointcloud import (
     CloudError,
     PointCloud,
@@ -65,6 +65,7 @@ from rig.geometry import Similarity
 from rig.model import JointRig
 from rig.optim import Progress
 from rig.parameters import NUM_PARAMETERS
+from rig.skinning.asm import asm_params_to_dict
 from rig.skinning.neural import LATENT, NeuralSkinning, load_neural
 from rig.template import FACE_REGIONS
 
@@ -98,6 +99,10 @@ class ScanLearningRates(LearningRates):
 
     log_scale: float = 0.001
     """Log of the global scale."""
+    asm_bones: float = 0.03
+    """``skinning: asm``: ASM's bone transforms, in units of 10 deg / 1 mm / 0.1 scale."""
+    asm_skinning: float = 0.02
+    """``skinning: asm``: ASM's binding and mixtures (UV in units of 0.01; log pi; Cholesky floats)."""
 
 
 @dataclass(frozen=True)
@@ -184,6 +189,18 @@ class FitScanConfig:
     prealign: PrealignConfig = field(default_factory=PrealignConfig)
     use_neural: bool = True
     """Use the neural skinning (learned linear + decoded residual); else the learned linear weights only."""
+    skinning: str = "jnr"
+    """The head model: ``jnr`` (the 52 joints' channels with neural skinning) or ``asm`` (the Adaptive
+    Skinning Model, :mod:`rig.skinning.asm`: 9-DoF bones, GMM skinning weights in UV space, dynamic
+    binding; the ``joints`` stages free its bone transforms and the ``latent`` stages its skinning)."""
+    asm_components: int = 2
+    """``skinning: asm``: Gaussians per bone (K)."""
+
+    def __post_init__(self) -> None:
+        if self.skinning not in ("jnr", "asm"):
+            raise ValueError(f"skinning must be 'jnr' or 'asm', got {self.skinning!r}")
+        if not isinstance(self.asm_components, int) or not 1 <= self.asm_components <= 8:
+            raise ValueError(f"asm_components must be an int in [1, 8], got {self.asm_components!r}")
 
 
 @dataclass(frozen=True)
@@ -202,6 +219,8 @@ class ScanFit:
             ``data_rms_mm`` (cloud -> model RMS of the inliers), ``lambda_m`` (L_m's weight at the end),
             ``pairs_cloud_to_model``, ``pairs_model_to_cloud``.
         timings: seconds per phase (``prealign``, ``fit``, ``total``).
+        asm: with ``skinning: asm``, the fitted ASM parameters by bone
+            (:func:`rig.skinning.asm.asm_params_to_dict`); ``theta`` and ``z`` are then zeros.
     """
 
     theta: np.ndarray
@@ -215,6 +234,7 @@ class ScanFit:
     prealign: RigidAlignment
     stages: tuple[StageLog, ...]
     timings: dict
+    asm: dict | None = None
 
     @property
     def transform(self) -> Similarity:
@@ -387,7 +407,12 @@ def fit_scan(cloud: PointCloud, config: FitScanConfig | None = None, *,
     config = config or FitScanConfig()
     t_start = time.perf_counter()
     rig = rig or JointRig()
-    if config.use_neural and neural is None:
+    asm_model = None
+    if config.skinning == "asm":
+        from rig.skinning.asm import AdaptiveSkinning
+
+        asm_model, neural = AdaptiveSkinning(rig, components=config.asm_components), None
+    elif config.use_neural and neural is None:
         neural, _ = load_neural(rig)
     if not config.use_neural:
         neural = None
@@ -402,8 +427,12 @@ def fit_scan(cloud: PointCloud, config: FitScanConfig | None = None, *,
     border = boundary_mask(cloud.points, k=config.correspondences.boundary_k)
     t_prealign = time.perf_counter() - t_start
 
-    state = ScanState(rig, neural, expressions, align.rotation, align.translation, align.scale,
-                      fit_scale=config.fit_scale)
+    if asm_model is not None:
+        state = AsmScanState(asm_model, expressions, align.rotation, align.translation, align.scale,
+                             fit_scale=config.fit_scale)
+    else:
+        state = ScanState(rig, neural, expressions, align.rotation, align.translation, align.scale,
+                          fit_scale=config.fit_scale)
     objective = ScanObjective(state, cloud.points, normals, border, view_dir, config, rng, marks)
     t_fit = time.perf_counter()
     stages = run_schedule(state, config.stages, objective, config.lr, label="fit-scan", progress=progress,
@@ -417,7 +446,9 @@ def fit_scan(cloud: PointCloud, config: FitScanConfig | None = None, *,
                    rotation=values["rotation"], translation=state.translation.detach().double().numpy(),
                    scale=state.scale, vertices=v_cloud.double().numpy(), rig_vertices=v_rig.double().numpy(),
                    prealign=align, stages=stages,
-                   timings={"prealign": t_prealign, "fit": t_end - t_fit, "total": t_end - t_start})
+                   timings={"prealign": t_prealign, "fit": t_end - t_fit, "total": t_end - t_start},
+                   asm=None if asm_model is None else asm_params_to_dict(state.asm_parameters(()),
+                                                                         rig.asset.joint_names))
 
 
 def _prealign(cloud: PointCloud, normals: np.ndarray, view_dir: np.ndarray | None, config: FitScanConfig,

@@ -60,11 +60,13 @@ def report_distance_stats(distances: np.ndarray) -> dict:
 def params_payload(fit: ScanFit, cloud: PointCloud, frame: str) -> dict:
     """The ``params.json`` content of a fit."""
     rot = fit.rotation
+    head = ({"skinning": "asm", "asm": fit.asm} if fit.asm is not None else
+            {"skinning": "jnr", "joints": theta_to_params(torch.as_tensor(fit.theta), include_rest=True),
+             "latent_z": [float(x) for x in fit.z]})
     return {
         "format": PARAMS_FORMAT,
         "units": {"rotate": "deg", "translate": "mm", "scale": "factor"},
-        "joints": theta_to_params(torch.as_tensor(fit.theta), include_rest=True),
-        "latent_z": [float(x) for x in fit.z],
+        **head,
         "expressions": {n: float(c) for n, c in zip(EXPRESSION_NAMES, fit.expressions)},
         "pose": {
             "description": "rig space (mm, +Y up, +Z out of the face) -> the cloud in mm and the rig frame: "
@@ -113,11 +115,15 @@ def mesh_from_params(params: dict | str | Path, *, rig: JointRig | None = None, 
 
 def rig_vertices_from_params(params: dict, *, rig: JointRig | None = None, use_neural: bool = True) -> np.ndarray:
     """``(V, 3)`` float64 rig-space head (mm) of a fit's parameters: its ``joints`` (by name), ``expressions``
-    (by name) and ``latent_z`` (50 values), as written by ``jnr fit-scan`` and ``jnr fit``.
+    (by name) and ``latent_z`` (50 values), as written by ``jnr fit-scan`` and ``jnr fit``; or, for an ASM
+    fit (``"skinning": "asm"``), its ``asm`` bones (:func:`rig.skinning.asm.asm_params_from_dict`) and
+    ``expressions``.
 
     Raises:
         ValueError: missing keys, unknown names, values outside limits, a latent of the wrong length.
     """
+    if params.get("skinning") == "asm":
+        return _asm_vertices_from_params(params, rig)
     missing = [k for k in ("joints", "expressions", "latent_z") if k not in params]
     if missing:
         raise ValueError(f"parameter file lacks {missing}")
@@ -128,6 +134,23 @@ def rig_vertices_from_params(params: dict, *, rig: JointRig | None = None, use_n
     if z.shape != (LATENT,):
         raise ValueError(f"latent_z must have {LATENT} values, got {z.size}")
     return head_vertices(rig, load_neural(rig)[0] if use_neural else None, theta.numpy(), z, c.numpy())
+
+
+def _asm_vertices_from_params(params: dict, rig: JointRig | None) -> np.ndarray:
+    from rig.expressions import ExpressionModel
+    from rig.skinning.asm import AdaptiveSkinning, asm_params_from_dict
+
+    missing = [k for k in ("asm", "expressions") if k not in params]
+    if missing:
+        raise ValueError(f"parameter file lacks {missing}")
+    rig = rig if rig is not None and rig.template.dtype == torch.float64 else JointRig(dtype=torch.float64)
+    block = params["asm"]
+    model = AdaptiveSkinning(rig, components=int(block.get("components", 2)) if isinstance(block, dict) else 2)
+    p = asm_params_from_dict(block, model)
+    c = coefficients_from_dict(params["expressions"], dtype=torch.float64)
+    with torch.no_grad():
+        rest = ExpressionModel(rig.asset, dtype=torch.float64).vertices(c[None])[0]
+        return model(p, vertices=rest).vertices[0].numpy()
 
 
 def head_arrays_from_params(params: dict, *, rig: JointRig | None = None

@@ -331,3 +331,29 @@ def test_cli_rejects_coincident_landmarks_with_one_line(landmark_scan, tmp_path,
     code, err = _cli_error(tmp_path, capsys, "scan.npy", np.c_[scan.points, scan.normals],
                            ("--landmarks", str(tmp_path / "marks.json")))
     assert code == 2 and "are 0 mm apart" in err and len(err.strip().splitlines()) == 1
+
+
+def test_cli_fit_scan_with_asm_skinning_writes_asm_parameters_that_reload(scan_file, asset):
+    out = scan_file / "fit_asm"
+    (scan_file / "shorter.yaml").write_text(SHORT_YAML.replace("10}", "6}").replace("5}", "3}"))
+    assert main(["fit-scan", str(scan_file / "scan.ply"), "--out", str(out), "--config",
+                 str(scan_file / "shorter.yaml"), "--set", "skinning=asm", "--quiet"]) == 0
+    import trimesh
+
+    params = json.loads((out / "params.json").read_text())
+    assert params["skinning"] == "asm" and "joints" not in params
+    assert params["asm"]["components"] == 2 and len(params["asm"]["bones"]) == 52
+    assert set(params["asm"]["bones"]["nose_tip"]) == {"tau", "zeta", "log_pi", "mu", "chol"}
+    mesh = trimesh.load(out / "mesh.ply", process=False)
+    # float32 fit vs float64 rebuild: the GMM normalisation is steeper than JNR's weights (0.007 mm seen)
+    np.testing.assert_allclose(mesh_from_params(out / "params.json"), mesh.vertices, atol=0.02)
+    report = json.loads((out / "report.json").read_text())
+    last = report["stages"][-1]
+    assert "asm" in last["terms"] and "L_m" not in last["terms"]
+    assert 0 < report["scan_to_mesh"]["median_mm"] < 3.0
+    # an ASM fit's parameters are not joint parameters: rig export says so in one line
+    code = main(["rig", "export", "--format", "obj", "--params", str(out / "params.json"), "--out",
+                 str(scan_file / "x.obj")])
+    assert code == 2
+    with pytest.raises(ConfigError, match="skinning"):
+        load_config(FitScanConfig, None, {"skinning": "blender"})
