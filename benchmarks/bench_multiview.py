@@ -48,8 +48,8 @@ def main() -> None:
     parser.add_argument("--photometric", action="store_true", help="also the fits with photometric consistency")
     parser.add_argument("--asm", action="store_true", help="also the ASM identity model")
     parser.add_argument("--spp", type=int, default=16)
-    parser.add_argument("--asm-register-iterations", type=int, default=300)
-    parser.add_argument("--asm-iterations", type=int, default=150)
+    parser.add_argument("--asm-register-iterations", type=int, default=100)
+    parser.add_argument("--asm-iterations", type=int, default=60)
     parser.add_argument("--json", type=Path)
     parser.add_argument("--figure", type=Path, help="grey renders (front, side) of the first head's fits")
     args = parser.parse_args()
@@ -73,8 +73,8 @@ def main() -> None:
         images = [p.image for p in views.photos] if args.photometric else None
         all_fit = fit_multiview(lms, sizes, rig=rig, neural=neural, config=base, min_views=1)
         singles = all_fit.single_view_fits
-        single_errors = [face_error(head_vertices(rig, neural, s.theta, np.zeros(50), np.zeros(52)), truth)["s2m_median_mm"]
-                         for s in singles]
+        single_errors = [face_error(head_vertices(rig, neural, s.theta, np.zeros(50), np.zeros(52)),
+                                    truth)["s2m_median_mm"] for s in singles]
         best = int(np.argmin(single_errors))
         if head == args.first:
             shown = {"truth": truth, "best single view": head_vertices(rig, neural, singles[best].theta,

@@ -159,10 +159,6 @@ def write_multiview_outputs(out_dir: str | Path, images: list[np.ndarray], fit: 
         render, mask = render_fit(look, spp=spp, asset=asset, mask_regions=FACE_REGIONS)
         overlays.append(overlay_image(image, render, mask, view.landmarks2d, view.landmarks_px))
     frontal = int(np.argmin([abs(head_angles(v.rotation)[0]) for v in fit.views]))
-    front = fit.views[frontal]
-    identity_look = _ViewLook(fit.identity_vertices, looks[frontal].albedo, looks[frontal].ambient,
-                              looks[frontal].irradiance, looks[frontal].light_direction_rig, front.camera,
-                              front.width, front.height)
     skin_ids = [asset.region_names.index(r) for r in FACE_REGIONS]
     # the texture is unwrapped from the frontal view's own head (its expression), then put on the identity
     texture = texture_from_fit(images[frontal], looks[frontal], asset.faces, asset.face_uvs, regions=asset.regions,
@@ -199,7 +195,6 @@ def write_multiview_outputs(out_dir: str | Path, images: list[np.ndarray], fit: 
         _save_png(_montage(overlays), tmp / "overlay.png")
         (tmp / "report.json").write_text(json.dumps(json_safe(report), indent=2) + "\n")
         dump_config(config or MultiViewConfig(), tmp / CONFIG_FILE, command=(extra or {}).get("command"))
-    del identity_look
     return out_dir
 
 

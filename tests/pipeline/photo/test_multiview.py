@@ -247,3 +247,10 @@ def test_cli_views_with_a_photo_without_a_face_is_a_one_line_error(capsys, tmp_p
     assert code == 2, err
     assert err.strip().count("\n") == 0 and "no face" in err
     assert not (tmp_path / "x").exists()
+
+
+def test_cli_skinning_without_views_is_a_one_line_error(capsys, tmp_path, view_photos):
+    root, _ = view_photos
+    code, _, err = run(capsys, "fit", str(root / "v0.png"), "--skinning", "asm", "--landmarks", "auto", "--out",
+                       str(tmp_path / "x"))
+    assert code == 2 and "--skinning applies to --views" in err and err.strip().count("\n") == 0
