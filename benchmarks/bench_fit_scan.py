@@ -20,7 +20,7 @@ import platform
 import shlex
 import sys
 import time
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from pathlib import Path
 
 import torch
@@ -29,6 +29,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from pipeline.evaluation.metrics import STD_DDOF
 from pipeline.evaluation.scans import evaluate_scans
+from pipeline.scan.fit import FitScanConfig
 from pipeline.synthetic.scans import DepthCamera
 
 HIRES = DepthCamera(640, 576, 504.0, 504.0, 320.0, 288.0)
@@ -42,6 +43,8 @@ def main() -> None:
     parser.add_argument("--hires", action="store_true", help="640x576 camera (~15-20k points)")
     parser.add_argument("--no-baseline", action="store_true", help="skip nricp_amberg")
     parser.add_argument("--json", type=Path, default=None, help="write records, summary and settings here")
+    parser.add_argument("--skinning", choices=("jnr", "asm", "both"), default="jnr",
+                        help="the head model of jnr's fit (FitScanConfig.skinning); both: one row each")
     args = parser.parse_args()
     torch.set_num_threads(2)
 
@@ -51,8 +54,13 @@ def main() -> None:
               f"{r.seconds:6.1f} s", flush=True)
 
     t0 = time.perf_counter()
-    ev = evaluate_scans(args.neutral, args.expressive, seed=args.seed, camera=HIRES if args.hires else None,
-                        baseline=not args.no_baseline, progress=progress)
+    models = ("jnr", "asm") if args.skinning == "both" else (args.skinning,)
+    ev = None
+    for n, skinning in enumerate(models):
+        part = evaluate_scans(args.neutral, args.expressive, seed=args.seed, camera=HIRES if args.hires else None,
+                              baseline=not args.no_baseline and n == 0, progress=progress,
+                              config=FitScanConfig(skinning=skinning))
+        ev = part if ev is None else replace(ev, records=ev.records + part.records)
     wall = time.perf_counter() - t0
 
     print()

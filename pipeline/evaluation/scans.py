@@ -54,7 +54,7 @@ from pipeline.evaluation.metrics import (
 __all__ = ["KINDS", "METHODS", "METRICS", "ScanEvaluation", "ScanRecord", "evaluate_scans", "scan_seed"]
 
 KINDS: tuple[str, ...] = ("neutral", "expressive")
-METHODS: tuple[str, ...] = ("jnr", "nricp_amberg")
+METHODS: tuple[str, ...] = ("jnr", "asm_k2", "asm_k3", "asm_k5", "nricp_amberg")
 #: Per-scan metrics summarised by :meth:`ScanEvaluation.summary` (mean, std and median over scans).
 METRICS: tuple[str, ...] = (
     "s2m_median_mm", "s2m_mean_mm", "s2m_std_mm", "vertex_mean_mm", "vertex_median_mm",
@@ -71,7 +71,7 @@ class ScanRecord:
         kind: ``"neutral"`` or ``"expressive"``.
         points: number of scan points (outliers included).
         hole_fraction: fraction of the face's pixels removed by the simulated holes.
-        method: ``"jnr"`` or ``"nricp_amberg"``.
+        method: ``"jnr"``, ``"asm_k<K>"`` (``skinning: asm``) or ``"nricp_amberg"``.
         seconds: wall time, s (see the module docstring for what it includes).
         s2m_median_mm, s2m_mean_mm, s2m_std_mm: statistics of the ``(N,)`` distances from every scan
             point (outliers included) to the fitted surface, mm.
@@ -193,7 +193,7 @@ def evaluate_scans(n_neutral: int = 5, n_expressive: int = 5, *, seed: int = 0, 
     heads = expressive_split(split, int(seed), n=max(n_neutral, n_expressive), asset=asset)
     # Models loaded once, so that jnr's timing is the fit, not the file loading.
     rig = JointRig(asset)
-    neural = load_neural(rig)[0] if config.use_neural else None
+    neural = load_neural(rig)[0] if config.use_neural and config.skinning == "jnr" else None
     expressions = ExpressionModel(asset, dtype=rig.template.dtype)
     face = asset.region_mask(*FACE_REGIONS)
 
@@ -219,7 +219,8 @@ def evaluate_scans(n_neutral: int = 5, n_expressive: int = 5, *, seed: int = 0, 
         al = fit.prealign
         prealigned = float(al.scale) * asset.vertices @ np.asarray(al.rotation).T + np.asarray(al.translation)
         pre_err = float(vertex_errors(prealigned, scan.gt_vertices)[face].mean())
-        add(**common, method="jnr", seconds=float(fit.timings["total"]),
+        method = "jnr" if config.skinning == "jnr" else f"asm_k{config.asm_components}"
+        add(**common, method=method, seconds=float(fit.timings["total"]),
             **_s2m_stats(scan.points, fit.vertices, asset.faces),
             **_vertex_stats(fit.vertices, scan.gt_vertices, face, seen), prealign_vertex_mean_mm=pre_err)
 
