@@ -1,7 +1,8 @@
 """Multi-view uncalibrated reconstruction on synthetic views with known truth (issue 15, ASM 4.2 / Table 6).
 
     .venv/bin/python benchmarks/bench_multiview.py [--heads 5] [--first 20] [--photometric] [--asm]
-                                                   [--json docs/multiview_bench.json]
+                                                   [--json docs/multiview_bench.json] [--figure FILE.png]
+    .venv/bin/python benchmarks/bench_multiview.py --merge RUN1.json RUN2.json --json docs/multiview_bench.json
 
 Per held-out head ``first..first+heads-1``: 10 views (:func:`pipeline.synthetic.multiview.synthetic_views`:
 the same head and albedo, yaw within ±60°, pitch ±10°, roll ±5°, focal 1.2-1.7 x 384 px per view, small
@@ -52,7 +53,11 @@ def main() -> None:
     parser.add_argument("--asm-iterations", type=int, default=60)
     parser.add_argument("--json", type=Path)
     parser.add_argument("--figure", type=Path, help="grey renders (front, side) of the first head's fits")
+    parser.add_argument("--merge", type=Path, nargs="+", help="only merge the records of these runs' JSON files")
     args = parser.parse_args()
+    if args.merge:
+        merge(args.merge, args.json)
+        return
     rig, neural = load_models()
     settings = MultiViewSettings(photo=PhotoSettings(spp=args.spp))
     base = MultiViewConfig()
@@ -105,9 +110,20 @@ def main() -> None:
 
     if args.figure:
         figure(shown, args.figure)
-    names = list(methods)
+    payload = summarise(records, list(methods), [1, *args.views])
+    print(payload["markdown"])
+    finish({**payload, "records": records,
+            "settings": {"heads": list(range(args.first, args.first + args.heads)), "spp": args.spp,
+                         "photometric": args.photometric, "asm": args.asm,
+                         "asm_register_iterations": args.asm_register_iterations,
+                         "asm_iterations": args.asm_iterations,
+                         "views": settings.__dict__ | {"photo": settings.photo.__dict__}}}, args.json)
+
+
+def summarise(records: list[dict], names: list[str], counts: list[int]) -> dict:
+    """The table (mean ± sample std over heads of the s2m median, per view count and method)."""
     rows = []
-    for n in [1, *args.views]:
+    for n in counts:
         row = {"views": n}
         for name in names:
             values = [r["s2m_median_mm"] for r in records if r["views"] == n and r["method"] == name]
@@ -115,19 +131,38 @@ def main() -> None:
                          len(values)) if values else None
         rows.append(row)
     mean_single = float(np.mean([r["mean_single_mm"] for r in records if "mean_single_mm" in r]))
-    header = "| views | " + " | ".join(f"{n} s2m median mm" for n in names) + " |"
-    lines = [header, "|" + "---|" * (len(names) + 1)]
+    lines = ["| views | " + " | ".join(f"{n} s2m median mm" for n in names) + " |", "|" + "---|" * (len(names) + 1)]
     for row in rows:
         label = "1 (best single view)" if row["views"] == 1 else str(row["views"])
         cells = [f"{row[n][0]:.3f} ± {row[n][1]:.3f}" if row[n] else "—" for n in names]
         lines.append(f"| {label} | " + " | ".join(cells) + " |")
     lines.append(f"| 1 (mean single view) | {mean_single:.3f} |" + " |" * (len(names) - 1))
-    print("\n".join(lines))
-    finish({"table": rows, "mean_single_view_mm": mean_single, "records": records,
-            "settings": {"heads": list(range(args.first, args.first + args.heads)), "spp": args.spp,
-                         "photometric": args.photometric, "asm": args.asm,
-                         "views": settings.__dict__ | {"photo": settings.photo.__dict__}},
-            "markdown": "\n".join(lines)}, args.json)
+    heads = sorted({r["head"] for r in records})
+    per_head = ["| head | model | " + " | ".join(f"{n} view{'s' if n > 1 else ''}" for n in counts) + " |",
+                "|" + "---|" * (len(counts) + 2)]
+    for head in heads:
+        for name in names:
+            cells = []
+            for n in counts:
+                value = [r["s2m_median_mm"] for r in records if (r["head"], r["method"], r["views"]) == (head, name, n)]
+                cells.append(f"{value[0]:.3f}" if value else "—")
+            per_head.append(f"| {head} | {name} | " + " | ".join(cells) + " |")
+    return {"table": rows, "mean_single_view_mm": mean_single, "markdown": "\n".join(lines),
+            "per_head_markdown": "\n".join(per_head)}
+
+
+def merge(paths: list[Path], json_path: Path | None) -> None:
+    """One table from the records of several runs (e.g. heads 20-22 and 23-25 run separately)."""
+    import json
+
+    runs = [json.loads(Path(p).read_text()) for p in paths]
+    records = [r for run in runs for r in run["records"]]
+    names = list(dict.fromkeys(r["method"] for r in records))
+    counts = sorted({r["views"] for r in records})
+    payload = summarise(records, names, counts)
+    print(payload["markdown"] + "\n\n" + payload["per_head_markdown"])
+    finish({**payload, "records": records, "runs": [{"command": run.get("command"), "settings": run.get("settings")}
+                                                      for run in runs]}, json_path)
 
 
 def figure(meshes: dict, path: Path) -> None:

@@ -183,7 +183,9 @@ def test_cli_views_writes_per_view_overlays_and_poses(capsys, tmp_path, view_pho
     out = tmp_path / "fit"
     photos = [str(root / f"v{k}.png") for k in range(3)]
     code, stdout, err = run(capsys, "fit", *photos, "--views", "--landmarks", "auto", "--out", str(out), "--quiet",
-                            "--photometric", "--set", "photometric.iterations=3", "--set", "refine_iterations=5")
+                            "--photometric", "--set", "photometric.iterations=3", "--set", "refine_iterations=5",
+                            "--set", "landmarks.lm_stages=[{name: pose, free: [pose], iterations: 3}, "
+                            "{name: joints, free: [pose, joints, expressions], iterations: 5}]")
     assert code == 0, err
     for name in ("mesh.obj", "mesh.ply", "mesh.glb", "params.json", "report.json", "overlay.png", "config.yaml",
                  "overlay_0.png", "overlay_1.png", "overlay_2.png"):
