@@ -357,7 +357,8 @@ class ScanObjective:
     def __call__(self, free: tuple[str, ...]) -> Loss:
         """One step's loss: ``sqrt(mean robust residual)``, the rig priors, the landmark RMSE."""
         pairs, c = self.pairs, self.c
-        v_cloud = self.state.to_cloud(self.state.rig_vertices(free))
+        v_rig = self.state.rig_vertices(free)
+        v_cloud = self.state.to_cloud(v_rig)
         on_surface = (pairs.c_bary[:, :, None] * v_cloud[pairs.c_tri]).sum(1)
         e1 = plane_residual(self.P_sub[pairs.c_i] - on_surface, pairs.c_n, c.tangential_weight)
         e2 = plane_residual(v_cloud[pairs.m_j] - self.P_all[pairs.m_k], pairs.m_n, 0.0)
@@ -365,6 +366,10 @@ class ScanObjective:
         robust = (geman_mcclure(e1, pairs.sigma).sum() + w2 * geman_mcclure(e2, pairs.sigma).sum()) / (
             len(e1) + w2 * len(e2))
         terms = {"data": (robust + 1e-12).sqrt(), **rig_prior_terms(self.state, self.config.prior, lambda_m=self.lambda_m)}
+        smooth = self.config.prior.lambda_asm_smooth
+        if smooth and getattr(self.state, "asm", None) is not None:
+            offset = v_rig - self.state.rig.template
+            terms["smooth"] = smooth * torch.sparse.mm(self.state.rig.laplacian, offset).square().sum(-1).mean()
         if self.landmarks is not None:
             ids, positions = self.landmarks
             terms["landmarks"] = self.config.lambda_landmarks * ((v_cloud[ids] - positions) ** 2).sum(-1).mean().sqrt()

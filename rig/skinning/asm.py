@@ -130,7 +130,7 @@ def gmm_log_density(uv: torch.Tensor, log_pi: torch.Tensor, centres: torch.Tenso
 
     The exponent of every Gaussian is a quadratic in ``(u, v)``, so all of them come from one matrix
     product of the points' monomials ``(u^2, v^2, uv, u, v, 1)`` with per-component coefficients
-    (the points are centred first to keep float32 accurate).
+    (computed in float64; the result has ``log_pi``'s dtype).
 
     Args:
         uv: ``(N, 2)`` UV points.
@@ -148,9 +148,13 @@ def gmm_log_density(uv: torch.Tensor, log_pi: torch.Tensor, centres: torch.Tenso
     check_shape(sigma.shape == log_pi.shape + (2, 2), "gmm_log_density", "sigma", f"{tuple(log_pi.shape) + (2, 2)}",
                 tuple(sigma.shape))
     B, J, K = log_pi.shape
+    out_dtype = log_pi.dtype
+    # float64 throughout: the expanded quadratic cancels (p x^2 - 2 p x c + p c^2 with p = 1 / sigma^2 up to
+    # 1e7), which float32 cannot resolve for sharp Gaussians; the products are small, float64 costs little.
+    uv, log_pi, centres, sigma = uv.double(), log_pi.double(), centres.double(), sigma.double()
     origin = uv.detach().mean(0)
-    x, y = (uv - origin).to(log_pi.dtype).unbind(-1)
-    cx, cy = (centres - origin.to(centres.dtype)).unbind(-1)
+    x, y = (uv - origin).unbind(-1)
+    cx, cy = (centres - origin).unbind(-1)
     a, d = sigma[..., 0, 0], sigma[..., 1, 1]
     b = 0.5 * (sigma[..., 0, 1] + sigma[..., 1, 0])
     det = a * d - b * b
@@ -167,7 +171,7 @@ def gmm_log_density(uv: torch.Tensor, log_pi: torch.Tensor, centres: torch.Tenso
     else:
         peak = exponent.detach().amax(0)
         out = peak + (exponent - peak).exp().sum(0).log()
-    return out.view(-1, B, J).transpose(0, 1)
+    return out.view(-1, B, J).transpose(0, 1).to(out_dtype)
 
 
 def gmm_skinning_weights(vertex_uv: torch.Tensor, log_pi: torch.Tensor, centres: torch.Tensor, sigma: torch.Tensor,
