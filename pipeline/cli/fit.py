@@ -218,7 +218,8 @@ def cmd_fit(args: argparse.Namespace) -> int:
     if args.views:
         return _fit_views(args, photos)
     if args.skinning is not None:
-        raise CliError("--skinning applies to --views (the multi-view fit)")
+        raise CliError("--skinning applies to --views (several photos of one person) or fit-scan: one photo's 68 "
+                       "landmarks do not determine ASM's 1,196 parameters, so the single-photo fit is JNR's")
     config = load_fit_photo_config(args)
     if len(photos) == 1 and not folders:
         fit = _fit_faces if args.face == FACE_ALL else _fit_one
