@@ -574,7 +574,7 @@ class AdaptiveSkinning(nn.Module):
         self.register_buffer("anchor_xyz", torch.as_tensor(asset.vertices[domain.anchors], dtype=dtype))
         self.register_buffer("painted", rig.dense_weights().detach().clone())
         self.levels = hierarchy_levels(rig.parents)
-        init = load_initial_gmm(components, init_path, asset=asset)
+        init = load_initial_gmm(components, init_path)
         self.register_buffer("zeta0", torch.as_tensor(domain.zeta0, dtype=dtype))
         self.register_buffer("log_pi0", torch.as_tensor(init["log_pi"], dtype=dtype))
         self.register_buffer("mu0", torch.as_tensor(init["mu"], dtype=dtype))
@@ -715,7 +715,8 @@ class GmmInitFit:
 
 
 def _moment_init(uv: np.ndarray, w: np.ndarray, zeta: np.ndarray, K: int, rng: np.random.Generator):
-    """Starting mixture for one bone from its painted weights: weighted k-means in UV, then moments."""
+    """Starting mixtures of every bone from its painted weights ``w (N, J)`` at ``uv (N, 2)``: weighted
+    k-means in UV, then each cluster's weighted moments; bones without skin weight get ``LOG_PI_EMPTY``."""
     J = w.shape[1]
     log_pi = np.full((J, K), LOG_PI_EMPTY)
     mu = np.zeros((J, K, 2))
@@ -885,8 +886,7 @@ def _initial_gmm_cached(components: int, path: str) -> dict[str, np.ndarray]:
     return {"log_pi": log_pi, "mu": mu, "chol": chol}
 
 
-def load_initial_gmm(components: int = DEFAULT_COMPONENTS, path: str | Path | None = None, *,
-                     asset: RigAsset | None = None) -> dict[str, np.ndarray]:
+def load_initial_gmm(components: int = DEFAULT_COMPONENTS, path: str | Path | None = None) -> dict[str, np.ndarray]:
     """Initial ``log_pi (J, K)``, ``mu (J, K, 2)``, ``chol (J, K, 3)`` for ``K = components`` (from the
     asset file; a ``K`` it lacks is fitted on the spot and cached for the process)."""
     return _initial_gmm_cached(int(components), str(path or default_init_path()))
