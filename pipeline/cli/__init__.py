@@ -45,11 +45,23 @@ def build_parser() -> argparse.ArgumentParser:
         epilog="Units: millimetres in rig space (right-handed, +Y up, +Z out of the face); rotations in "
                "degrees; scales as factors.\nParameter files: JSON {\"joints\": {\"nose_tip.translate_y\": 2.0, ...}}.")
     parser.add_argument("-v", "--verbose", action="store_true", help="log progress details")
+    parser.add_argument("--version", action="version", version=f"jnr {package_version()}",
+                        help="print jnr's version and exit")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
     for group in COMMAND_GROUPS:
         group.add_commands(sub)
     return parser
+
+
+def package_version() -> str:
+    """The installed package's version (``pyproject.toml``), or ``unknown`` outside an installation."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("jnr")
+    except PackageNotFoundError:
+        return "unknown"
 
 
 def _format_warning(message, category, filename, lineno, line=None) -> str:

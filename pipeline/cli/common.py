@@ -46,11 +46,25 @@ def command_line(default: str) -> str:
     return "jnr " + " ".join(sys.argv[1:]) if sys.argv[1:] else default
 
 
+def progress_bars_wanted(stream=None) -> bool:
+    """Whether to draw progress bars: only on a terminal (not into a log file or a pipe), and never when
+    the ``TQDM_DISABLE`` environment variable is set to anything but ``""``/``0``/``false``."""
+    import os
+    import sys
+
+    if os.environ.get("TQDM_DISABLE", "").strip().lower() not in ("", "0", "false"):
+        return False
+    stream = sys.stderr if stream is None else stream
+    isatty = getattr(stream, "isatty", None)
+    return bool(isatty and isatty())
+
+
 class StageBars:
-    """One tqdm bar per stage name: ``bars(stage, done, total)`` (the progress callback of the fits)."""
+    """One tqdm bar per stage name: ``bars(stage, done, total)`` (the progress callback of the fits);
+    drawn only where :func:`progress_bars_wanted` says so and ``disable`` (``--quiet``) is not set."""
 
     def __init__(self, disable: bool = False) -> None:
-        self.disable = disable
+        self.disable = disable or not progress_bars_wanted()
         self.bar = None
         self.stage = None
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from pipeline.cli.common import EXIT_OK, load_fit_photo_config
+from pipeline.cli.common import EXIT_OK, load_fit_photo_config, progress_bars_wanted
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
@@ -21,7 +21,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
     def progress(step: str, done: int, total: int) -> None:
         if not bars:
-            bars.append(tqdm(total=total, desc="jnr demo", unit="step", disable=args.quiet))
+            bars.append(tqdm(total=total, desc="jnr demo", unit="step", disable=args.quiet or not progress_bars_wanted()))
         bars[0].update(done - bars[0].n)
 
     try:

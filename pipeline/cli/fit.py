@@ -17,6 +17,7 @@ from pipeline.cli.common import (
     StageBars,
     command_line,
     load_fit_photo_config,
+    progress_bars_wanted,
 )
 
 
@@ -40,7 +41,7 @@ def _runner(jobs: int, threads: int, quiet: bool):
     from tqdm import tqdm
 
     def one_by_one(tasks):
-        bar = tqdm(total=len(tasks), desc="photos", unit="photo", disable=quiet)
+        bar = tqdm(total=len(tasks), desc="photos", unit="photo", disable=quiet or not progress_bars_wanted())
         try:
             for task in tasks:
                 result = _fit_worker(task, threads)
@@ -55,7 +56,7 @@ def _runner(jobs: int, threads: int, quiet: bool):
 
         from pipeline.signals import stop_children, worker_init
 
-        bar = tqdm(total=len(tasks), desc="photos", unit="photo", disable=quiet)
+        bar = tqdm(total=len(tasks), desc="photos", unit="photo", disable=quiet or not progress_bars_wanted())
         pool = ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("spawn"), initializer=worker_init,
                                    initargs=(os.getpid(),))
         results = []

@@ -303,3 +303,28 @@ def test_fit_photometric_and_landmarks_only_contradict(capsys, tmp_path, photo_d
     assert code == 2 and "--landmarks-only and --photometric contradict" in err
     assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
     assert not out.exists()
+
+
+def test_version_and_progress_bars_only_on_a_terminal(capsys, monkeypatch):
+    import io
+
+    from pipeline.cli import package_version
+    from pipeline.cli.common import StageBars, progress_bars_wanted
+
+    with pytest.raises(SystemExit) as exit_info:
+        main(["--version"])
+    assert exit_info.value.code == 0
+    out = capsys.readouterr().out.strip()
+    assert out == f"jnr {package_version()}" and out.split()[1][0].isdigit()
+
+    class Terminal(io.StringIO):
+        def isatty(self):
+            return True
+
+    monkeypatch.delenv("TQDM_DISABLE", raising=False)
+    assert progress_bars_wanted(Terminal()) and not progress_bars_wanted(io.StringIO())  # a log file: no bars
+    monkeypatch.setenv("TQDM_DISABLE", "1")
+    assert not progress_bars_wanted(Terminal())
+    monkeypatch.setenv("TQDM_DISABLE", "0")
+    assert progress_bars_wanted(Terminal())
+    assert StageBars(disable=True).disable
