@@ -51,7 +51,21 @@ def build_parser() -> argparse.ArgumentParser:
     sub.required = True
     for group in COMMAND_GROUPS:
         group.add_commands(sub)
+    _add_verbose_everywhere(sub)
     return parser
+
+
+def _add_verbose_everywhere(sub: argparse._SubParsersAction) -> None:
+    """``-v/--verbose`` also after every (nested) sub-command: ``jnr fit a.jpg -v`` as ``jnr -v fit a.jpg``
+    (``SUPPRESS``: a sub-command's parser does not reset the flag given before it)."""
+    for command in sub.choices.values():
+        nested = [a for a in command._actions if isinstance(a, argparse._SubParsersAction)]
+        if nested:
+            for action in nested:
+                _add_verbose_everywhere(action)
+        else:
+            command.add_argument("-v", "--verbose", action="store_true", default=argparse.SUPPRESS,
+                                 help="log progress details (as jnr -v)")
 
 
 def package_version() -> str:

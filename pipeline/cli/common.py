@@ -67,21 +67,32 @@ class StageBars:
         self.disable = disable or not progress_bars_wanted()
         self.bar = None
         self.stage = None
+        self.done = 0
+        self.started = 0.0
 
     def __call__(self, stage: str, done: int, total: int) -> None:
+        import time
+
         from tqdm import tqdm
 
         if stage != self.stage:
             self.close()
-            self.stage = stage
+            self.stage, self.started = stage, time.perf_counter()
             self.bar = tqdm(total=total, desc=stage, disable=self.disable, leave=False)
+        self.done = done
         self.bar.n = done
         self.bar.refresh() if done == total or done % 10 == 0 else None
 
     def close(self) -> None:
+        """End the current stage's bar; with ``-v`` a log line says what it did and how long it took."""
+        import time
+
         if self.bar is not None:
+            log.info("%s: %d/%d steps in %.1f s", self.stage, self.done, self.bar.total,
+                     time.perf_counter() - self.started)
             self.bar.close()
             self.bar = None
+            self.stage = None
 
 
 def parse_overrides(items: list[str] | None) -> dict:

@@ -328,3 +328,23 @@ def test_version_and_progress_bars_only_on_a_terminal(capsys, monkeypatch):
     monkeypatch.setenv("TQDM_DISABLE", "0")
     assert progress_bars_wanted(Terminal())
     assert StageBars(disable=True).disable
+
+
+def test_verbose_after_the_subcommand_and_stage_log_lines(caplog):
+    import logging
+
+    from pipeline.cli import build_parser
+    from pipeline.cli.common import StageBars
+
+    parser = build_parser()
+    assert parser.parse_args(["rig", "info", "-v"]).verbose and parser.parse_args(["-v", "rig", "info"]).verbose
+    assert parser.parse_args(["eval", "capacity", "--verbose"]).verbose
+    assert not parser.parse_args(["rig", "info"]).verbose
+    bars = StageBars(disable=True)
+    with caplog.at_level(logging.INFO, logger="jnr"):
+        for i in range(1, 4):
+            bars("joints", i, 3)
+        bars("latent", 1, 2)
+        bars.close()
+    lines = [r.getMessage() for r in caplog.records]
+    assert lines[0].startswith("joints: 3/3 steps in ") and lines[1].startswith("latent: 1/2 steps in ")
