@@ -136,16 +136,25 @@ def write_npz_atomic(path: str | Path, arrays: dict[str, np.ndarray]) -> None:
     write_bytes_atomic(path, buffer.getvalue(), make_parents=True)
 
 
-def read_asset(path: str | Path) -> RigAsset:
-    """Read an asset file (no caching). Raises :class:`AssetError` when it is unusable."""
+def read_npz(path: str | Path, error: type[Exception], what: str, remedy: str,
+             keys=None) -> dict[str, np.ndarray]:
+    """The arrays of an ``.npz`` file (``keys``, default all), read in full; a missing file raises
+    ``error("<what> not found: <path> (<remedy>)")``, an unreadable one (or a missing key)
+    ``error("<what> <path> is unreadable: ...")``."""
     path = Path(path)
     if not path.is_file():
-        raise AssetError(f"rig asset not found: {path} (rebuild it with `jnr rig build`)")
+        raise error(f"{what} not found: {path} ({remedy})")
     try:
         with np.load(path, allow_pickle=False) as data:
-            fields = {k: data[k] for k in RigAsset.__dataclass_fields__}
+            return {k: data[k] for k in (data.files if keys is None else keys)}
     except Exception as exc:  # zip/npz errors come in many types
-        raise AssetError(f"rig asset {path} is unreadable: {exc}") from None
+        raise error(f"{what} {path} is unreadable: {exc}") from None
+
+
+def read_asset(path: str | Path) -> RigAsset:
+    """Read an asset file (no caching). Raises :class:`AssetError` when it is unusable."""
+    fields = read_npz(path, AssetError, "rig asset", "rebuild it with `jnr rig build`",
+                      keys=RigAsset.__dataclass_fields__)
     fields["region_names"] = tuple(str(s) for s in fields["region_names"])
     fields["joint_names"] = tuple(str(s) for s in fields["joint_names"])
     fields["version"] = int(fields["version"])

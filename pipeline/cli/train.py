@@ -15,37 +15,39 @@ from pipeline.cli.common import (
 )
 
 
-def cmd_identity_prior(args: argparse.Namespace) -> int:
-    from pipeline.fitting.identity import default_identity_prior_path, train_identity_prior
-
-    if args.config or args.set or args.log:
-        raise CliError("--identity-prior takes only --out, --force and --quiet")
-    out = Path(args.out) if args.out else default_identity_prior_path()
+def _train_artifact(args: argparse.Namespace, option: str, default_path, build) -> dict:
+    """The shared part of ``jnr train --identity-prior`` / ``--asm-init``: only ``--out``, ``--force`` and
+    ``--quiet`` apply; the default output (a packaged asset) is overwritten, another only with ``--force``;
+    ``build(out, progress)`` runs under progress bars. Returns what it returned."""
+    if args.config or args.set or args.log or (args.identity_prior and args.asm_init):
+        raise CliError(f"{option} takes only --out, --force and --quiet")
+    out = Path(args.out) if args.out else default_path()
     check_output(out, args.force or args.out is None)
     bars = StageBars(args.quiet)
     try:
-        prior = train_identity_prior(out, progress=bars)
+        return {"artifact": str(out), **build(out, bars)}
     finally:
         bars.close()
-    print(json.dumps({"artifact": str(out), **prior.meta}, indent=2))
+
+
+def cmd_identity_prior(args: argparse.Namespace) -> int:
+    from pipeline.fitting.identity import default_identity_prior_path, train_identity_prior
+
+    result = _train_artifact(args, "--identity-prior", default_identity_prior_path,
+                             lambda out, bars: train_identity_prior(out, progress=bars).meta)
+    print(json.dumps(result, indent=2))
     return EXIT_OK
 
 
 def cmd_asm_init(args: argparse.Namespace) -> int:
     from rig.skinning.asm import INIT_COMPONENTS, default_init_path, save_initial_gmm
 
-    if args.config or args.set or args.log or args.identity_prior:
-        raise CliError("--asm-init takes only --out, --force and --quiet")
-    out = Path(args.out) if args.out else default_init_path()
-    check_output(out, args.force or args.out is None)
-    bars = StageBars(args.quiet)
-    try:
+    def build(out, bars) -> dict:
         arrays = save_initial_gmm(out, progress=bars)
-    finally:
-        bars.close()
-    report = {f"K={k}": dict(zip(("rms_weight_error", "max_weight_error", "seconds"),
-                                 (round(float(x), 4) for x in arrays[f"k{k}_report"]))) for k in INIT_COMPONENTS}
-    print(json.dumps({"artifact": str(out), **report}, indent=2))
+        return {f"K={k}": dict(zip(("rms_weight_error", "max_weight_error", "seconds"),
+                                   (round(float(x), 4) for x in arrays[f"k{k}_report"]))) for k in INIT_COMPONENTS}
+
+    print(json.dumps(_train_artifact(args, "--asm-init", default_init_path, build), indent=2))
     return EXIT_OK
 
 

@@ -58,7 +58,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from rig.asset import ASSET_DIR, RigAsset, cached_per_asset, write_npz_atomic
+from rig.asset import ASSET_DIR, RigAsset, cached_per_asset, read_npz, write_npz_atomic
 from rig.errors import SetupError, ShapeError, check_shape
 from rig.joints import JOINT_MIRROR
 from rig.lbs import euler_to_matrix, hierarchy_levels, joint_world_transforms, skin_vertices_blended
@@ -226,7 +226,14 @@ def uv_barycentric(points: torch.Tensor, triangles: torch.Tensor) -> torch.Tenso
     return torch.stack([alpha, beta, 1.0 - alpha - beta], dim=-1)
 
 
-def locate_uv(points: torch.Tensor, face_uv: torch.Tensor, candidates: int = 16) -> torch.Tensor:
+def uv_face_tree(face_uv: torch.Tensor):
+    """A KD-tree of the triangles' UV centroids for :func:`locate_uv` (build once per triangle set)."""
+    from scipy.spatial import cKDTree
+
+    return cKDTree(face_uv.detach().mean(1).cpu().numpy())
+
+
+def locate_uv(points: torch.Tensor, face_uv: torch.Tensor, candidates: int = 16, tree=None) -> torch.Tensor:
     """The triangle that contains each UV point (ASM eq. 8), or the nearest one for points outside all.
 
     Only the ``candidates`` triangles with the nearest centroids (a KD-tree) are tested; a point inside
@@ -236,6 +243,7 @@ def locate_uv(points: torch.Tensor, face_uv: torch.Tensor, candidates: int = 16)
         points: ``(N, 2)``.
         face_uv: ``(F, 3, 2)`` triangles.
         candidates: triangles tested per point first.
+        tree: :func:`uv_face_tree` of ``face_uv`` (default: built here).
 
     Returns:
         ``(N,)`` int64 triangle index (the one whose smallest barycentric coordinate is largest).
@@ -243,12 +251,10 @@ def locate_uv(points: torch.Tensor, face_uv: torch.Tensor, candidates: int = 16)
     check_shape(points.dim() == 2 and points.shape[1] == 2, "locate_uv", "points", "(N, 2)", tuple(points.shape))
     check_shape(face_uv.dim() == 3 and face_uv.shape[1:] == (3, 2), "locate_uv", "face_uv", "(F, 3, 2)",
                 tuple(face_uv.shape))
-    from scipy.spatial import cKDTree
-
     with torch.no_grad():
         pts = points.detach().to(face_uv.dtype)
         k = min(candidates, face_uv.shape[0])
-        _, cand = cKDTree(face_uv.mean(1).cpu().numpy()).query(pts.cpu().numpy(), k=k)
+        _, cand = (tree or uv_face_tree(face_uv)).query(pts.cpu().numpy(), k=k)
         cand = torch.as_tensor(cand, device=points.device).view(len(pts), k)
         inside = uv_barycentric(pts[:, None, :], face_uv[cand]).min(-1).values      # (N, k)
         best = inside.argmax(-1)
@@ -261,7 +267,7 @@ def locate_uv(points: torch.Tensor, face_uv: torch.Tensor, candidates: int = 16)
 
 
 def bone_positions_from_uv(zeta: torch.Tensor, face_uv: torch.Tensor, face_xyz: torch.Tensor,
-                           anchor_xyz: torch.Tensor, initial_positions: torch.Tensor) -> torch.Tensor:
+                           anchor_xyz: torch.Tensor, initial_positions: torch.Tensor, tree=None) -> torch.Tensor:
     """Dynamic bone binding (ASM eq. 11): ``psi_j = alpha v_A + beta v_B + gamma v_C - v_t + psi_j^0``.
 
     Args:
@@ -270,6 +276,7 @@ def bone_positions_from_uv(zeta: torch.Tensor, face_uv: torch.Tensor, face_xyz: 
         face_xyz: ``(F, 3, 3)`` the same triangles' corners on the rest mesh, mm.
         anchor_xyz: ``(J, 3)`` anchor vertex ``v_t`` of each bone, mm.
         initial_positions: ``(J, 3)`` initial bone positions ``psi^0``, mm.
+        tree: optional :func:`uv_face_tree` of ``face_uv``.
 
     Returns:
         ``(B, J, 3)`` bind positions, mm (``psi^0`` when ``zeta`` is the anchors' UV).
@@ -278,7 +285,7 @@ def bone_positions_from_uv(zeta: torch.Tensor, face_uv: torch.Tensor, face_xyz: 
                 tuple(zeta.shape))
     B, J = zeta.shape[:2]
     flat = zeta.reshape(B * J, 2)
-    face = locate_uv(flat, face_uv)
+    face = locate_uv(flat, face_uv, tree=tree)
     bary = uv_barycentric(flat, face_uv[face].to(zeta.dtype))               # (B*J, 3)
     surface = (bary.unsqueeze(-1) * face_xyz[face].to(zeta.dtype)).sum(-2).view(B, J, 3)
     return surface - anchor_xyz.to(zeta.dtype) + initial_positions.to(zeta.dtype)
@@ -570,6 +577,7 @@ class AdaptiveSkinning(nn.Module):
         self.register_buffer("seam_rows", torch.as_tensor(domain.seam_rows))
         self.register_buffer("seam_uv", torch.as_tensor(domain.seam_uv, dtype=dtype))
         self.register_buffer("face_uv", torch.as_tensor(domain.face_uv, dtype=dtype))
+        self.face_tree = uv_face_tree(self.face_uv)  # locate_uv's, built once
         self.register_buffer("face_xyz", torch.as_tensor(asset.vertices[domain.faces], dtype=dtype))
         self.register_buffer("anchor_xyz", torch.as_tensor(asset.vertices[domain.anchors], dtype=dtype))
         self.register_buffer("painted", rig.dense_weights().detach().clone())
@@ -662,7 +670,8 @@ class AdaptiveSkinning(nn.Module):
         self._check(p)
         if not dynamic:
             return self.rig.bind_positions.to(p.tau.dtype).expand(p.batch, -1, -1)
-        return bone_positions_from_uv(p.zeta, self.face_uv, self.face_xyz, self.anchor_xyz, self.rig.bind_positions)
+        return bone_positions_from_uv(p.zeta, self.face_uv, self.face_xyz, self.anchor_xyz, self.rig.bind_positions,
+                                      self.face_tree)
 
     def forward(self, p: AsmParameters, vertices: torch.Tensor | None = None, *, dynamic_binding: bool = True,
                 gmm_weights: bool = True):
@@ -861,13 +870,7 @@ def save_initial_gmm(path: str | Path | None = None, **kwargs) -> dict[str, np.n
 
 def _load_init_file(path: str) -> dict[str, np.ndarray]:
     p = Path(path)
-    if not p.is_file():
-        raise AsmInitError(f"initial ASM parameters not found: {p} (make them with `jnr train --asm-init`)")
-    try:
-        with np.load(p, allow_pickle=False) as data:
-            arrays = {k: data[k] for k in data.files}
-    except Exception as exc:  # zip/npz errors come in many types
-        raise AsmInitError(f"initial ASM parameters {p} are unreadable: {exc}") from None
+    arrays = read_npz(p, AsmInitError, "initial ASM parameters", "make them with `jnr train --asm-init`")
     if int(arrays.get("version", -1)) != TEMPLATE_VERSION:
         raise AsmInitError(f"initial ASM parameters {p} are for template version {arrays.get('version')}; this code "
                            f"expects {TEMPLATE_VERSION} (remake them with `jnr train --asm-init`)")
@@ -1018,6 +1021,7 @@ __all__ = [
     "symmetrize_gmm",
     "uv_barycentric",
     "uv_domain",
+    "uv_face_tree",
 ]
 
 
