@@ -102,13 +102,15 @@ def write_head(path: str | Path, fmt: str, theta, rig=None, fit_arrays: tuple | 
 
 def write_skinned_head(path: str | Path, asset, weights: np.ndarray, tau: np.ndarray,
                        coefficients: np.ndarray | None = None, vertex_colors: np.ndarray | None = None,
-                       base_color_texture: bytes | None = None) -> None:
+                       base_color_texture: bytes | None = None, attachments=(), animation=None) -> None:
     """The skinned glTF of a head: the template as the bind mesh, the 52 ARKit shapes as morph targets named
     by ARKit (:func:`rig.expressions.morph_targets`) with ``coefficients (E,)`` as their weights (zeros when
     None), ``weights (V, J)``, the joint channel transforms ``tau (J, 4, 4)`` as the joints' pose,
     ``vertex_colors (V, 3)`` linear RGB in [0, 1] (glTF's ``COLOR_0`` is linear) and ``base_color_texture``
     the bytes of a PNG in the asset's UVs as the material's base colour (glTF multiplies it with
-    ``COLOR_0``, so a textured head takes no vertex colours: ValueError)."""
+    ``COLOR_0``, so a textured head takes no vertex colours: ValueError); ``attachments``
+    (:class:`rig.io.gltf.GltfAttachment`: accessories skinned to the same joints, their morph targets under the
+    52 ARKit names) and ``animation`` (:class:`rig.io.gltf.GltfAnimation`) as :func:`rig.io.gltf.export_skinned_gltf`."""
     from rig.expressions import EXPRESSION_NAMES, morph_targets
     from rig.io.gltf import export_skinned_gltf
 
@@ -118,7 +120,8 @@ def write_skinned_head(path: str | Path, asset, weights: np.ndarray, tau: np.nda
                         parents=asset.parents, joint_positions=asset.joint_positions, weights=weights,
                         face_uvs=asset.face_uvs, vertex_colors=vertex_colors, joint_transforms=tau,
                         morph_targets=morph_targets(asset), morph_names=EXPRESSION_NAMES,
-                        morph_weights=coefficients, base_color_texture=base_color_texture)
+                        morph_weights=coefficients, base_color_texture=base_color_texture,
+                        attachments=attachments, animation=animation)
 
 
 def write_edited_head(params: str | Path | None, out: str | Path, fmt: str, *, clamp: bool = False,

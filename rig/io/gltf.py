@@ -3,6 +3,10 @@
 * :func:`export_skinned_gltf` writes the mesh, the joint hierarchy and the skinning weights as a
   glTF 2.0 file (``.glb`` binary or ``.gltf`` JSON with an embedded data-URI buffer).
 * :func:`read_skinned_gltf` reads such a glTF file back into numpy arrays (for tests and checks).
+* :class:`GltfAttachment`: further meshes (an accessory: glasses, a cap) skinned to the same joints, with
+  their own morph targets under the head's target names.
+* :class:`GltfAnimation`: keyframed morph-target weights and joint transforms (``jnr animate``), stored as
+  one glTF animation with ``LINEAR`` samplers.
 
 Conventions: rig space is right-handed, +Y up, +Z forward out of the face, in millimetres; column
 vectors and 4x4 homogeneous matrices. glTF shares the axes but uses metres, so positions, node
@@ -23,6 +27,7 @@ from __future__ import annotations
 import base64
 import os
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -37,6 +42,8 @@ from rig.io.mesh import check_mesh_arrays, resolve_format, split_uv_seams
 
 __all__ = [
     "GLTF_UNITS_NOTE",
+    "GltfAnimation",
+    "GltfAttachment",
     "MAX_DROPPED_WEIGHT",
     "MAX_INFLUENCES",
     "MM_TO_M",
@@ -58,6 +65,50 @@ MAX_DROPPED_WEIGHT = 1e-3
 """Largest total weight per vertex that may be dropped when keeping the 4 largest influences."""
 
 GLTF_UNITS_NOTE = "metres (rig space is millimetres)"
+
+
+@dataclass(frozen=True)
+class GltfAttachment:
+    """A further mesh skinned to the head's joints (an accessory), written as its own mesh node and material.
+
+    Attributes:
+        name: the node, mesh and material name (unique, not a joint name).
+        vertices: ``(N, 3)`` bind-pose positions, millimetres (the head's rig space).
+        faces: ``(F, 3)`` triangles into ``vertices``.
+        weights: ``(N, K)`` skinning weights on the head's ``K`` joints (non-negative, rows sum to 1;
+            at most 4 influences kept, as for the head).
+        morph_targets: ``(M, N, 3)`` offsets in millimetres under the head's ``M`` morph-target names, so
+            that one set of weights moves both; None: the attachment has no targets.
+        color: linear RGB base colour in [0, 1] of its (non-metallic) material; None: light grey.
+    """
+
+    name: str
+    vertices: np.ndarray
+    faces: np.ndarray
+    weights: np.ndarray
+    morph_targets: np.ndarray | None = None
+    color: tuple[float, float, float] | None = None
+
+
+@dataclass(frozen=True)
+class GltfAnimation:
+    """Keyframes of a head's morph-target weights and joint transforms, one glTF animation (``LINEAR``).
+
+    Attributes:
+        times: ``(T,)`` strictly increasing keyframe times in seconds, ``T >= 1``.
+        morph_weights: ``(T, M)`` weights of the ``M`` morph targets per keyframe (every mesh node with
+            targets gets a ``weights`` channel); None: no morph channel.
+        joint_transforms: ``(T, K, 4, 4)`` each joint's local pose transform ``tau_k`` per keyframe, as
+            ``joint_transforms`` of :func:`export_skinned_gltf` (millimetres; translation @ rotation @
+            positive scale); channels are written only for the joints and paths
+            (translation/rotation/scale) that change over time. None: no joint channels.
+        name: the animation's name.
+    """
+
+    times: np.ndarray
+    morph_weights: np.ndarray | None = None
+    joint_transforms: np.ndarray | None = None
+    name: str = "animation"
 
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 _EXTRAS_SOURCE_COUNT = "jnr_source_vertex_count"
@@ -338,6 +389,8 @@ def export_skinned_gltf(
     morph_names: Sequence[str] | None = None,
     morph_weights: np.ndarray | None = None,
     base_color_texture: bytes | None = None,
+    attachments: Sequence[GltfAttachment] = (),
+    animation: GltfAnimation | None = None,
 ) -> None:
     """Write a skinned mesh with its joint hierarchy as glTF 2.0 (``.glb`` or ``.gltf``).
 
@@ -392,6 +445,14 @@ def export_skinned_gltf(
         ``baseColorTexture`` (``texCoord`` 0: needs ``face_uvs``; the image's top row is ``v = 1`` in
         ``face_uvs``, i.e. ``TEXCOORD_0`` ``v = 0``; linear filtering with mipmaps, clamped at the edges). glTF
         multiplies the texture with ``COLOR_0``: pass no ``vertex_colors`` to show the texture as it is.
+    attachments : sequence of GltfAttachment, optional
+        Further meshes skinned to the same joints (nodes ``K + 1 ...``, in order), each with its own
+        non-metallic material; their morph targets (if any) take the head's target names.
+    animation : GltfAnimation, optional
+        Keyframed morph weights and joint transforms, stored as one animation (``LINEAR`` samplers;
+        rotations as unit quaternions with consecutive keys in the same hemisphere). The node TRS and mesh
+        weights stay those of ``joint_transforms`` / ``morph_weights`` (what a viewer shows without
+        playing the animation).
 
     Raises
     ------
@@ -457,9 +518,120 @@ def export_skinned_gltf(
         },
     )
     morph = (morphs, target_names, target_weights)
+    extra = [_add_attachment(func, builder, a, names, target_names, target_weights) for a in attachments]
+    if len({m.name for m, _, _ in extra} | {"mesh"}) != len(extra) + 1:
+        raise ValueError(f"{func}: attachment names must be unique and not 'mesh'")
     texture_view = None if base_color_texture is None else builder._view(bytes(base_color_texture))
-    write_bytes_atomic(path, _encode(fmt, builder, joint_nodes, roots, mesh_node, attributes, indices, ibm_accessor,
-                                     morph, texture_view))
+    gltf = _encode(builder, joint_nodes, roots, mesh_node, attributes, indices, ibm_accessor, morph, texture_view,
+                   extra)
+    if animation is not None:
+        _add_animation(func, gltf, builder, animation, names, par, pos, len(target_names),
+                       [k] + [k + 1 + i for i, (_, _, has_targets) in enumerate(extra) if has_targets])
+    write_bytes_atomic(path, _document_bytes(fmt, gltf, builder))
+
+
+def _add_attachment(func: str, builder: _BufferBuilder, attachment: GltfAttachment, joint_names: list[str],
+                    target_names: list[str], target_weights: list[float]
+                    ) -> tuple[pygltflib.Mesh, pygltflib.Material, bool]:
+    """An attachment's arrays in the buffer: ``(mesh, material, has morph targets)``."""
+    if not isinstance(attachment, GltfAttachment):
+        raise ValueError(f"{func}: attachments must be GltfAttachment, got {type(attachment).__name__}")
+    name = str(attachment.name)
+    if not name or name in joint_names:
+        raise ValueError(f"{func}: attachment name {name!r} must be non-empty and not a joint name")
+    v, f, _, _ = check_mesh_arrays(f"{func}: attachment {name!r}", attachment.vertices, attachment.faces, None, None)
+    _, _, _, w, _ = _check_rig(f"{func}: attachment {name!r}", v.shape[0], joint_names,
+                               np.arange(len(joint_names)) - 1, np.zeros((len(joint_names), 3)),
+                               attachment.weights, None)
+    joints4, weights4 = _top_influences(f"{func}: attachment {name!r}", w)
+    source = np.arange(v.shape[0])
+    attributes, indices = _add_mesh_arrays(builder, v, f, source, unit_normals(v, f), None, None, joints4, weights4)
+    targets = []
+    if attachment.morph_targets is not None:
+        t, _, _ = _check_morphs(f"{func}: attachment {name!r}", v.shape[0], attachment.morph_targets,
+                                target_names, None)
+        targets = [pygltflib.Attributes(POSITION=builder.add_sparse(x * MM_TO_M, name=f"{name}_target_{n}"))
+                   for x, n in zip(t, target_names)]
+    color = (0.8, 0.8, 0.8) if attachment.color is None else tuple(float(c) for c in attachment.color)
+    if len(color) != 3 or not all(0.0 <= c <= 1.0 for c in color):
+        raise ValueError(f"{func}: attachment {name!r} color must be 3 linear RGB values in [0, 1], got {color}")
+    mesh = pygltflib.Mesh(
+        name=name,
+        primitives=[pygltflib.Primitive(attributes=attributes, indices=indices, mode=pygltflib.TRIANGLES,
+                                        targets=targets)],
+        weights=list(target_weights) if targets else None,
+        extras={"targetNames": list(target_names)} if targets else {},
+    )
+    material = pygltflib.Material(name=name, doubleSided=True, pbrMetallicRoughness=pygltflib.PbrMetallicRoughness(
+        baseColorFactor=[*color, 1.0], metallicFactor=0.0, roughnessFactor=0.5))
+    return mesh, material, bool(targets)
+
+
+def _joint_trs_keys(func: str, taus: np.ndarray, names: list[str], par: np.ndarray, pos: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Node TRS of every joint per keyframe: translations ``(T, K, 3)`` m, rotations ``(T, K, 4)`` xyzw with
+    consecutive keys in one hemisphere, scales ``(T, K, 3)``."""
+    n_keys, k = taus.shape[:2]
+    trans, rots, scales = np.zeros((n_keys, k, 3)), np.zeros((n_keys, k, 4)), np.zeros((n_keys, k, 3))
+    for t in range(n_keys):
+        nodes, _ = _joint_nodes(f"{func}: animation keyframe {t}", names, par, pos, taus[t])
+        for j, node in enumerate(nodes):
+            trans[t, j] = node.translation
+            rots[t, j] = node.rotation or (0.0, 0.0, 0.0, 1.0)
+            scales[t, j] = node.scale or (1.0, 1.0, 1.0)
+    for t in range(1, n_keys):  # LINEAR quaternion keys interpolate along the short arc only within a hemisphere
+        flip = np.sum(rots[t] * rots[t - 1], axis=1) < 0.0
+        rots[t, flip] *= -1.0
+    return trans, rots, scales
+
+
+def _add_animation(func: str, gltf: pygltflib.GLTF2, builder: _BufferBuilder, animation: GltfAnimation,
+                   names: list[str], par: np.ndarray, pos: np.ndarray, n_targets: int, morph_nodes: list[int]) -> None:
+    """Append ``animation`` to ``gltf`` (its accessors to ``builder``): one shared time accessor, a channel per
+    animated joint path and per mesh node with morph targets."""
+    if not isinstance(animation, GltfAnimation):
+        raise ValueError(f"{func}: animation must be a GltfAnimation, got {type(animation).__name__}")
+    times = np.asarray(animation.times, dtype=np.float64).reshape(-1)
+    if times.size == 0 or not np.isfinite(times).all() or np.any(np.diff(times) <= 0.0) or times[0] < 0.0:
+        raise ValueError(f"{func}: animation times must be finite, >= 0 and strictly increasing (T >= 1)")
+    n_keys = times.size
+    samplers: list[pygltflib.AnimationSampler] = []
+    channels: list[pygltflib.AnimationChannel] = []
+    time_accessor = None
+
+    def channel(node: int, path: str, values: np.ndarray, accessor_type: str) -> None:
+        nonlocal time_accessor
+        if time_accessor is None:
+            time_accessor = builder.add(times.astype(np.float32), _FLOAT, "SCALAR", min_max=True, name="time")
+        out = builder.add(values, _FLOAT, accessor_type, name=f"{path}_{node}")
+        samplers.append(pygltflib.AnimationSampler(input=time_accessor, output=out, interpolation="LINEAR"))
+        channels.append(pygltflib.AnimationChannel(sampler=len(samplers) - 1,
+                                                   target=pygltflib.AnimationChannelTarget(node=node, path=path)))
+
+    if animation.joint_transforms is not None:
+        taus = np.asarray(animation.joint_transforms, dtype=np.float64)
+        if taus.shape != (n_keys, len(names), 4, 4):
+            raise shape_error(func, "animation.joint_transforms", f"(T, K, 4, 4) = ({n_keys}, {len(names)}, 4, 4)",
+                              taus.shape)
+        if not np.isfinite(taus).all():
+            raise ValueError(f"{func}: animation.joint_transforms contain NaN or infinite values")
+        trans, rots, scales = _joint_trs_keys(func, taus, names, par, pos)
+        for j in range(len(names)):
+            for path, values, kind in (("translation", trans[:, j], "VEC3"), ("rotation", rots[:, j], "VEC4"),
+                                       ("scale", scales[:, j], "VEC3")):
+                if np.ptp(values, axis=0).max() > 1e-9:
+                    channel(j, path, values, kind)
+    if animation.morph_weights is not None:
+        w = np.asarray(animation.morph_weights, dtype=np.float64)
+        if w.shape != (n_keys, n_targets) or n_targets == 0:
+            raise shape_error(func, "animation.morph_weights", f"(T, M) = ({n_keys}, {n_targets})", w.shape)
+        if not np.isfinite(w).all():
+            raise ValueError(f"{func}: animation.morph_weights contain NaN or infinite values")
+        for node in morph_nodes:
+            channel(node, "weights", w.reshape(-1), "SCALAR")
+    if not channels:
+        raise ValueError(f"{func}: the animation animates nothing (no morph weights, no joint transform changes)")
+    gltf.animations = [pygltflib.Animation(name=animation.name, samplers=samplers, channels=channels)]
 
 
 def _check_morphs(func: str, n_vertices: int, targets, names, weights
@@ -540,18 +712,18 @@ def _joint_nodes(func: str, names: list[str], par: np.ndarray, pos: np.ndarray,
     return joint_nodes, roots
 
 
-def _encode(fmt: str, builder: _BufferBuilder, joint_nodes: list[pygltflib.Node], roots: list[int],
+def _encode(builder: _BufferBuilder, joint_nodes: list[pygltflib.Node], roots: list[int],
             mesh_node: pygltflib.Node, attributes: pygltflib.Attributes, indices: int, ibm_accessor: int,
-            morph: tuple[list[dict], list[str], list[float]] = ([], [], []), texture_view: int | None = None) -> bytes:
-    """The glTF document (joint nodes ``0 .. K-1``, the mesh node ``K``) as ``.glb`` or ``.gltf`` bytes; with
-    ``texture_view`` (the buffer view of a PNG image) the material's base colour is that texture."""
+            morph: tuple[list[dict], list[str], list[float]] = ([], [], []), texture_view: int | None = None,
+            attachments: Sequence[tuple[pygltflib.Mesh, pygltflib.Material, bool]] = ()) -> pygltflib.GLTF2:
+    """The glTF document (joint nodes ``0 .. K-1``, the mesh node ``K``, attachment nodes ``K + 1 ...``); with
+    ``texture_view`` (the buffer view of a PNG image) the head material's base colour is that texture. The
+    buffer is set by :func:`_document_bytes`."""
     targets, target_names, target_weights = morph
     k = len(joint_nodes)
     mesh_node_index = k
-    blob = bytes(builder.blob)
-    buffer = pygltflib.Buffer(byteLength=len(blob))
-    if fmt == "gltf":
-        buffer.uri = "data:application/octet-stream;base64," + base64.b64encode(blob).decode("ascii")
+    attachment_nodes = [pygltflib.Node(name=m.name, mesh=1 + i, skin=0, extras={"units": GLTF_UNITS_NOTE})
+                        for i, (m, _, _) in enumerate(attachments)]
 
     material_pbr = pygltflib.PbrMetallicRoughness(
         baseColorFactor=[1.0, 1.0, 1.0, 1.0], metallicFactor=0.0, roughnessFactor=0.6,
@@ -559,8 +731,9 @@ def _encode(fmt: str, builder: _BufferBuilder, joint_nodes: list[pygltflib.Node]
     gltf = pygltflib.GLTF2(
         asset=pygltflib.Asset(version="2.0", generator="jnr"),
         scene=0,
-        scenes=[pygltflib.Scene(name="jnr", nodes=[mesh_node_index, *roots])],
-        nodes=[*joint_nodes, mesh_node],
+        scenes=[pygltflib.Scene(name="jnr", nodes=[mesh_node_index, *range(k + 1, k + 1 + len(attachments)),
+                                                   *roots])],
+        nodes=[*joint_nodes, mesh_node, *attachment_nodes],
         meshes=[
             pygltflib.Mesh(
                 name="mesh",
@@ -570,7 +743,8 @@ def _encode(fmt: str, builder: _BufferBuilder, joint_nodes: list[pygltflib.Node]
                 ],
                 weights=target_weights,
                 extras={"targetNames": target_names} if target_names else {},
-            )
+            ),
+            *(m for m, _, _ in attachments),
         ],
         skins=[
             pygltflib.Skin(
@@ -580,16 +754,29 @@ def _encode(fmt: str, builder: _BufferBuilder, joint_nodes: list[pygltflib.Node]
                 skeleton=roots[0] if len(roots) == 1 else None,
             )
         ],
-        materials=[pygltflib.Material(name="skin", doubleSided=False, pbrMetallicRoughness=material_pbr)],
+        materials=[pygltflib.Material(name="skin", doubleSided=False, pbrMetallicRoughness=material_pbr),
+                   *(material for _, material, _ in attachments)],
         accessors=builder.accessors,
         bufferViews=builder.buffer_views,
-        buffers=[buffer],
     )
+    for i, _ in enumerate(attachments):
+        gltf.meshes[1 + i].primitives[0].material = 1 + i
     if texture_view is not None:
         gltf.images = [pygltflib.Image(bufferView=texture_view, mimeType="image/png", name="baseColor")]
         gltf.samplers = [pygltflib.Sampler(magFilter=pygltflib.LINEAR, minFilter=pygltflib.LINEAR_MIPMAP_LINEAR,
                                            wrapS=pygltflib.CLAMP_TO_EDGE, wrapT=pygltflib.CLAMP_TO_EDGE)]
         gltf.textures = [pygltflib.Texture(sampler=0, source=0, name="baseColor")]
+    return gltf
+
+
+def _document_bytes(fmt: str, gltf: pygltflib.GLTF2, builder: _BufferBuilder) -> bytes:
+    """``gltf`` with ``builder``'s buffer as ``.glb`` or ``.gltf`` (base64 data URI) bytes."""
+    blob = bytes(builder.blob)
+    gltf.accessors, gltf.bufferViews = builder.accessors, builder.buffer_views
+    buffer = pygltflib.Buffer(byteLength=len(blob))
+    if fmt == "gltf":
+        buffer.uri = "data:application/octet-stream;base64," + base64.b64encode(blob).decode("ascii")
+    gltf.buffers = [buffer]
     if fmt == "glb":
         gltf.set_binary_blob(blob)
         return b"".join(gltf.save_to_bytes())
@@ -712,6 +899,15 @@ def read_skinned_gltf(path: str | os.PathLike) -> dict[str, Any]:
         ``morph_targets`` : (M, V, 3) float64, ``morph_names`` : list of M str, ``morph_weights`` : (M,)
             Morph-target offsets in millimetres (source vertices), their names (the mesh's
             ``extras.targetNames``) and the mesh's default weights.
+        ``attachments`` : list of dict
+            Every other node with a mesh and the same skin (:class:`GltfAttachment`), in node order:
+            ``name``, ``vertices`` (N, 3) mm, ``faces`` (F, 3), ``joints`` / ``weights`` (N, 4),
+            ``morph_targets`` (M, N, 3) mm (``(0, N, 3)`` without targets), ``color`` (4,) base colour factor.
+        ``animations`` : list of dict
+            Each animation's ``name`` and ``channels``: a list of dict with ``node`` (the target node's
+            name), ``path`` (``translation``, ``rotation``, ``scale`` or ``weights``), ``interpolation``,
+            ``times`` (T,) seconds and ``values`` (T, n): translations in millimetres, rotations as xyzw
+            quaternions, weights ``(T, M)``.
     """
     func = "read_skinned_gltf"
     path = Path(path)
@@ -780,7 +976,46 @@ def read_skinned_gltf(path: str | os.PathLike) -> dict[str, Any]:
         "morph_targets": np.stack(targets)[:, :n_source] if targets else np.zeros((0, n_source, 3)),
         "morph_names": target_names,
         "morph_weights": np.asarray(mesh.weights or [0.0] * len(targets), dtype=np.float64),
+        "attachments": [_attachment(gltf, node, directory, cache) for node in gltf.nodes
+                        if node is not mesh_node and node.mesh is not None and node.skin == mesh_node.skin],
+        "animations": [_animation(gltf, a, directory, cache) for a in (gltf.animations or [])],
     }
+
+
+def _attachment(gltf: pygltflib.GLTF2, node: pygltflib.Node, directory: Path, cache: dict) -> dict[str, Any]:
+    """A further skinned mesh node's arrays (see :func:`read_skinned_gltf`, ``attachments``)."""
+    primitive = gltf.meshes[node.mesh].primitives[0]
+    attrs = primitive.attributes
+    vertices = _read_accessor(gltf, attrs.POSITION, directory, cache).astype(np.float64) / MM_TO_M
+    faces = _read_accessor(gltf, primitive.indices, directory, cache).astype(np.int64).reshape(-1, 3)
+    targets = [_read_accessor(gltf, t["POSITION"] if isinstance(t, dict) else t.POSITION, directory, cache)
+               .astype(np.float64) / MM_TO_M for t in (primitive.targets or [])]
+    pbr = None if primitive.material is None else gltf.materials[primitive.material].pbrMetallicRoughness
+    return {
+        "name": node.name,
+        "vertices": vertices,
+        "faces": faces,
+        "joints": _read_accessor(gltf, attrs.JOINTS_0, directory, cache).astype(np.int64),
+        "weights": _read_accessor(gltf, attrs.WEIGHTS_0, directory, cache).astype(np.float64),
+        "morph_targets": np.stack(targets) if targets else np.zeros((0, len(vertices), 3)),
+        "color": np.asarray(pbr.baseColorFactor if pbr is not None else [1.0, 1.0, 1.0, 1.0], dtype=np.float64),
+    }
+
+
+def _animation(gltf: pygltflib.GLTF2, animation: pygltflib.Animation, directory: Path, cache: dict
+               ) -> dict[str, Any]:
+    """One animation's channels (see :func:`read_skinned_gltf`, ``animations``)."""
+    channels = []
+    for ch in animation.channels:
+        sampler = animation.samplers[ch.sampler]
+        times = _read_accessor(gltf, sampler.input, directory, cache).astype(np.float64).reshape(-1)
+        values = _read_accessor(gltf, sampler.output, directory, cache).astype(np.float64)
+        values = values.reshape(len(times), -1)
+        if ch.target.path == "translation":
+            values = values / MM_TO_M
+        channels.append({"node": gltf.nodes[ch.target.node].name, "path": ch.target.path,
+                         "interpolation": sampler.interpolation or "LINEAR", "times": times, "values": values})
+    return {"name": animation.name, "channels": channels}
 
 
 def _base_color_image(gltf: pygltflib.GLTF2, primitive: pygltflib.Primitive, directory: Path, cache: dict

@@ -420,3 +420,110 @@ def test_gltf_morph_targets_are_checked(sphere, tmp_path):
     with pytest.raises(ValueError, match="without morph_targets"):
         _export_sphere_gltf(sphere, tmp_path / "x.glb", morph_names=["a"])
     assert not (tmp_path / "x.glb").exists()
+
+
+def _animated_local(channels, node_names, t_index, out):
+    """Node-local matrices (mm) of the joints at keyframe ``t_index``: the file's static TRS overridden by
+    the animation's channels, composed as glTF does (T @ R @ S)."""
+    from scipy.spatial.transform import Rotation
+
+    local = out["local_matrices"].copy()
+    trs = {}
+    for j, name in enumerate(node_names):
+        m = local[j]
+        scale = np.linalg.norm(m[:3, :3], axis=0)
+        trs[name] = {"translation": m[:3, 3].copy(), "rotation": Rotation.from_matrix(m[:3, :3] / scale).as_quat(),
+                     "scale": scale}
+    for ch in channels:
+        if ch["node"] in trs:
+            trs[ch["node"]][ch["path"]] = ch["values"][t_index]
+    result = []
+    for name in node_names:
+        m = np.eye(4)
+        m[:3, :3] = Rotation.from_quat(trs[name]["rotation"]).as_matrix() * trs[name]["scale"][None, :]
+        m[:3, 3] = trs[name]["translation"]
+        result.append(m)
+    return np.stack(result)
+
+
+@pytest.mark.parametrize("suffix", [".glb", ".gltf"])
+def test_gltf_animation_and_attachment_round_trip(sphere, tmp_path, suffix):
+    """Keyframed joint transforms and morph weights read back as channels whose keys pose the head and the
+    attachment exactly as LBS with that keyframe's transforms; the attachment keeps its own weights,
+    targets and colour and shares the skin."""
+    from rig.io.gltf import GltfAnimation, GltfAttachment
+
+    v = sphere["vertices"]
+    targets = np.zeros((2, len(v), 3))
+    targets[0, v[:, 1] > 0] = [0.0, 5.0, 0.0]
+    targets[1, :7] = 1.0
+    box = trimesh.creation.box(extents=(40.0, 20.0, 10.0))
+    acc_v = np.asarray(box.vertices) + [0.0, 110.0, 0.0]
+    acc_w = np.zeros((len(acc_v), 3))
+    acc_w[:, 2] = 1.0  # rigid on "crown"
+    acc_t = np.zeros((2, len(acc_v), 3))
+    acc_t[0] = [0.0, 5.0, 0.0]
+    rest = np.tile(np.eye(4), (3, 1, 1))
+    third = np.stack([_affine(_rotation([1, 1, 0], 0.4 * (k + 1)) @ np.diag([1.0, 1.1, 0.95]), (k, -2.0, 1.0))
+                      for k in range(3)])
+    taus = np.stack([rest, _pose("rigid_scaled"), third])
+    weights = np.array([[0.0, 0.0], [1.0, 0.25], [0.5, 1.0]])
+    path = tmp_path / f"anim{suffix}"
+    _export_sphere_gltf(sphere, path, morph_targets=targets, morph_names=["up", "few"],
+                        attachments=[GltfAttachment("hat", acc_v, np.asarray(box.faces), acc_w, acc_t, (0.1, 0.2, 0.3))],
+                        animation=GltfAnimation(np.array([0.0, 0.5, 1.0]), weights, taus, name="test"))
+    out = read_skinned_gltf(path)
+    (hat,) = out["attachments"]
+    assert hat["name"] == "hat"
+    np.testing.assert_allclose(hat["vertices"], acc_v, atol=1e-4)
+    np.testing.assert_array_equal(hat["faces"], box.faces)
+    np.testing.assert_allclose(hat["morph_targets"], acc_t, atol=1e-6)
+    np.testing.assert_allclose(hat["color"], [0.1, 0.2, 0.3, 1.0])
+    assert np.all(hat["joints"][:, 0] == 2) and np.allclose(hat["weights"][:, 0], 1.0)
+
+    (anim,) = out["animations"]
+    assert anim["name"] == "test"
+    weight_channels = [c for c in anim["channels"] if c["path"] == "weights"]
+    assert sorted(c["node"] for c in weight_channels) == ["hat", "mesh"]
+    for c in weight_channels:
+        np.testing.assert_allclose(c["values"], weights, atol=1e-7)
+        np.testing.assert_allclose(c["times"], [0.0, 0.5, 1.0])
+    joint_channels = [c for c in anim["channels"] if c["path"] != "weights"]
+    assert {c["path"] for c in joint_channels} == {"translation", "rotation", "scale"}
+    assert all(c["interpolation"] == "LINEAR" and len(c["times"]) == 3 for c in anim["channels"])
+    for t in range(3):
+        local = _animated_local(joint_channels, JOINT_NAMES, t, out)
+        for k in range(3):
+            parent = JOINT_POSITIONS[PARENTS[k]] if PARENTS[k] >= 0 else np.zeros(3)
+            np.testing.assert_allclose(local[k], _affine(translation=JOINT_POSITIONS[k] - parent) @ taus[t, k],
+                                       atol=1e-4)
+
+
+def test_gltf_animation_quaternions_take_the_short_way(sphere, tmp_path):
+    """Rotations of 170 deg then -170 deg about one axis are 20 deg apart: consecutive keys are stored in one
+    hemisphere so a viewer's linear interpolation turns 20 deg, not 340."""
+    from rig.io.gltf import GltfAnimation
+
+    taus = np.tile(np.eye(4), (2, 3, 1, 1))
+    taus[0, 1, :3, :3] = _rotation([0, 1, 0], np.radians(170.0))
+    taus[1, 1, :3, :3] = _rotation([0, 1, 0], np.radians(-170.0))
+    path = tmp_path / "turn.glb"
+    _export_sphere_gltf(sphere, path, animation=GltfAnimation(np.array([0.0, 1.0]), None, taus))
+    (anim,) = read_skinned_gltf(path)["animations"]
+    (rot,) = [c for c in anim["channels"] if c["path"] == "rotation"]
+    assert rot["node"] == "head"
+    assert float(np.dot(rot["values"][0], rot["values"][1])) > 0.98  # cos(10 deg)
+
+
+def test_gltf_animation_is_checked(sphere, tmp_path):
+    from rig.io.gltf import GltfAnimation
+
+    with pytest.raises(ValueError, match="strictly increasing"):
+        _export_sphere_gltf(sphere, tmp_path / "x.glb",
+                            animation=GltfAnimation(np.array([0.0, 0.0]), None, np.tile(np.eye(4), (2, 3, 1, 1))))
+    with pytest.raises(ValueError, match="morph_weights"):
+        _export_sphere_gltf(sphere, tmp_path / "x.glb", animation=GltfAnimation(np.array([0.0]), np.zeros((1, 2))))
+    with pytest.raises(ValueError, match="animates nothing"):
+        _export_sphere_gltf(sphere, tmp_path / "x.glb",
+                            animation=GltfAnimation(np.array([0.0, 1.0]), None, np.tile(np.eye(4), (2, 3, 1, 1))))
+    assert not (tmp_path / "x.glb").exists()
