@@ -193,7 +193,7 @@ def write_scan_outputs(out_dir: str | Path, cloud: PointCloud, fit: ScanFit, dis
         pipeline.files.OutputError: ``out_dir`` is refused (exists without ``force``, not jnr's, an input)
             or cannot be written.
     """
-    import trimesh
+    from rig.io.mesh import export_mesh
 
     out_dir = Path(out_dir)
     faces = load_asset().faces
@@ -202,9 +202,11 @@ def write_scan_outputs(out_dir: str | Path, cloud: PointCloud, fit: ScanFit, dis
         return to_rig_frame(np.asarray(points, float), frame) / cloud.scale_to_mm
 
     with staged_folder(out_dir, force, inputs=inputs, marker={"command": (extra or {}).get("command")}) as tmp:
-        mesh = trimesh.Trimesh(back(fit.vertices), faces, process=False)
-        mesh.export(tmp / "mesh.ply")
-        mesh.export(tmp / "mesh.obj")
+        units = {"mm": "millimetres", "cm": "centimetres", "m": "metres"}.get(cloud.units, cloud.units)
+        axes = "OpenCV camera frame: x right, y down, z forward" if frame == "opencv" else "+Y up"
+        comment = f"{units} and frame of the input cloud ({axes})"
+        for name in ("mesh.ply", "mesh.obj"):
+            export_mesh(tmp / name, back(fit.vertices), faces, comment=comment)
         (tmp / "params.json").write_text(json.dumps(params_payload(fit, cloud, frame), indent=2) + "\n")
         vmax = max(5.0, float(np.percentile(distances, 95)))
         write_point_cloud_ply(tmp / "cloud_error.ply", back(cloud.points), colors=error_colors(distances, vmax),

@@ -33,9 +33,12 @@ import trimesh
 from rig.errors import shape_error
 from rig.io.atomic import write_bytes_atomic
 
-__all__ = ["OBJ_DIGITS", "check_mesh_arrays", "export_mesh", "resolve_format", "split_uv_seams", "write_mtl"]
+__all__ = ["OBJ_DIGITS", "RIG_SPACE_COMMENT", "check_mesh_arrays", "export_mesh", "resolve_format", "split_uv_seams", "write_mtl"]
 
 OBJ_DIGITS = 10
+RIG_SPACE_COMMENT = "millimetres, rig space: right-handed, +Y up, +Z out of the face, +X the subject's left"
+"""What :func:`export_mesh` states in a file's header by default (``# jnr: ...`` in OBJ, ``comment jnr: ...`` in
+PLY); glTF files hold metres (:mod:`rig.io.gltf`)."""
 """Decimal places written for OBJ coordinates (fixed-point; 1e-10 mm for positions)."""
 
 
@@ -207,7 +210,7 @@ def split_uv_seams(
 # ----------------------------------------------------------------------------------------------
 
 
-def _obj_text_trimesh(vertices, faces, uvs, colors) -> str:
+def _obj_text_trimesh(vertices, faces, uvs, colors, header: str) -> str:
     if uvs is not None:
         visual = trimesh.visual.TextureVisuals(uv=uvs)
     elif colors is not None:
@@ -223,7 +226,7 @@ def _obj_text_trimesh(vertices, faces, uvs, colors) -> str:
         return_texture=False,
         write_texture=False,
         digits=OBJ_DIGITS,
-        header="jnr",
+        header=header,
     )
     # trimesh references a default (empty) material library that we do not write; drop the
     # dangling ``mtllib`` / ``usemtl`` lines (the UVs are kept without them).
@@ -231,7 +234,7 @@ def _obj_text_trimesh(vertices, faces, uvs, colors) -> str:
     return "\n".join(lines)
 
 
-def _obj_text_uv_and_colors(vertices, faces, uvs, colors) -> str:
+def _obj_text_uv_and_colors(vertices, faces, uvs, colors, header: str) -> str:
     """OBJ text with ``v x y z r g b`` lines and UVs (trimesh's OBJ export holds one or the other)."""
     fmt = f"{{:.{OBJ_DIGITS}f}}"
     v_lines = [
@@ -241,7 +244,7 @@ def _obj_text_uv_and_colors(vertices, faces, uvs, colors) -> str:
     vt_lines = ["vt " + " ".join(fmt.format(x) for x in row) for row in uvs]
     f1 = faces + 1
     f_lines = [f"f {a}/{a} {b}/{b} {c}/{c}" for a, b, c in f1]
-    return "\n".join(["# jnr", *v_lines, *vt_lines, *f_lines, "", ""])
+    return "\n".join([f"# {header}", *v_lines, *vt_lines, *f_lines, "", ""])
 
 
 def _ply_bytes(vertices, faces, uvs, colors) -> bytes:
@@ -328,6 +331,7 @@ def export_mesh(
     file_format: str | None = None,
     mtllib: str | None = None,
     material: str | None = None,
+    comment: str = RIG_SPACE_COMMENT,
 ) -> None:
     """Write a triangle mesh as Wavefront OBJ (text) or PLY (binary little-endian).
 
@@ -358,6 +362,9 @@ def export_mesh(
         OBJ only, both or neither, and only with ``face_uvs``: the material library's file name
         (relative to the OBJ; written by :func:`write_mtl`) and the material the faces use: an
         ``mtllib`` line after the header comment and ``usemtl`` before the faces.
+    comment : str
+        The units and frame, stated in the header: OBJ's first line ``# jnr: <comment>``, PLY's
+        ``comment jnr: <comment>`` (one line). Default :data:`RIG_SPACE_COMMENT`.
 
     Raises
     ------
@@ -374,6 +381,9 @@ def export_mesh(
     func = "export_mesh"
     path = Path(path)
     fmt = resolve_format(func, path, file_format, ("obj", "ply"))
+    if not isinstance(comment, str) or "\n" in comment or "\r" in comment:
+        raise ValueError(f"{func}: comment must be one line of text, got {comment!r}")
+    header = f"jnr: {comment}"
     v, f, uv, colors = check_mesh_arrays(func, vertices, faces, face_uvs, vertex_colors)
     if (mtllib is None) != (material is None):
         raise ValueError(f"{func}: mtllib and material go together, got mtllib={mtllib!r}, material={material!r}")
@@ -394,12 +404,18 @@ def export_mesh(
 
     if fmt == "obj":
         if uvs is not None and colors is not None:
-            text = _obj_text_uv_and_colors(v, f, uvs, colors)
+            text = _obj_text_uv_and_colors(v, f, uvs, colors, header)
         else:
-            text = _obj_text_trimesh(v, f, uvs, colors)
+            text = _obj_text_trimesh(v, f, uvs, colors, header)
         if mtllib is not None:
             text = _with_material(text, mtllib, material)
         data = text.encode("utf-8")
     else:
-        data = _ply_bytes(v, f, uvs, colors)
+        data = _with_ply_comment(_ply_bytes(v, f, uvs, colors), header)
     write_bytes_atomic(path, data)
+
+
+def _with_ply_comment(data: bytes, comment: str) -> bytes:
+    """PLY bytes with ``comment <comment>`` after the ``format`` line of the header."""
+    end = data.index(b"\n", data.index(b"\nformat ") + 1) + 1
+    return data[:end] + b"comment " + comment.encode("ascii", "replace") + b"\n" + data[end:]

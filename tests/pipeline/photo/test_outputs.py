@@ -112,7 +112,7 @@ class TestTextureFiles:
 
         assert "map_Kd texture.png" in (out_dir / "mesh.mtl").read_text().splitlines()
         lines = (out_dir / "mesh.obj").read_text().splitlines()
-        assert lines[:2] == ["# jnr", "mtllib mesh.mtl"] and "usemtl skin" in lines
+        assert lines[0].startswith("# jnr: millimetres") and lines[1] == "mtllib mesh.mtl" and "usemtl skin" in lines
         obj = trimesh.load(out_dir / "mesh.obj", process=False)
         assert isinstance(obj.visual, trimesh.visual.TextureVisuals)
         np.testing.assert_allclose(obj.visual.uv[obj.faces], asset.face_uvs, atol=1e-8)

@@ -205,6 +205,9 @@ def test_metres_are_detected_and_converted(tmp_path, asset, recwarn):
 
     mesh = trimesh.load(out / "mesh.ply", process=False)  # written back in the input's units (m)
     assert np.ptp(mesh.vertices[:, 1]) < 1.0
+    # and the files say so
+    assert b"comment jnr: metres and frame of the input cloud (+Y up)\n" in (out / "mesh.ply").read_bytes()[:400]
+    assert (out / "mesh.obj").read_text().splitlines()[0] == "# jnr: metres and frame of the input cloud (+Y up)"
     with pytest.raises(FileExistsError):
         write_scan_outputs(out, cloud, fit, np.zeros(len(cloud.points)))
 

@@ -77,7 +77,7 @@ def test_obj_with_a_textured_material_reloads_with_its_image(sphere, tmp_path):
     export_mesh(tmp_path / "head.obj", v, f, face_uvs=uv, vertex_colors=sphere["colors"], mtllib="head.mtl",
                 material="skin")
     lines = (tmp_path / "head.obj").read_text().splitlines()
-    assert lines[:2] == ["# jnr", "mtllib head.mtl"]
+    assert lines[0].startswith("# jnr: millimetres") and lines[1] == "mtllib head.mtl"
     assert lines.index("usemtl skin") == next(i for i, ln in enumerate(lines) if ln.startswith("f ")) - 1
     assert "map_Kd texture.png" in (tmp_path / "head.mtl").read_text().splitlines()
 
@@ -209,3 +209,23 @@ def test_failed_write_keeps_existing_file(sphere, tmp_path):
         export_mesh(blocker, v, f)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["blocked.ply", "keep.obj"]
     assert os.listdir(blocker) == []
+
+
+def test_units_are_stated_in_the_header(tmp_path, sphere):
+    """OBJ and PLY say their units and frame (mm, rig space by default; a caller's line otherwise), and readers
+    still load them."""
+    from rig.io.mesh import RIG_SPACE_COMMENT
+
+    export_mesh(tmp_path / "a.obj", sphere["vertices"], sphere["faces"])
+    export_mesh(tmp_path / "a.ply", sphere["vertices"], sphere["faces"], vertex_colors=sphere["colors"])
+    export_mesh(tmp_path / "b.ply", sphere["vertices"], sphere["faces"], comment="metres, camera frame")
+    assert (tmp_path / "a.obj").read_text().splitlines()[0] == f"# jnr: {RIG_SPACE_COMMENT}"
+    assert "millimetres" in RIG_SPACE_COMMENT and "+Y up" in RIG_SPACE_COMMENT
+    header = (tmp_path / "a.ply").read_bytes().split(b"end_header")[0].decode()
+    assert f"comment jnr: {RIG_SPACE_COMMENT}" in header.splitlines()
+    assert "comment jnr: metres, camera frame" in (tmp_path / "b.ply").read_bytes()[:300].decode("latin-1")
+    for name in ("a.obj", "a.ply", "b.ply"):
+        loaded = trimesh.load(tmp_path / name, process=False)
+        np.testing.assert_allclose(np.asarray(loaded.vertices)[: len(sphere["vertices"])], sphere["vertices"], atol=1e-4)
+    with pytest.raises(ValueError, match="one line"):
+        export_mesh(tmp_path / "c.obj", sphere["vertices"], sphere["faces"], comment="two\nlines")
