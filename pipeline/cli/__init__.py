@@ -47,6 +47,7 @@ def build_parser() -> argparse.ArgumentParser:
         epilog="Units: millimetres in rig space (right-handed, +Y up, +Z out of the face); rotations in "
                "degrees; scales as factors.\nParameter files: JSON {\"joints\": {\"nose_tip.translate_y\": 2.0, ...}}.")
     parser.add_argument("-v", "--verbose", action="store_true", help="log progress details")
+    parser.add_argument("--quiet", action="store_true", help="no progress bars")
     parser.add_argument("--version", action="version", version=f"jnr {package_version()}",
                         help="print jnr's version and exit")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
@@ -58,16 +59,22 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _add_verbose_everywhere(sub: argparse._SubParsersAction) -> None:
-    """``-v/--verbose`` also after every (nested) sub-command: ``jnr fit a.jpg -v`` as ``jnr -v fit a.jpg``
-    (``SUPPRESS``: a sub-command's parser does not reset the flag given before it)."""
+    """``-v/--verbose`` and ``--quiet`` also after every (nested) sub-command: ``jnr fit a.jpg -v`` as
+    ``jnr -v fit a.jpg`` (``SUPPRESS``: a sub-command's parser does not reset a flag given before it)."""
     for command in sub.choices.values():
         nested = [a for a in command._actions if isinstance(a, argparse._SubParsersAction)]
         if nested:
             for action in nested:
                 _add_verbose_everywhere(action)
+            continue
+        command.add_argument("-v", "--verbose", action="store_true", default=argparse.SUPPRESS,
+                             help="log progress details (as jnr -v)")
+        quiet = next((a for a in command._actions if "--quiet" in a.option_strings), None)
+        if quiet is None:
+            command.add_argument("--quiet", action="store_true", default=argparse.SUPPRESS,
+                                 help="no progress bars (as jnr --quiet)")
         else:
-            command.add_argument("-v", "--verbose", action="store_true", default=argparse.SUPPRESS,
-                                 help="log progress details (as jnr -v)")
+            quiet.default = argparse.SUPPRESS
 
 
 def package_version() -> str:

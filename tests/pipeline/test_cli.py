@@ -340,6 +340,11 @@ def test_verbose_after_the_subcommand_and_stage_log_lines(caplog):
     assert parser.parse_args(["rig", "info", "-v"]).verbose and parser.parse_args(["-v", "rig", "info"]).verbose
     assert parser.parse_args(["eval", "capacity", "--verbose"]).verbose
     assert not parser.parse_args(["rig", "info"]).verbose
+    # --quiet likewise, before or after any sub-command, also those that draw no bars
+    for argv in (["--quiet", "fit", "a.png", "--out", "o"], ["fit", "a.png", "--out", "o", "--quiet"],
+                 ["--quiet", "rig", "info"], ["retarget", "a", "b", "--out", "c", "--quiet"]):
+        assert parser.parse_args(argv).quiet, argv
+    assert not parser.parse_args(["fit", "a.png", "--out", "o"]).quiet
     bars = StageBars(disable=True)
     with caplog.at_level(logging.INFO, logger="jnr"):
         for i in range(1, 4):
