@@ -265,8 +265,8 @@ class _BufferBuilder:
             rows = np.zeros(1, np.uint32)
         index_view = self._view(rows.tobytes())
         value_view = self._view(data[rows].tobytes())
-        accessor = pygltflib.Accessor(
-            componentType=_FLOAT, count=int(data.shape[0]), type="VEC3", name=name,
+        accessor = pygltflib.Accessor(  # no bufferView, so no byteOffset either (the validator insists)
+            byteOffset=None, componentType=_FLOAT, count=int(data.shape[0]), type="VEC3", name=name,
             min=[float(x) for x in np.minimum(data.min(axis=0), 0.0)],
             max=[float(x) for x in np.maximum(data.max(axis=0), 0.0)],
             sparse=pygltflib.Sparse(count=len(rows),
