@@ -15,8 +15,8 @@ optional hooks before each stage (re-select outliers, re-pick the light) and bef
         state.project(free)                                         # back into the limits
         progress(stage.name, it + 1, stage.iterations)
 
-with the neural-skinning decoder frozen throughout, and logs every term at the stage's end
-(:class:`StageLog`).
+with the neural-skinning decoder frozen throughout, and logs every term at the stage's end and at
+every step (:class:`StageLog`).
 """
 
 from __future__ import annotations
@@ -108,6 +108,8 @@ class StageLog:
         terms: each weighted term at the last step.
         metrics: the objective's metrics at the last step, plus what the ``before_stage`` hook returned.
         seconds: wall time, hooks included.
+        history: each weighted term at every step, in step order (the value minimised at that step, before
+            it); ``terms`` is each one's last entry. Empty for stages not run by :func:`run_stage`.
     """
 
     name: str
@@ -118,6 +120,7 @@ class StageLog:
     terms: dict[str, float] = field(default_factory=dict)
     metrics: dict[str, Any] = field(default_factory=dict)
     seconds: float = 0.0
+    history: dict[str, tuple[float, ...]] = field(default_factory=dict)
 
 
 def _scalar(value: Any) -> Any:
@@ -151,6 +154,7 @@ def run_stage(state: FitState, stage: Stage, objective: Objective, lr, *, label:
     stage_metrics = dict(before_stage(stage) or {}) if before_stage is not None else {}
     optimiser = torch.optim.Adam(state.parameter_groups(free, lr))
     loss_start = None
+    history: dict[str, list[float]] = {}
     for it in range(stage.iterations):
         if before_step is not None:
             before_step(stage, it)
@@ -161,6 +165,8 @@ def run_stage(state: FitState, stage: Stage, objective: Objective, lr, *, label:
                                      "try smaller learning rates in the config")
         if loss_start is None:
             loss_start = float(loss.detach())
+        for name, value in result.terms.items():  # read only: the step is the same with or without it
+            history.setdefault(name, []).append(_scalar(value))
         optimiser.zero_grad()
         loss.backward()
         optimiser.step()
@@ -170,7 +176,7 @@ def run_stage(state: FitState, stage: Stage, objective: Objective, lr, *, label:
     return StageLog(name=stage.name, free=free, iterations=stage.iterations, loss_start=loss_start,
                     loss_end=float(loss.detach()), terms={k: _scalar(v) for k, v in result.terms.items()},
                     metrics={**stage_metrics, **{k: _scalar(v) for k, v in result.metrics.items()}},
-                    seconds=time.perf_counter() - t0)
+                    seconds=time.perf_counter() - t0, history={k: tuple(v) for k, v in history.items()})
 
 
 def run_schedule(state: FitState, stages: tuple[Stage, ...], objective: Objective, lr, *,
