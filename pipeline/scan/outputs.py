@@ -16,6 +16,9 @@ file                   contents
 ``report.json``        scan-to-mesh distance (median, mean, std, mm), pre-alignment, every loss
                        term per stage, timings, the configuration used
 ``config.yaml``        the configuration used, every field resolved (``--config`` repeats the fit)
+``viewer.html``        a self-contained web page (:mod:`pipeline.viewer`): the fitted head in rig space to
+                       orbit, sliders for the joints and the 52 ARKit shapes (skipped with a warning where
+                       three.js was not installed by ``make venv``)
 =====================  ===========================================================================
 """
 
@@ -46,7 +49,7 @@ from rig.parameters import params_to_theta, theta_to_params
 from rig.skinning.neural import LATENT, load_neural
 
 PARAMS_FORMAT = "jnr-scan-params/1"
-OUTPUT_FILES = ("mesh.ply", "mesh.obj", "params.json", "cloud_error.ply", "report.json", CONFIG_FILE)
+OUTPUT_FILES = ("mesh.ply", "mesh.obj", "params.json", "cloud_error.ply", "report.json", CONFIG_FILE, "viewer.html")
 
 
 def report_distance_stats(distances: np.ndarray) -> dict:
@@ -226,4 +229,24 @@ def write_scan_outputs(out_dir: str | Path, cloud: PointCloud, fit: ScanFit, dis
         report.update(extra or {})
         (tmp / "report.json").write_text(json.dumps(json_safe(report), indent=2) + "\n")
         dump_config(config or FitScanConfig(), tmp / CONFIG_FILE, command=(extra or {}).get("command"))
+        _write_scan_viewer(tmp, fit, out_dir.name, report["scan_to_mesh"])
     return out_dir
+
+
+def _write_scan_viewer(folder: Path, fit: ScanFit, name: str, distances: dict) -> None:
+    """``viewer.html`` of a scan fit: the head in rig space (no photo: an orbit view); an ASM fit as its mesh."""
+    from pipeline.photo.outputs import output_models
+    from pipeline.viewer import VIEWER_FILE, fit_viewer_ready, write_viewer
+
+    title, subtitle = f"jnr fit-scan: {name}", f"scan-to-mesh median {distances.get('median_mm', float('nan')):.2f} mm"
+    if not fit_viewer_ready():
+        return
+    if fit.asm is not None:
+        write_viewer(folder / VIEWER_FILE, load_asset(), expressions=fit.expressions, static_vertices=fit.rig_vertices,
+                     title=title, subtitle=subtitle + " (ASM: expression sliders only)")
+        return
+    rig, neural = output_models()
+    with torch.no_grad():
+        weights = neural(torch.as_tensor(np.asarray(fit.z, np.float64))[None])[0].numpy()
+    write_viewer(folder / VIEWER_FILE, rig.asset, theta=fit.theta, expressions=fit.expressions, weights=weights,
+                 title=title, subtitle=subtitle)
