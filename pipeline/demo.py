@@ -55,6 +55,23 @@ def _edit(stage: Path, rig, seed: int, spread: float, spp: int, progress) -> tup
     return theta, posed
 
 
+def _relative_to(value, stage: Path, base: Path):
+    """A JSON value with every string that is a path inside the staged folder ``stage`` made relative to
+    ``base`` (a folder inside ``stage``): what the fits record of the demo's own files still points at them
+    once the folder is moved into place (and wherever it is moved later)."""
+    import os
+
+    if isinstance(value, dict):
+        return {k: _relative_to(v, stage, base) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_relative_to(v, stage, base) for v in value]
+    if isinstance(value, str) and value:
+        path, root = os.path.abspath(value), os.path.abspath(stage)
+        if path == root or path.startswith(root + os.sep):
+            return os.path.relpath(path, os.path.abspath(base))
+    return value
+
+
 def _fits(stage: Path, config, progress) -> tuple[dict, dict]:
     """The demo's photo fits: the astronaut (detected landmarks) and a synthetic photo with known truth."""
     from PIL import Image
@@ -82,6 +99,10 @@ def _fits(stage: Path, config, progress) -> tuple[dict, dict]:
     synthetic.update({"head": photo.name, "truth": str(truth_dir / "truth.ply"), **error,
                       "template_vertex_mean_mm": template["vertex_mean_mm"],
                       "template_s2m_median_mm": template["s2m_median_mm"]})
+    for name in ("astronaut", "synthetic"):  # their inputs are in the staged folder: recorded relative to the fit
+        report = stage / name / "report.json"
+        relative = _relative_to(json.loads(report.read_text()), stage, stage / name)
+        report.write_text(json.dumps(relative, indent=2) + "\n")
     _step(progress, "synthetic fit")
     return astronaut, synthetic
 
@@ -99,10 +120,11 @@ def run_demo(out: str | Path = "out/demo", *, config=None, seed: int = 7, spread
             of :data:`DEMO_STEPS`.
 
     Returns:
-        The content of ``summary.json``: ``output``, ``rig`` (:func:`rig.info.rig_info`),
+        The content of ``summary.json``: ``output`` (absolute), ``rig`` (:func:`rig.info.rig_info`),
         ``rebuild_max_difference_mm``, ``seed``, ``edited_parameters`` (non-zero ones),
         ``edit_max_displacement_mm``, ``astronaut`` and ``synthetic`` (the fits' summaries, the
-        synthetic one with its errors against the truth, mm), ``seconds``.
+        synthetic one with its errors against the truth, mm; their paths relative to ``out``, as the
+        fits' report.json files give their inputs relative to their own folder), ``seconds``.
 
     Raises:
         pipeline.files.OutputError: ``out`` is refused; as :func:`pipeline.photo.files.fit_photo_file`.
@@ -131,10 +153,10 @@ def run_demo(out: str | Path = "out/demo", *, config=None, seed: int = 7, spread
         astronaut, synthetic = _fits(stage, config, progress)
 
         def final(summary: dict) -> dict:  # paths as they will be once the folder is in place
-            return {k: v.replace(str(stage), str(out)) if isinstance(v, str) else v for k, v in summary.items()}
+            return _relative_to(summary, stage, stage)
 
         summary = {
-            "output": str(out),
+            "output": str(out.resolve()),
             "rig": rig_info(),
             "rebuild_max_difference_mm": rebuild_diff,
             "seed": seed,

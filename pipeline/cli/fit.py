@@ -1,5 +1,5 @@
-"""``jnr fit PHOTO... --out DIR``: reconstruct the head in a photo, or in several in parallel processes
-(:mod:`pipeline.photo.files`)."""
+"""``jnr fit PHOTO... --out DIR``: reconstruct the head in a photo, or in several in parallel processes or
+on a Dask cluster (:mod:`pipeline.photo.files`, :mod:`pipeline.photo.dask_runner`)."""
 
 from __future__ import annotations
 
@@ -34,21 +34,30 @@ def _fit_worker(task, threads: int):
         return fit_photo_task(task)
 
 
-def _runner(jobs: int, threads: int, quiet: bool):
-    """``run(tasks)`` for :func:`pipeline.photo.files.fit_photo_files`, with a progress bar: in this
-    process for one job, else in ``jobs`` spawned processes that die with this one: on an interrupt or
-    SIGTERM here they are terminated (and remove their staged outputs) before the exception goes on."""
+def _with_bar(run, quiet: bool):
+    """``run(tasks)`` that also draws a progress bar over the tasks (on a terminal, without ``--quiet``)."""
     from tqdm import tqdm
 
-    def one_by_one(tasks):
+    def with_bar(tasks):
         bar = tqdm(total=len(tasks), desc="photos", unit="photo", disable=quiet or not progress_bars_wanted())
         try:
-            for task in tasks:
-                result = _fit_worker(task, threads)
+            for result in run(tasks):
                 bar.update()
                 yield result
         finally:
             bar.close()
+
+    return with_bar
+
+
+def _runner(jobs: int, threads: int, quiet: bool):
+    """``run(tasks)`` for :func:`pipeline.photo.files.fit_photo_files`, with a progress bar: in this
+    process for one job, else in ``jobs`` spawned processes that die with this one: on an interrupt or
+    SIGTERM here they are terminated (and remove their staged outputs) before the exception goes on."""
+
+    def one_by_one(tasks):
+        for task in tasks:
+            yield _fit_worker(task, threads)
 
     def in_processes(tasks):
         import multiprocessing
@@ -56,25 +65,24 @@ def _runner(jobs: int, threads: int, quiet: bool):
 
         from pipeline.signals import stop_children, worker_init
 
-        bar = tqdm(total=len(tasks), desc="photos", unit="photo", disable=quiet or not progress_bars_wanted())
-        pool = ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("spawn"), initializer=worker_init,
-                                   initargs=(os.getpid(),))
+        if min(jobs, len(tasks)) == 1:  # e.g. one photo left to fit when resuming: no pool to start
+            yield from one_by_one(tasks)
+            return
+        pool = ProcessPoolExecutor(min(jobs, len(tasks)), mp_context=multiprocessing.get_context("spawn"),
+                                   initializer=worker_init, initargs=(os.getpid(),))
         results = []
         try:
             futures = [pool.submit(_fit_worker, t, threads) for t in tasks]
             for future in as_completed(futures):
                 results.append(future.result())
-                bar.update()
+                yield results[-1]
         except BaseException:
             pool.shutdown(wait=False, cancel_futures=True)
             stop_children()
             raise
-        finally:
-            bar.close()
         pool.shutdown()
-        return results
 
-    return one_by_one if jobs == 1 else in_processes
+    return _with_bar(one_by_one if jobs == 1 else in_processes, quiet)
 
 
 def _output_names() -> str:
@@ -97,11 +105,11 @@ def _face_option(text: str | None) -> int | str | None:
 
 
 def _print_results(results) -> list:
-    """One line per fitted photo (or face) on stdout, one ``jnr: error:`` line per failure on stderr;
-    returns the failures."""
+    """One line per photo (or face) fitted now on stdout (not those kept from an earlier run), one
+    ``jnr: error:`` line per failure on stderr; returns the failures."""
     failed = [r for r in results if r.error is not None]
     for r in results:
-        if r.summary is not None:
+        if r.summary is not None and not r.kept:
             face = "" if r.face is None or r.faces_found is None else f" face {r.face} of {r.faces_found}"
             print(f"{r.photo}{face}: {r.summary['mean_error_px']:.2f} px (NME {r.summary['nme']:.4f}), "
                   f"{r.summary['fit_seconds']:.1f} s -> {r.summary['output']}")
@@ -153,24 +161,35 @@ def _fit_one(args: argparse.Namespace, photo: Path, config, out: Path) -> int:
 
 
 def _fit_several(args: argparse.Namespace, photos: list[Path], folders: list[Path], config, out: Path) -> int:
+    """Several photos into OUT/<name>/ and OUT/summary.csv: resumed, in local processes or on a Dask cluster."""
     from pipeline.photo.files import FACE_ALL, SUMMARY_FILE, fit_photo_files
 
     if (args.landmarks and args.landmarks != "auto") or args.face not in (None, FACE_ALL):
         raise CliError("--landmarks FILE and --face N apply to a single photo; for several, use --landmarks auto "
                        "(a .pts/.json/.csv file beside each photo), detection or --face all")
-    jobs = max(1, min(args.jobs or (os.cpu_count() or 1), len(photos)))
-    threads = max(1, (os.cpu_count() or 1) // jobs)
-    results = fit_photo_files(photos, out, folders=folders, config=config, landmarks=args.landmarks,
-                              focal=args.focal, force=args.force, command=command_line("jnr fit"),
-                              run=_runner(jobs, threads, args.quiet), detector=args.detector, face=args.face)
+    common = dict(folders=folders, config=config, landmarks=args.landmarks, focal=args.focal, force=args.force,
+                  command=command_line("jnr fit"), detector=args.detector, face=args.face)
+    if args.scheduler:
+        from pipeline.photo.dask_runner import DaskRunner
+
+        with DaskRunner(args.scheduler) as dask:
+            how = f"on the Dask cluster at {dask.address} ({dask.workers} worker(s))"
+            results = fit_photo_files(photos, out, run=_with_bar(dask, args.quiet), **common)
+    else:
+        jobs = max(1, min(args.jobs or (os.cpu_count() or 1), len(photos)))
+        threads = max(1, (os.cpu_count() or 1) // jobs)
+        how = f"with {jobs} process(es)"
+        results = fit_photo_files(photos, out, run=_runner(jobs, threads, args.quiet), **common)
     failed = _print_results(results)
+    kept = [r for r in results if r.kept and r.error is None]
+    fitted = len(results) - len(failed) - len(kept)
     if args.face == FACE_ALL:
         photos_done = len({r.photo for r in results if r.summary})
-        done = f"{len(results) - len(failed)} faces in {photos_done} of {len(photos)} photos"
+        done = f"{fitted} faces in {photos_done} of {len(photos)} photos {how}"
     else:
-        done = f"{len(results) - len(failed)} of {len(results)} photos"
+        done = f"{fitted} of {len(results)} photos {how}"
     written = f"outputs and {SUMMARY_FILE} in {out}/" if out.is_dir() else "nothing written"
-    print(f"fitted {done} with {jobs} process(es); {written}")
+    print(f"fitted {done}; kept {len(kept)} (fitted earlier), {len(failed)} failed; {written}")
     return _exit_status(failed)
 
 
@@ -210,12 +229,18 @@ def cmd_fit(args: argparse.Namespace) -> int:
 
     if args.jobs is not None and args.jobs < 1:
         raise CliError(f"--jobs must be at least 1, got {args.jobs}")
+    if args.scheduler is not None and args.jobs is not None:
+        raise CliError("--jobs sets the local processes; with --scheduler the Dask workers fit the photos (start "
+                       "them with `dask worker ADDRESS --nworkers N`): give one or the other")
     if args.focal is not None and not math.isfinite(args.focal):
         raise CliError(f"--focal must be a number of pixels, got {args.focal}")
     args.face = _face_option(args.face)
     if args.face is not None and args.landmarks:
         raise CliError("--face picks among the faces the detector finds; it cannot be used with --landmarks")
     photos, folders = photo_inputs(args.photos)
+    if args.scheduler is not None and (args.views or (len(photos) == 1 and not folders)):
+        raise CliError("--scheduler fits several photos (a folder or a list) on a Dask cluster; one photo, or "
+                       "--views, is fitted here: leave --scheduler out")
     if args.views:
         return _fit_views(args, photos)
     if args.skinning is not None:
@@ -237,11 +262,15 @@ FIT_DESCRIPTION = (
     "latent Z of the neural skinning), ~20 s, which did not improve the geometry on validation photos.")
 FIT_EPILOG = (
     "Inputs: one or more image files (.jpg .jpeg .png .bmp .gif .tif .tiff .webp .ppm .pgm .pnm) or "
-    "folders of them. Several photos are fitted in parallel processes (--jobs); each gets "
-    "OUT/<name>/, and OUT/summary.csv lists them, one row per photo (per face with --face all): photo, "
-    "face, status (ok/error), error, output folder, landmark error px, NME, seconds, faces detected, face "
-    "box and score. It is written also when some photos fail (the exit status is then 2, or 1 when every "
-    "failure is a diverged fit).\n"
+    "folders of them. Several photos are fitted in parallel processes (--jobs) or on a Dask cluster "
+    "(--scheduler ADDRESS); each gets OUT/<name>/, and OUT/summary.csv lists them, one row per photo (per "
+    "face with --face all): photo, face, status (ok/error), error, output folder, landmark error px, NME, "
+    "seconds, faces detected, face box and score, kept (yes: the output of an earlier run, kept). It is "
+    "written also when some photos fail (the exit status is then 2, or 1 when every failure is a diverged "
+    "fit).\n"
+    "Resuming: run the same command again and the photos whose output folder is complete are kept (not "
+    "fitted again; their rows are rebuilt from their report.json), failed or missing ones are fitted, what "
+    "a killed run left is cleaned up; --force fits every photo again (docs/datasets.md).\n"
     "Faces: --face N fits the N-th face the detector finds (0 = the largest); --face all fits every face, "
     "into OUT/face_<k>/ (k = 0, 1, ... as --face numbers them), or OUT/<name>/face_<k>/ for several "
     "photos, each with all the outputs below, and summary.csv beside them (one row per face)."
@@ -302,6 +331,12 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     fit.add_argument("--config", help="YAML overriding the fitting settings (e.g. configs/fit_photo.yaml)")
     fit.add_argument("--set", action="append", metavar="KEY=VALUE", help="override one setting (repeatable)")
     fit.add_argument("--jobs", type=int, help="parallel processes for several photos (default: the CPU count)")
-    fit.add_argument("--force", action="store_true", help="replace output folders that exist (only jnr's own)")
+    fit.add_argument("--scheduler", metavar="ADDRESS",
+                     help="fit several photos on a Dask cluster: the address of its scheduler (e.g. tcp://host:8786, "
+                          "as `dask scheduler` prints it); the workers need jnr installed and the photos and --out "
+                          "at the same paths (docs/datasets.md); not with --jobs")
+    fit.add_argument("--force", action="store_true",
+                     help="replace output folders that exist (only jnr's own); for several photos: fit every photo "
+                          "again instead of keeping the complete outputs of an earlier run")
     fit.add_argument("--quiet", action="store_true", help="no progress bars")
     fit.set_defaults(func=cmd_fit)

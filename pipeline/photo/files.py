@@ -7,8 +7,12 @@
 * :func:`fit_photo_faces` fits every face the detector finds in one photo file into
   ``OUT/face_<k>/`` folders (``jnr fit --face all``), with ``OUT/summary.csv`` listing the faces.
 * :func:`fit_photo_files` fits several into ``OUT/<name>/`` folders, one after another or through a
-  caller's ``run`` (the command line's process pool), reporting each photo's failure instead of
-  stopping (:class:`PhotoFileResult`), and lists them all in ``OUT/summary.csv`` (:func:`summary_csv`).
+  caller's ``run`` (the command line's process pool or a Dask cluster,
+  :mod:`pipeline.photo.dask_runner`), reporting each photo's failure instead of stopping
+  (:class:`PhotoFileResult`), and lists them all in ``OUT/summary.csv`` (:func:`summary_csv`). It
+  resumes: an output folder an earlier run completed is kept and its row rebuilt from its
+  ``report.json`` (:func:`earlier_output`); leftovers of a killed run are removed
+  (:func:`remove_leftovers`).
 
 Example:
     >>> summary = fit_photo_file("face.png", "out/face", landmarks="face.pts")  # doctest: +SKIP
@@ -19,11 +23,17 @@ Example:
 from __future__ import annotations
 
 import csv
+import errno
 import io
+import json
+import logging
+import os
+import re
 import shutil
 import time
+import warnings
 from collections.abc import Callable, Iterable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 from rig.errors import InputError
@@ -38,14 +48,19 @@ detector's order (largest first, as ``--face N`` numbers them)."""
 SUMMARY_FILE = "summary.csv"
 """The table of a run over several photos or faces, one row per photo (per face with ``--face all``)."""
 SUMMARY_COLUMNS = ("photo", "face", "status", "error", "output", "mean_error_px", "nme", "seconds", "faces_found",
-                   "box_left", "box_top", "box_right", "box_bottom", "face_score")
+                   "box_left", "box_top", "box_right", "box_bottom", "face_score", "kept")
 """The columns of :data:`SUMMARY_FILE`: the photo file; the face index (empty: landmarks from a file, or the
 photo failed before a face was picked); ``ok`` or ``error`` and the one-line error; the output folder
 (empty on an error: nothing was written); the landmark error in the photo's pixels and the NME by the
 outer eye corners (as in the fit's ``report.json``); the seconds spent on the photo (with ``--face all``,
 on that face: its fit and outputs; the detection, once per photo, is in ``report.json``); how many faces
 the detector found (0: none; empty: not detected, e.g. an unreadable file or a landmarks file); the face's
-box in the photo's pixels and the detector's score."""
+box in the photo's pixels and the detector's score; ``yes`` when the row is an earlier run's output that
+was kept (resumed: not fitted again, its numbers read back from its ``report.json``; ``seconds`` is then
+the time its fit took when it was made), ``no`` when it was fitted (or failed) in this run."""
+_EARLIER_SUMMARY_COLUMNS = (SUMMARY_COLUMNS[:-1],)
+"""The headers of the summaries earlier jnr versions wrote (before the ``kept`` column): still jnr's own."""
+_log = logging.getLogger(__name__)
 
 
 def photo_inputs(items: Iterable[str | Path]) -> tuple[list[Path], list[Path]]:
@@ -137,7 +152,7 @@ def _photo_landmarks(photo, landmarks_path: Path | None, face: int | None, detec
     if landmarks_path:
         points = read_landmarks(landmarks_path)
         check_landmarks_2d(points, width, height, source=str(landmarks_path))
-        return photo.to_working(points), {"landmarks": str(landmarks_path)}
+        return photo.to_working(points), {"landmarks": os.path.abspath(landmarks_path)}
     detected = _detect(photo, detector)
     index = 0 if face is None else int(face)
     if not 0 <= index < len(detected.faces):
@@ -177,7 +192,7 @@ def _fit_and_write(photo_path: Path, photo, points, source: dict, out: Path, *, 
         raise FloatingPointError(f"{label}: {exc}") from None
     except ValueError as exc:  # bad image or landmarks for the fit (InputError and plain ValueError)
         raise InputError(f"{label}: {exc}") from None
-    extra = {"input": {"photo": str(photo_path), "width": width, "height": height,
+    extra = {"input": {"photo": os.path.abspath(photo_path), "width": width, "height": height,
                        "fitted_width": fit.width, "fitted_height": fit.height, "reduction": k,
                        "focal_px": fit.focal * k, "focal_source": "--focal" if focal else "default 1.4 * max(W, H)",
                        **source},
@@ -369,6 +384,7 @@ class PhotoFileResult:
             face was picked). faces_found: how many faces the detector found (0: none; None: not known).
         seconds: the time spent on it. face_box: ``(left, top, right, bottom)`` in the photo's pixels, and
             face_score: the detector's score, of the face (None when not detected).
+        kept: the output was written by an earlier run and kept (:func:`earlier_output`), not fitted now.
     """
 
     photo: str
@@ -380,6 +396,7 @@ class PhotoFileResult:
     seconds: float | None = None
     face_box: tuple[float, float, float, float] | None = None
     face_score: float | None = None
+    kept: bool = False
 
     @property
     def output(self) -> str | None:
@@ -403,13 +420,32 @@ def summary_csv(results: Iterable[PhotoFileResult]) -> str:
         writer.writerow([r.photo, "" if r.face is None else r.face, "error" if r.error else "ok", r.error or "",
                          r.output or "", _number(fitted.get("mean_error_px"), 3), _number(fitted.get("nme"), 5),
                          _number(r.seconds, 2), "" if r.faces_found is None else r.faces_found,
-                         *(b if b == "" else _number(b, 1) for b in box), _number(r.face_score, 4)])
+                         *(b if b == "" else _number(b, 1) for b in box), _number(r.face_score, 4),
+                         "yes" if r.kept else "no"])
     return text.getvalue()
+
+
+def _jnr_header(line: str) -> bool:
+    """Whether ``line`` (without its line end) is the header of a summary some jnr version wrote."""
+    return tuple(line.split(",")) in (SUMMARY_COLUMNS, *_EARLIER_SUMMARY_COLUMNS)
+
+
+def read_summary(path: str | Path) -> list[dict[str, str]] | None:
+    """The rows of a :data:`SUMMARY_FILE` jnr wrote (this version or an earlier one), as ``{column: text}``;
+    None when there is none, it cannot be read or another program wrote it (its first line is not jnr's
+    header)."""
+    try:
+        text = Path(path).read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError):
+        return None
+    if not _jnr_header(text.split("\n", 1)[0].rstrip("\r")):
+        return None
+    return list(csv.DictReader(io.StringIO(text, newline="")))
 
 
 def _check_summary(path: Path, force: bool, inputs) -> None:
     """Before any fit: ``path`` may be written (a summary.csv that exists only with ``force``, and only
-    one jnr wrote: it starts with :data:`SUMMARY_COLUMNS`)."""
+    one jnr wrote: it starts with the header of :data:`SUMMARY_COLUMNS`, or an earlier version's)."""
     from pipeline.files import OutputError, check_output
 
     check_output(path, force=force, inputs=inputs, kind="file")
@@ -419,7 +455,7 @@ def _check_summary(path: Path, force: bool, inputs) -> None:
                 header = handle.readline().strip()
         except (OSError, UnicodeDecodeError):
             header = ""
-        if header != ",".join(SUMMARY_COLUMNS):
+        if not _jnr_header(header):
             raise OutputError(f"--out {path} is not a summary jnr wrote (its first line is not jnr's header); "
                               "--force replaces only jnr's own outputs: remove it yourself or choose another --out")
 
@@ -484,9 +520,264 @@ def _sequential(rig, neural, progress):
     return run
 
 
+# ------------------------------------------------------------------------------------------ resuming
+
+_RANDOM = "[a-z0-9_]{8}"
+"""The random part :mod:`tempfile` puts into the names of :mod:`rig.io.atomic`'s temporaries."""
+
+
+def remove_leftovers(out: str | Path, folders: Iterable[str], files: Iterable[str] = (SUMMARY_FILE,)) -> list[Path]:
+    """Remove what a killed run left in the batch folder ``out``: the hidden temporaries of
+    :mod:`rig.io.atomic` for the output folders named ``folders`` (``.<name>.<random>.tmp``, and
+    ``.<name>.old.<random>`` where ``renameat2`` is missing) and for the files named ``files``
+    (``.<stem>.<random>.tmp<suffix>``). Nothing else is touched (a symbolic link with such a name
+    neither). Call it only while no other process writes these outputs (:func:`fit_photo_files` holds
+    the folder's lock).
+
+    Returns:
+        The paths removed.
+    """
+    out = Path(out)
+    patterns = [(re.compile(rf"\.{re.escape(n)}\.(?:{_RANDOM}\.tmp|old\.{_RANDOM})"), True) for n in folders]
+    patterns += [(re.compile(rf"\.{re.escape(Path(n).stem)}\.{_RANDOM}\.tmp{re.escape(Path(n).suffix)}"), False)
+                 for n in files]
+    removed = []
+    try:
+        entries = [p for p in out.iterdir() if p.name.startswith(".")]
+    except OSError:
+        return removed
+    for path in sorted(entries):
+        for pattern, is_folder in patterns:
+            if not pattern.fullmatch(path.name) or path.is_symlink():
+                continue
+            if is_folder and path.is_dir():
+                shutil.rmtree(path, ignore_errors=True)
+            elif not is_folder and path.is_file():
+                path.unlink(missing_ok=True)
+            else:
+                continue
+            removed.append(path)
+            _log.info("removed %s, left by a run that was killed", path)
+            break
+    return removed
+
+
+def _lock_folder(out: Path) -> int | None:
+    """Take an exclusive lock on the batch folder ``out`` (``flock`` on the folder itself: no file is
+    added); returns the descriptor that holds it (:func:`_unlock`), or None where the file system has no
+    locks.
+
+    Raises:
+        pipeline.files.OutputError: another process holds it (a second ``jnr fit`` into ``out``).
+    """
+    from pipeline.files import OutputError
+
+    try:
+        import fcntl
+
+        fd = os.open(out, os.O_RDONLY | os.O_DIRECTORY)
+    except (ImportError, OSError):
+        return None
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError as exc:
+        os.close(fd)
+        if exc.errno in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
+            raise OutputError(f"another jnr fit is writing into --out {out} now (it holds the folder's lock); "
+                              "wait for it to end or choose another --out") from None
+        return None
+    return fd
+
+
+def _unlock(fd: int | None) -> None:
+    if fd is not None:
+        os.close(fd)
+
+
+@dataclass(frozen=True)
+class EarlierOutput:
+    """What an earlier run left at a task's output folder (:func:`earlier_output`).
+
+    Attributes:
+        state: ``"absent"`` (nothing there), ``"complete"`` (kept: ``results`` are its summary rows,
+            rebuilt from its report.json) or ``"incomplete"`` (a jnr output folder with files missing or
+            an unreadable report.json: fitted again and replaced).
+        results: the kept rows (:attr:`PhotoFileResult.kept`), for ``"complete"``.
+        other_settings: a kept fit was made with other settings (configuration, landmarks source,
+            detector or focal) than the task's.
+    """
+
+    state: str
+    results: tuple[PhotoFileResult, ...] = ()
+    other_settings: bool = False
+
+
+def _read_report(folder: Path) -> dict | None:
+    """The report.json of a complete single-face output folder (every file of
+    :data:`pipeline.photo.outputs.OUTPUT_FILES`, a report with jnr's landmark errors and input photo), or
+    None."""
+    from pipeline.photo.outputs import OUTPUT_FILES
+
+    if not all((folder / name).is_file() for name in OUTPUT_FILES):
+        return None
+    try:
+        report = json.loads((folder / "report.json").read_text(encoding="utf-8"))
+        landmarks, photo = report["landmarks"], report["input"]["photo"]
+        float(landmarks["mean_error_px"]), float(landmarks["nme_inter_ocular"])
+    except (OSError, UnicodeDecodeError, ValueError, KeyError, TypeError):
+        return None
+    return report if isinstance(photo, str) else None
+
+
+def _same_photo(recorded: str, photo: str) -> bool:
+    """Whether the photo a report or summary recorded is ``photo``: the same file, or (a relative path that
+    an earlier jnr recorded from another working directory) the same file name."""
+    try:
+        return os.path.samefile(recorded, photo)
+    except OSError:
+        return Path(recorded).name == Path(photo).name
+
+
+def _float(text) -> float | None:
+    try:
+        return float(text)
+    except (TypeError, ValueError):
+        return None
+
+
+def _settings_differ(task: PhotoTask, report: dict) -> bool:
+    """Whether a kept fit's report.json records other settings than ``task``'s (its configuration, where
+    its landmarks came from, the detector, the focal length)."""
+    import math
+
+    from pipeline.config import config_to_dict
+    from pipeline.files import json_safe
+    from pipeline.photo.fit import FitPhotoConfig
+
+    wanted = json.loads(json.dumps(json_safe(config_to_dict(task.config or FitPhotoConfig()))))
+    source = report.get("input") or {}
+    detected = "detector_option" in source
+    if report.get("config") != wanted or detected == bool(task.landmarks):
+        return True
+    if detected and source.get("detector_option") != task.detector:
+        return True
+    if task.focal is None:
+        return source.get("focal_source") == "--focal"
+    focal = _float(source.get("focal_px"))
+    return focal is None or not math.isclose(focal, task.focal, rel_tol=1e-9)
+
+
+def _kept_row(task: PhotoTask, output: str, report: dict, seconds: float | None) -> PhotoFileResult:
+    """The summary row of a kept single-face output, from its report.json (the numbers a fit writes in
+    both, so the same as the row of the run that made it)."""
+    source = report.get("input") or {}
+    landmarks = report["landmarks"]
+    box = source.get("face_box")
+    faces = source.get("faces")
+    summary = {"photo": task.photo, "output": output, "mean_error_px": _float(landmarks["mean_error_px"]),
+               "nme": _float(landmarks["nme_inter_ocular"]), "seconds": seconds,
+               "fit_seconds": _float((report.get("timings_s") or {}).get("total")), "face": source.get("face_index"),
+               "faces_found": len(faces) if isinstance(faces, list) else None, "face_box": box,
+               "face_score": source.get("face_score")}
+    return PhotoFileResult(task.photo, summary, face=summary["face"], faces_found=summary["faces_found"],
+                           seconds=seconds, face_box=tuple(box) if isinstance(box, list) else None,
+                           face_score=summary["face_score"], kept=True)
+
+
+def _other_photo(out: Path, what: str) -> Exception:
+    from pipeline.files import OutputError
+
+    return OutputError(f"--out {out} holds an earlier fit of {what}; pass --force to fit it again or choose "
+                       "another --out")
+
+
+def earlier_output(task: PhotoTask, earlier_seconds: dict[tuple[str, str], float | None] | None = None
+                   ) -> EarlierOutput:
+    """What an earlier run left at ``task.out``, to resume a batch (:func:`fit_photo_files`).
+
+    Complete means: a folder jnr wrote holding every file of :data:`pipeline.photo.outputs.OUTPUT_FILES`
+    and a readable report.json of the same photo; with ``task.face == "all"``, a folder with a summary.csv
+    jnr wrote whose rows are all of the same photo, at least one fitted face, and each fitted face's
+    ``face_<k>/`` complete as above. Its rows are rebuilt from the report.json files (landmark error, NME,
+    faces found, box, score, as the fit wrote them) and, with ``face="all"``, from the photo's own
+    summary.csv (the faces that failed, the seconds).
+
+    Args:
+        task: the photo and its output folder.
+        earlier_seconds: ``{(photo file name, output folder name): seconds}`` from the batch's earlier
+            summary.csv, for the ``seconds`` of a kept single-face row (None where not known).
+
+    Returns:
+        :class:`EarlierOutput`.
+
+    Raises:
+        pipeline.files.OutputError: something is at ``task.out`` that jnr did not write (or not a
+            folder), or a complete fit of another photo (or of one face where every face is asked for,
+            or the other way round): refused as before, ``--force`` replaces only jnr's own.
+    """
+    from pipeline.files import check_output, is_jnr_output
+
+    out = Path(task.out)
+    if not (out.exists() or out.is_symlink()):
+        return EarlierOutput("absent")
+    if out.is_symlink() or not out.is_dir() or not is_jnr_output(out):
+        check_output(out, force=True, inputs=task.inputs)  # raises the message for what is there
+        raise _other_photo(out, "something else")  # pragma: no cover - check_output refuses all of these
+    if task.face == FACE_ALL:
+        return _earlier_faces(task, out)
+    report = _read_report(out)
+    if report is None:
+        if read_summary(out / SUMMARY_FILE) is not None and (out / "face_0").is_dir():
+            raise _other_photo(out, f"every face of {task.photo} (--face all)")
+        return EarlierOutput("incomplete")
+    if not _same_photo(report["input"]["photo"], task.photo):
+        raise _other_photo(out, f"another photo ({report['input']['photo']})")
+    seconds = (earlier_seconds or {}).get((Path(task.photo).name, out.name))
+    return EarlierOutput("complete", (_kept_row(task, task.out, report, seconds),), _settings_differ(task, report))
+
+
+def _earlier_faces(task: PhotoTask, out: Path) -> EarlierOutput:
+    """:func:`earlier_output` for ``face="all"``."""
+    rows = read_summary(out / SUMMARY_FILE)
+    if rows is None:
+        if _read_report(out) is not None:
+            raise _other_photo(out, f"one face of {task.photo} (without --face all)")
+        return EarlierOutput("incomplete")
+    results, differ = [], False
+    for row in rows:
+        if not _same_photo(row.get("photo") or "", task.photo):
+            raise _other_photo(out, f"another photo ({row.get('photo')})")
+        face = int(row["face"]) if (row.get("face") or "").isdigit() else None
+        found = int(row["faces_found"]) if (row.get("faces_found") or "").isdigit() else None
+        seconds = _float(row.get("seconds"))
+        if row.get("status") != "ok":
+            box = tuple(_float(row.get(f"box_{side}")) for side in ("left", "top", "right", "bottom"))
+            results.append(PhotoFileResult(task.photo, error=row.get("error") or "failed", bad_input=True, face=face,
+                                           faces_found=found, seconds=seconds,
+                                           face_box=None if None in box else box,
+                                           face_score=_float(row.get("face_score")), kept=True))
+            continue
+        report = None if face is None else _read_report(out / f"face_{face}")
+        if report is None or (report.get("input") or {}).get("face_index") != face:
+            return EarlierOutput("incomplete")
+        results.append(_kept_row(task, str(Path(task.out) / f"face_{face}"), report, seconds))
+        differ = differ or _settings_differ(task, report)
+    if not any(r.summary for r in results):
+        return EarlierOutput("incomplete")
+    return EarlierOutput("complete", tuple(results), differ)
+
+
+def _earlier_seconds(out: Path) -> dict[tuple[str, str], float | None]:
+    """``{(photo file name, output folder name): seconds}`` of the fitted rows of the batch's earlier
+    summary.csv (:func:`earlier_output`)."""
+    rows = read_summary(out / SUMMARY_FILE) or []
+    return {(Path(r["photo"]).name, Path(r["output"]).name): _float(r.get("seconds"))
+            for r in rows if r.get("status") == "ok" and r.get("photo") and r.get("output")}
+
+
 def fit_photo_files(photos: Sequence[str | Path], out: str | Path, *, folders: Sequence[str | Path] = (),
                     config=None, landmarks: str | None = None, focal: float | None = None, force: bool = False,
-                    command: str = "jnr fit", rig=None, neural=None,
+                    resume: bool = True, command: str = "jnr fit", rig=None, neural=None,
                     progress: Callable[[str, int, int], None] | None = None,
                     run: Callable[[list[PhotoTask]], Iterable[tuple[PhotoFileResult, ...]]] | None = None,
                     detector: str = "auto", face: str | None = None) -> list[PhotoFileResult]:
@@ -499,28 +790,41 @@ def fit_photo_files(photos: Sequence[str | Path], out: str | Path, *, folders: S
     done, also when some failed; when no photo could be written, an ``out`` this call created is removed
     again instead (also on an interrupt).
 
+    Resuming (``resume``, without ``force``): an output an earlier run completed is kept, not fitted
+    again, and its rows are rebuilt from its report.json (:func:`earlier_output`; ``kept`` = yes in the
+    summary; a warning when its settings differ from this call's); a photo whose fit failed has no output
+    and is fitted again; an incomplete jnr output folder is fitted again and replaced; the hidden
+    temporaries a killed run left are removed first (:func:`remove_leftovers`); the summary.csv of an
+    earlier run (jnr's own) is replaced by this run's. What jnr did not write is refused as without
+    ``resume``. ``force`` fits every photo again and replaces its output (only jnr's). While it runs,
+    the call holds a lock on ``out``: a second call into the same ``out`` is refused.
+
     Args:
         photos: the image files (e.g. from :func:`photo_inputs`); folders: the folders they were found
             in (the outputs must not be, contain or lie in any of them, nor in a photo).
         config, focal, force, command: as :func:`fit_photo_file`, for every photo.
+        resume: keep complete outputs of an earlier run (above); False: an existing output or
+            summary.csv is refused without ``force``.
         landmarks: None (detect) or ``"auto"`` (the file beside each photo, :func:`sidecar_landmarks`).
         detector: as :func:`fit_photo_file`.
         face: None (the largest face of each photo) or :data:`FACE_ALL`: every face of each photo, into
             ``out/<name>/face_<k>/`` (:func:`fit_photo_faces`; each ``out/<name>/`` also has its own
             summary.csv), a summary row per face.
         rig, neural: the models, shared by all photos (default runner only; default: loaded per photo).
-        progress: ``progress("photos", done, total)`` after each photo (default runner only).
+        progress: ``progress("photos", done, total)`` after each photo fitted (default runner only;
+            ``total``: the photos to fit, without the kept ones).
         run: how the tasks are fitted: ``run(tasks)`` yields, per task as each finishes and in any order,
             the tuple of its results (e.g. from a process pool whose workers call
-            :func:`fit_photo_task`); default: one after another in this process.
+            :func:`fit_photo_task`, or :class:`pipeline.photo.dask_runner.DaskRunner`); default: one
+            after another in this process. Not called when every output is kept.
 
     Returns:
         One :class:`PhotoFileResult` per photo (per face with ``face="all"``), in the order of ``photos``
-        (then of the faces).
+        (then of the faces); kept ones with ``kept=True``.
 
     Raises:
         InputError: ``landmarks`` is a file, or ``landmarks`` with ``face="all"``;
-            :class:`~pipeline.files.OutputError`: an output is refused.
+            :class:`~pipeline.files.OutputError`: an output is refused, or another call holds ``out``.
     """
     from pipeline.files import OutputError, check_output, make_output_folder
 
@@ -532,35 +836,66 @@ def fit_photo_files(photos: Sequence[str | Path], out: str | Path, *, folders: S
         raise InputError("--face picks among the faces the detector finds; it cannot be used with --landmarks")
     out = Path(out)
     inputs = tuple(str(p) for p in (*photos, *folders))
-    outputs = [out / n for n in output_names(photos)]
+    names = output_names(photos)
+    tasks = [PhotoTask(str(p), str(out / n), config, landmarks, focal, force, command, inputs, detector, face)
+             for p, n in zip(photos, names)]
+    resuming = resume and not force
     created = make_output_folder(out, inputs=inputs)
+    lock = None
+    kept: list[PhotoFileResult] = []
+    todo: list[PhotoTask] = []
+    other_settings = 0
     try:
-        for o in outputs:
-            check_output(o, force=force, inputs=inputs)
-        _check_summary(out / SUMMARY_FILE, force, inputs)
+        lock = _lock_folder(out)
+        if lock is not None:  # no other jnr fit writes here: what looks staged was left by a killed run
+            remove_leftovers(out, names)
+        earlier_seconds = _earlier_seconds(out) if resuming else {}
+        for task in tasks:
+            earlier = earlier_output(task, earlier_seconds) if resuming else EarlierOutput("absent")
+            if earlier.state == "complete":
+                kept.extend(earlier.results)
+                other_settings += earlier.other_settings
+                continue
+            if earlier.state == "incomplete":
+                check_output(task.out, force=True, inputs=inputs)
+                task = replace(task, force=True)
+            else:
+                check_output(task.out, force=force, inputs=inputs)
+            todo.append(task)
+        _check_summary(out / SUMMARY_FILE, force or resume, inputs)
     except OutputError:
+        _unlock(lock)
         if created:
             shutil.rmtree(out, ignore_errors=True)
         raise
-    tasks = [PhotoTask(str(p), str(o), config, landmarks, focal, force, command, inputs, detector, face)
-             for p, o in zip(photos, outputs)]
+    if kept:
+        _log.info("kept %d output(s) of an earlier run in %s (--force fits them again)",
+                  len({r.photo for r in kept}), out)
+    if other_settings:
+        warnings.warn(f"kept {other_settings} earlier output(s) in {out} fitted with other settings "
+                      "(configuration, landmarks, detector or focal); --force fits them again", stacklevel=2)
     order = {t.photo: i for i, t in reversed(list(enumerate(tasks)))}
-    results: list[PhotoFileResult] = []
+    results: list[PhotoFileResult] = list(kept)
     finished = None
     try:
-        finished = iter((run or _sequential(rig, neural, progress))(tasks))
-        for task_results in finished:
-            results.extend(task_results)
+        try:
+            if todo:
+                finished = iter((run or _sequential(rig, neural, progress))(todo))
+                for task_results in finished:
+                    results.extend(task_results)
+        finally:
+            getattr(finished, "close", lambda: None)()  # a generator's clean-up runs now, not when collected
+            if created and not any(r.summary for r in results):
+                shutil.rmtree(out, ignore_errors=True)  # nothing of ours in it
+        results.sort(key=lambda r: (order[r.photo], -1 if r.face is None else r.face))
+        if out.is_dir():
+            write_summary(out / SUMMARY_FILE, results, force=force or resume, inputs=inputs)
     finally:
-        getattr(finished, "close", lambda: None)()  # a generator's clean-up runs now, not when collected
-        if created and not any(r.summary for r in results):
-            shutil.rmtree(out, ignore_errors=True)  # nothing of ours in it
-    results.sort(key=lambda r: (order[r.photo], -1 if r.face is None else r.face))
-    if out.is_dir():
-        write_summary(out / SUMMARY_FILE, results, force=force, inputs=inputs)
+        _unlock(lock)
     return results
 
 
-__all__ = ["FACE_ALL", "IMAGE_SUFFIXES", "LANDMARK_SUFFIXES", "SUMMARY_COLUMNS", "SUMMARY_FILE", "PhotoFileResult",
-           "PhotoTask", "fit_photo_faces", "fit_photo_file", "fit_photo_files", "fit_photo_task", "output_names",
-           "photo_inputs", "sidecar_landmarks", "summary_csv", "write_summary"]
+__all__ = ["FACE_ALL", "IMAGE_SUFFIXES", "LANDMARK_SUFFIXES", "SUMMARY_COLUMNS", "SUMMARY_FILE", "EarlierOutput",
+           "PhotoFileResult", "PhotoTask", "earlier_output", "fit_photo_faces", "fit_photo_file", "fit_photo_files",
+           "fit_photo_task", "output_names", "photo_inputs", "read_summary", "remove_leftovers", "sidecar_landmarks",
+           "summary_csv", "write_summary"]

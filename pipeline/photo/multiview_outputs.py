@@ -254,7 +254,8 @@ def fit_multiview_files(photo_paths: list[str | Path], out: str | Path, *, confi
         k = photo.factor
         images.append(photo.image)
         points.append(lm)
-        sources.append({"photo": str(path), **{key: value for key, value in source.items() if key != "faces"}})
+        sources.append({"photo": str(path.absolute()),
+                        **{key: value for key, value in source.items() if key != "faces"}})
         sizes.append((photo.image.shape[1], photo.image.shape[0]))
         focals.append(None if focal is None else focal / k)
         factors.append(k)
@@ -267,8 +268,8 @@ def fit_multiview_files(photo_paths: list[str | Path], out: str | Path, *, confi
         raise
     except ValueError as exc:
         raise InputError(f"jnr fit --views: {exc}") from None
-    write_multiview_outputs(out, images, fit, photos=[str(p) for p in paths], factors=factors, config=config,
-                            force=force, extra={"inputs": sources, "command": command}, inputs=tuple(inputs),
-                            rig=rig, neural=neural)
+    write_multiview_outputs(out, images, fit, photos=[str(p.absolute()) for p in paths], factors=factors,
+                            config=config, force=force, extra={"inputs": sources, "command": command},
+                            inputs=tuple(inputs), rig=rig, neural=neural)
     return {"output": str(out), "views": len(paths), "mean_error_px": fit.mean_error_px,
             "seconds": time.perf_counter() - t0}

@@ -215,7 +215,8 @@ def write_scan_outputs(out_dir: str | Path, cloud: PointCloud, fit: ScanFit, dis
         write_point_cloud_ply(tmp / "cloud_error.ply", back(cloud.points), colors=error_colors(distances, vmax),
                               scalars={"error_mm": np.asarray(distances, np.float32)})
         report = {
-            "input": {"path": cloud.path, "points": len(cloud.points), "input_points": cloud.input_points,
+            "input": {"path": str(Path(cloud.path).absolute()) if cloud.path else "",  # exists from any folder
+                      "points": len(cloud.points), "input_points": cloud.input_points,
                       "subsampled": cloud.input_points > len(cloud.points), "units": cloud.units,
                       "scale_to_mm": cloud.scale_to_mm, "frame": frame, "had_normals": cloud.normals is not None},
             "scan_to_mesh": report_distance_stats(distances),

@@ -125,9 +125,9 @@ def test_fit_photo_files_with_every_face(tmp_path, two_faces_photo, fast_config)
         assert report["input"]["face_index"] == k and report["command"] == "test"
     assert sorted(p.name for p in out.iterdir()) == ["summary.csv", "two"]
 
-    # nothing is replaced without force; force replaces only a summary.csv jnr wrote, checked before any fit
+    # nothing is replaced without force (or resume); force replaces only a summary.csv jnr wrote, checked first
     with pytest.raises(OutputError, match="exists"):
-        fit_photo_files([folder / "blank.png"], out, folders=[folder], config=fast_config, face="all")
+        fit_photo_files([folder / "blank.png"], out, folders=[folder], config=fast_config, face="all", resume=False)
     (out / "summary.csv").write_text("my,own,table\n")
     with pytest.raises(OutputError, match="not a summary jnr wrote"):
         fit_photo_files([folder / "blank.png"], out, folders=[folder], config=fast_config, face="all", force=True)
