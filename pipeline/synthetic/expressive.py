@@ -418,7 +418,7 @@ def expressive_split(name: str = "heldout", seed: int = 0, n: int | None = None,
             raise ValueError(f"expressive_split: n must be an integer in [0, {len(seeds)}], got {n!r}")
         seeds = seeds[: int(n)]
     asset = load_asset() if asset is None else asset
-    population = population_split(name, seed)
+    population = population_split(name, seed, first=len(seeds))  # the same identities, only those needed
     k = len(seeds)
     neutral = np.asarray(population.vertices[:k], dtype=float)
     if neutral.shape[1:] != asset.vertices.shape:

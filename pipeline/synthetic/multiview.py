@@ -148,13 +148,14 @@ def synthetic_views(index: int, n_views: int, *, seed: int = 0, settings: MultiV
         >>> len(views.photos), views.photos[0].landmarks2d.shape
         (3, (68, 2))
     """
-    from pipeline.synthetic.population import population_split
+    from pipeline.synthetic.population import SPLIT_SIZES, population_split
 
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise ValueError(f"synthetic_views: seed must be a non-negative integer, got {seed!r}")
-    population = population_split("heldout", 0)
-    if isinstance(index, bool) or not isinstance(index, (int, np.integer)) or not 0 <= index < len(population):
-        raise ValueError(f"synthetic_views: index must be an integer in [0, {len(population) - 1}], got {index!r}")
+    n_heads = SPLIT_SIZES["heldout"]
+    if isinstance(index, bool) or not isinstance(index, (int, np.integer)) or not 0 <= index < n_heads:
+        raise ValueError(f"synthetic_views: index must be an integer in [0, {n_heads - 1}], got {index!r}")
+    population = population_split("heldout", 0, first=int(index) + 1)  # the same heads, without making all 100
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), int(index), _VIEWS_STREAM]))
     return simulate_views(population.vertices[int(index)], n_views, rng, settings,
                           name=population.names[int(index)], render=render)

@@ -660,14 +660,15 @@ def synthetic_photo(index: int, *, expressive: bool = False, seed: int = 0,
     Raises:
         ValueError: index out of range, negative seed, or :func:`simulate_photo`'s errors.
     """
-    from pipeline.synthetic.population import population_split
+    from pipeline.synthetic.population import SPLIT_SIZES, population_split
 
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise ValueError(f"synthetic_photo: seed must be a non-negative integer, got {seed!r}")
-    population = population_split("heldout", 0)
-    if isinstance(index, bool) or not isinstance(index, (int, np.integer)) or not 0 <= index < len(population):
-        raise ValueError(f"synthetic_photo: index must be an integer in [0, {len(population) - 1}], got {index!r}")
+    n_heads = SPLIT_SIZES["heldout"]
+    if isinstance(index, bool) or not isinstance(index, (int, np.integer)) or not 0 <= index < n_heads:
+        raise ValueError(f"synthetic_photo: index must be an integer in [0, {n_heads - 1}], got {index!r}")
     index = int(index)
+    population = population_split("heldout", 0, first=index + 1)  # the same heads, without making all 100
     if expressive:
         from pipeline.synthetic.expressive import expressive_split
 
