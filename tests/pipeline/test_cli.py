@@ -1,4 +1,5 @@
 import json
+import os
 from pathlib import Path
 
 import numpy as np
@@ -104,9 +105,10 @@ def test_rig_build_check_matches_committed_asset(capsys, tmp_path):
     assert code == 0
 
 
-def test_demo_writes_everything(capsys, tmp_path):
+def test_demo_writes_everything(capsys, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # --out relative to the working directory
     out = tmp_path / "demo"
-    code, stdout, err = run(capsys, "demo", "--out", str(out), "--spp", "2", "--quiet", *_fast()[:-1])
+    code, stdout, err = run(capsys, "demo", "--out", "demo", "--spp", "2", "--quiet", *_fast()[:-1])
     assert code == 0, err
     for name in ("template.obj", "template.ply", "template.glb", "edited.obj", "edited.glb", "edited.png",
                  "edited_params.json", "summary.json"):
@@ -124,6 +126,22 @@ def test_demo_writes_everything(capsys, tmp_path):
     assert "astronaut portrait" in stdout and "known truth" in stdout
     code, _, err = run(capsys, "demo", "--out", str(out), "--quiet")
     assert code == 2 and "--force" in err
+
+    # every path the reports record exists after the command, also with the output moved elsewhere: inputs
+    # are absolute, the demo's own files relative to the report's folder (tests/pipeline/test_report_paths.py)
+    from tests.pipeline.test_report_paths import check_paths
+
+    moved = tmp_path / "elsewhere" / "demo"
+    moved.parent.mkdir()
+    os.rename(out, moved)
+    summary = json.loads((moved / "summary.json").read_text())
+    assert summary["astronaut"]["photo"] == "inputs/astronaut.png" and summary["synthetic"]["output"] == "synthetic"
+    checked = check_paths(moved / "summary.json", skip=(".output",))  # .output: where it was written
+    assert {".astronaut.photo", ".astronaut.output", ".synthetic.photo", ".synthetic.truth"} <= checked
+    assert Path(summary["output"]) == out.resolve()
+    for name in ("astronaut", "synthetic"):
+        checked = check_paths(moved / name / "report.json")
+        assert ".input.photo" in checked and ".texture.file" in checked
 
 
 # ----------------------------------------------------------------------------------------------------

@@ -63,20 +63,6 @@ def test_photo_and_scan_reports_point_at_files_that_exist(capsys, tmp_path, phot
     assert ".input.path" in check_paths(work / "scan" / "report.json")
 
 
-def test_the_demo_records_paths_that_exist_after_the_move(capsys, tmp_path, monkeypatch):
-    monkeypatch.chdir(tmp_path)
-    assert main(["demo", "--out", "demo", "--spp", "1", *fast_fit_args()]) == 0
-    capsys.readouterr()
-    moved = tmp_path / "elsewhere" / "demo"
-    moved.parent.mkdir()
-    os.rename(tmp_path / "demo", moved)  # its own files are recorded relative to it: still found
-    summary = json.loads((moved / "summary.json").read_text())
-    assert summary["astronaut"]["photo"] == "inputs/astronaut.png" and summary["synthetic"]["output"] == "synthetic"
-    checked = check_paths(moved / "summary.json", skip=(".output",))  # .output: where it was written
-    assert {".astronaut.photo", ".astronaut.output", ".synthetic.photo", ".synthetic.truth"} <= checked
-    assert Path(summary["output"]) == (tmp_path / "demo").resolve()
-    for name in ("astronaut", "synthetic"):
-        checked = check_paths(moved / name / "report.json")
-        assert ".input.photo" in checked and ".texture.file" in checked
-    assert json.loads((moved / "synthetic" / "report.json").read_text())["input"]["landmarks"] == \
-        "../inputs/synthetic/landmarks.pts"
+
+# The demo's summary.json and its fits' reports are checked with check_paths in
+# tests/pipeline/test_cli.py::test_demo_writes_everything (one demo run for both).
