@@ -9,14 +9,14 @@ missing tool a failure.
 from __future__ import annotations
 
 import json
-import os
 import shutil
 import subprocess
 from pathlib import Path
 
 import numpy as np
-import pytest
 import trimesh
+
+from tests.conftest import needs_tool
 
 ROOT = Path(__file__).resolve().parents[2]
 VALIDATOR = ROOT / "node_modules" / "gltf-validator"
@@ -35,18 +35,14 @@ const fs = require('fs');
 """
 
 
-def _validator_or_skip() -> str:
-    node = shutil.which("node")
-    if node is None or not VALIDATOR.is_dir():
-        message = "Node.js or node_modules/gltf-validator missing (make venv runs npm ci)"
-        if os.environ.get("JNR_REQUIRE_BROWSER") == "1":
-            pytest.fail(message)
-        pytest.skip(message)
-    return node
+NODE = shutil.which("node")
+MISSING = "Node.js or node_modules/gltf-validator missing (make venv runs npm ci)"
 
 
+@needs_tool(NODE is not None and VALIDATOR.is_dir(), MISSING)
 def test_our_gltf_files_pass_the_khronos_validator(tmp_path):
-    node = _validator_or_skip()
+    assert NODE is not None and VALIDATOR.is_dir(), MISSING
+    node = NODE
     from pipeline.animation import curve_keyframes, example_curves, load_fit_head
     from pipeline.edit import write_skinned_head
     from rig.asset import load_asset

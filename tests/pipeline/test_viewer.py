@@ -6,7 +6,6 @@ the head's silhouette projected with the camera in numpy.
 """
 
 import json
-import os
 import shutil
 import subprocess
 import tempfile
@@ -29,32 +28,31 @@ from pipeline.viewer import (
 from rig.expressions import EXPRESSION_NAMES, ExpressionModel, coefficients_from_dict
 from rig.parameters import CHANNEL_INDEX, CHANNELS, params_to_theta, random_theta, theta_to_params
 from rig.skinning.neural import load_neural
+from tests.conftest import needs_tool
 from tests.pipeline.conftest import fast_fit_args
 
-REQUIRE_BROWSER = os.environ.get("JNR_REQUIRE_BROWSER") == "1"
 WIDTH, HEIGHT = 400, 360
 FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
          "--disable-background-networking", "--disable-component-update", "--disable-sync", "--hide-scrollbars",
          "--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--virtual-time-budget=15000"]
 
 
-def _need(condition: bool, why: str) -> None:
-    if not condition:
-        if REQUIRE_BROWSER:
-            pytest.fail(f"{why} (JNR_REQUIRE_BROWSER=1)")
-        pytest.skip(why)
+THREE_MISSING = "three.js is not vendored (make venv)"
+CHROMIUM_MISSING = "chromium is not installed (make browser)"
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+needs_three = needs_tool(viewer.viewer_available(), THREE_MISSING)
+needs_browser = needs_tool(viewer.viewer_available() and CHROMIUM is not None, f"{THREE_MISSING} or {CHROMIUM_MISSING}")
 
 
 @pytest.fixture(scope="module")
 def three():
-    _need(viewer.viewer_available(), "three.js is not vendored (make venv)")
+    assert viewer.viewer_available(), THREE_MISSING
 
 
 @pytest.fixture(scope="module")
 def chromium(three):
-    exe = shutil.which("chromium") or shutil.which("chromium-browser")
-    _need(exe is not None, "chromium is not installed (make browser)")
-    return exe
+    assert CHROMIUM is not None, CHROMIUM_MISSING
+    return CHROMIUM
 
 
 def _browse(exe: str, page, hash_: str, *args: str) -> subprocess.CompletedProcess:
@@ -140,6 +138,7 @@ def grey_shot(chromium, page, tmp_path_factory):
 
 # ------------------------------------------------------------------------------------------ Python side
 
+@needs_three
 def test_page_holds_the_head_and_decodes_back_to_the_arrays(page, head, asset):
     data = read_viewer_data(page)
     assert data["format"] == "jnr-viewer/1" and data["mode"] == "rig" and page.stat().st_size < 8e6
@@ -208,6 +207,7 @@ def test_payload_rejects_wrong_shapes(asset):
 
 # ------------------------------------------------------------------------------------------ the browser
 
+@needs_browser
 def test_browser_draws_the_head_where_the_camera_projects_it(grey_shot, head, rig64, asset):
     import cv2
 
@@ -227,6 +227,7 @@ def test_browser_draws_the_head_where_the_camera_projects_it(grey_shot, head, ri
     assert iou > 0.95
 
 
+@needs_browser
 def test_browser_slider_from_the_hash_changes_the_mouth_only(chromium, page, grey_shot, head, rig64, asset, tmp_path):
     base = grey_shot
     jaw = screenshot(chromium, page, "opacity=1&jawOpen=1", tmp_path).astype(int)
@@ -248,6 +249,7 @@ def test_browser_slider_from_the_hash_changes_the_mouth_only(chromium, page, gre
     assert changed[still].mean() < 0.001
 
 
+@needs_browser
 def test_browser_deformation_matches_the_python_rig(chromium, page, head, rig64):
     hash_ = ("state=all&jawOpen=0.7&mouthSmileLeft=0.6&nose_tip.translate_z=5&left_cheek.scale=1.2"
              "&skull_root.rotate_x=20&neck.rotate_z=-12&crown.translate_y=1000&notAName=1")
@@ -269,6 +271,7 @@ def test_browser_deformation_matches_the_python_rig(chromium, page, head, rig64)
     assert np.abs(truth - posed(rig64, head["weights"], fitted, dict(zip(EXPRESSION_NAMES, head["c"])))).max() > 5
 
 
+@needs_browser
 def test_browser_orbit_view_and_static_mesh_without_a_photo(chromium, asset, rig64, tmp_path):
     """A scan fit's page (no photo: orbit view) of an ASM-like fit (a static mesh): the head is drawn in the
     middle of the window, and the expression sliders move it by the expression offsets."""
@@ -293,6 +296,7 @@ def test_browser_orbit_view_and_static_mesh_without_a_photo(chromium, asset, rig
     assert 0.05 < drawn.mean() < 0.6 and not drawn[:, :20].any()
 
 
+@needs_browser
 def test_jnr_fit_writes_a_viewer_that_poses_the_fitted_head(chromium, head, rig64, asset, tmp_path, capsys):
     """A real ``jnr fit`` (of the known head's photo, landmarks projected from it): its viewer.html holds
     params.json's camera and draws the head params.json makes."""
