@@ -288,6 +288,7 @@ class FitHead:
         tau: ``(J, 4, 4)`` the fit's joint channel transforms (mm).
         coefficients: ``(52,)`` the fit's ARKit coefficients.
         texture: the bytes of its ``texture.png`` (a photo fit), or None.
+        vertices: ``(V, 3)`` mm, the fitted head (float64 rig).
     """
 
     folder: Path
@@ -296,6 +297,7 @@ class FitHead:
     tau: np.ndarray
     coefficients: np.ndarray
     texture: bytes | None
+    vertices: np.ndarray
 
 
 def load_fit_head(folder: str | Path) -> FitHead:
@@ -321,12 +323,20 @@ def load_fit_head(folder: str | Path) -> FitHead:
     if params.get("skinning") == "asm":
         raise InputError(f"{folder} is an ASM fit (skinning: asm); animation and retargeting take JNR fits")
     try:
-        _, _, weights, tau, coefficients = head_arrays_from_params(params)
+        vertices, _, weights, tau, coefficients = head_arrays_from_params(params)
     except (ValueError, TypeError, KeyError) as exc:
         raise InputError(f"{params_path}: {exc}") from None
     texture_path = folder / "texture.png"
     texture = texture_path.read_bytes() if texture_path.is_file() else None
-    return FitHead(folder, params, weights, tau, coefficients, texture)
+    return FitHead(folder, params, weights, tau, coefficients, texture, vertices)
+
+
+def load_fit_head_from_params(params: dict, like: FitHead) -> FitHead:
+    """A :class:`FitHead` of ``params`` (a fit's parameter dict) keeping ``like``'s folder and texture."""
+    from pipeline.scan.outputs import head_arrays_from_params
+
+    vertices, _, weights, tau, coefficients = head_arrays_from_params(params)
+    return FitHead(like.folder, params, weights, tau, coefficients, like.texture, vertices)
 
 
 def posed_frames(head: FitHead, coefficients: np.ndarray, taus: np.ndarray) -> np.ndarray:
@@ -384,9 +394,9 @@ def render_frames(head: FitHead, curves: Curves, *, fps: float = 12.0, size: tup
     taus = (animation.joint_transforms if animation.joint_transforms is not None
             else np.repeat(head.tau[None], len(curves.times), axis=0))
     faces = load_asset().faces
+    posed = posed_frames(head, curves.coefficients[rows], taus[rows])  # one batch: the models are built once
     frames = []
-    for i, row in enumerate(rows):
-        vertices = posed_frames(head, curves.coefficients[row][None], taus[row][None])[0]
+    for i, vertices in enumerate(posed):
         frames.append(render_preview(vertices, faces, view=view, size=size, spp=32, distance=620.0,
                                      target=(0.0, -10.0, 0.0), colors=np.full((len(vertices), 3), 0.6)))
         if progress is not None:
@@ -483,7 +493,6 @@ def retarget_fit(source_dir: str | Path, target_dir: str | Path, out: str | Path
     """
     from pipeline.edit import write_skinned_head
     from pipeline.files import check_output, staged_folder
-    from pipeline.scan.outputs import rig_vertices_from_params
     from render.preview import render_preview, save_png
     from rig.asset import load_asset
     from rig.expressions import EXPRESSION_NAMES
@@ -498,16 +507,13 @@ def retarget_fit(source_dir: str | Path, target_dir: str | Path, out: str | Path
                                  "what": "the source's 52 ARKit expression coefficients on the target's identity"}
     asset = load_asset()
     head = load_fit_head_from_params(params, target)
-    vertices = rig_vertices_from_params(params)
+    vertices = head.vertices
     grey = np.full((len(vertices), 3), 0.6)
-    pictures = [render_preview(rig_vertices_from_params(p), asset.faces, view="three_quarter", size=(320, 400),
-                               colors=grey)
-                for p in (source.params, target.params)]
-    pictures.append(render_preview(vertices, asset.faces, view="three_quarter", size=(320, 400), colors=grey))
+    pictures = [render_preview(v, asset.faces, view="three_quarter", size=(320, 400), colors=grey)
+                for v in (source.vertices, target.vertices, vertices)]
     report = {"source": str(Path(source_dir)), "target": str(Path(target_dir)),
               "expressions": dict(zip(EXPRESSION_NAMES, head.coefficients.tolist())),
-              "max_vertex_change_mm": float(np.linalg.norm(vertices - rig_vertices_from_params(target.params),
-                                                           axis=1).max()),
+              "max_vertex_change_mm": float(np.linalg.norm(vertices - target.vertices, axis=1).max()),
               "files": list(RETARGET_FILES)}
     with staged_folder(out, force, inputs=inputs) as tmp:
         export_mesh(tmp / "mesh.obj", vertices, asset.faces, face_uvs=asset.face_uvs)
@@ -522,14 +528,6 @@ def retarget_fit(source_dir: str | Path, target_dir: str | Path, out: str | Path
         (tmp / "report.json").write_text(json.dumps(report, indent=2), encoding="utf-8")
     log.info("retarget: %s's expression on %s written to %s", source_dir, target_dir, out)
     return report
-
-
-def load_fit_head_from_params(params: dict, like: FitHead) -> FitHead:
-    """A :class:`FitHead` of ``params`` (a fit's parameter dict) keeping ``like``'s folder and texture."""
-    from pipeline.scan.outputs import head_arrays_from_params
-
-    _, _, weights, tau, coefficients = head_arrays_from_params(params)
-    return FitHead(like.folder, params, weights, tau, coefficients, like.texture)
 
 
 __all__ = ["EXAMPLE_CURVES", "HEAD_COLUMNS", "HEAD_JOINT", "RETARGET_FILES", "Curves", "CurvesError", "FitHead",

@@ -246,7 +246,7 @@ def test_jnr_retarget_puts_the_source_expression_on_the_target(tmp_path):
     target_params = json.loads((target / "params.json").read_text())
     assert params["expressions"] == smile  # the source's coefficients, exactly
     assert params["joints"] == target_params["joints"] and params["latent_z"] == target_params["latent_z"]
-    expected = rig_vertices_from_params(dict(target_params, expressions=smile))
+    expected = rig_vertices_from_params(dict(target_params, expressions=smile), rig=JointRig(dtype=torch.float64))
     import trimesh
 
     ply = trimesh.load(out / "mesh.ply", process=False)
@@ -259,7 +259,8 @@ def test_jnr_retarget_puts_the_source_expression_on_the_target(tmp_path):
     assert np.linalg.norm(expected - unchanged, axis=1).max() > 3.0
     report = json.loads((out / "report.json").read_text())
     assert report["max_vertex_change_mm"] == pytest.approx(
-        np.linalg.norm(expected - rig_vertices_from_params(target_params), axis=1).max(), abs=1e-6)
+        np.linalg.norm(expected - rig_vertices_from_params(target_params, rig=JointRig(dtype=torch.float64)),
+                       axis=1).max(), abs=1e-6)
     assert sorted(p.name for p in out.iterdir() if not p.name.startswith(".")) == sorted(
         ["mesh.obj", "mesh.ply", "mesh.glb", "params.json", "expressions.csv", "preview.png", "report.json"])
     # the retargeted params.json is itself a fit: it animates, and retargets again to the same head
