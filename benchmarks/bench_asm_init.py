@@ -9,7 +9,7 @@ painted initial weights on the skin UV island. Printed per K:
   distance in mm;
 - the forward time of the full ASM model (GMM weights + dynamic binding + skinning) for a batch of 32.
 
-Usage: ``.venv/bin/python benchmarks/bench_asm_init.py [--out docs/asm_init_bench.json]``
+Usage: ``.venv/bin/python benchmarks/bench_asm_init.py [--out benchmarks/results/asm_init_bench.json]``
 """
 
 from __future__ import annotations
@@ -27,15 +27,15 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from rig.lbs import channels_to_trs  # noqa: E402
-from rig.model import JointRig  # noqa: E402
-from rig.parameters import random_theta  # noqa: E402
-from rig.skinning.asm import INIT_COMPONENTS, AdaptiveSkinning, AsmParameters, default_init_path  # noqa: E402
+from rig.lbs import channels_to_trs
+from rig.model import JointRig
+from rig.parameters import random_theta
+from rig.skinning.asm import INIT_COMPONENTS, AdaptiveSkinning, AsmParameters, default_init_path
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--out", default="docs/asm_init_bench.json")
+    parser.add_argument("--out", default="benchmarks/results/asm_init_bench.json")
     parser.add_argument("--poses", type=int, default=20)
     args = parser.parse_args()
     torch.set_num_threads(max(1, torch.get_num_threads()))
@@ -64,18 +64,36 @@ def main() -> None:
             forward = (time.perf_counter() - t0) / 5
         with np.load(default_init_path()) as data:
             report = data[f"k{K}_report"]
-        rows.append({"K": K, "parameters_per_bone": 11 + 6 * K, "parameters": model.num_parameters,
-                     "weight_rms": round(float(err.pow(2).mean().sqrt()), 4),
-                     "weight_max": round(float(err.abs().max()), 3),
-                     "posed_mean_mm": round(float(dist.mean()), 3), "posed_max_mm": round(float(dist.max()), 2),
-                     "forward_batch32_s": round(forward, 3), "init_fit_seconds": round(float(report[2]), 1)})
-    print(f"{'K':>2s} {'floats/bone':>11s} {'floats':>7s} {'w RMS':>7s} {'w max':>6s} {'posed mean mm':>13s} "
-          f"{'posed max mm':>12s} {'fwd B=32 s':>10s}")
+        rows.append(
+            {
+                "K": K,
+                "parameters_per_bone": 11 + 6 * K,
+                "parameters": model.num_parameters,
+                "weight_rms": round(float(err.pow(2).mean().sqrt()), 4),
+                "weight_max": round(float(err.abs().max()), 3),
+                "posed_mean_mm": round(float(dist.mean()), 3),
+                "posed_max_mm": round(float(dist.max()), 2),
+                "forward_batch32_s": round(forward, 3),
+                "init_fit_seconds": round(float(report[2]), 1),
+            }
+        )
+    print(
+        f"{'K':>2s} {'floats/bone':>11s} {'floats':>7s} {'w RMS':>7s} {'w max':>6s} {'posed mean mm':>13s} "
+        f"{'posed max mm':>12s} {'fwd B=32 s':>10s}"
+    )
     for r in rows:
-        print(f"{r['K']:2d} {r['parameters_per_bone']:11d} {r['parameters']:7d} {r['weight_rms']:7.4f} "
-              f"{r['weight_max']:6.3f} {r['posed_mean_mm']:13.3f} {r['posed_max_mm']:12.2f} {r['forward_batch32_s']:10.3f}")
-    result = {"rows": rows, "poses": args.poses, "machine": f"{platform.machine()}, {torch.get_num_threads()} threads",
-              "torch": torch.__version__, "date": time.strftime("%Y-%m-%d")}
+        print(
+            f"{r['K']:2d} {r['parameters_per_bone']:11d} {r['parameters']:7d} {r['weight_rms']:7.4f} "
+            f"{r['weight_max']:6.3f} {r['posed_mean_mm']:13.3f} {r['posed_max_mm']:12.2f} "
+            f"{r['forward_batch32_s']:10.3f}"
+        )
+    result = {
+        "rows": rows,
+        "poses": args.poses,
+        "machine": f"{platform.machine()}, {torch.get_num_threads()} threads",
+        "torch": torch.__version__,
+        "date": time.strftime("%Y-%m-%d"),
+    }
     Path(args.out).write_text(json.dumps(result, indent=2) + "\n")
     print(f"wrote {args.out}")
 

@@ -10,7 +10,7 @@ fit is aligned to the true head by a similarity transform on the 51 inner landma
 similarity ICP; then the face-region scan-to-mesh distance (median, mean, std per photo) and the
 true vertex error are computed (pipeline.evaluation.photos). Rows: the full fit (``jnr``), its landmark-only
 stage (``landmarks``, seconds = that stage alone) and the unfitted template (``template``), mean ±
-sample std (ddof=1) over photos (pipeline.evaluation.metrics). Heads from 20 on by default: the fit's
+sample std (ddof=1) over photos (pipeline.metrics). Heads from 20 on by default: the fit's
 defaults were chosen on heads 0-5. ``--photometric`` adds the photometric stages to the ``jnr`` rows (off in
 ``jnr fit``'s defaults); ``--detected`` fits dlib's own detections on the renders.
 """
@@ -31,8 +31,8 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from pipeline.evaluation.metrics import summarize
 from pipeline.evaluation.photos import evaluate_photos
+from pipeline.metrics import summarize
 from pipeline.photo.fit import FitPhotoConfig
 
 
@@ -43,25 +43,41 @@ def main() -> None:
     parser.add_argument("--first", type=int, default=20, help="first held-out head (default 20)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--json", type=Path, default=None, help="write records, summary and settings here")
-    parser.add_argument("--photometric", action="store_true",
-                        help="the jnr rows with the photometric stages (off in jnr fit's defaults)")
-    parser.add_argument("--detected", action="store_true",
-                        help="fit dlib's detections on the renders (HOG, then the CNN) instead of the true "
-                             "landmarks + 1 px noise")
+    parser.add_argument(
+        "--photometric",
+        action="store_true",
+        help="the jnr rows with the photometric stages (off in jnr fit's defaults)",
+    )
+    parser.add_argument(
+        "--detected",
+        action="store_true",
+        help="fit dlib's detections on the renders (HOG, then the CNN) instead of the true landmarks + 1 px noise",
+    )
     args = parser.parse_args()
     torch.set_num_threads(2)
 
     def progress(r) -> None:
-        print(f"  {r.kind:10s} {r.name:18s} yaw {r.yaw_deg:6.1f}  {r.method:9s} s2m median {r.s2m_median_mm:5.2f} "
-              f"mean {r.s2m_mean_mm:5.2f} mm  vertex {r.vertex_mean_mm:5.2f} mm  pose {r.pose_error_deg:4.1f} deg  landmarks {r.landmark_error_px:5.2f} px"
-              f"  {r.seconds:5.1f} s", flush=True)
+        print(
+            f"  {r.kind:10s} {r.name:18s} yaw {r.yaw_deg:6.1f}  {r.method:9s} s2m median {r.s2m_median_mm:5.2f} "
+            f"mean {r.s2m_mean_mm:5.2f} mm  vertex {r.vertex_mean_mm:5.2f} mm  pose {r.pose_error_deg:4.1f} deg  "
+            f"landmarks {r.landmark_error_px:5.2f} px"
+            f"  {r.seconds:5.1f} s",
+            flush=True,
+        )
 
     t0 = time.perf_counter()
     config = FitPhotoConfig()
     if args.photometric:
         config = replace(config, photometric=replace(config.photometric, enabled=True))
-    ev = evaluate_photos(args.neutral, args.expressive, first=args.first, seed=args.seed, config=config,
-                         landmarks="dlib" if args.detected else "noisy", progress=progress)
+    ev = evaluate_photos(
+        args.neutral,
+        args.expressive,
+        first=args.first,
+        seed=args.seed,
+        config=config,
+        landmarks="dlib" if args.detected else "noisy",
+        progress=progress,
+    )
     wall = time.perf_counter() - t0
     print()
     print(ev.table_markdown())
@@ -72,19 +88,33 @@ def main() -> None:
     template = {(r.name, r.kind): r.s2m_median_mm for r in ev.records if r.method == "template"}
     ratios = [r.s2m_median_mm / template[(r.name, r.kind)] for r in all_jnr]
     lm_ratios = [r.s2m_median_mm / template[(r.name, r.kind)] for r in ev.records if r.method == "landmarks"]
-    print(f"goals: fit median <= 0.6 x template's: jnr {summarize(ratios).median:.2f} (worst photo {max(ratios):.2f}), "
-          f"landmark fit {summarize(lm_ratios).median:.2f} (worst {max(lm_ratios):.2f}); no photo worse than the "
-          f"template: jnr {sum(x > 1 for x in ratios)}, landmark fit {sum(x > 1 for x in lm_ratios)} worse; "
-          f"landmark fit <= 0.3 s: median {landmark_only.median:.2f} s; "
-          f"full fit <= 10 s: median {full.median:.1f} s, max {max(r.seconds for r in all_jnr):.1f} s")
-    print(f"wall {wall:.0f} s | torch threads {torch.get_num_threads()} | cpu_count {os.cpu_count()} | "
-          f"{platform.processor() or platform.machine()} | python {platform.python_version()} | "
-          f"torch {torch.__version__}")
+    print(
+        f"goals: fit median <= 0.6 x template's: jnr {summarize(ratios).median:.2f} (worst photo {max(ratios):.2f}), "
+        f"landmark fit {summarize(lm_ratios).median:.2f} (worst {max(lm_ratios):.2f}); no photo worse than the "
+        f"template: jnr {sum(x > 1 for x in ratios)}, landmark fit {sum(x > 1 for x in lm_ratios)} worse; "
+        f"landmark fit <= 0.3 s: median {landmark_only.median:.2f} s; "
+        f"full fit <= 10 s: median {full.median:.1f} s, max {max(r.seconds for r in all_jnr):.1f} s"
+    )
+    print(
+        f"wall {wall:.0f} s | torch threads {torch.get_num_threads()} | cpu_count {os.cpu_count()} | "
+        f"{platform.processor() or platform.machine()} | python {platform.python_version()} | "
+        f"torch {torch.__version__}"
+    )
     print("command: " + " ".join(shlex.quote(a) for a in [sys.executable, *sys.argv]))
     if args.json:
-        args.json.write_text(json.dumps({"records": [asdict(r) for r in ev.records], "summary": ev.summary(),
-                                         "settings": ev.settings, "wall_s": wall, "command": sys.argv},
-                                        indent=1, default=str))
+        args.json.write_text(
+            json.dumps(
+                {
+                    "records": [asdict(r) for r in ev.records],
+                    "summary": ev.summary(),
+                    "settings": ev.settings,
+                    "wall_s": wall,
+                    "command": sys.argv,
+                },
+                indent=1,
+                default=str,
+            )
+        )
 
 
 if __name__ == "__main__":

@@ -27,13 +27,17 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from landmarks.ibug68 import CHIN, contour_vertex_ids, ibug68_embedding, landmark_positions  # noqa: E402
-from pipeline.photo.camera import camera_center_in_rig  # noqa: E402
-from pipeline.photo.fit import FitPhotoConfig  # noqa: E402
-from pipeline.photo.landmark_fit import fit_landmarks  # noqa: E402
-from pipeline.synthetic.population import population_split  # noqa: E402
-from rig.geometry import RIG_TO_OPENCV, head_rotation  # noqa: E402
-from common import finish, load_models  # noqa: E402
+from common import finish, load_models
+
+from landmarks.ibug68.contour import contour_vertex_ids
+from landmarks.ibug68.embedding import ibug68_embedding
+from landmarks.ibug68.names import CHIN
+from landmarks.ibug68.positions import landmark_positions
+from pipeline.camera import camera_center_in_rig
+from pipeline.photo.fit import FitPhotoConfig
+from pipeline.photo.landmark_fit import fit_landmarks
+from pipeline.synthetic.population import population_split
+from rig.geometry import RIG_TO_OPENCV, head_rotation
 
 SIZE = 384
 FOCAL = 1.4 * SIZE
@@ -62,7 +66,7 @@ def main() -> None:
     parser.add_argument("--json", type=Path, default=None)
     args = parser.parse_args()
     rig, neural = load_models()
-    heads = population_split("heldout", 0).vertices[args.first:args.first + args.heads]
+    heads = population_split("heldout", 0).vertices[args.first : args.first + args.heads]
     rng = np.random.default_rng(args.seed)
     targets = [projected_landmarks(h, rig.asset, rng) for h in heads]
     base = FitPhotoConfig().landmarks
@@ -77,23 +81,39 @@ def main() -> None:
                 t0 = time.perf_counter()
                 fit = fit_landmarks(lm, SIZE, SIZE, focal=FOCAL, config=config, rig=rig, neural=neural)
                 times.append(time.perf_counter() - t0)
-            rows[name].append({"head": args.first + i, "seconds": float(np.median(times)),
-                               "iterations": [s.iterations for s in fit.stages],
-                               "objective": fit.stages[-1].loss_end, "landmark_error_px": float(fit.error_px.mean())})
+            rows[name].append(
+                {
+                    "head": args.first + i,
+                    "seconds": float(np.median(times)),
+                    "iterations": [s.iterations for s in fit.stages],
+                    "objective": fit.stages[-1].loss_end,
+                    "landmark_error_px": float(fit.error_px.mean()),
+                }
+            )
             r = rows[name][-1]
-            print(f"head {r['head']:3d} {name:4s} {r['seconds']:6.3f} s  iterations {r['iterations']}  "
-                  f"objective {r['objective']:7.3f}  landmarks {r['landmark_error_px']:5.2f} px", flush=True)
+            print(
+                f"head {r['head']:3d} {name:4s} {r['seconds']:6.3f} s  iterations {r['iterations']}  "
+                f"objective {r['objective']:7.3f}  landmarks {r['landmark_error_px']:5.2f} px",
+                flush=True,
+            )
     print()
-    print("| solver | median s per fit | max s | iterations (median, per stage) | objective (mean) | landmarks px (mean) |")
+    print(
+        "| solver | median s per fit | max s | iterations (median, per stage) | objective (mean) "
+        "| landmarks px (mean) |"
+    )
     print("|---|---|---|---|---|---|")
     for name, rs in rows.items():
         secs = [r["seconds"] for r in rs]
         its = np.median(np.array([r["iterations"] for r in rs]), axis=0).tolist()
-        print(f"| {name} | {np.median(secs):.3f} | {max(secs):.3f} | {its} | "
-              f"{np.mean([r['objective'] for r in rs]):.3f} | {np.mean([r['landmark_error_px'] for r in rs]):.2f} |")
+        print(
+            f"| {name} | {np.median(secs):.3f} | {max(secs):.3f} | {its} | "
+            f"{np.mean([r['objective'] for r in rs]):.3f} | {np.mean([r['landmark_error_px'] for r in rs]):.2f} |"
+        )
     print(f"\ngoal: landmark fit <= 0.3 s: LM median {np.median([r['seconds'] for r in rows['lm']]):.3f} s")
-    print(f"torch {torch.__version__}, {torch.get_num_threads()} threads, {platform.processor() or platform.machine()}, "
-          f"python {platform.python_version()}")
+    print(
+        f"torch {torch.__version__}, {torch.get_num_threads()} threads, {platform.processor() or platform.machine()}, "
+        f"python {platform.python_version()}"
+    )
     finish({"rows": rows}, args.json)
 
 

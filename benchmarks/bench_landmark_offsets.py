@@ -1,17 +1,17 @@
 """The 68 embedded iBUG landmarks against the detector we use (issue 13).
 
-    .venv/bin/python benchmarks/bench_landmark_offsets.py [--json docs/landmark_offsets.json]
+    .venv/bin/python benchmarks/bench_landmark_offsets.py [--json benchmarks/results/landmark_offsets.json]
     .venv/bin/python benchmarks/bench_landmark_offsets.py --fit [--write]
 
 Views: the neutral template (``rig.asset.load_asset()``) photographed by
-:func:`pipeline.synthetic.photos.simulate_photo` -- path-traced at 384 x 384 px, 32 spp, with a random
+:func:`pipeline.synthetic.photos.simulate.simulate_photo` -- path-traced at 384 x 384 px, 32 spp, with a random
 skin tone, hair and brow colour (``synthesize_albedo``), point light + environment, background, focal
 length (1.2-1.7 x 384 px) and distance (450-650 mm), drawn anew for every view from (seed, pose) --
 at every (yaw, pitch) of the grid (default yaw -30..30 step 10, pitch -15, 0, 15, roll 0) for every
 seed. dlib finds the 68 landmarks (:func:`landmarks.detect.detect_landmarks` with the defaults ``jnr fit``
 uses); a view whose detected box does not contain the face counts as not found. The embedded landmarks
 are projected with each photo's own camera: 17-67 from the static embedding, the jaw contour 0-16 as
-that camera sees it (:func:`landmarks.ibug68.contour_landmarks`, what the photo fit uses).
+that camera sees it (:func:`landmarks.ibug68.contour.contour_landmarks`, what the photo fit uses).
 
 Offsets are ``detected - projected`` in image pixels (x right, y down), scaled to an inter-ocular
 distance of 100 px: each view's pixels are multiplied by ``100 / (focal * IOD_mm / depth)``, ``IOD_mm``
@@ -24,14 +24,14 @@ landmarks; ``inner`` is 17-67, ``overall`` all 68.
 
 Two embeddings are scored on the same detections: ``heuristic`` (the geometric placement alone,
 ``ibug68_embedding(asset, corrected=False)``) and ``corrected`` (the default embedding, with the
-committed ``LANDMARK_CORRECTIONS_MM`` and ``CONTOUR_ANGLES_DEG`` of :mod:`landmarks.ibug68`).
+committed ``LANDMARK_CORRECTIONS_MM`` and ``CONTOUR_ANGLES_DEG`` of :mod:`landmarks.ibug68.corrections`).
 
 ``--fit`` renders the fit views (``--fit-seeds``, default 0-7: other albedo, light, camera and
 background draws than the evaluation's ``--seeds``, default 8-15) and prints new tables:
 
 - ``LANDMARK_CORRECTIONS_MM`` (the chin and 17-67, left side and midline; the right side is their
   mirror image): for each landmark, among sample points of the surface the embedding snaps it onto
-  (:func:`landmarks.ibug68.snap_domain_points`, within 15 mm of the geometric placement), the one whose
+  (:func:`landmarks.ibug68.domains.snap_domain_points`, within 15 mm of the geometric placement), the one whose
   projections agree best with the detections of all fit views in the least-squares sense (pixels at
   IOD 100; the mirror partner's detections count too, against the mirrored point) -- the detections
   back-projected onto the template and combined over the poses. The row is that point minus the
@@ -40,7 +40,7 @@ background draws than the evaluation's ``--seeds``, default 8-15) and prints new
   vertex whose candidate line makes the dynamic contour agree best with the detections (least
   squares), kept in order along the outline (dynamic programming), as its direction in degrees.
 
-``--write`` puts them into ``landmarks/ibug68.py``; then run without ``--fit`` to score them on the
+``--write`` puts them into ``landmarks/ibug68/corrections.py``; then run without ``--fit`` to score them on the
 evaluation views. Renders and detections are cached per grid in ``--cache`` (default the system temp
 folder); ``--fresh`` re-renders. ``simulate_photo`` frames the face on the mean of the embedded landmarks;
 here it is given the geometric placement for that, so the renders do not depend on the tables and
@@ -66,24 +66,21 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from landmarks.detect import DetectionError, detect_landmarks
-from landmarks.ibug68 import (
-    CHIN,
-    CONTOUR_ANGLES_DEG,
-    IBUG68_MIRROR,
-    IBUG68_NAMES,
-    LANDMARK_CORRECTIONS_MM,
-    contour_landmarks,
-    ibug68_embedding,
-    landmark_positions,
-    snap_domain_points,
-)
-from pipeline.photo.camera import RIG_TO_OPENCV, camera_center_in_rig
-from pipeline.synthetic import photos
-from pipeline.synthetic.photos import PhotoSettings, simulate_photo
+from landmarks.detect import detect_landmarks
+from landmarks.detector import DetectionError
+from landmarks.ibug68.contour import contour_landmarks
+from landmarks.ibug68.corrections import CONTOUR_ANGLES_DEG, LANDMARK_CORRECTIONS_MM
+from landmarks.ibug68.domains import snap_domain_points
+from landmarks.ibug68.embedding import ibug68_embedding
+from landmarks.ibug68.names import CHIN, IBUG68_MIRROR, IBUG68_NAMES
+from landmarks.ibug68.positions import landmark_positions
+from pipeline.camera import RIG_TO_OPENCV, camera_center_in_rig
+from pipeline.synthetic.photos import simulate
+from pipeline.synthetic.photos.settings import PhotoSettings
+from pipeline.synthetic.photos.simulate import simulate_photo
 from rig.asset import load_asset
 
-MODULE = Path(__file__).resolve().parents[1] / "landmarks" / "ibug68.py"
+MODULE = Path(__file__).resolve().parents[1] / "landmarks" / "ibug68" / "corrections.py"
 IOD_PX = 100.0
 REGIONS = {
     "contour": list(range(17)),
@@ -112,18 +109,19 @@ def outer_eye_corners(asset) -> np.ndarray:
 
 # --- renders and detections -----------------------------------------------------------------------------
 
+
 @contextlib.contextmanager
 def framed_on_geometric_placement():
     """``simulate_photo`` centres the face on the mean of the embedded landmarks; inside this block it uses
     the geometric placement (``corrected=False``), so the renders -- and the fit made from them -- do not
     depend on the committed corrections (a refit reproduces the table exactly)."""
-    saved = photos.ibug68_embedding, photos.contour_landmarks
-    photos.ibug68_embedding = functools.partial(ibug68_embedding, corrected=False)
-    photos.contour_landmarks = functools.partial(contour_landmarks, corrected=False)
+    saved = simulate.ibug68_embedding, simulate.contour_landmarks
+    simulate.ibug68_embedding = functools.partial(ibug68_embedding, corrected=False)
+    simulate.contour_landmarks = functools.partial(contour_landmarks, corrected=False)
     try:
         yield
     finally:
-        photos.ibug68_embedding, photos.contour_landmarks = saved
+        simulate.ibug68_embedding, simulate.contour_landmarks = saved
 
 
 def render_and_detect(yaws, pitches, seeds, cache_dir: Path | None, fresh: bool, log=print) -> dict:
@@ -139,8 +137,9 @@ def render_and_detect(yaws, pitches, seeds, cache_dir: Path | None, fresh: bool,
             return data
     asset = load_asset()
     settings = PhotoSettings(**SETTINGS)
-    rows: dict[str, list] = {k: [] for k in ("yaw", "pitch", "seed", "rotation", "translation", "focal",
-                                             "found", "detected", "box", "score")}
+    rows: dict[str, list] = {
+        k: [] for k in ("yaw", "pitch", "seed", "rotation", "translation", "focal", "found", "detected", "box", "score")
+    }
     t0 = time.perf_counter()
     for seed in seeds:
         for p, pitch in enumerate(pitches):
@@ -148,8 +147,9 @@ def render_and_detect(yaws, pitches, seeds, cache_dir: Path | None, fresh: bool,
                 # every view its own albedo, light, camera and background (from the seed and the pose's place)
                 rng = np.random.default_rng([int(seed), p, y, 13])
                 with framed_on_geometric_placement():
-                    photo = simulate_photo(asset.vertices, rng, settings, asset, yaw_deg=yaw, pitch_deg=pitch,
-                                           roll_deg=0.0)
+                    photo = simulate_photo(
+                        asset.vertices, rng, settings, asset, yaw_deg=yaw, pitch_deg=pitch, roll_deg=0.0
+                    )
                 try:
                     det = detect_landmarks(photo.image)
                     found, points, box, score = True, det.landmarks, det.box, det.score
@@ -157,12 +157,23 @@ def render_and_detect(yaws, pitches, seeds, cache_dir: Path | None, fresh: bool,
                     found = bool(box[0] <= cx <= box[2] and box[1] <= cy <= box[3])
                 except DetectionError:
                     found, points, box, score = False, np.full((68, 2), np.nan), np.full(4, np.nan), np.nan
-                for k, val in (("yaw", yaw), ("pitch", pitch), ("seed", seed), ("rotation", photo.rotation),
-                               ("translation", photo.translation), ("focal", photo.focal), ("found", found),
-                               ("detected", points), ("box", box), ("score", score)):
+                for k, val in (
+                    ("yaw", yaw),
+                    ("pitch", pitch),
+                    ("seed", seed),
+                    ("rotation", photo.rotation),
+                    ("translation", photo.translation),
+                    ("focal", photo.focal),
+                    ("found", found),
+                    ("detected", points),
+                    ("box", box),
+                    ("score", score),
+                ):
                     rows[k].append(val)
-                log(f"  seed {seed} pitch {pitch:+5.1f} yaw {yaw:+5.1f}: {'found' if found else 'NOT FOUND'}"
-                    f"  ({time.perf_counter() - t0:.0f} s)")
+                log(
+                    f"  seed {seed} pitch {pitch:+5.1f} yaw {yaw:+5.1f}: {'found' if found else 'NOT FOUND'}"
+                    f"  ({time.perf_counter() - t0:.0f} s)"
+                )
     data = {k: np.asarray(v) for k, v in rows.items()}
     data.update(key=np.asarray(key), width=np.asarray(SETTINGS["width"]), height=np.asarray(SETTINGS["height"]))
     cache.parent.mkdir(parents=True, exist_ok=True)
@@ -180,8 +191,14 @@ def project(points: np.ndarray, rotation, translation, focal, width, height) -> 
 def view_scale(data: dict, i: int, asset) -> float:
     """Pixels -> pixels at IOD 100 for view ``i``."""
     eyes = outer_eye_corners(asset)
-    _, depth = project(eyes.mean(0, keepdims=True), data["rotation"][i], data["translation"][i],
-                       float(data["focal"][i]), int(data["width"]), int(data["height"]))
+    _, depth = project(
+        eyes.mean(0, keepdims=True),
+        data["rotation"][i],
+        data["translation"][i],
+        float(data["focal"][i]),
+        int(data["width"]),
+        int(data["height"]),
+    )
     iod_px = float(data["focal"][i]) * float(np.linalg.norm(eyes[1] - eyes[0])) / float(depth[0])
     return IOD_PX / iod_px
 
@@ -191,10 +208,17 @@ def projected(data: dict, i: int, asset, corrected: bool) -> np.ndarray:
     emb = ibug68_embedding(asset, corrected=corrected)
     points = landmark_positions(asset.vertices, emb, asset.faces)[0]
     centre = camera_center_in_rig(data["rotation"][i], data["translation"][i])
-    points[:17] = contour_landmarks(torch.as_tensor(asset.vertices), asset.faces, centre, asset,
-                                    corrected=corrected).numpy()
-    uv, _ = project(points, data["rotation"][i], data["translation"][i], float(data["focal"][i]),
-                    int(data["width"]), int(data["height"]))
+    points[:17] = contour_landmarks(
+        torch.as_tensor(asset.vertices), asset.faces, centre, asset, corrected=corrected
+    ).numpy()
+    uv, _ = project(
+        points,
+        data["rotation"][i],
+        data["translation"][i],
+        float(data["focal"][i]),
+        int(data["width"]),
+        int(data["height"]),
+    )
     return uv
 
 
@@ -210,10 +234,21 @@ def summarize(off: np.ndarray) -> dict:
     mean = off.mean(0)
     bias = np.linalg.norm(mean, axis=1)
     error = np.linalg.norm(off, axis=2).mean(0)
-    per = [{"index": k, "name": IBUG68_NAMES[k], "dx": round(float(mean[k, 0]), 2), "dy": round(float(mean[k, 1]), 2),
-            "bias": round(float(bias[k]), 2), "error": round(float(error[k]), 2)} for k in range(68)]
-    regions = {name: {"bias": round(float(bias[ids].mean()), 2), "error": round(float(error[ids].mean()), 2)}
-               for name, ids in REGIONS.items()}
+    per = [
+        {
+            "index": k,
+            "name": IBUG68_NAMES[k],
+            "dx": round(float(mean[k, 0]), 2),
+            "dy": round(float(mean[k, 1]), 2),
+            "bias": round(float(bias[k]), 2),
+            "error": round(float(error[k]), 2),
+        }
+        for k in range(68)
+    ]
+    regions = {
+        name: {"bias": round(float(bias[ids].mean()), 2), "error": round(float(error[ids].mean()), 2)}
+        for name, ids in REGIONS.items()
+    }
     inner = list(range(17, 68))
     regions["inner"] = {"bias": round(float(bias[inner].mean()), 2), "error": round(float(error[inner].mean()), 2)}
     regions["overall"] = {"bias": round(float(bias.mean()), 2), "error": round(float(error.mean()), 2)}
@@ -222,13 +257,24 @@ def summarize(off: np.ndarray) -> dict:
 
 # --- the fit ----------------------------------------------------------------------------------------------
 
+
 def fit_corrections(data: dict, asset, radius_mm: float = 15.0) -> dict[int, tuple[float, float, float]]:
     """The correction table (see the module docstring)."""
     emb = ibug68_embedding(asset, corrected=False)
     heuristic = landmark_positions(asset.vertices, emb, asset.faces)[0]
     found = np.flatnonzero(data["found"])
-    views = [(data["rotation"][i], data["translation"][i], float(data["focal"][i]), int(data["width"]),
-              int(data["height"]), view_scale(data, i, asset), data["detected"][i]) for i in found]
+    views = [
+        (
+            data["rotation"][i],
+            data["translation"][i],
+            float(data["focal"][i]),
+            int(data["width"]),
+            int(data["height"]),
+            view_scale(data, i, asset),
+            data["detected"][i],
+        )
+        for i in found
+    ]
     table = {}
     for k in [CHIN, *range(17, 68)]:
         j = IBUG68_MIRROR[k]
@@ -258,15 +304,25 @@ def fit_contour(data: dict, asset) -> tuple[float, ...]:
     outline vertex whose line makes the dynamic contour agree best with the detections over all views
     (least squares), as its direction below the horizontal, rounded to 0.1 degrees; kept in order."""
     # the contour's own construction (private to landmarks.ibug68)
-    from landmarks.ibug68 import _contour_from_ids, _outline
+    from landmarks.ibug68.outline import _contour_from_ids, _outline
     from rig.geometry import vertex_normals
 
     v, o = asset.vertices, _outline(asset)
     normals = vertex_normals(v, asset.faces)
     found = np.flatnonzero(data["found"])
-    views = [(data["rotation"][i], data["translation"][i], float(data["focal"][i]), int(data["width"]),
-              int(data["height"]), view_scale(data, i, asset), data["detected"][i],
-              camera_center_in_rig(data["rotation"][i], data["translation"][i])) for i in found]
+    views = [
+        (
+            data["rotation"][i],
+            data["translation"][i],
+            float(data["focal"][i]),
+            int(data["width"]),
+            int(data["height"]),
+            view_scale(data, i, asset),
+            data["detected"][i],
+            camera_center_in_rig(data["rotation"][i], data["translation"][i]),
+        )
+        for i in found
+    ]
     cost = np.zeros((len(o.vertex_ids), 8))  # candidate outline vertex x landmark 16..9
     for c, vid in enumerate(o.vertex_ids):
         if vid == o.chin_id:
@@ -288,7 +344,7 @@ def fit_contour(data: dict, asset) -> tuple[float, ...]:
     total, back = cost[:, 0].copy(), np.zeros((n_c, 8), int)
     for n in range(1, 8):
         best_prev = np.minimum.accumulate(total)
-        arg_prev = np.array([int(np.argmin(total[:c + 1])) for c in range(n_c)])
+        arg_prev = np.array([int(np.argmin(total[: c + 1])) for c in range(n_c)])
         shifted = np.concatenate([[np.inf], best_prev[:-1]])  # strictly after the previous one
         back[:, n] = np.concatenate([[0], arg_prev[:-1]])
         total = shifted + cost[:, n]
@@ -309,21 +365,28 @@ def table_source(table: dict) -> str:
 
 # --- report -----------------------------------------------------------------------------------------------
 
+
 def print_table(before: dict, after: dict) -> None:
-    print(f"{'#':>2} {'landmark':24s} | {'heuristic: dx':>13} {'dy':>6} {'bias':>6} {'error':>6} | "
-          f"{'corrected: dx':>13} {'dy':>6} {'bias':>6} {'error':>6}")
+    print(
+        f"{'#':>2} {'landmark':24s} | {'heuristic: dx':>13} {'dy':>6} {'bias':>6} {'error':>6} | "
+        f"{'corrected: dx':>13} {'dy':>6} {'bias':>6} {'error':>6}"
+    )
     for b, a in zip(before["landmarks"], after["landmarks"]):
-        print(f"{b['index']:2d} {b['name']:24s} | {b['dx']:13.1f} {b['dy']:6.1f} {b['bias']:6.1f} {b['error']:6.1f} | "
-              f"{a['dx']:13.1f} {a['dy']:6.1f} {a['bias']:6.1f} {a['error']:6.1f}")
+        print(
+            f"{b['index']:2d} {b['name']:24s} | {b['dx']:13.1f} {b['dy']:6.1f} {b['bias']:6.1f} {b['error']:6.1f} | "
+            f"{a['dx']:13.1f} {a['dy']:6.1f} {a['bias']:6.1f} {a['error']:6.1f}"
+        )
     print()
-    print(f"{'region':10s} | {'heuristic bias':>14} {'error':>6} | {'corrected bias':>14} {'error':>6}   (px at IOD 100)")
+    print(
+        f"{'region':10s} | {'heuristic bias':>14} {'error':>6} | {'corrected bias':>14} {'error':>6}   (px at IOD 100)"
+    )
     for name in before["regions"]:
         b, a = before["regions"][name], after["regions"][name]
         print(f"{name:10s} | {b['bias']:14.2f} {b['error']:6.2f} | {a['bias']:14.2f} {a['error']:6.2f}")
 
 
 def write_tables(table: dict, angles: tuple[float, ...], path: Path = MODULE) -> None:
-    """Replace the two tables' assignments in ``landmarks/ibug68.py``."""
+    """Replace the two tables' assignments in ``landmarks/ibug68/corrections.py``."""
     text = path.read_text(encoding="utf-8")
     start = text.index("LANDMARK_CORRECTIONS_MM: dict[int, tuple[float, float, float]] = {")
     end = text.index("\n}\n", start) + 3
@@ -337,14 +400,26 @@ def write_tables(table: dict, angles: tuple[float, ...], path: Path = MODULE) ->
 def describe(data: dict, seeds) -> dict:
     n_views, n_found = len(data["found"]), int(data["found"].sum())
     poses = sorted({(float(y), float(p)) for y, p in zip(data["yaw"], data["pitch"])})
-    found_per_pose = {f"yaw {y:+.0f} pitch {p:+.0f}": int(sum(bool(f) for yy, pp, f in zip(data["yaw"], data["pitch"],
-                                                                                            data["found"])
-                                                              if (yy, pp) == (y, p))) for y, p in poses}
-    missed = [{"yaw_deg": float(y), "pitch_deg": float(p), "seed": int(s)}
-              for y, p, s, f in zip(data["yaw"], data["pitch"], data["seed"], data["found"]) if not f]
-    return {"views": n_views, "views_found": n_found, "poses": len(poses), "seeds": list(seeds),
-            "poses_found": sum(1 for n in found_per_pose.values() if n), "found_per_pose": found_per_pose,
-            "missed": missed}
+    found_per_pose = {
+        f"yaw {y:+.0f} pitch {p:+.0f}": int(
+            sum(bool(f) for yy, pp, f in zip(data["yaw"], data["pitch"], data["found"]) if (yy, pp) == (y, p))
+        )
+        for y, p in poses
+    }
+    missed = [
+        {"yaw_deg": float(y), "pitch_deg": float(p), "seed": int(s)}
+        for y, p, s, f in zip(data["yaw"], data["pitch"], data["seed"], data["found"])
+        if not f
+    ]
+    return {
+        "views": n_views,
+        "views_found": n_found,
+        "poses": len(poses),
+        "seeds": list(seeds),
+        "poses_found": sum(1 for n in found_per_pose.values() if n),
+        "found_per_pose": found_per_pose,
+        "missed": missed,
+    }
 
 
 def main(argv=None) -> None:
@@ -357,7 +432,9 @@ def main(argv=None) -> None:
     parser.add_argument("--cache", type=Path, default=None, help="folder of the renders/detections cache")
     parser.add_argument("--fresh", action="store_true", help="re-render even where the cache matches")
     parser.add_argument("--fit", action="store_true", help="fit and print new correction tables")
-    parser.add_argument("--write", action="store_true", help="with --fit: write them into landmarks/ibug68.py")
+    parser.add_argument(
+        "--write", action="store_true", help="with --fit: write them into landmarks/ibug68/corrections.py"
+    )
     args = parser.parse_args(argv)
     torch.set_num_threads(2)
     t0 = time.perf_counter()
@@ -365,9 +442,11 @@ def main(argv=None) -> None:
     seeds = args.fit_seeds if args.fit else args.seeds
     data = render_and_detect(args.yaw, args.pitch, seeds, args.cache, args.fresh)
     views = describe(data, seeds)
-    print(f"views: {views['views']} rendered ({views['poses']} poses x {len(seeds)} seeds {seeds}), face found in "
-          f"{views['views_found']}; poses with a detection: {views['poses_found']} / {views['poses']}; missed: "
-          + ", ".join(f"({m['yaw_deg']:+.0f}, {m['pitch_deg']:+.0f}, seed {m['seed']})" for m in views["missed"]))
+    print(
+        f"views: {views['views']} rendered ({views['poses']} poses x {len(seeds)} seeds {seeds}), face found in "
+        f"{views['views_found']}; poses with a detection: {views['poses_found']} / {views['poses']}; missed: "
+        + ", ".join(f"({m['yaw_deg']:+.0f}, {m['pitch_deg']:+.0f}, seed {m['seed']})" for m in views["missed"])
+    )
     if args.fit:
         table, angles = fit_corrections(data, asset), fit_contour(data, asset)
         print(table_source(table))
@@ -387,20 +466,25 @@ def main(argv=None) -> None:
         report = {
             "issue": 13,
             "units": f"pixels, detected minus projected (x right, y down), scaled to an inter-ocular distance of "
-                     f"{IOD_PX:.0f} px (outer eye corners, frontal, at the face's depth)",
+            f"{IOD_PX:.0f} px (outer eye corners, frontal, at the face's depth)",
             "iod_mm": round(float(np.linalg.norm(eyes[1] - eyes[0])), 2),
             "bias": "norm of the mean offset over the views where the face was found",
             "error": "mean over those views of the offset's norm",
             "detector": "landmarks.detect.detect_landmarks (dlib HOG + shape_predictor_68_face_landmarks), defaults",
-            "render": {"function": "pipeline.synthetic.photos.simulate_photo",
-                       **{k: list(v) if isinstance(v, tuple) else v for k, v in SETTINGS.items()}},
+            "render": {
+                "function": "pipeline.synthetic.photos.simulate.simulate_photo",
+                **{k: list(v) if isinstance(v, tuple) else v for k, v in SETTINGS.items()},
+            },
             "grid": {"yaw_deg": args.yaw, "pitch_deg": args.pitch, "roll_deg": 0.0},
             "evaluation": views,
             "fit_seeds": args.fit_seeds,
-            "contour": "0-16 as landmarks.ibug68.contour_landmarks sees them from each camera (8, the chin, static)",
+            "contour": (
+                "0-16 as landmarks.ibug68.contour.contour_landmarks sees them from each camera (8, the chin, static)"
+            ),
             "corrections_mm": {str(k): list(v) for k, v in sorted(LANDMARK_CORRECTIONS_MM.items())},
             "contour_angles_deg": list(CONTOUR_ANGLES_DEG),
-            "heuristic": before, "corrected": after,
+            "heuristic": before,
+            "corrected": after,
             "command": "benchmarks/bench_landmark_offsets.py " + " ".join(shlex.quote(a) for a in sys.argv[1:]),
         }
         args.json.write_text(json.dumps(report, indent=1) + "\n", encoding="utf-8")

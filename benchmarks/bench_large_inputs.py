@@ -46,7 +46,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from pipeline.scan.pointcloud import write_point_cloud_ply
+from pipeline.scan.pointcloud.write import write_point_cloud_ply
 
 
 @dataclass(frozen=True)
@@ -107,7 +107,10 @@ def case_random(n: int, folder: Path, rng: np.random.Generator) -> list[str]:
 
 
 CASES: dict[str, Callable[[int, Path, np.random.Generator], list[str]]] = {
-    "head": case_head, "head_xyz": case_head_xyz, "random": case_random}
+    "head": case_head,
+    "head_xyz": case_head_xyz,
+    "random": case_random,
+}
 
 
 def _portrait(side: int, path: Path) -> None:
@@ -136,8 +139,10 @@ def case_photo_png(side: int, folder: Path, rng: np.random.Generator) -> list[st
 
 
 PHOTO_CASES: dict[str, Callable[[int, Path, np.random.Generator], list[str]]] = {
-    "photo_jpeg": case_photo_jpeg, "photo_jpeg_landmarks_only": case_photo_jpeg_landmarks_only,
-    "photo_png": case_photo_png}
+    "photo_jpeg": case_photo_jpeg,
+    "photo_jpeg_landmarks_only": case_photo_jpeg_landmarks_only,
+    "photo_png": case_photo_png,
+}
 
 
 # ----------------------------------------------------------------------------------------------- runner
@@ -174,9 +179,12 @@ def run_command(argv: list[str], folder: Path, timeout_s: float) -> tuple[int, f
     if wrapper and peak_file.is_file():
         numbers = [line for line in peak_file.read_text().splitlines() if line.strip().isdigit()]
         peak_kb = float(numbers[-1]) if numbers else peak_kb
-    lines = [line for name in ("stderr.txt", "stdout.txt")
-             for line in (folder / name).read_text(errors="replace").splitlines()
-             if line.strip() and not line.startswith("Command exited with non-zero status")]
+    lines = [
+        line
+        for name in ("stderr.txt", "stdout.txt")
+        for line in (folder / name).read_text(errors="replace").splitlines()
+        if line.strip() and not line.startswith("Command exited with non-zero status")
+    ]
     message = lines[-1].strip() if lines else ""
     return child.returncode, wall, peak_kb / 1024.0, message
 
@@ -186,7 +194,7 @@ def run_case(name: str, n: int, jnr: list[str], timeout_s: float, keep: Path | N
     folder = Path(tempfile.mkdtemp(prefix=f"bench_{name}_{n}_", dir=keep))
     try:
         args = {**CASES, **PHOTO_CASES}[name](n, folder, np.random.default_rng(seed))
-        size = sum(p.stat().st_size for p in folder.iterdir() if p.is_file()) / 2 ** 20
+        size = sum(p.stat().st_size for p in folder.iterdir() if p.is_file()) / 2**20
         code, wall, rss, message = run_command(jnr + args, folder, timeout_s)
         fitted = None
         reports = list(folder.glob("out_*/report.json"))
@@ -201,13 +209,17 @@ def run_case(name: str, n: int, jnr: list[str], timeout_s: float, keep: Path | N
 
 
 def table(records: list[Record]) -> str:
-    rows = ["| case | points (clouds) / side px (photos) | input MB | exit | wall s | peak RSS MB | fitted points | "
-            "message |",
-            "|---|---:|---:|---:|---:|---:|---:|---|"]
+    rows = [
+        "| case | points (clouds) / side px (photos) | input MB | exit | wall s | peak RSS MB | fitted points | "
+        "message |",
+        "|---|---:|---:|---:|---:|---:|---:|---|",
+    ]
     for r in records:
-        rows.append(f"| {r.case} | {r.points:,} | {r.input_mb:.0f} | {r.exit_code} | {r.wall_s:.1f} | "
-                    f"{r.peak_rss_mb:.0f} | {'' if r.fitted_points is None else f'{r.fitted_points:,}'} | "
-                    f"{r.message.replace('|', '/')} |")
+        rows.append(
+            f"| {r.case} | {r.points:,} | {r.input_mb:.0f} | {r.exit_code} | {r.wall_s:.1f} | "
+            f"{r.peak_rss_mb:.0f} | {'' if r.fitted_points is None else f'{r.fitted_points:,}'} | "
+            f"{r.message.replace('|', '/')} |"
+        )
     return "\n".join(rows)
 
 
@@ -218,8 +230,11 @@ def main() -> None:
     parser.add_argument("--photo-sides", type=int, nargs="*", default=[10000], help="side of the square photos, px")
     parser.add_argument("--photo-cases", nargs="*", choices=sorted(PHOTO_CASES), default=list(PHOTO_CASES))
     parser.add_argument("--timeout", type=float, default=900.0, help="seconds before a run is killed (default 900)")
-    parser.add_argument("--jnr", default=str(ROOT / ".venv" / "bin" / "jnr"),
-                        help="the jnr command line to run (default: the venv's jnr)")
+    parser.add_argument(
+        "--jnr",
+        default=str(ROOT / ".venv" / "bin" / "jnr"),
+        help="the jnr command line to run (default: the venv's jnr)",
+    )
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--keep", type=Path, default=None, help="keep the inputs and outputs under this folder")
     parser.add_argument("--json", type=Path, default=None, help="also write the records here")
@@ -232,16 +247,23 @@ def main() -> None:
     runs += [(name, side) for side in args.photo_sides for name in args.photo_cases]
     for name, n in runs:
         record = run_case(name, n, jnr, args.timeout, args.keep, args.seed)
-        print(f"  {name:8s} {n:>11,d}: exit {record.exit_code}, {record.wall_s:7.1f} s, "
-              f"{record.peak_rss_mb:6.0f} MB  {record.message}", flush=True)
+        print(
+            f"  {name:8s} {n:>11,d}: exit {record.exit_code}, {record.wall_s:7.1f} s, "
+            f"{record.peak_rss_mb:6.0f} MB  {record.message}",
+            flush=True,
+        )
         records.append(record)
     print()
     print(table(records))
     print()
-    print("wall: the whole subprocess (start-up, reading, fit, outputs); peak RSS: GNU time's %M of the command "
-          "(else wait4's ru_maxrss, an upper bound); inputs are written before the clock starts.")
-    print(f"cpu_count {os.cpu_count()} | {platform.processor() or platform.machine()} | "
-          f"python {platform.python_version()} | numpy {np.__version__}")
+    print(
+        "wall: the whole subprocess (start-up, reading, fit, outputs); peak RSS: GNU time's %M of the command "
+        "(else wait4's ru_maxrss, an upper bound); inputs are written before the clock starts."
+    )
+    print(
+        f"cpu_count {os.cpu_count()} | {platform.processor() or platform.machine()} | "
+        f"python {platform.python_version()} | numpy {np.__version__}"
+    )
     print("command: " + " ".join(shlex.quote(a) for a in [sys.executable, *sys.argv]))
     if args.json:
         args.json.write_text(json.dumps({"records": [asdict(r) for r in records], "command": sys.argv}, indent=1))

@@ -1,8 +1,9 @@
 """Multi-view uncalibrated reconstruction on synthetic views with known truth (issue 15, ASM 4.2 / Table 6).
 
     .venv/bin/python benchmarks/bench_multiview.py [--heads 5] [--first 20] [--photometric] [--asm]
-                                                   [--json docs/multiview_bench.json] [--figure FILE.png]
-    .venv/bin/python benchmarks/bench_multiview.py --merge RUN1.json RUN2.json --json docs/multiview_bench.json
+                                                   [--json benchmarks/results/multiview_bench.json] [--figure FILE.png]
+    .venv/bin/python benchmarks/bench_multiview.py --merge RUN1.json RUN2.json
+                                                   --json benchmarks/results/multiview_bench.json
 
 Per held-out head ``first..first+heads-1``: 10 views (:func:`pipeline.synthetic.multiview.synthetic_views`:
 the same head and albedo, yaw within ±60°, pitch ±10°, roll ±5°, focal 1.2-1.7 x 384 px per view, small
@@ -31,12 +32,13 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from pipeline.evaluation.photos import face_error  # noqa: E402
-from pipeline.fitting.state import head_vertices  # noqa: E402
-from pipeline.photo.multiview import MultiViewConfig, fit_multiview  # noqa: E402
-from pipeline.synthetic.multiview import MultiViewSettings, synthetic_views  # noqa: E402
-from pipeline.synthetic.photos import PhotoSettings  # noqa: E402
-from common import finish, load_models  # noqa: E402
+from common import finish, load_models
+
+from pipeline.evaluation.photos import face_error
+from pipeline.fitting.state import head_vertices
+from pipeline.photo.multiview import MultiViewConfig, fit_multiview
+from pipeline.synthetic.multiview import MultiViewSettings, synthetic_views
+from pipeline.synthetic.photos.settings import PhotoSettings
 
 VIEW_COUNTS = (3, 5, 10)
 
@@ -65,8 +67,11 @@ def main() -> None:
     if args.photometric:
         methods["jnr + photometric"] = replace(base, photometric=replace(base.photometric, enabled=True))
     if args.asm:
-        methods["asm"] = replace(base, skinning="asm", asm=replace(
-            base.asm, register_iterations=args.asm_register_iterations, iterations=args.asm_iterations))
+        methods["asm"] = replace(
+            base,
+            skinning="asm",
+            asm=replace(base.asm, register_iterations=args.asm_register_iterations, iterations=args.asm_iterations),
+        )
     most = max(args.views)
     records = []
     for head in range(args.first, args.first + args.heads):
@@ -78,46 +83,92 @@ def main() -> None:
         images = [p.image for p in views.photos] if args.photometric else None
         all_fit = fit_multiview(lms, sizes, rig=rig, neural=neural, config=base, min_views=1)
         singles = all_fit.single_view_fits
-        single_errors = [face_error(head_vertices(rig, neural, s.theta, np.zeros(50), np.zeros(52)),
-                                    truth)["s2m_median_mm"] for s in singles]
+        single_errors = [
+            face_error(head_vertices(rig, neural, s.theta, np.zeros(50), np.zeros(52)), truth)["s2m_median_mm"]
+            for s in singles
+        ]
         best = int(np.argmin(single_errors))
         if head == args.first:
-            shown = {"truth": truth, "best single view": head_vertices(rig, neural, singles[best].theta,
-                                                                       np.zeros(50), np.zeros(52))}
-        records.append({"head": head, "views": 1, "method": "jnr", "s2m_median_mm": single_errors[best],
-                        "mean_single_mm": float(np.mean(single_errors)), "best_view": best,
-                        "yaw_deg": views.yaw_deg.tolist()})
+            shown = {
+                "truth": truth,
+                "best single view": head_vertices(rig, neural, singles[best].theta, np.zeros(50), np.zeros(52)),
+            }
+        records.append(
+            {
+                "head": head,
+                "views": 1,
+                "method": "jnr",
+                "s2m_median_mm": single_errors[best],
+                "mean_single_mm": float(np.mean(single_errors)),
+                "best_view": best,
+                "yaw_deg": views.yaw_deg.tolist(),
+            }
+        )
         for name, config in methods.items():
             counts = [(n, list(range(n))) for n in args.views]
             if name != "jnr":
                 counts = [(1, [best])] + counts
             for n, index in counts:
                 t1 = time.perf_counter()
-                fit = all_fit if (name == "jnr" and n == most) else fit_multiview(
-                    [lms[i] for i in index], [sizes[i] for i in index], rig=rig, neural=neural, config=config,
-                    images=None if images is None else [images[i] for i in index], min_views=1,
-                    single_view_fits=tuple(singles[i] for i in index))
+                fit = (
+                    all_fit
+                    if (name == "jnr" and n == most)
+                    else fit_multiview(
+                        [lms[i] for i in index],
+                        [sizes[i] for i in index],
+                        rig=rig,
+                        neural=neural,
+                        config=config,
+                        images=None if images is None else [images[i] for i in index],
+                        min_views=1,
+                        single_view_fits=tuple(singles[i] for i in index),
+                    )
+                )
                 err = face_error(fit.identity_vertices, truth)
                 if head == args.first and n > 1 and n in (min(args.views), most):
                     shown[f"{name}, {n} views"] = fit.identity_vertices
-                records.append({"head": head, "views": n, "method": name, "s2m_median_mm": err["s2m_median_mm"],
-                                "vertex_mean_mm": err["vertex_mean_mm"], "landmarks_px": fit.mean_error_px,
-                                "seconds": time.perf_counter() - t1})
-                print(f"head {head} {name:18s} {n:2d} views: {err['s2m_median_mm']:.3f} mm "
-                      f"({time.perf_counter() - t1:.1f} s)", flush=True)
-        print(f"head {head}: best single {single_errors[best]:.3f}, mean single {np.mean(single_errors):.3f} "
-              f"({time.perf_counter() - t0:.0f} s)", flush=True)
+                records.append(
+                    {
+                        "head": head,
+                        "views": n,
+                        "method": name,
+                        "s2m_median_mm": err["s2m_median_mm"],
+                        "vertex_mean_mm": err["vertex_mean_mm"],
+                        "landmarks_px": fit.mean_error_px,
+                        "seconds": time.perf_counter() - t1,
+                    }
+                )
+                print(
+                    f"head {head} {name:18s} {n:2d} views: {err['s2m_median_mm']:.3f} mm "
+                    f"({time.perf_counter() - t1:.1f} s)",
+                    flush=True,
+                )
+        print(
+            f"head {head}: best single {single_errors[best]:.3f}, mean single {np.mean(single_errors):.3f} "
+            f"({time.perf_counter() - t0:.0f} s)",
+            flush=True,
+        )
 
     if args.figure:
         figure(shown, args.figure)
     payload = summarise(records, list(methods), [1, *args.views])
     print(payload["markdown"])
-    finish({**payload, "records": records,
-            "settings": {"heads": list(range(args.first, args.first + args.heads)), "spp": args.spp,
-                         "photometric": args.photometric, "asm": args.asm,
-                         "asm_register_iterations": args.asm_register_iterations,
-                         "asm_iterations": args.asm_iterations,
-                         "views": settings.__dict__ | {"photo": settings.photo.__dict__}}}, args.json)
+    finish(
+        {
+            **payload,
+            "records": records,
+            "settings": {
+                "heads": list(range(args.first, args.first + args.heads)),
+                "spp": args.spp,
+                "photometric": args.photometric,
+                "asm": args.asm,
+                "asm_register_iterations": args.asm_register_iterations,
+                "asm_iterations": args.asm_iterations,
+                "views": settings.__dict__ | {"photo": settings.photo.__dict__},
+            },
+        },
+        args.json,
+    )
 
 
 def summarise(records: list[dict], names: list[str], counts: list[int]) -> dict:
@@ -127,8 +178,15 @@ def summarise(records: list[dict], names: list[str], counts: list[int]) -> dict:
         row = {"views": n}
         for name in names:
             values = [r["s2m_median_mm"] for r in records if r["views"] == n and r["method"] == name]
-            row[name] = (float(np.mean(values)), float(np.std(values, ddof=1)) if len(values) > 1 else float("nan"),
-                         len(values)) if values else None
+            row[name] = (
+                (
+                    float(np.mean(values)),
+                    float(np.std(values, ddof=1)) if len(values) > 1 else float("nan"),
+                    len(values),
+                )
+                if values
+                else None
+            )
         rows.append(row)
     mean_single = float(np.mean([r["mean_single_mm"] for r in records if "mean_single_mm" in r]))
     lines = ["| views | " + " | ".join(f"{n} s2m median mm" for n in names) + " |", "|" + "---|" * (len(names) + 1)]
@@ -138,8 +196,10 @@ def summarise(records: list[dict], names: list[str], counts: list[int]) -> dict:
         lines.append(f"| {label} | " + " | ".join(cells) + " |")
     lines.append(f"| 1 (mean single view) | {mean_single:.3f} |" + " |" * (len(names) - 1))
     heads = sorted({r["head"] for r in records})
-    per_head = ["| head | model | " + " | ".join(f"{n} view{'s' if n > 1 else ''}" for n in counts) + " |",
-                "|" + "---|" * (len(counts) + 2)]
+    per_head = [
+        "| head | model | " + " | ".join(f"{n} view{'s' if n > 1 else ''}" for n in counts) + " |",
+        "|" + "---|" * (len(counts) + 2),
+    ]
     for head in heads:
         for name in names:
             cells = []
@@ -147,8 +207,12 @@ def summarise(records: list[dict], names: list[str], counts: list[int]) -> dict:
                 value = [r["s2m_median_mm"] for r in records if (r["head"], r["method"], r["views"]) == (head, name, n)]
                 cells.append(f"{value[0]:.3f}" if value else "—")
             per_head.append(f"| {head} | {name} | " + " | ".join(cells) + " |")
-    return {"table": rows, "mean_single_view_mm": mean_single, "markdown": "\n".join(lines),
-            "per_head_markdown": "\n".join(per_head)}
+    return {
+        "table": rows,
+        "mean_single_view_mm": mean_single,
+        "markdown": "\n".join(lines),
+        "per_head_markdown": "\n".join(per_head),
+    }
 
 
 def merge(paths: list[Path], json_path: Path | None) -> None:
@@ -161,8 +225,14 @@ def merge(paths: list[Path], json_path: Path | None) -> None:
     counts = sorted({r["views"] for r in records})
     payload = summarise(records, names, counts)
     print(payload["markdown"] + "\n\n" + payload["per_head_markdown"])
-    finish({**payload, "records": records, "runs": [{"command": run.get("command"), "settings": run.get("settings")}
-                                                      for run in runs]}, json_path)
+    finish(
+        {
+            **payload,
+            "records": records,
+            "runs": [{"command": run.get("command"), "settings": run.get("settings")} for run in runs],
+        },
+        json_path,
+    )
 
 
 def figure(meshes: dict, path: Path) -> None:

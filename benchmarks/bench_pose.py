@@ -25,17 +25,20 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from landmarks.detect import NoFaceError, detect_landmarks  # noqa: E402
-from landmarks.ibug68 import ibug68_embedding, landmark_positions  # noqa: E402
-from pipeline.evaluation.photos import pose_error_angles  # noqa: E402
-from pipeline.evaluation.scans import scan_seed  # noqa: E402
-from pipeline.fitting.priors import PriorWeights  # noqa: E402
-from pipeline.fitting.state import head_vertices  # noqa: E402
-from pipeline.photo.camera import default_focal, solve_pose  # noqa: E402
-from pipeline.photo.fit import FitPhotoConfig  # noqa: E402
-from pipeline.photo.landmark_fit import fit_landmarks  # noqa: E402
-from pipeline.synthetic.photos import synthetic_photo  # noqa: E402
-from common import finish, load_models  # noqa: E402
+from common import finish, load_models
+
+from landmarks.detect import detect_landmarks
+from landmarks.detector import NoFaceError
+from landmarks.ibug68.embedding import ibug68_embedding
+from landmarks.ibug68.positions import landmark_positions
+from pipeline.camera import default_focal, solve_pose
+from pipeline.evaluation.photos import pose_error_angles
+from pipeline.evaluation.scans import scan_seed
+from pipeline.fitting.priors import PriorWeights
+from pipeline.fitting.state import head_vertices
+from pipeline.photo.fit import FitPhotoConfig
+from pipeline.photo.landmark_fit import fit_landmarks
+from pipeline.synthetic.photos.simulate import synthetic_photo
 
 
 def main() -> None:
@@ -49,9 +52,12 @@ def main() -> None:
     template = head_vertices(rig, neural, np.zeros(105), np.zeros(50), np.zeros(52))
     template_landmarks = landmark_positions(template, ibug68_embedding(asset), asset.faces)[0]
     base = FitPhotoConfig().landmarks
-    variants = {"default": (base, False), "no jaw contour": (replace(base, contour_weight=0.0), False),
-                "default focal": (base, True),
-                "L_m 100 prior": (replace(base, prior=PriorWeights(lambda_m=100.0)), False)}
+    variants = {
+        "default": (base, False),
+        "no jaw contour": (replace(base, contour_weight=0.0), False),
+        "default focal": (base, True),
+        "L_m 100 prior": (replace(base, prior=PriorWeights(lambda_m=100.0)), False),
+    }
     rows: dict[str, list] = {}
     for i in range(args.first, args.first + args.heads):
         photo = synthetic_photo(i, seed=scan_seed(0, "photo-neutral", i))
@@ -65,21 +71,29 @@ def main() -> None:
                 focal = default_focal(photo.width, photo.height) if default else photo.focal
                 fit = fit_landmarks(lm, photo.width, photo.height, focal=focal, config=config, rig=rig, neural=neural)
                 v = head_vertices(rig, neural, fit.theta, fit.z, fit.expressions)
-                angles = pose_error_angles(v, fit.rotation, fit.translation, photo.gt_vertices, photo.rotation,
-                                           photo.translation, asset)
+                angles = pose_error_angles(
+                    v, fit.rotation, fit.translation, photo.gt_vertices, photo.rotation, photo.translation, asset
+                )
                 rows.setdefault(f"{source} | {name}", []).append(angles)
             rot, trans = solve_pose(lm, template_landmarks, photo.width, photo.height, photo.focal)
             rows.setdefault(f"{source} | template + solvePnP", []).append(
-                pose_error_angles(template, rot, trans, photo.gt_vertices, photo.rotation, photo.translation, asset))
-        print(photo.name, f"yaw {photo.yaw_deg:.1f} pitch {photo.pitch_deg:.1f}",
-              {k: round(v[-1][0], 2) for k, v in rows.items()}, flush=True)
+                pose_error_angles(template, rot, trans, photo.gt_vertices, photo.rotation, photo.translation, asset)
+            )
+        print(
+            photo.name,
+            f"yaw {photo.yaw_deg:.1f} pitch {photo.pitch_deg:.1f}",
+            {k: round(v[-1][0], 2) for k, v in rows.items()},
+            flush=True,
+        )
     print("\n| landmarks | fit | pose error deg (mean) | max | signed pitch deg (mean) | |pitch| (mean) | photos |")
     print("|---|---|---|---|---|---|---|")
     for key, values in rows.items():
         a = np.array(values)
         source, name = key.split(" | ")
-        print(f"| {source} | {name} | {a[:, 0].mean():.2f} | {a[:, 0].max():.2f} | {a[:, 2].mean():+.2f} | "
-              f"{np.abs(a[:, 2]).mean():.2f} | {len(a)} |")
+        print(
+            f"| {source} | {name} | {a[:, 0].mean():.2f} | {a[:, 0].max():.2f} | {a[:, 2].mean():+.2f} | "
+            f"{np.abs(a[:, 2]).mean():.2f} | {len(a)} |"
+        )
     finish({"rows": {k: np.asarray(v).tolist() for k, v in rows.items()}}, args.json)
 
 

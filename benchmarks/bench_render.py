@@ -21,8 +21,9 @@ def head_camera(vertices: np.ndarray, size: int, distance: float = 600.0):
     centre = 0.5 * (vertices.min(0) + vertices.max(0))
     extent = float((vertices.max(0) - vertices.min(0))[:2].max())
     f = 0.9 * size * distance / extent
-    K = torch.tensor([[f, 0, size / 2 - 0.5, 0], [0, f, size / 2 - 0.5, 0], [0, 0, 1, 0], [0, 0, 0, 1]],
-                     dtype=torch.float64)[None]
+    K = torch.tensor(
+        [[f, 0, size / 2 - 0.5, 0], [0, f, size / 2 - 0.5, 0], [0, 0, 1, 0], [0, 0, 0, 1]], dtype=torch.float64
+    )[None]
     # OpenCV camera on +Z looking at -Z: x right = world +x, y down = world -y, z forward = world -z
     R = torch.diag(torch.tensor([1.0, -1.0, -1.0], dtype=torch.float64))
     eye = torch.tensor(centre, dtype=torch.float64) + torch.tensor([0.0, 0.0, distance], dtype=torch.float64)
@@ -51,8 +52,9 @@ def main(argv=None) -> None:
     albedo = np.broadcast_to(np.array([0.8, 0.58, 0.47], np.float32), V.shape).copy()
     cam = head_camera(asset.vertices, args.size)
     t0 = time.perf_counter()
-    renderer = DifferentiableRenderer(V, asset.faces, albedo, cam, Lighting.default(), spp=args.spp,
-                                      spp_primary=args.spp_primary, seed=0)
+    renderer = DifferentiableRenderer(
+        V, asset.faces, albedo, cam, Lighting.default(), spp=args.spp, spp_primary=args.spp_primary, seed=0
+    )
     t_build = time.perf_counter() - t0
     verts = torch.tensor(V, requires_grad=True)
     alb = torch.tensor(albedo, requires_grad=True)
@@ -71,12 +73,16 @@ def main(argv=None) -> None:
             times.append(dt)
         verts.grad = alb.grad = amb.grad = irr.grad = None
     sppp = args.spp_primary or args.spp
-    print(f"bench_render: head {len(V)} vertices / {len(asset.faces)} faces, {args.size}x{args.size}, "
-          f"variant {renderer.variant}, integrator direct_projective sppc={args.spp} sppp={sppp} sppi=0, "
-          f"box filter, ambient (mesh emission) + directional light")
+    print(
+        f"bench_render: head {len(V)} vertices / {len(asset.faces)} faces, {args.size}x{args.size}, "
+        f"variant {renderer.variant}, integrator direct_projective sppc={args.spp} sppp={sppp} sppi=0, "
+        f"box filter, ambient (mesh emission) + directional light"
+    )
     print(f"bench_render: scene build {t_build:.2f} s; first iterations (JIT) included in warm-up ({args.warmup})")
-    print(f"bench_render: forward+backward median {statistics.median(times):.3f} s/iteration "
-          f"(min {min(times):.3f}, max {max(times):.3f}, n={len(times)})")
+    print(
+        f"bench_render: forward+backward median {statistics.median(times):.3f} s/iteration "
+        f"(min {min(times):.3f}, max {max(times):.3f}, n={len(times)})"
+    )
 
 
 if __name__ == "__main__":

@@ -50,8 +50,13 @@ def main() -> None:
     coeffs = torch.randn(args.batch, n_basis, generator=g)
 
     with torch.inference_mode():
-        rig_fn = lambda: rig(theta).vertices
-        flame_fn = lambda: torch.addmm(mean, coeffs, basis).view(args.batch, n_vertices, 3)
+
+        def rig_fn():
+            return rig(theta).vertices
+
+        def flame_fn():
+            return torch.addmm(mean, coeffs, basis).view(args.batch, n_vertices, 3)
+
         # Interleave the two so that machine noise hits both alike.
         rig_t, flame_t = [], []
         for _ in range(5):
@@ -59,10 +64,14 @@ def main() -> None:
             flame_t.append(median_seconds(flame_fn, args.repeats // 5))
     rig_s, flame_s = statistics.median(rig_t), statistics.median(flame_t)
     result = {
-        "batch": args.batch, "threads": torch.get_num_threads(), "torch": torch.__version__,
+        "batch": args.batch,
+        "threads": torch.get_num_threads(),
+        "torch": torch.__version__,
         "cpu": platform.processor() or platform.machine(),
-        "rig_vertices": rig.num_vertices, "rig_joints": rig.num_joints,
-        "rig_forward_median_s": round(rig_s, 5), "flame_blendshape_median_s": round(flame_s, 5),
+        "rig_vertices": rig.num_vertices,
+        "rig_joints": rig.num_joints,
+        "rig_forward_median_s": round(rig_s, 5),
+        "flame_blendshape_median_s": round(flame_s, 5),
         "ratio_rig_over_flame": round(rig_s / flame_s, 3),
     }
     print(json.dumps(result, indent=2))

@@ -24,12 +24,13 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from pipeline.evaluation.photos import face_error  # noqa: E402
-from pipeline.evaluation.scans import scan_seed  # noqa: E402
-from pipeline.fitting.state import head_vertices  # noqa: E402
-from pipeline.photo.fit import FitPhotoConfig, fit_photo  # noqa: E402
-from pipeline.synthetic.photos import synthetic_photo  # noqa: E402
-from common import finish, load_models  # noqa: E402
+from common import finish, load_models
+
+from pipeline.evaluation.photos import face_error
+from pipeline.evaluation.scans import scan_seed
+from pipeline.fitting.state import head_vertices
+from pipeline.photo.fit import FitPhotoConfig, fit_photo
+from pipeline.synthetic.photos.simulate import synthetic_photo
 
 
 def main() -> None:
@@ -54,17 +55,21 @@ def main() -> None:
             lfit = fit.landmark_fit
             if model == args.models[0]:
                 rows.setdefault("landmark fit", []).append(
-                    face_error(head_vertices(rig, neural, lfit.theta, lfit.z, lfit.expressions), truth))
-            rows.setdefault(model, []).append({**face_error(fit.rig_vertices, truth), "seconds": seconds,
-                                               "photo": fit.stages[-1].metrics["photo"]})
+                    face_error(head_vertices(rig, neural, lfit.theta, lfit.z, lfit.expressions), truth)
+                )
+            rows.setdefault(model, []).append(
+                {**face_error(fit.rig_vertices, truth), "seconds": seconds, "photo": fit.stages[-1].metrics["photo"]}
+            )
         print(photo.name, {k: round(v[-1]["s2m_median_mm"], 3) for k, v in rows.items()}, flush=True)
     print("\n| fit | s2m median mm (mean) | vertex mm (mean) | photo residual | seconds (median) |")
     print("|---|---|---|---|---|")
     for name, rs in rows.items():
         photo = f"{np.mean([r['photo'] for r in rs]):.4f}" if "photo" in rs[0] else ""
         secs = f"{np.median([r['seconds'] for r in rs]):.1f}" if "seconds" in rs[0] else ""
-        print(f"| {name} | {np.mean([r['s2m_median_mm'] for r in rs]):.3f} | "
-              f"{np.mean([r['vertex_mean_mm'] for r in rs]):.3f} | {photo} | {secs} |")
+        print(
+            f"| {name} | {np.mean([r['s2m_median_mm'] for r in rs]):.3f} | "
+            f"{np.mean([r['vertex_mean_mm'] for r in rs]):.3f} | {photo} | {secs} |"
+        )
     finish({"rows": rows}, args.json)
 
 

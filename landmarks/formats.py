@@ -85,7 +85,7 @@ def _read_pts(path: Path, text: str, n_points: int) -> np.ndarray:
     except ValueError:
         raise _error(path, None, f"n_points is not an integer: {header['n_points']!r}") from None
     points, closed = [], False
-    for lineno, ln in lines[k + 1:]:
+    for lineno, ln in lines[k + 1 :]:
         if ln == "}":
             closed = True
             break
@@ -118,8 +118,11 @@ def _read_json(path: Path, text: str, n_points: int) -> np.ndarray:
         raise _error(path, None, "'landmarks' must be a list of [x, y] pairs")
     points = []
     for i, row in enumerate(rows):
-        if (not isinstance(row, list) or len(row) != 2
-                or not all(isinstance(c, (int, float)) and not isinstance(c, bool) for c in row)):
+        if (
+            not isinstance(row, list)
+            or len(row) != 2
+            or not all(isinstance(c, (int, float)) and not isinstance(c, bool) for c in row)
+        ):
             raise _error(path, None, f"landmark {i}: expected [x, y] numbers, got {row!r}")
         if not all(math.isfinite(c) for c in row):
             raise _error(path, None, f"landmark {i}: non-finite value {row!r}")
@@ -131,7 +134,9 @@ def _read_json(path: Path, text: str, n_points: int) -> np.ndarray:
 def _read_csv(path: Path, text: str, n_points: int) -> np.ndarray:
     rows = list(csv.reader(io.StringIO(text)))
     if not rows or [c.strip().lower() for c in rows[0]] != ["index", "x", "y"]:
-        raise _error(path, 1, f"expected the header 'index,x,y', got {','.join(rows[0]) if rows else 'an empty file'!r}")
+        raise _error(
+            path, 1, f"expected the header 'index,x,y', got {','.join(rows[0]) if rows else 'an empty file'!r}"
+        )
     points = []
     for lineno, row in enumerate(rows[1:], start=2):
         if not row or all(not c.strip() for c in row):
@@ -175,12 +180,17 @@ def write_landmarks(path: str | Path, points) -> None:
     if pts.ndim != 2 or pts.shape[1] != 2:
         raise ValueError(f"write_landmarks: points must have shape (N, 2), got {pts.shape}")
     if not np.isfinite(pts).all():
-        raise ValueError(f"write_landmarks: points contain non-finite values (rows {np.flatnonzero(~np.isfinite(pts).all(1)).tolist()})")
+        raise ValueError(
+            "write_landmarks: points contain non-finite values "
+            f"(rows {np.flatnonzero(~np.isfinite(pts).all(1)).tolist()})"
+        )
     if fmt == ".pts":
         body = "\n".join(f"{x!r} {y!r}" for x, y in (pts + 1.0).tolist())
         text = f"version: 1\nn_points: {len(pts)}\n{{\n{body}\n}}\n"
     elif fmt == ".json":
-        text = json.dumps({"landmarks": pts.tolist(), "convention": "ibug68", "pixel_origin": "opencv"}, indent=1) + "\n"
+        text = (
+            json.dumps({"landmarks": pts.tolist(), "convention": "ibug68", "pixel_origin": "opencv"}, indent=1) + "\n"
+        )
     else:
         text = "index,x,y\n" + "".join(f"{i},{x!r},{y!r}\n" for i, (x, y) in enumerate(pts.tolist()))
     write_bytes_atomic(path, text.encode("utf-8"))  # never a half-written landmarks file

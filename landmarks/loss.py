@@ -9,7 +9,7 @@ from __future__ import annotations
 import torch
 from kornia.geometry.camera import PinholeCamera
 
-from landmarks.ibug68 import JAW_CONTOUR
+from landmarks.ibug68.names import JAW_CONTOUR
 from rig.lbs import ShapeError
 
 ROBUST_KINDS = ("huber", "l2")
@@ -17,17 +17,78 @@ CONTOUR_WEIGHT = 0.5
 
 
 DETECTOR_ERROR_PX: tuple[float, ...] = (
-    9.24, 8.31, 7.05, 6.43, 6.36, 7.42, 7.95, 5.80, 5.38, 5.41,
-    7.66, 6.96, 5.82, 6.61, 8.11, 9.31, 10.37, 4.73, 4.61, 5.31,
-    4.95, 4.74, 4.86, 4.86, 4.98, 4.50, 4.52, 3.13, 2.64, 1.91,
-    1.89, 2.26, 1.79, 1.55, 1.81, 2.30, 3.82, 3.44, 3.10, 3.40,
-    2.94, 3.39, 3.60, 3.10, 3.23, 3.68, 3.54, 3.13, 1.89, 1.96,
-    1.85, 2.00, 2.06, 2.11, 2.15, 1.98, 2.04, 1.96, 1.86, 1.84,
-    2.33, 2.74, 2.94, 2.95, 2.21, 2.50, 2.47, 2.51,
+    9.24,
+    8.31,
+    7.05,
+    6.43,
+    6.36,
+    7.42,
+    7.95,
+    5.80,
+    5.38,
+    5.41,
+    7.66,
+    6.96,
+    5.82,
+    6.61,
+    8.11,
+    9.31,
+    10.37,
+    4.73,
+    4.61,
+    5.31,
+    4.95,
+    4.74,
+    4.86,
+    4.86,
+    4.98,
+    4.50,
+    4.52,
+    3.13,
+    2.64,
+    1.91,
+    1.89,
+    2.26,
+    1.79,
+    1.55,
+    1.81,
+    2.30,
+    3.82,
+    3.44,
+    3.10,
+    3.40,
+    2.94,
+    3.39,
+    3.60,
+    3.10,
+    3.23,
+    3.68,
+    3.54,
+    3.13,
+    1.89,
+    1.96,
+    1.85,
+    2.00,
+    2.06,
+    2.11,
+    2.15,
+    1.98,
+    2.04,
+    1.96,
+    1.86,
+    1.84,
+    2.33,
+    2.74,
+    2.94,
+    2.95,
+    2.21,
+    2.50,
+    2.47,
+    2.51,
 )
 """Mean per-view distance between dlib's 68 landmarks and the corrected embedding's projections, per landmark,
 at an inter-ocular distance of 100 px: 21 poses (yaw +-30 deg, pitch +-15) x 8 render seeds that the
-corrections were not fitted on (``docs/landmark_offsets.json``, ``corrected``; ``benchmarks/
+corrections were not fitted on (``benchmarks/results/landmark_offsets.json``, ``corrected``; ``benchmarks/
 bench_landmark_offsets.py``). The jaw contour is off by 5-10 px, the brows by ~5, the eyes by ~3.5, the
 nose and mouth by ~2."""
 
@@ -39,7 +100,7 @@ def detector_landmark_weights(dtype: torch.dtype = torch.float32, device=None) -
     """``(68,)`` inverse-variance weights of dlib's landmarks: ``min(1, (DETECTOR_REFERENCE_PX / e_i)^2)`` with
     ``e_i`` :data:`DETECTOR_ERROR_PX` averaged with its mirror landmark's (so the weights are symmetric),
     at least 0.05. A landmark dlib places twice as badly counts a quarter as much."""
-    from landmarks.ibug68 import IBUG68_MIRROR
+    from landmarks.ibug68.names import IBUG68_MIRROR
 
     e = torch.tensor(DETECTOR_ERROR_PX, dtype=torch.float64)
     e = 0.5 * (e + e[list(IBUG68_MIRROR)])
@@ -51,15 +112,16 @@ WEIGHTINGS = ("contour", "detector")
 """The landmark weightings of :func:`landmark_weights`."""
 
 
-def landmark_weights(weighting: str = "contour", contour_weight: float = CONTOUR_WEIGHT,
-                     dtype: torch.dtype = torch.float32) -> torch.Tensor:
+def landmark_weights(
+    weighting: str = "contour", contour_weight: float = CONTOUR_WEIGHT, dtype: torch.dtype = torch.float32
+) -> torch.Tensor:
     """``(68,)`` weights of a landmark fit's term.
 
     ``contour``: 1, ``contour_weight`` for the jaw contour, the chin (8) :data:`CONTOUR_WEIGHT` whatever
     ``contour_weight`` (a static landmark, not a silhouette). ``detector``: :func:`detector_landmark_weights`,
     the contour's (but the chin's) times ``contour_weight / CONTOUR_WEIGHT``.
     """
-    from landmarks.ibug68 import CHIN
+    from landmarks.ibug68.names import CHIN
 
     if weighting not in WEIGHTINGS:
         raise ValueError(f"landmark_weights: weighting must be one of {list(WEIGHTINGS)}, got {weighting!r}")
@@ -106,15 +168,23 @@ def project_points(points: torch.Tensor, camera: PinholeCamera) -> torch.Tensor:
     if b not in (1, points.shape[0]):
         raise ShapeError(f"project_points: camera batch must be 1 or {points.shape[0]}, got {b}")
     if b == 1 and points.shape[0] != 1:
-        camera = PinholeCamera(camera.intrinsics.expand(points.shape[0], 4, 4),
-                               camera.extrinsics.expand(points.shape[0], 4, 4),
-                               camera.height.expand(points.shape[0]), camera.width.expand(points.shape[0]))
+        camera = PinholeCamera(
+            camera.intrinsics.expand(points.shape[0], 4, 4),
+            camera.extrinsics.expand(points.shape[0], 4, 4),
+            camera.height.expand(points.shape[0]),
+            camera.width.expand(points.shape[0]),
+        )
     return camera.project(points)
 
 
-def landmark_reprojection_loss(points3d: torch.Tensor, landmarks2d: torch.Tensor, camera: PinholeCamera,
-                               weights: torch.Tensor | None = None, robust: str = "huber",
-                               delta_px: float = 5.0) -> torch.Tensor:
+def landmark_reprojection_loss(
+    points3d: torch.Tensor,
+    landmarks2d: torch.Tensor,
+    camera: PinholeCamera,
+    weights: torch.Tensor | None = None,
+    robust: str = "huber",
+    delta_px: float = 5.0,
+) -> torch.Tensor:
     """Weighted mean robust pixel distance between projected 3D landmarks and detected 2D landmarks.
 
     Per landmark ``r = ||project(X) - x||`` in pixels; ``rho(r) = r^2 / 2`` for ``"l2"``; for ``"huber"``
@@ -136,8 +206,9 @@ def landmark_reprojection_loss(points3d: torch.Tensor, landmarks2d: torch.Tensor
     if points3d.ndim != 3 or points3d.shape[-1] != 3:
         raise ShapeError(f"{func}: points3d must have shape (B, L, 3), got {tuple(points3d.shape)}")
     if landmarks2d.shape != (*points3d.shape[:2], 2):
-        raise ShapeError(f"{func}: landmarks2d must have shape {(*points3d.shape[:2], 2)}, "
-                         f"got {tuple(landmarks2d.shape)}")
+        raise ShapeError(
+            f"{func}: landmarks2d must have shape {(*points3d.shape[:2], 2)}, got {tuple(landmarks2d.shape)}"
+        )
     if robust not in ROBUST_KINDS:
         raise ValueError(f"{func}: robust must be one of {ROBUST_KINDS}, got {robust!r}")
     if not delta_px > 0:

@@ -6,7 +6,7 @@ pixels outside the photo, left/right labels swapped, all points on one spot, ano
 fitting starts, and returns a :class:`PlausibilityReport` for the accepted ones.
 
 Points are ``(68, 2)`` float **0-based OpenCV pixel coordinates** (x right, y down) in iBUG-68 order
-(:data:`landmarks.ibug68.IBUG68_NAMES`), as :mod:`landmarks.formats` reads and :mod:`landmarks.detect`
+(:data:`landmarks.ibug68.names.IBUG68_NAMES`), as :mod:`landmarks.formats` reads and :mod:`landmarks.detect`
 detects them. Messages name landmarks by their 0-based index.
 
 The checks, in order (the first failing one raises):
@@ -51,7 +51,7 @@ Example:
     >>> report = check_landmarks_2d(points, 640, 480)
     >>> report.determinant_sign, report.fraction_inside
     (1, 1.0)
-    >>> from landmarks.ibug68 import IBUG68_MIRROR
+    >>> from landmarks.ibug68.names import IBUG68_MIRROR
     >>> check_landmarks_2d(points[list(IBUG68_MIRROR)], 640, 480, source="face.pts")  # doctest: +ELLIPSIS
     Traceback (most recent call last):
     ...
@@ -65,7 +65,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from landmarks.ibug68 import JAW_CONTOUR, ibug68_embedding, landmark_positions
+from landmarks.ibug68.embedding import ibug68_embedding
+from landmarks.ibug68.names import JAW_CONTOUR
+from landmarks.ibug68.positions import landmark_positions
 from rig.asset import load_asset
 from rig.errors import InputError
 from rig.geometry import RIG_TO_OPENCV
@@ -120,7 +122,7 @@ Chosen on synthetic data (``tests/landmarks/test_plausibility.py`` repeats a sma
 third neutral, a third with ``jawOpen`` in 0..1, a third with random subsets of the 52 ARKit expressions
 (:mod:`rig.expressions`) within their limits; yaw -60..60, pitch -30..30, roll -180..180 degrees;
 orthographic or perspective at 250-2000 mm; jaw contour as the silhouette seen from the camera
-(:func:`landmarks.ibug68.contour_landmarks`); 2 px Gaussian noise per coordinate at 100 px frontal
+(:func:`landmarks.ibug68.contour.contour_landmarks`); 2 px Gaussian noise per coordinate at 100 px frontal
 inter-ocular distance. Their residual: median 0.015, 99th percentile 0.036, max 0.044 (large yaw and
 pitch with an expression). dlib on ``skimage.data.astronaut()``: 0.024, and 0.023 on its mirror image.
 Negatives, on 1000 of those faces: 68 uniform random points in the face's bounding box, min 0.23 (median
@@ -213,10 +215,16 @@ def fit_affine_camera(reference: np.ndarray, points: np.ndarray) -> tuple[np.nda
     """
     reference = np.asarray(reference, np.float64)
     points = np.asarray(points, np.float64)
-    if reference.ndim != 2 or reference.shape[1] not in (2, 3) or points.shape != (len(reference), 2) \
-            or len(reference) <= reference.shape[1]:
-        raise ValueError(f"fit_affine_camera: reference must be (N, 2) or (N, 3) and points (N, 2) with "
-                         f"N > D, got {reference.shape} and {points.shape}")
+    if (
+        reference.ndim != 2
+        or reference.shape[1] not in (2, 3)
+        or points.shape != (len(reference), 2)
+        or len(reference) <= reference.shape[1]
+    ):
+        raise ValueError(
+            f"fit_affine_camera: reference must be (N, 2) or (N, 3) and points (N, 2) with "
+            f"N > D, got {reference.shape} and {points.shape}"
+        )
     design = np.concatenate([reference, np.ones((len(reference), 1))], axis=1)  # (N, D + 1)
     solution, *_ = np.linalg.lstsq(design, points, rcond=None)  # (D + 1, 2)
     return solution[:-1].T, solution[-1], points - design @ solution
@@ -246,14 +254,13 @@ def face_affine_fit(points: np.ndarray) -> tuple[float, float]:
     pts = np.asarray(points, np.float64)
     inner = list(INNER_LANDMARKS)
     affine, _, residuals = fit_affine_camera(_reference()[inner], pts[inner])
-    residual = float(np.sqrt((residuals ** 2).sum(axis=1).mean())) / max(_face_size(pts), np.finfo(float).tiny)
+    residual = float(np.sqrt((residuals**2).sum(axis=1).mean())) / max(_face_size(pts), np.finfo(float).tiny)
     det = float(np.linalg.det(affine[:, :2]))
     view_cosine = det / max(float(np.linalg.norm(np.cross(affine[0], affine[1]))), np.finfo(float).tiny)
     return residual, view_cosine
 
 
-def check_landmarks_2d(points: np.ndarray, width: int, height: int, *, source: str = "landmarks"
-                       ) -> PlausibilityReport:
+def check_landmarks_2d(points: np.ndarray, width: int, height: int, *, source: str = "landmarks") -> PlausibilityReport:
     """Check that 68 2D landmarks are a plausible face in a ``width x height`` image (checks: module
     docstring).
 
@@ -278,6 +285,7 @@ def check_landmarks_2d(points: np.ndarray, width: int, height: int, *, source: s
         ...
         landmarks.plausibility.LandmarkPlausibilityError: a.pts: landmarks lie outside the 400x400 image: ...
     """
+
     def fail(message: str) -> LandmarkPlausibilityError:
         return LandmarkPlausibilityError(f"{source}: {message}")
 
@@ -300,41 +308,59 @@ def check_landmarks_2d(points: np.ndarray, width: int, height: int, *, source: s
     inside = outside_px == 0.0
     where = f"landmarks lie outside the {width}x{height} image"
     if inside.sum() < MIN_FRACTION_INSIDE * NUM_LANDMARKS:
-        raise fail(f"{where}: only {inside.sum()} of {NUM_LANDMARKS} are inside it (need at least "
-                   f"{MIN_FRACTION_INSIDE:.0%}); are they in this image's pixel coordinates?")
+        raise fail(
+            f"{where}: only {inside.sum()} of {NUM_LANDMARKS} are inside it (need at least "
+            f"{MIN_FRACTION_INSIDE:.0%}); are they in this image's pixel coordinates?"
+        )
     inside_size = _face_size(pts[inside])
     worst = int(np.argmax(outside_px))
     if outside_px[worst] > MAX_OUTSIDE_FACE_SIZES * inside_size:
-        raise fail(f"{where}: landmark {worst} is {outside_px[worst]:.0f} px beyond its border, more than "
-                   f"{MAX_OUTSIDE_FACE_SIZES:g} face size ({inside_size:.0f} px, the bounding-box diagonal of "
-                   f"the landmarks inside the image)")
+        raise fail(
+            f"{where}: landmark {worst} is {outside_px[worst]:.0f} px beyond its border, more than "
+            f"{MAX_OUTSIDE_FACE_SIZES:g} face size ({inside_size:.0f} px, the bounding-box diagonal of "
+            f"the landmarks inside the image)"
+        )
 
     # 3. degenerate: coincident or collinear
     spread = np.linalg.svd(pts - pts.mean(axis=0), compute_uv=False)
     spread_ratio = float(spread[1] / spread[0]) if spread[0] > 0.0 else 0.0
     if spread_ratio < MIN_SPREAD_RATIO:
-        raise fail(f"landmarks are degenerate (coincident or collinear): their spread across their main axis is "
-                   f"{spread_ratio:.3f} of that along it (need at least {MIN_SPREAD_RATIO:g}; spread "
-                   f"{spread[0]:.2f} px along it)")
+        raise fail(
+            f"landmarks are degenerate (coincident or collinear): their spread across their main axis is "
+            f"{spread_ratio:.3f} of that along it (need at least {MIN_SPREAD_RATIO:g}; spread "
+            f"{spread[0]:.2f} px along it)"
+        )
 
     # 4. face-like: affine camera of the reference on the inner landmarks
     residual, view_cosine = face_affine_fit(pts)
     if residual > MAX_AFFINE_RESIDUAL:
-        raise fail(f"landmarks do not look like a face in iBUG-68 order: the best affine view of a face leaves "
-                   f"an RMS residual of {residual:.3f} face sizes (at most {MAX_AFFINE_RESIDUAL:g}); check the "
-                   f"point order and the file's convention")
+        raise fail(
+            f"landmarks do not look like a face in iBUG-68 order: the best affine view of a face leaves "
+            f"an RMS residual of {residual:.3f} face sizes (at most {MAX_AFFINE_RESIDUAL:g}); check the "
+            f"point order and the file's convention"
+        )
 
     # 5. size
     interocular = float(np.linalg.norm(pts[LEFT_EYE_OUTER] - pts[RIGHT_EYE_OUTER]))
     if interocular < MIN_INTEROCULAR_PX:
-        raise fail(f"landmarks are too small: the outer eye corners ({RIGHT_EYE_OUTER}, {LEFT_EYE_OUTER}) are "
-                   f"{interocular:.2f} px apart (need at least {MIN_INTEROCULAR_PX:g} px)")
+        raise fail(
+            f"landmarks are too small: the outer eye corners ({RIGHT_EYE_OUTER}, {LEFT_EYE_OUTER}) are "
+            f"{interocular:.2f} px apart (need at least {MIN_INTEROCULAR_PX:g} px)"
+        )
 
     # 6. orientation: the frontal-plane part of the map must not be a reflection
     if view_cosine <= 0.0:
-        raise fail("landmarks look mirrored left/right: points 36-41 must be the subject's right eye (image "
-                   "left in a frontal photo), 42-47 the left, 0-7 the right jaw; matching them to a face needs a "
-                   "reflection. Swap the labels with landmarks.ibug68.IBUG68_MIRROR, or detect them again")
-    return PlausibilityReport(affine_residual=residual, determinant_sign=1, view_cosine=view_cosine,
-                              fraction_inside=float(inside.mean()), interocular_px=interocular,
-                              face_size_px=_face_size(pts), spread_ratio=spread_ratio)
+        raise fail(
+            "landmarks look mirrored left/right: points 36-41 must be the subject's right eye (image "
+            "left in a frontal photo), 42-47 the left, 0-7 the right jaw; matching them to a face needs a "
+            "reflection. Swap the labels with landmarks.ibug68.names.IBUG68_MIRROR, or detect them again"
+        )
+    return PlausibilityReport(
+        affine_residual=residual,
+        determinant_sign=1,
+        view_cosine=view_cosine,
+        fraction_inside=float(inside.mean()),
+        interocular_px=interocular,
+        face_size_px=_face_size(pts),
+        spread_ratio=spread_ratio,
+    )

@@ -30,8 +30,14 @@ from rig.errors import InputError
 from rig.template import rim_halves
 
 LANDMARK_NAMES_3D: tuple[str, ...] = (
-    "left_eye_outer", "left_eye_inner", "right_eye_inner", "right_eye_outer",
-    "nose_tip", "mouth_left", "mouth_right", "chin",
+    "left_eye_outer",
+    "left_eye_inner",
+    "right_eye_inner",
+    "right_eye_outer",
+    "nose_tip",
+    "mouth_left",
+    "mouth_right",
+    "chin",
 )
 
 
@@ -60,8 +66,9 @@ def landmark_vertices(asset: RigAsset | None = None) -> dict[str, int]:
     return {name: out[name] for name in LANDMARK_NAMES_3D}
 
 
-def match_landmarks(points: Mapping[str, np.ndarray], asset: RigAsset | None = None,
-                    minimum: int = 3) -> tuple[np.ndarray, np.ndarray, tuple[str, ...]]:
+def match_landmarks(
+    points: Mapping[str, np.ndarray], asset: RigAsset | None = None, minimum: int = 3
+) -> tuple[np.ndarray, np.ndarray, tuple[str, ...]]:
     """Pair named cloud landmarks with template vertices.
 
     Args:
@@ -81,8 +88,11 @@ def match_landmarks(points: Mapping[str, np.ndarray], asset: RigAsset | None = N
     names = tuple(n for n in LANDMARK_NAMES_3D if n in points)
     if len(names) < minimum:
         raise LandmarkError(f"need at least {minimum} landmarks, got {len(names)} ({list(names)})")
-    return (np.array([ids[n] for n in names], dtype=np.int64),
-            np.array([np.asarray(points[n], float) for n in names]), names)
+    return (
+        np.array([ids[n] for n in names], dtype=np.int64),
+        np.array([np.asarray(points[n], float) for n in names]),
+        names,
+    )
 
 
 # ------------------------------------------------------------------------------------------ plausibility
@@ -170,16 +180,25 @@ def fit_similarity(reference: np.ndarray, points: np.ndarray) -> tuple[float, np
     cross = b.T @ a
     u, d, vt = np.linalg.svd(cross)
     sign = 1.0 if np.linalg.det(u) * np.linalg.det(vt) >= 0 else -1.0
-    var_a, var_b = max(float((a ** 2).sum()), 1e-300), float((b ** 2).sum())
-    rms = [float(np.sqrt(max(var_b - (d[0] + d[1] + third) ** 2 / var_a, 0.0) / len(a)))
-           for third in (sign * d[2], -sign * d[2])]
+    var_a, var_b = max(float((a**2).sum()), 1e-300), float((b**2).sum())
+    rms = [
+        float(np.sqrt(max(var_b - (d[0] + d[1] + third) ** 2 / var_a, 0.0) / len(a)))
+        for third in (sign * d[2], -sign * d[2])
+    ]
     rotation = u @ np.diag([1.0, 1.0, sign]) @ vt
     return float((d[0] + d[1] + sign * d[2]) / var_a), rotation, rms[0], rms[1]
 
 
-def check_landmarks_3d(points: np.ndarray, names: Sequence[str], *, reference: np.ndarray | None = None,
-                       asset: RigAsset | None = None, cloud: np.ndarray | None = None,
-                       view_direction: np.ndarray | None = None, source: str = "--landmarks") -> LandmarkCheck:
+def check_landmarks_3d(
+    points: np.ndarray,
+    names: Sequence[str],
+    *,
+    reference: np.ndarray | None = None,
+    asset: RigAsset | None = None,
+    cloud: np.ndarray | None = None,
+    view_direction: np.ndarray | None = None,
+    source: str = "--landmarks",
+) -> LandmarkCheck:
     """Reject 3D landmarks that cannot be this face on this cloud, with a one-line :class:`LandmarkError`.
 
     The checks, in order (the first failing one raises; thresholds and how they were chosen: the
@@ -231,8 +250,10 @@ def check_landmarks_3d(points: np.ndarray, names: Sequence[str], *, reference: n
     points = np.asarray(points, dtype=np.float64)
     names = tuple(names)
     if points.ndim != 2 or points.shape[1] != 3 or len(points) != len(names) or len(points) < 3:
-        raise LandmarkError(f"check_landmarks_3d: points must be (L >= 3, 3) with one name each, got "
-                            f"{points.shape} and {len(names)} names")
+        raise LandmarkError(
+            f"check_landmarks_3d: points must be (L >= 3, 3) with one name each, got "
+            f"{points.shape} and {len(names)} names"
+        )
     if reference is None:
         asset = load_asset() if asset is None else asset
         ids = landmark_vertices(asset)
@@ -251,36 +272,48 @@ def check_landmarks_3d(points: np.ndarray, names: Sequence[str], *, reference: n
     sized = SCALE_RANGE[0] <= scale <= SCALE_RANGE[1]
     # A face of the wrong size is reported as such (units), even when its points are close together.
     if not sized and (shape <= MAX_SHAPE_RESIDUAL or separation >= MIN_SEPARATION_MM):
-        raise LandmarkError(f"{source}: the landmarks are {scale:.3g} x the size of the template's (accepted "
-                            f"{SCALE_RANGE[0]:g}-{SCALE_RANGE[1]:g}); are they in the cloud's units?")
+        raise LandmarkError(
+            f"{source}: the landmarks are {scale:.3g} x the size of the template's (accepted "
+            f"{SCALE_RANGE[0]:g}-{SCALE_RANGE[1]:g}); are they in the cloud's units?"
+        )
     if separation < MIN_SEPARATION_MM:
-        raise LandmarkError(f"{source}: {names[i]!r} and {names[j]!r} are {separation:.3g} mm apart (at least "
-                            f"{MIN_SEPARATION_MM:g} mm needed); the landmarks must be distinct points of the face")
+        raise LandmarkError(
+            f"{source}: {names[i]!r} and {names[j]!r} are {separation:.3g} mm apart (at least "
+            f"{MIN_SEPARATION_MM:g} mm needed); the landmarks must be distinct points of the face"
+        )
     if shape > MAX_SHAPE_RESIDUAL:
         if mirrored <= MAX_SHAPE_RESIDUAL:
-            raise LandmarkError(f"{source}: the landmarks look mirrored: a reflection of the template's fits them "
-                                f"(residual {100 * mirrored:.0f} % of their size), no rotation does "
-                                f"({100 * shape:.0f} %, at most {100 * MAX_SHAPE_RESIDUAL:.0f} % accepted); are "
-                                f"left and right swapped, or is the file in a left-handed frame?")
-        raise LandmarkError(f"{source}: the landmarks are not face-like: after the best similarity to the "
-                            f"template's they are off by {100 * shape:.0f} % of their size (at most "
-                            f"{100 * MAX_SHAPE_RESIDUAL:.0f} % accepted); are they named correctly?")
+            raise LandmarkError(
+                f"{source}: the landmarks look mirrored: a reflection of the template's fits them "
+                f"(residual {100 * mirrored:.0f} % of their size), no rotation does "
+                f"({100 * shape:.0f} %, at most {100 * MAX_SHAPE_RESIDUAL:.0f} % accepted); are "
+                f"left and right swapped, or is the file in a left-handed frame?"
+            )
+        raise LandmarkError(
+            f"{source}: the landmarks are not face-like: after the best similarity to the "
+            f"template's they are off by {100 * shape:.0f} % of their size (at most "
+            f"{100 * MAX_SHAPE_RESIDUAL:.0f} % accepted); are they named correctly?"
+        )
     facing = None
     if view_direction is not None:
         view = np.asarray(view_direction, dtype=np.float64)
         facing = float(rotation[:, 2] @ view / max(np.linalg.norm(view), 1e-300))
         if facing < MIN_FACING:
             angle = float(np.degrees(np.arccos(np.clip(facing, -1.0, 1.0))))
-            raise LandmarkError(f"{source}: the landmarks turn the face {angle:.0f} deg away from the scanner"
-                                f" (the cloud's mean normal; at most 90 deg accepted); are left and right "
-                                f"swapped, the landmarks in another frame than the cloud, or too few and nearly "
-                                f"collinear to fix the face's rotation?")
+            raise LandmarkError(
+                f"{source}: the landmarks turn the face {angle:.0f} deg away from the scanner"
+                f" (the cloud's mean normal; at most 90 deg accepted); are left and right "
+                f"swapped, the landmarks in another frame than the cloud, or too few and nearly "
+                f"collinear to fix the face's rotation?"
+            )
     distances = None
     if cloud is not None:
         distances, _ = cKDTree(np.asarray(cloud, dtype=np.float64)).query(points)
         far = int(np.argmax(distances))
         if distances[far] > MAX_CLOUD_DISTANCE_MM:
-            raise LandmarkError(f"{source}: {names[far]!r} is {distances[far]:.3g} mm from the nearest cloud point "
-                                f"(at most {MAX_CLOUD_DISTANCE_MM:g} mm accepted); are the landmarks in the cloud's "
-                                f"units and frame?")
+            raise LandmarkError(
+                f"{source}: {names[far]!r} is {distances[far]:.3g} mm from the nearest cloud point "
+                f"(at most {MAX_CLOUD_DISTANCE_MM:g} mm accepted); are the landmarks in the cloud's "
+                f"units and frame?"
+            )
     return LandmarkCheck(names, separation, scale, shape, mirrored, facing, distances)

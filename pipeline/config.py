@@ -151,6 +151,7 @@ def _yaml_problem(exc) -> str:
 
 def config_to_dict(config) -> dict:
     """A config dataclass as plain JSON/YAML-ready data (nested groups as mappings, tuples as lists)."""
+
     def plain(value):
         if isinstance(value, dict):
             return {k: plain(v) for k, v in value.items()}

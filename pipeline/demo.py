@@ -3,7 +3,7 @@
 :func:`run_demo` rebuilds the template from code and compares it with the committed asset, exports it
 as OBJ/PLY/glTF, makes a randomly edited head and a picture of both, then reconstructs the astronaut
 portrait that scikit-image ships (detected landmarks) and a synthetic photo of a held-out head with
-known truth (:func:`pipeline.photo.files.fit_photo_file`), all into one output folder (written
+known truth (:func:`pipeline.photo.photo_file.fit_photo_file`), all into one output folder (written
 atomically) with a ``summary.json``.
 """
 
@@ -13,6 +13,21 @@ import json
 import time
 from collections.abc import Callable
 from pathlib import Path
+
+from pipeline.edit import write_head
+from pipeline.evaluation.photos import face_error
+from pipeline.files import check_output, staged_folder
+from pipeline.formats import MESH_FORMATS
+from pipeline.photo.outputs import mesh_from_photo_params
+from pipeline.photo.photo_file import fit_photo_file
+from pipeline.synthetic.photos.simulate import synthetic_photo
+from pipeline.synthetic.photos.write import write_synthetic_photo
+from render.preview import render_preview, save_png
+from rig.asset import build_asset, load_asset
+from rig.info import rig_info
+from rig.io.params import save_params_json
+from rig.model import JointRig
+from rig.parameters import random_theta
 
 DEMO_SYNTHETIC_HEAD = 21
 """The held-out head of the demo's synthetic photo (the photo fit's defaults were chosen on heads 0-5)."""
@@ -30,11 +45,6 @@ def _edit(stage: Path, rig, seed: int, spread: float, spp: int, progress) -> tup
     import numpy as np
     import torch
 
-    from pipeline.edit import MESH_FORMATS, write_head
-    from render.preview import render_preview, save_png
-    from rig.io.params import save_params_json
-    from rig.parameters import random_theta
-
     zero = torch.zeros(rig.num_parameters, dtype=torch.float64)
     for fmt, ext in MESH_FORMATS.items():
         write_head(stage / f"template{ext}", fmt, zero, rig)
@@ -47,8 +57,13 @@ def _edit(stage: Path, rig, seed: int, spread: float, spp: int, progress) -> tup
     _step(progress, "edit")
     with torch.no_grad():
         posed = rig(torch.stack([zero, theta])).vertices.numpy()
-    tiles = [render_preview(v, rig.asset.faces, view=view, size=(360, 440), spp=spp, distance=700.0,
-                            target=(0.0, -20.0, 20.0)) for v in posed for view in ("front", "three_quarter")]
+    tiles = [
+        render_preview(
+            v, rig.asset.faces, view=view, size=(360, 440), spp=spp, distance=700.0, target=(0.0, -20.0, 20.0)
+        )
+        for v in posed
+        for view in ("front", "three_quarter")
+    ]
     picture = np.concatenate([np.concatenate(tiles[:2], 1), np.concatenate(tiles[2:], 1)], 0)
     save_png(picture, stage / "edited.png")
     _step(progress, "picture")
@@ -77,12 +92,6 @@ def _fits(stage: Path, config, progress) -> tuple[dict, dict]:
     from PIL import Image
     from skimage import data
 
-    from pipeline.evaluation.photos import face_error
-    from pipeline.photo.files import fit_photo_file
-    from pipeline.photo.outputs import mesh_from_photo_params
-    from pipeline.synthetic.photos import synthetic_photo, write_synthetic_photo
-    from rig.asset import load_asset
-
     inputs = stage / "inputs"
     inputs.mkdir()
     Image.fromarray(data.astronaut()).save(inputs / "astronaut.png")
@@ -91,14 +100,26 @@ def _fits(stage: Path, config, progress) -> tuple[dict, dict]:
     photo = synthetic_photo(DEMO_SYNTHETIC_HEAD, expressive=True, seed=0)
     truth_dir = write_synthetic_photo(photo, inputs / "synthetic")
     _step(progress, "synthetic photo")
-    synthetic = fit_photo_file(truth_dir / "photo.png", stage / "synthetic", config=config,
-                               landmarks=str(truth_dir / "landmarks.pts"), focal=photo.focal, command="jnr demo")
+    synthetic = fit_photo_file(
+        truth_dir / "photo.png",
+        stage / "synthetic",
+        config=config,
+        landmarks=str(truth_dir / "landmarks.pts"),
+        focal=photo.focal,
+        command="jnr demo",
+    )
     fitted = mesh_from_photo_params(stage / "synthetic" / "params.json")
     error = face_error(fitted, photo.gt_vertices)
     template = face_error(load_asset().vertices, photo.gt_vertices)
-    synthetic.update({"head": photo.name, "truth": str(truth_dir / "truth.ply"), **error,
-                      "template_vertex_mean_mm": template["vertex_mean_mm"],
-                      "template_s2m_median_mm": template["s2m_median_mm"]})
+    synthetic.update(
+        {
+            "head": photo.name,
+            "truth": str(truth_dir / "truth.ply"),
+            **error,
+            "template_vertex_mean_mm": template["vertex_mean_mm"],
+            "template_s2m_median_mm": template["s2m_median_mm"],
+        }
+    )
     for name in ("astronaut", "synthetic"):  # their inputs are in the staged folder: recorded relative to the fit
         report = stage / name / "report.json"
         relative = _relative_to(json.loads(report.read_text()), stage, stage / name)
@@ -107,8 +128,16 @@ def _fits(stage: Path, config, progress) -> tuple[dict, dict]:
     return astronaut, synthetic
 
 
-def run_demo(out: str | Path = "out/demo", *, config=None, seed: int = 7, spread: float = 0.3, spp: int = 32,
-             force: bool = False, progress: Callable[[str, int, int], None] | None = None) -> dict:
+def run_demo(
+    out: str | Path = "out/demo",
+    *,
+    config=None,
+    seed: int = 7,
+    spread: float = 0.3,
+    spp: int = 32,
+    force: bool = False,
+    progress: Callable[[str, int, int], None] | None = None,
+) -> dict:
     """Run the demo into the folder ``out`` (its parent is created if missing).
 
     Args:
@@ -127,15 +156,10 @@ def run_demo(out: str | Path = "out/demo", *, config=None, seed: int = 7, spread
         fits' report.json files give their inputs relative to their own folder), ``seconds``.
 
     Raises:
-        pipeline.files.OutputError: ``out`` is refused; as :func:`pipeline.photo.files.fit_photo_file`.
+        pipeline.files.OutputError: ``out`` is refused; as :func:`pipeline.photo.photo_file.fit_photo_file`.
     """
     import numpy as np
     import torch
-
-    from pipeline.files import check_output, staged_folder
-    from rig.asset import build_asset, load_asset
-    from rig.info import rig_info
-    from rig.model import JointRig
 
     out = Path(out)
     if not out.parent.exists():

@@ -38,10 +38,31 @@ MIN_FREE_BYTES = 64 * 1024 * 1024
 """An output's folder must have this much free space before a fit starts (its outputs are a few MB)."""
 
 
-LEGACY_OUTPUT_FILES = frozenset({
-    "mesh.obj", "mesh.ply", "mesh.glb", "params.json", "overlay.png", "render.png", "landmarks.pts", "report.json",
-    "cloud_error.ply", "template.obj", "template.ply", "template.glb", "edited.obj", "edited.glb", "edited.png",
-    "edited_params.json", "summary.json", "astronaut", "synthetic", "inputs", "viewer.html"})
+LEGACY_OUTPUT_FILES = frozenset(
+    {
+        "mesh.obj",
+        "mesh.ply",
+        "mesh.glb",
+        "params.json",
+        "overlay.png",
+        "render.png",
+        "landmarks.pts",
+        "report.json",
+        "cloud_error.ply",
+        "template.obj",
+        "template.ply",
+        "template.glb",
+        "edited.obj",
+        "edited.glb",
+        "edited.png",
+        "edited_params.json",
+        "summary.json",
+        "astronaut",
+        "synthetic",
+        "inputs",
+        "viewer.html",
+    }
+)
 """What the output folders of jnr versions before :data:`OUTPUT_MARKER` held (``jnr fit``, ``fit-scan``,
 ``demo``); see :func:`is_jnr_output`."""
 
@@ -100,8 +121,14 @@ def _check_paths(out: Path, inputs: Iterable[str | Path], option: str) -> None:
             raise OutputError(f"{option} {out} lies inside the input folder {item}; choose another output path")
 
 
-def check_output(out: str | Path, *, force: bool = False, inputs: Iterable[str | Path] = (),
-                 kind: str = "folder", option: str = "--out") -> Path:
+def check_output(
+    out: str | Path,
+    *,
+    force: bool = False,
+    inputs: Iterable[str | Path] = (),
+    kind: str = "folder",
+    option: str = "--out",
+) -> Path:
     """Check an output path before any work is done (module docstring); returns it as given.
 
     Args:
@@ -125,8 +152,10 @@ def check_output(out: str | Path, *, force: bool = False, inputs: Iterable[str |
             if not out.is_dir() or out.is_symlink():
                 raise OutputError(f"{option} {out} exists and is not a folder; jnr will not replace it")
             if not is_jnr_output(out):
-                raise OutputError(f"{option} {out} is a folder jnr did not write (no {OUTPUT_MARKER} file in it); "
-                                  "--force replaces only jnr's own outputs: remove it yourself or choose another")
+                raise OutputError(
+                    f"{option} {out} is a folder jnr did not write (no {OUTPUT_MARKER} file in it); "
+                    "--force replaces only jnr's own outputs: remove it yourself or choose another"
+                )
         elif out.is_dir() or not out.is_file():
             raise OutputError(f"{option} {out} exists and is not a regular file; jnr will not replace it")
     _check_parent(out, option)
@@ -159,11 +188,13 @@ def check_writable(folder: str | Path, *, what: str | None = None, free_bytes: i
     except OSError:
         return
     if free < free_bytes:
-        raise OutputError(f"cannot write {what}: only {free / 2**20:.0f} MB free in {folder} "
-                          f"(jnr needs {free_bytes / 2**20:.0f} MB)")
+        raise OutputError(
+            f"cannot write {what}: only {free / 2**20:.0f} MB free in {folder} (jnr needs {free_bytes / 2**20:.0f} MB)"
+        )
 
 
 # ---------------------------------------------------------------------------------------- staging
+
 
 def _write_error(exc: OSError, out: Path) -> OutputError:
     """An OSError while writing, reported with the user's path instead of the temporary one (our own
@@ -182,8 +213,10 @@ def _output_errors(out: Path) -> Iterator[None]:
     except TargetExistsError as exc:
         if exc.filename != str(out):
             raise _write_error(exc, out) from None
-        raise OutputExistsError(f"output {out} appeared while jnr was writing it (another process?); "
-                                "it was not replaced and nothing was written") from None
+        raise OutputExistsError(
+            f"output {out} appeared while jnr was writing it (another process?); "
+            "it was not replaced and nothing was written"
+        ) from None
     except OSError as exc:
         raise _write_error(exc, out) from None
 
@@ -191,13 +224,15 @@ def _output_errors(out: Path) -> Iterator[None]:
 def _still_jnr_output(out: Path) -> None:
     """Just before ``--force`` swaps a folder in: the folder there must still be one jnr wrote."""
     if not (out.is_dir() and is_jnr_output(out)):
-        raise OutputError(f"output {out} changed while jnr was writing it and is no longer a jnr output "
-                          "folder; it was not replaced")
+        raise OutputError(
+            f"output {out} changed while jnr was writing it and is no longer a jnr output folder; it was not replaced"
+        )
 
 
 @contextmanager
-def staged_folder(out_dir: str | Path, force: bool = False, *, inputs: Iterable[str | Path] = (),
-                  marker: dict | None = None) -> Iterator[Path]:
+def staged_folder(
+    out_dir: str | Path, force: bool = False, *, inputs: Iterable[str | Path] = (), marker: dict | None = None
+) -> Iterator[Path]:
     """Write an output folder atomically (module docstring; :func:`rig.io.atomic.staged_folder`).
 
     Yields a hidden temporary folder beside ``out_dir``; when the block ends without an error the
@@ -220,8 +255,10 @@ def staged_folder(out_dir: str | Path, force: bool = False, *, inputs: Iterable[
     def add_marker(tmp: Path) -> None:
         (tmp / OUTPUT_MARKER).write_text(json.dumps({"written_by": "jnr", **(marker or {})}) + "\n")
 
-    with _output_errors(out_dir), atomic.staged_folder(out_dir, replace=force, check_replace=_still_jnr_output,
-                                                       before_move=add_marker) as tmp:
+    with (
+        _output_errors(out_dir),
+        atomic.staged_folder(out_dir, replace=force, check_replace=_still_jnr_output, before_move=add_marker) as tmp,
+    ):
         yield tmp
 
 

@@ -16,10 +16,33 @@ import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
+import numpy as np
 import torch
 
+from pipeline.config import load_config as load_typed
+from pipeline.fitting.identity import IdentityPrior, build_identity_prior, clip_to_limits, default_identity_prior_path
+from pipeline.synthetic.population import (
+    population_split,
+    sample_head,
+    similarity_normalised,
+    split_seeds,
+    synthesize_heads,
+)
 from rig.io.atomic import write_bytes_atomic
+from rig.model import JointRig
 from rig.optim import Progress
+from rig.skinning.joint_fit import fit_joints, parameter_span
+from rig.skinning.linear import OrbitSystem, learn_linear_skinning, solve_weights
+from rig.skinning.neural import (
+    Critic,
+    NeuralSkinning,
+    SkinningDecoder,
+    SkinningEncoder,
+    load_neural,
+    save_neural,
+    train_autoencoder,
+    train_wgan,
+)
 
 
 @dataclass(frozen=True)
@@ -55,8 +78,6 @@ class TrainConfig:
 
 def load_config(path: str | Path | None, overrides: dict | None = None) -> TrainConfig:
     """Typed defaults, overridden by a YAML file and then by ``overrides``; unknown keys are errors."""
-    from pipeline.config import load_config as load_typed
-
     return load_typed(TrainConfig, path, overrides)
 
 
@@ -72,8 +93,6 @@ class TrainReport:
 def perturb(theta: torch.Tensor, config: TrainConfig, gen: torch.Generator) -> torch.Tensor:
     """Sparsely perturbed copies: each channel, with probability ``perturb_probability``, moves by up to
     ``perturb_fraction`` of its range; ``(N, P) -> (copies * N, P)``."""
-    from rig.skinning.joint_fit import parameter_span
-
     span = parameter_span(theta.dtype)
     out = []
     for _ in range(config.perturb_copies):
@@ -83,22 +102,10 @@ def perturb(theta: torch.Tensor, config: TrainConfig, gen: torch.Generator) -> t
     return torch.cat(out) if out else theta.new_zeros(0, theta.shape[1])
 
 
-def train(config: TrainConfig, out_path: Path, *, log_path: Path | None = None,
-          progress: Progress | None = None) -> TrainReport:
+def train(
+    config: TrainConfig, out_path: Path, *, log_path: Path | None = None, progress: Progress | None = None
+) -> TrainReport:
     """Run the whole training; write the artifact to ``out_path`` (and a JSON log)."""
-    from pipeline.synthetic.population import population_split, similarity_normalised
-    from rig.model import JointRig
-    from rig.skinning.linear import OrbitSystem, learn_linear_skinning, solve_weights
-    from rig.skinning.neural import (
-        Critic,
-        NeuralSkinning,
-        SkinningDecoder,
-        SkinningEncoder,
-        save_neural,
-        train_autoencoder,
-        train_wgan,
-    )
-
     torch.manual_seed(config.seed)
     gen = torch.Generator().manual_seed(config.seed)
     seconds: dict[str, float] = {}
@@ -111,10 +118,17 @@ def train(config: TrainConfig, out_path: Path, *, log_path: Path | None = None,
 
     # 1 + 2: joints with the initial weights, then alternate with the global linear weights.
     t = time.perf_counter()
-    linear = learn_linear_skinning(rig, targets, cycles=config.cycles, joint_iterations=config.joint_iterations,
-                                   weight_iterations=config.weight_iterations, joint_lr=config.joint_lr,
-                                   weight_lr=config.weight_lr, snapshot_every=config.snapshot_every,
-                                   progress=progress)
+    linear = learn_linear_skinning(
+        rig,
+        targets,
+        cycles=config.cycles,
+        joint_iterations=config.joint_iterations,
+        weight_iterations=config.weight_iterations,
+        joint_lr=config.joint_lr,
+        weight_lr=config.weight_lr,
+        snapshot_every=config.snapshot_every,
+        progress=progress,
+    )
     seconds["linear_skinning"] = time.perf_counter() - t
 
     # 3: skinning-weight training sets.
@@ -133,8 +147,16 @@ def train(config: TrainConfig, out_path: Path, *, log_path: Path | None = None,
     solved = []
     chunk = 64
     for start in range(0, theta_all.shape[0], chunk):
-        solved.append(solve_weights(rig, theta_all[start:start + chunk], targets[head_all[start:start + chunk]],
-                                    linear.free, reg=config.solve_reg, system=system))
+        solved.append(
+            solve_weights(
+                rig,
+                theta_all[start : start + chunk],
+                targets[head_all[start : start + chunk]],
+                linear.free,
+                reg=config.solve_reg,
+                system=system,
+            )
+        )
         if progress:
             progress("weight sets", min(start + chunk, theta_all.shape[0]), theta_all.shape[0])
     solved_free = torch.cat(solved).float()
@@ -149,31 +171,132 @@ def train(config: TrainConfig, out_path: Path, *, log_path: Path | None = None,
     decoder = SkinningDecoder(rig.num_skinning_floats)
     encoder = SkinningEncoder(rig.num_skinning_floats)
     critic = Critic()
-    ae_train, ae_val = train_autoencoder(decoder, encoder, train_res, val_res, epochs=config.autoencoder_epochs,
-                                         batch_size=config.batch_size, lr=config.autoencoder_lr, seed=config.seed,
-                                         progress=progress)
+    ae_train, ae_val = train_autoencoder(
+        decoder,
+        encoder,
+        train_res,
+        val_res,
+        epochs=config.autoencoder_epochs,
+        batch_size=config.batch_size,
+        lr=config.autoencoder_lr,
+        seed=config.seed,
+        progress=progress,
+    )
     seconds["autoencoder"] = time.perf_counter() - t
     t = time.perf_counter()
-    g_log, c_log = train_wgan(decoder, encoder, critic, train_res, iterations=config.wgan_iterations,
-                              batch_size=config.batch_size, lr=config.wgan_lr, critic_steps=config.critic_steps,
-                              seed=config.seed,
-                              progress=progress)
+    g_log, c_log = train_wgan(
+        decoder,
+        encoder,
+        critic,
+        train_res,
+        iterations=config.wgan_iterations,
+        batch_size=config.batch_size,
+        lr=config.wgan_lr,
+        critic_steps=config.critic_steps,
+        seed=config.seed,
+        progress=progress,
+    )
     seconds["wgan"] = time.perf_counter() - t
     seconds["total"] = time.perf_counter() - t0
 
     neural = NeuralSkinning(rig, linear.free, decoder)
     report = TrainReport(
         config=asdict(config),
-        counts={"train_heads": N, "val_heads": len(val_set.names), "saved_parameter_sets": T * N,
-                "perturbed_parameter_sets": int(perturbed.shape[0]), "weight_training_sets": int(train_res.shape[0]),
-                "weight_validation_sets": int(val_res.shape[0]), "skinning_floats": rig.num_skinning_floats,
-                "decoder_weights": decoder.num_weights},
+        counts={
+            "train_heads": N,
+            "val_heads": len(val_set.names),
+            "saved_parameter_sets": T * N,
+            "perturbed_parameter_sets": int(perturbed.shape[0]),
+            "weight_training_sets": int(train_res.shape[0]),
+            "weight_validation_sets": int(val_res.shape[0]),
+            "skinning_floats": rig.num_skinning_floats,
+            "decoder_weights": decoder.num_weights,
+        },
         seconds={k: round(v, 1) for k, v in seconds.items()},
         rmse_train_mm={"per_joint_fit": linear.rmse_per_cycle},
-        losses={"autoencoder_train": ae_train, "autoencoder_val": ae_val, "generator": g_log[-20:],
-                "critic": c_log[-20:], "linear_weights_last": linear.weight_losses[-5:]},
+        losses={
+            "autoencoder_train": ae_train,
+            "autoencoder_val": ae_val,
+            "generator": g_log[-20:],
+            "critic": c_log[-20:],
+            "linear_weights_last": linear.weight_losses[-5:],
+        },
     )
     save_neural(neural, out_path, meta={"config": asdict(config), "counts": report.counts, "seconds": report.seconds})
     if log_path is not None:
         write_bytes_atomic(log_path, (json.dumps(asdict(report), indent=2) + "\n").encode())
     return report
+
+
+def fit_population_joints(
+    vertices: np.ndarray, *, iterations: int = 400, chunk: int = 32, progress: Progress | None = None
+) -> np.ndarray:
+    """Joint channels of heads in the template's topology (known correspondence).
+
+    Each head is similarity-normalised onto the template (:func:`pipeline.synthetic.population.similarity_normalised`:
+    a photo or scan fit has its own pose and scale), then fitted by eq. 7 with the learned linear weights
+    (:func:`rig.skinning.joint_fit.fit_joints`; the latent Z adds little here: ``docs/capacity.md``).
+
+    Args:
+        vertices: ``(N, V, 3)`` heads, mm.
+        iterations: Adam steps per head. chunk: heads per batch.
+
+    Returns:
+        ``(N, P)`` float64 joint channels (deg, mm, ``scale - 1``).
+    """
+    rig = JointRig()
+    neural, _ = load_neural(rig)
+    weights = neural.linear_weights().detach()
+    targets = torch.as_tensor(similarity_normalised(vertices, rig.asset.vertices), dtype=rig.template.dtype)
+    out = []
+    for start in range(0, len(targets), chunk):
+        out.append(fit_joints(rig, targets[start : start + chunk], weights=weights, iterations=iterations).theta)
+        if progress is not None:
+            progress("identity prior: joints", min(start + chunk, len(targets)), len(targets))
+    return torch.cat(out).double().numpy()
+
+
+def train_identity_prior(
+    out_path: str | Path | None = None,
+    *,
+    seed: int = 0,
+    extra_heads: int = 215,
+    iterations: int = 400,
+    progress: Progress | None = None,
+) -> IdentityPrior:
+    """Fit the training population's joints and write the prior (``jnr train --identity-prior``).
+
+    The heads: the 85 of the ``train`` split plus ``extra_heads`` more drawn from the same (unshifted)
+    distribution with seeds of their own stream (never the ``val``, ``test`` or ``heldout`` seeds).
+    """
+    t0 = time.perf_counter()
+    train = population_split("train", seed=seed)
+    vertices = [train.vertices]
+    if extra_heads:
+        used = set().union(*(set(split_seeds(s, seed).tolist()) for s in ("train", "val", "test", "heldout")))
+        ss = np.random.SeedSequence([seed, 0x1D_E7_17])
+        seeds = [int(s) for s in ss.generate_state(extra_heads + 16, dtype=np.uint32) if int(s) not in used]
+        drawn = [sample_head(s) for s in seeds[:extra_heads]]
+        vertices.append(synthesize_heads(np.stack([d[1] for d in drawn]), np.stack([d[0] for d in drawn])))
+    vertices = np.concatenate(vertices)
+    theta = fit_population_joints(vertices, iterations=iterations, progress=progress)
+    prior = build_identity_prior(
+        clip_to_limits(theta),
+        parameter_span(torch.float64).numpy(),
+        meta={
+            "seed": seed,
+            "train_heads": int(len(train.vertices)),
+            "extra_heads": int(extra_heads),
+            "iterations": iterations,
+        },
+    )
+    prior = IdentityPrior(
+        prior.mean,
+        prior.components,
+        prior.variances,
+        prior.noise,
+        prior.span,
+        {**prior.meta, "seconds": round(time.perf_counter() - t0, 1)},
+    )
+    prior.save(out_path or default_identity_prior_path())
+    return prior

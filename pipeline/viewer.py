@@ -38,6 +38,9 @@ from pathlib import Path
 import numpy as np
 
 from rig.errors import SetupError
+from rig.expressions import EXPRESSION_NAMES, EXPRESSIONS, JAW_ANGLE_DEG, JAW_INDEX, JAW_PIVOT, ExpressionModel
+from rig.joints import CHANNEL_KINDS
+from rig.parameters import CHANNELS, NUM_PARAMETERS
 
 VIEWER_FILE = "viewer.html"
 """The page's name in an output folder."""
@@ -93,6 +96,7 @@ class ViewerInfo:
 
 # ------------------------------------------------------------------------------------------ arrays
 
+
 def encode_array(array: np.ndarray, dtype: str) -> dict:
     """``{"dtype", "shape", "b64"}``: ``array`` as little-endian ``dtype`` bytes in base64 (the page decodes
     it into a typed array)."""
@@ -122,6 +126,7 @@ def _jpeg_data_url(image: np.ndarray, max_side: int) -> str:
 
 # ------------------------------------------------------------------------------------------ three.js
 
+
 def three_js_path() -> Path:
     """Where the vendored ``three.module.min.js`` is expected (:data:`ASSETS_DIR`)."""
     return ASSETS_DIR / THREE_FILE
@@ -138,7 +143,8 @@ def _three_data_url(path: str, mtime: float) -> tuple[str, str]:
     code = Path(path).read_bytes()
     match = re.search(rb'const [A-Za-z_$]+="(\d+)"', code[:2000])
     return "data:text/javascript;base64," + base64.b64encode(code).decode("ascii"), (
-        match.group(1).decode() if match else "unknown")
+        match.group(1).decode() if match else "unknown"
+    )
 
 
 class ViewerUnavailableError(SetupError):
@@ -148,12 +154,14 @@ class ViewerUnavailableError(SetupError):
 def _three() -> tuple[str, str]:
     path = three_js_path()
     if not path.is_file():
-        raise ViewerUnavailableError(f"three.js is not installed ({path}); run `make venv` (npm ci, then the "
-                                     f"copy into {ASSETS_DIR.name}/)")
+        raise ViewerUnavailableError(
+            f"three.js is not installed ({path}); run `make venv` (npm ci, then the copy into {ASSETS_DIR.name}/)"
+        )
     return _three_data_url(str(path), path.stat().st_mtime)
 
 
 # ------------------------------------------------------------------------------------------ payload
+
 
 def _top4(weights: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
     """``(joints (V, 4) int, weights (V, 4), largest dropped weight)``: each vertex's 4 largest weights,
@@ -177,11 +185,19 @@ def _render_vertices(asset) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return unique[:, 0].astype(np.int64), inverse.reshape(-1, 3), unique[:, 1:]
 
 
-def viewer_payload(asset, *, theta: np.ndarray | None = None, expressions: np.ndarray | None = None,
-                   weights: np.ndarray | None = None, views: tuple[ViewerView, ...] | list = (),
-                   texture: np.ndarray | None = None, vertex_colors: np.ndarray | None = None,
-                   static_vertices: np.ndarray | None = None, title: str = "jnr fit", subtitle: str = ""
-                   ) -> tuple[dict, float]:
+def viewer_payload(
+    asset,
+    *,
+    theta: np.ndarray | None = None,
+    expressions: np.ndarray | None = None,
+    weights: np.ndarray | None = None,
+    views: tuple[ViewerView, ...] | list = (),
+    texture: np.ndarray | None = None,
+    vertex_colors: np.ndarray | None = None,
+    static_vertices: np.ndarray | None = None,
+    title: str = "jnr fit",
+    subtitle: str = "",
+) -> tuple[dict, float]:
     """The data of a page (module docstring) and the largest skinning weight left out.
 
     Args:
@@ -201,10 +217,6 @@ def viewer_payload(asset, *, theta: np.ndarray | None = None, expressions: np.nd
     """
     import torch
 
-    from rig.expressions import EXPRESSION_NAMES, JAW_ANGLE_DEG, JAW_INDEX, JAW_PIVOT, EXPRESSIONS, ExpressionModel
-    from rig.joints import CHANNEL_KINDS
-    from rig.parameters import CHANNELS, NUM_PARAMETERS
-
     n_vertices, n_joints = len(asset.vertices), len(asset.joint_names)
     parents = np.asarray(asset.parents, np.int64)
     if any(p >= k for k, p in enumerate(parents)):
@@ -214,8 +226,9 @@ def viewer_payload(asset, *, theta: np.ndarray | None = None, expressions: np.nd
     if theta.shape != (NUM_PARAMETERS,):
         raise ViewerError(f"viewer_payload: theta must have shape ({NUM_PARAMETERS},), got {theta.shape}")
     if coefficients.shape != (len(EXPRESSION_NAMES),):
-        raise ViewerError(f"viewer_payload: expressions must have shape ({len(EXPRESSION_NAMES)},), "
-                          f"got {coefficients.shape}")
+        raise ViewerError(
+            f"viewer_payload: expressions must have shape ({len(EXPRESSION_NAMES)},), got {coefficients.shape}"
+        )
     weights = asset.weights if weights is None else np.asarray(weights, np.float64)
     if weights.shape != (n_vertices, n_joints):
         raise ViewerError(f"viewer_payload: weights must have shape ({n_vertices}, {n_joints}), got {weights.shape}")
@@ -224,36 +237,53 @@ def viewer_payload(asset, *, theta: np.ndarray | None = None, expressions: np.nd
     skin_joints, skin_weights, dropped = _top4(weights)
 
     model = ExpressionModel(asset, dtype=torch.float64)
-    basis = model.basis.numpy()                                     # (E, V, 3); jawOpen: its corrective
+    basis = model.basis.numpy()  # (E, V, 3); jawOpen: its corrective
     rows = [np.flatnonzero(np.any(basis[e] != 0, axis=1)) for e in range(len(basis))]
     jaw_weight = model.jaw_weight.numpy()
     jaw_rows = np.flatnonzero(jaw_weight != 0)
     render_vertex, render_faces, uv = _render_vertices(asset)
 
-    channels = [{"name": c.name, "joint": int(c.joint), "kind": CHANNEL_KINDS.index(c.kind), "low": float(c.low),
-                 "high": float(c.high), "unit": c.unit, "value": float(c.from_theta(t))}
-                for c, t in zip(CHANNELS, theta)]
+    channels = [
+        {
+            "name": c.name,
+            "joint": int(c.joint),
+            "kind": CHANNEL_KINDS.index(c.kind),
+            "low": float(c.low),
+            "high": float(c.high),
+            "unit": c.unit,
+            "value": float(c.from_theta(t)),
+        }
+        for c, t in zip(CHANNELS, theta)
+    ]
     static = static_vertices is not None
     if static:
         static_vertices = np.asarray(static_vertices, np.float64)
         if static_vertices.shape != (n_vertices, 3):
-            raise ViewerError(f"viewer_payload: static_vertices must have shape ({n_vertices}, 3), "
-                              f"got {static_vertices.shape}")
+            raise ViewerError(
+                f"viewer_payload: static_vertices must have shape ({n_vertices}, 3), got {static_vertices.shape}"
+            )
     if vertex_colors is not None and np.shape(vertex_colors) != (n_vertices, 3):
-        raise ViewerError(f"viewer_payload: vertex_colors must have shape ({n_vertices}, 3), "
-                          f"got {np.shape(vertex_colors)}")
+        raise ViewerError(
+            f"viewer_payload: vertex_colors must have shape ({n_vertices}, 3), got {np.shape(vertex_colors)}"
+        )
     images = {}  # <img> id -> data: URL (render_html writes them as elements of the page)
     view_entries = []
     for k, view in enumerate(views):
         cam = view.camera
         if view.photo is not None:
             images[f"jnr-photo-{k}"] = _jpeg_data_url(view.photo, PHOTO_MAX_SIDE)
-        entry = {"name": view.name, "photo": None if view.photo is None else f"jnr-photo-{k}",
-                 "camera": {"width": float(cam["width"]), "height": float(cam["height"]),
-                            "focal_px": float(cam["focal_px"]),
-                            "principal_point_px": [float(x) for x in cam["principal_point_px"]],
-                            "extrinsics_rig_to_camera": np.asarray(cam["extrinsics_rig_to_camera"], float).tolist()},
-                 "expressions": None if view.expressions is None else [float(x) for x in view.expressions]}
+        entry = {
+            "name": view.name,
+            "photo": None if view.photo is None else f"jnr-photo-{k}",
+            "camera": {
+                "width": float(cam["width"]),
+                "height": float(cam["height"]),
+                "focal_px": float(cam["focal_px"]),
+                "principal_point_px": [float(x) for x in cam["principal_point_px"]],
+                "extrinsics_rig_to_camera": np.asarray(cam["extrinsics_rig_to_camera"], float).tolist(),
+            },
+            "expressions": None if view.expressions is None else [float(x) for x in view.expressions],
+        }
         view_entries.append(entry)
     if texture is not None:
         images["jnr-texture"] = _jpeg_data_url(texture, TEXTURE_MAX_SIDE)
@@ -272,15 +302,30 @@ def viewer_payload(asset, *, theta: np.ndarray | None = None, expressions: np.nd
         "uv": encode_array(uv, "float32"),
         "skin_joints": encode_array(skin_joints, "uint8"),
         "skin_weights": encode_array(skin_weights, "float32"),
-        "joints": {"names": list(asset.joint_names), "parents": parents.tolist(),
-                   "bind": np.asarray(asset.joint_positions, np.float64).tolist()},
+        "joints": {
+            "names": list(asset.joint_names),
+            "parents": parents.tolist(),
+            "bind": np.asarray(asset.joint_positions, np.float64).tolist(),
+        },
         "channels": [] if static else channels,
-        "expressions": {"names": list(EXPRESSION_NAMES), "low": [float(s.low) for s in EXPRESSIONS],
-                        "high": [float(s.high) for s in EXPRESSIONS], "values": [float(x) for x in coefficients]},
-        "morph": {"counts": [len(r) for r in rows], "index": encode_array(np.concatenate(rows), "uint16"),
-                  "offsets": encode_array(np.concatenate([basis[e, r] for e, r in enumerate(rows)]), "float32")},
-        "jaw": {"expression": int(JAW_INDEX), "angle_deg": float(JAW_ANGLE_DEG), "pivot": [float(x) for x in JAW_PIVOT],
-                "index": encode_array(jaw_rows, "uint16"), "weight": encode_array(jaw_weight[jaw_rows], "float32")},
+        "expressions": {
+            "names": list(EXPRESSION_NAMES),
+            "low": [float(s.low) for s in EXPRESSIONS],
+            "high": [float(s.high) for s in EXPRESSIONS],
+            "values": [float(x) for x in coefficients],
+        },
+        "morph": {
+            "counts": [len(r) for r in rows],
+            "index": encode_array(np.concatenate(rows), "uint16"),
+            "offsets": encode_array(np.concatenate([basis[e, r] for e, r in enumerate(rows)]), "float32"),
+        },
+        "jaw": {
+            "expression": int(JAW_INDEX),
+            "angle_deg": float(JAW_ANGLE_DEG),
+            "pivot": [float(x) for x in JAW_PIVOT],
+            "index": encode_array(jaw_rows, "uint16"),
+            "weight": encode_array(jaw_weight[jaw_rows], "float32"),
+        },
         "colors": None if vertex_colors is None or texture is not None else encode_array(vertex_colors, "uint8"),
         "texture": None if texture is None else "jnr-texture",
         "images": images,
@@ -345,8 +390,12 @@ def fit_viewer_ready() -> bool:
         return True
     if not _warned_missing:
         _warned_missing = True
-        warnings.warn(f"{VIEWER_FILE} not written: three.js is not installed ({three_js_path()}); run `make venv` "
-                      f"(npm ci --no-audit --no-fund, then the copy into {ASSETS_DIR})", RuntimeWarning, stacklevel=3)
+        warnings.warn(
+            f"{VIEWER_FILE} not written: three.js is not installed ({three_js_path()}); run `make venv` "
+            f"(npm ci --no-audit --no-fund, then the copy into {ASSETS_DIR})",
+            RuntimeWarning,
+            stacklevel=3,
+        )
     return False
 
 
@@ -397,6 +446,22 @@ def read_viewer_state(dom: str) -> dict:
     return json.loads(html.unescape(match.group(1)))
 
 
-__all__ = ["ASSETS_DIR", "VIEWER_FILE", "ViewerError", "ViewerInfo", "ViewerUnavailableError", "ViewerView",
-           "decode_array", "encode_array", "fit_viewer_ready", "read_viewer_data", "read_viewer_state", "render_html",
-           "three_js_path", "viewer_available", "viewer_payload", "write_fit_viewer", "write_viewer"]
+__all__ = [
+    "ASSETS_DIR",
+    "VIEWER_FILE",
+    "ViewerError",
+    "ViewerInfo",
+    "ViewerUnavailableError",
+    "ViewerView",
+    "decode_array",
+    "encode_array",
+    "fit_viewer_ready",
+    "read_viewer_data",
+    "read_viewer_state",
+    "render_html",
+    "three_js_path",
+    "viewer_available",
+    "viewer_payload",
+    "write_fit_viewer",
+    "write_viewer",
+]

@@ -26,12 +26,24 @@ CUDA_VARIANT = "cuda_ad_rgb"
 
 # Where Dr.Jit 1.5 (drjit-core ``jitc_find_library``) looks on Linux once DRJIT_LIBLLVM_PATH is unset and
 # ``dlopen("libLLVM.so")`` fails: this glob, sorted, last hit.
-_DRJIT_LLVM_GLOBS = ("/usr/lib/x86_64-linux-gnu/libLLVM*.so.*", "/usr/lib/aarch64-linux-gnu/libLLVM*.so.*",
-                     "/usr/lib/wsl/lib/libLLVM*.so.*")
-_STANDARD_LIB_DIRS = ("/lib", "/usr/lib", "/lib64", "/usr/lib64", "/usr/local/lib",
-                      "/lib/x86_64-linux-gnu", "/usr/lib/x86_64-linux-gnu")
-_FIX = ("install a newer LLVM (Debian 12: `apt-get install -y libllvm19`) or point Dr.Jit at one with "
-        "the environment variable DRJIT_LIBLLVM_PATH=/usr/lib/x86_64-linux-gnu/libLLVM-19.so")
+_DRJIT_LLVM_GLOBS = (
+    "/usr/lib/x86_64-linux-gnu/libLLVM*.so.*",
+    "/usr/lib/aarch64-linux-gnu/libLLVM*.so.*",
+    "/usr/lib/wsl/lib/libLLVM*.so.*",
+)
+_STANDARD_LIB_DIRS = (
+    "/lib",
+    "/usr/lib",
+    "/lib64",
+    "/usr/lib64",
+    "/usr/local/lib",
+    "/lib/x86_64-linux-gnu",
+    "/usr/lib/x86_64-linux-gnu",
+)
+_FIX = (
+    "install a newer LLVM (Debian 12: `apt-get install -y libllvm19`) or point Dr.Jit at one with "
+    "the environment variable DRJIT_LIBLLVM_PATH=/usr/lib/x86_64-linux-gnu/libLLVM-19.so"
+)
 
 _checked: dict[str, LLVMLibrary] = {}
 
@@ -76,8 +88,10 @@ def llvm_major(path: str | os.PathLike) -> int:
     if major < 0 and os.path.exists(path):
         major = llvm_major_from_name(os.path.realpath(path))
     if major < 0 and os.path.exists(path):
-        code = ("import ctypes, sys; lib = ctypes.CDLL(sys.argv[1]); v = [ctypes.c_uint() for _ in range(3)]; "
-                "lib.LLVMGetVersion(*[ctypes.byref(x) for x in v]); print(v[0].value)")
+        code = (
+            "import ctypes, sys; lib = ctypes.CDLL(sys.argv[1]); v = [ctypes.c_uint() for _ in range(3)]; "
+            "lib.LLVMGetVersion(*[ctypes.byref(x) for x in v]); print(v[0].value)"
+        )
         try:
             out = subprocess.run([sys.executable, "-c", code, str(path)], capture_output=True, text=True, timeout=60)
             major = int(out.stdout.strip()) if out.returncode == 0 else -1
@@ -166,12 +180,17 @@ def check_libllvm() -> LLVMLibrary:
     if 0 <= lib.major < MIN_LLVM_MAJOR:
         raise LLVMError(
             f"render: Dr.Jit would load {lib.path} (LLVM {lib.major}, found via {lib.source}); Dr.Jit 1.5 needs "
-            f"LLVM >= {MIN_LLVM_MAJOR} and would abort the process ('Cannot select ... fmaximum'). Fix: {_FIX}.")
+            f"LLVM >= {MIN_LLVM_MAJOR} and would abort the process ('Cannot select ... fmaximum'). Fix: {_FIX}."
+        )
     if lib.major < 0:
         import warnings
 
-        warnings.warn(f"render: could not tell the LLVM version of {lib.path}; if the process aborts with "
-                      f"'Cannot select', {_FIX}", RuntimeWarning, stacklevel=2)
+        warnings.warn(
+            f"render: could not tell the LLVM version of {lib.path}; if the process aborts with "
+            f"'Cannot select', {_FIX}",
+            RuntimeWarning,
+            stacklevel=2,
+        )
     return lib
 
 
@@ -181,7 +200,7 @@ def cuda_available() -> bool:
 
     try:
         return bool(dr.has_backend(dr.JitBackend.CUDA))
-    except Exception:  # noqa: BLE001 -- any failure means no CUDA
+    except Exception:
         return False
 
 
@@ -218,9 +237,9 @@ def reproducible(enabled: bool = True):
     """Run Dr.Jit's CPU backend on one worker thread inside the block (then restore the thread count).
 
     Reverse-mode AD accumulates gradients with atomic adds; with several threads their order, and so
-    the last bits of a vertex gradient, change from run to run (measured: up to 2e-4 on a 128x128 head
-    render), which a long fit carries into ~0.01 mm differences. One thread makes every run
-    bit-for-bit identical, at ~1.7x the render time on this 2-core machine. ``enabled=False`` is a no-op.
+    the last bits of a vertex gradient, change from run to run, and a long fit carries that into small
+    differences of the fitted head. One thread makes every run bit-for-bit identical, at a higher render
+    time (both measured in ``docs/render.md``, "Reproducible runs"). ``enabled=False`` is a no-op.
     """
     if not enabled:
         yield

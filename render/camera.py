@@ -22,15 +22,18 @@ def _single(camera, name: str) -> np.ndarray:
     arr = value.detach().cpu().double().numpy() if hasattr(value, "detach") else np.asarray(value, float)
     if arr.ndim == 3:
         if arr.shape[0] != 1:
-            raise ValueError(f"sensor_from_pinhole: expected a single camera (batch 1), got {name} of shape {arr.shape}")
+            raise ValueError(
+                f"sensor_from_pinhole: expected a single camera (batch 1), got {name} of shape {arr.shape}"
+            )
         arr = arr[0]
     if arr.shape != (4, 4):
         raise ValueError(f"sensor_from_pinhole: expected {name} (1, 4, 4), got {arr.shape}")
     return arr
 
 
-def sensor_from_pinhole(camera, *, spp: int = 4, seed: int = 0, near_clip: float = 1.0,
-                        far_clip: float = 1.0e5, sample_border: bool = True) -> dict:
+def sensor_from_pinhole(
+    camera, *, spp: int = 4, seed: int = 0, near_clip: float = 1.0, far_clip: float = 1.0e5, sample_border: bool = True
+) -> dict:
     """Mitsuba ``perspective`` sensor dict (with ``hdrfilm`` and box filter) from a kornia camera.
 
     Args:
@@ -51,14 +54,31 @@ def sensor_from_pinhole(camera, *, spp: int = 4, seed: int = 0, near_clip: float
     """
     K = _single(camera, "intrinsics")
     E = _single(camera, "extrinsics")
-    width = int(round(float(np.asarray(camera.width.detach().cpu() if hasattr(camera.width, "detach") else camera.width).reshape(-1)[0])))
-    height = int(round(float(np.asarray(camera.height.detach().cpu() if hasattr(camera.height, "detach") else camera.height).reshape(-1)[0])))
+    width = int(
+        round(
+            float(
+                np.asarray(camera.width.detach().cpu() if hasattr(camera.width, "detach") else camera.width).reshape(
+                    -1
+                )[0]
+            )
+        )
+    )
+    height = int(
+        round(
+            float(
+                np.asarray(camera.height.detach().cpu() if hasattr(camera.height, "detach") else camera.height).reshape(
+                    -1
+                )[0]
+            )
+        )
+    )
     fx, fy, cx, cy, skew = K[0, 0], K[1, 1], K[0, 2], K[1, 2], K[0, 1]
     if width <= 0 or height <= 0:
         raise ValueError(f"sensor_from_pinhole: expected a positive image size, got {width}x{height}")
     if fx <= 0 or abs(fx - fy) > 1e-6 * abs(fx):
-        raise ValueError(f"sensor_from_pinhole: Mitsuba's perspective sensor needs square pixels fx == fy > 0, "
-                         f"got fx={fx}, fy={fy}")
+        raise ValueError(
+            f"sensor_from_pinhole: Mitsuba's perspective sensor needs square pixels fx == fy > 0, got fx={fx}, fy={fy}"
+        )
     if abs(skew) > 1e-9 * abs(fx):
         raise ValueError(f"sensor_from_pinhole: expected zero skew, got {skew}")
     return {
@@ -72,8 +92,14 @@ def sensor_from_pinhole(camera, *, spp: int = 4, seed: int = 0, near_clip: float
         "near_clip": float(near_clip),
         "far_clip": float(far_clip),
         "to_world": to_world_matrix(E).tolist(),
-        "film": {"type": "hdrfilm", "width": width, "height": height, "pixel_format": "rgb",
-                 "rfilter": {"type": "box"}, "sample_border": bool(sample_border)},
+        "film": {
+            "type": "hdrfilm",
+            "width": width,
+            "height": height,
+            "pixel_format": "rgb",
+            "rfilter": {"type": "box"},
+            "sample_border": bool(sample_border),
+        },
         "sampler": {"type": "independent", "sample_count": int(spp), "seed": int(seed)},
     }
 

@@ -2,8 +2,8 @@
 
 Why this model: a face photo is mostly lit by one dominant source plus diffuse fill; ambient +
 directional captures that with 6 (+2 direction) numbers, is cheap on a CPU (one shadow ray per
-sample, no environment sampling; a constant environment emitter with indirect silhouettes measured
-~100x slower here), and its gradients are low-variance. Second-order spherical harmonics would
+sample, no environment sampling; a constant environment emitter with indirect silhouettes is far
+slower, see ``docs/render.md``), and its gradients are low-variance. Second-order spherical harmonics would
 model soft multi-source light better but need an environment emitter, i.e. far more samples.
 
 Shading of a Lambertian point with albedo ``a`` (linear RGB), unit normal ``n``:
@@ -37,9 +37,11 @@ class Lighting:
     @staticmethod
     def default(dtype: torch.dtype = torch.float32) -> Lighting:
         """A frontal key light from upper right and a soft fill, for a face looking along +Z."""
-        return Lighting(ambient=torch.tensor([0.35, 0.35, 0.35], dtype=dtype),
-                        irradiance=torch.tensor([2.0, 2.0, 2.0], dtype=dtype),
-                        direction=torch.tensor([-0.3, -0.4, -1.0], dtype=dtype))
+        return Lighting(
+            ambient=torch.tensor([0.35, 0.35, 0.35], dtype=dtype),
+            irradiance=torch.tensor([2.0, 2.0, 2.0], dtype=dtype),
+            direction=torch.tensor([-0.3, -0.4, -1.0], dtype=dtype),
+        )
 
 
 def check_lighting(light: Lighting) -> None:

@@ -80,8 +80,11 @@ class ReferenceLight:
 
     def to_dict(self) -> dict[str, list[float]]:
         """JSON-ready ``{"position": [x, y, z], "intensity": [r, g, b], "environment": [r, g, b]}``."""
-        return {"position": list(self.position), "intensity": list(self.intensity),
-                "environment": list(self.environment)}
+        return {
+            "position": list(self.position),
+            "intensity": list(self.intensity),
+            "environment": list(self.environment),
+        }
 
 
 @dataclass(frozen=True)
@@ -105,8 +108,9 @@ def _as_array(x, dtype) -> np.ndarray:
     return np.asarray(x, dtype=dtype)
 
 
-def _check_inputs(vertices, faces, albedo, background, spp: int, max_depth: int
-                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
+def _check_inputs(
+    vertices, faces, albedo, background, spp: int, max_depth: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
     func = "render_reference"
     v = _as_array(vertices, np.float64)
     f = _as_array(faces, None)
@@ -134,8 +138,19 @@ def _check_inputs(vertices, faces, albedo, background, spp: int, max_depth: int
     return v, f, a, bg
 
 
-def render_reference(vertices, faces, albedo, camera, light: ReferenceLight, *, spp: int = 64, seed: int = 0,
-                     background=None, max_depth: int = 3, device: str = "cpu") -> ReferenceRender:
+def render_reference(
+    vertices,
+    faces,
+    albedo,
+    camera,
+    light: ReferenceLight,
+    *,
+    spp: int = 64,
+    seed: int = 0,
+    background=None,
+    max_depth: int = 3,
+    device: str = "cpu",
+) -> ReferenceRender:
     """Path-trace a vertex-coloured Lambertian mesh under a point light and a constant environment.
 
     Coincident vertices are welded first (mean albedo), so meshes split along UV seams shade without
@@ -169,7 +184,7 @@ def render_reference(vertices, faces, albedo, camera, light: ReferenceLight, *, 
 
     Example:
         >>> import numpy as np, torch, trimesh
-        >>> from pipeline.photo.camera import make_camera
+        >>> from pipeline.camera import make_camera
         >>> sphere = trimesh.creation.icosphere(subdivisions=2, radius=80.0)
         >>> cam = make_camera(64, 48, 90.0, translation=np.array([0.0, 0.0, 500.0]))
         >>> light = ReferenceLight((0.0, 300.0, 800.0), (1.5e6,) * 3, (0.2,) * 3)
@@ -184,8 +199,10 @@ def render_reference(vertices, faces, albedo, camera, light: ReferenceLight, *, 
     sensor = sensor_from_pinhole(camera, spp=int(spp), seed=int(seed))
     width, height = sensor["film"]["width"], sensor["film"]["height"]
     if bg is not None and bg.shape != (height, width, 3):
-        raise ValueError(f"render_reference: expected background of shape ({height}, {width}, 3) (the camera's "
-                         f"image size), got {bg.shape}")
+        raise ValueError(
+            f"render_reference: expected background of shape ({height}, {width}, 3) (the camera's "
+            f"image size), got {bg.shape}"
+        )
     if bg is not None and not np.isfinite(bg).all():
         raise ValueError("render_reference: background must be finite")
 
@@ -203,8 +220,9 @@ def render_reference(vertices, faces, albedo, camera, light: ReferenceLight, *, 
     image = rgba[..., :3]
     if bg is not None:
         image = image + (1.0 - mask)[..., None] * bg
-    return ReferenceRender(image=np.ascontiguousarray(image, dtype=np.float32),
-                           mask=np.ascontiguousarray(mask, dtype=np.float32))
+    return ReferenceRender(
+        image=np.ascontiguousarray(image, dtype=np.float32), mask=np.ascontiguousarray(mask, dtype=np.float32)
+    )
 
 
 def _current_variant() -> str | None:
@@ -213,8 +231,17 @@ def _current_variant() -> str | None:
     return mi.variant()
 
 
-def _render_rgba(mi, vertices: np.ndarray, faces: np.ndarray, albedo: np.ndarray, sensor: dict,
-                 light: ReferenceLight, spp: int, seed: int, max_depth: int) -> np.ndarray:
+def _render_rgba(
+    mi,
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    albedo: np.ndarray,
+    sensor: dict,
+    light: ReferenceLight,
+    spp: int,
+    seed: int,
+    max_depth: int,
+) -> np.ndarray:
     """``(H, W, 4)`` float32: RGB radiance and alpha (coverage) of the head alone."""
     weld_index, welded_faces, n_welded = weld_vertices(vertices, faces)
     counts = np.bincount(weld_index, minlength=n_welded).astype(np.float64)[:, None]
@@ -230,10 +257,15 @@ def _render_rgba(mi, vertices: np.ndarray, faces: np.ndarray, albedo: np.ndarray
     sensor["to_world"] = mi.ScalarTransform4f(np.asarray(sensor["to_world"], float))
 
     props = mi.Properties()
-    props["bsdf"] = mi.load_dict({"type": "diffuse",
-                                  "reflectance": {"type": "mesh_attribute", "name": "vertex_color"}})
-    mesh = mi.Mesh("head", vertex_count=n_welded, face_count=len(welded_faces), props=props,
-                   has_vertex_normals=True, has_vertex_texcoords=False)
+    props["bsdf"] = mi.load_dict({"type": "diffuse", "reflectance": {"type": "mesh_attribute", "name": "vertex_color"}})
+    mesh = mi.Mesh(
+        "head",
+        vertex_count=n_welded,
+        face_count=len(welded_faces),
+        props=props,
+        has_vertex_normals=True,
+        has_vertex_texcoords=False,
+    )
     mesh.add_attribute("vertex_color", 3, welded_a.astype(np.float32).ravel().tolist())
     params = mi.traverse(mesh)
     params["vertex_positions"] = mi.Float(welded_v.astype(np.float32).ravel())
@@ -241,17 +273,22 @@ def _render_rgba(mi, vertices: np.ndarray, faces: np.ndarray, albedo: np.ndarray
     params.update()
     mesh.recompute_vertex_normals()
 
-    scene = mi.load_dict({
-        "type": "scene",
-        # hide_emitters: camera rays that miss the head return 0 (not the environment), so the
-        # background can be composited with the alpha channel
-        "integrator": {"type": "path", "max_depth": max_depth, "hide_emitters": True},
-        "sensor": sensor,
-        "key": {"type": "point", "position": list(light.position),
-                "intensity": {"type": "rgb", "value": list(light.intensity)}},
-        "environment": {"type": "constant", "radiance": {"type": "rgb", "value": list(light.environment)}},
-        "head": mesh,
-    })
+    scene = mi.load_dict(
+        {
+            "type": "scene",
+            # hide_emitters: camera rays that miss the head return 0 (not the environment), so the
+            # background can be composited with the alpha channel
+            "integrator": {"type": "path", "max_depth": max_depth, "hide_emitters": True},
+            "sensor": sensor,
+            "key": {
+                "type": "point",
+                "position": list(light.position),
+                "intensity": {"type": "rgb", "value": list(light.intensity)},
+            },
+            "environment": {"type": "constant", "radiance": {"type": "rgb", "value": list(light.environment)}},
+            "head": mesh,
+        }
+    )
     rgba = np.array(mi.render(scene, spp=spp, seed=seed), dtype=np.float32)
     if rgba.shape[-1] != 4 or not math.isfinite(float(rgba.sum())):
         raise RuntimeError(f"render_reference: Mitsuba returned an unusable image of shape {rgba.shape}")

@@ -89,17 +89,30 @@ class DifferentiableRenderer:
         ValueError: bad shapes or camera. render.backend.LLVMError: unusable libLLVM (CPU).
     """
 
-    def __init__(self, vertices, faces, albedo, camera, light: Lighting | None = None, *, spp: int = 4,
-                 spp_primary: int | None = None, seed: int = 0, device: str = "cpu",
-                 regions: np.ndarray | None = None, weld: bool = True):
+    def __init__(
+        self,
+        vertices,
+        faces,
+        albedo,
+        camera,
+        light: Lighting | None = None,
+        *,
+        spp: int = 4,
+        spp_primary: int | None = None,
+        seed: int = 0,
+        device: str = "cpu",
+        regions: np.ndarray | None = None,
+        weld: bool = True,
+    ):
         vertices = _as_numpy(vertices, np.float64)
         faces = _as_numpy(faces, np.int64)
         albedo = _as_numpy(albedo, np.float64)
         if vertices.ndim != 2 or vertices.shape[1] != 3:
             raise ValueError(f"DifferentiableRenderer: expected vertices (V, 3), got {vertices.shape}")
         if faces.ndim != 2 or faces.shape[1] != 3 or faces.min(initial=0) < 0 or faces.max(initial=0) >= len(vertices):
-            raise ValueError(f"DifferentiableRenderer: expected faces (F, 3) indexing {len(vertices)} vertices, "
-                             f"got {faces.shape}")
+            raise ValueError(
+                f"DifferentiableRenderer: expected faces (F, 3) indexing {len(vertices)} vertices, got {faces.shape}"
+            )
         if albedo.shape != vertices.shape:
             raise ValueError(f"DifferentiableRenderer: expected albedo {vertices.shape}, got {albedo.shape}")
         if spp < 1:
@@ -130,16 +143,25 @@ class DifferentiableRenderer:
         self._world_to_cam = np.asarray(camera.extrinsics.detach().cpu().double().numpy()).reshape(4, 4)
 
         props = mi.Properties()
-        props["bsdf"] = mi.load_dict({"type": "diffuse",
-                                      "reflectance": {"type": "mesh_attribute", "name": "vertex_color"}})
+        props["bsdf"] = mi.load_dict(
+            {"type": "diffuse", "reflectance": {"type": "mesh_attribute", "name": "vertex_color"}}
+        )
         # sampling_weight 0: next-event estimation always samples the sun; the ambient emission is only
         # seen directly by camera rays (and by the few BSDF rays that hit the head itself)
-        props["emitter"] = mi.load_dict({"type": "area", "sampling_weight": 0.0,
-                                         "radiance": {"type": "mesh_attribute", "name": "vertex_emission"}})
-        mesh = mi.Mesh("head", vertex_count=self.num_welded, face_count=len(welded_faces), props=props,
-                       has_vertex_normals=True, has_vertex_texcoords=False)
-        init_v, init_a = self._weld(torch.as_tensor(vertices, dtype=torch.float32),
-                                    torch.as_tensor(albedo, dtype=torch.float32))
+        props["emitter"] = mi.load_dict(
+            {"type": "area", "sampling_weight": 0.0, "radiance": {"type": "mesh_attribute", "name": "vertex_emission"}}
+        )
+        mesh = mi.Mesh(
+            "head",
+            vertex_count=self.num_welded,
+            face_count=len(welded_faces),
+            props=props,
+            has_vertex_normals=True,
+            has_vertex_texcoords=False,
+        )
+        init_v, init_a = self._weld(
+            torch.as_tensor(vertices, dtype=torch.float32), torch.as_tensor(albedo, dtype=torch.float32)
+        )
         amb = light.ambient.detach().to(torch.float32)
         mesh.add_attribute("vertex_color", 3, init_a.reshape(-1).tolist())
         mesh.add_attribute("vertex_emission", 3, (init_a * amb).reshape(-1).tolist())
@@ -148,22 +170,37 @@ class DifferentiableRenderer:
         mparams["faces"] = mi.UInt32(welded_faces.reshape(-1).astype(np.uint32))
         mparams.update()
 
-        self.scene = mi.load_dict({
-            "type": "scene",
-            "integrator": {"type": "direct_projective", "sppc": self.spp, "sppp": self.spp_primary, "sppi": 0,
-                           "guiding": "none"},  # guiding only serves sppi (indirect silhouettes), which is 0
-            "sensor": sensor,
-            "sun": {"type": "directional", "direction": _unit(light.direction),
-                    "irradiance": {"type": "rgb", "value": light.irradiance.detach().double().tolist()}},
-            "head": mesh,
-        })
+        self.scene = mi.load_dict(
+            {
+                "type": "scene",
+                "integrator": {
+                    "type": "direct_projective",
+                    "sppc": self.spp,
+                    "sppp": self.spp_primary,
+                    "sppi": 0,
+                    "guiding": "none",
+                },  # guiding only serves sppi (indirect silhouettes), which is 0
+                "sensor": sensor,
+                "sun": {
+                    "type": "directional",
+                    "direction": _unit(light.direction),
+                    "irradiance": {"type": "rgb", "value": light.irradiance.detach().double().tolist()},
+                },
+                "head": mesh,
+            }
+        )
         self.params = mi.traverse(self.scene)
-        self._keys = {"v": "head.vertex_positions", "albedo": "head.vertex_color",
-                      "emission": "head.vertex_emission", "irradiance": "sun.irradiance.value"}
+        self._keys = {
+            "v": "head.vertex_positions",
+            "albedo": "head.vertex_color",
+            "emission": "head.vertex_emission",
+            "irradiance": "sun.irradiance.value",
+        }
         missing = [k for k in self._keys.values() if k not in self.params]
         if missing:
-            raise RuntimeError(f"DifferentiableRenderer: Mitsuba scene lacks parameters {missing}; "
-                               f"has {list(self.params.keys())}")
+            raise RuntimeError(
+                f"DifferentiableRenderer: Mitsuba scene lacks parameters {missing}; has {list(self.params.keys())}"
+            )
         self.params.keep(list(self._keys.values()))
         self._dr_render = self._make_boundary(mi, dr)
         self._light = light
@@ -194,8 +231,15 @@ class DifferentiableRenderer:
 
         return render_drjit
 
-    def render(self, vertices: torch.Tensor, albedo: torch.Tensor, light: Lighting | None = None, *,
-               seed: int | None = None, aovs: bool = False) -> RenderOutput:
+    def render(
+        self,
+        vertices: torch.Tensor,
+        albedo: torch.Tensor,
+        light: Lighting | None = None,
+        *,
+        seed: int | None = None,
+        aovs: bool = False,
+    ) -> RenderOutput:
         """Render the mesh with the given vertex positions, albedo and light.
 
         Args:
@@ -210,8 +254,10 @@ class DifferentiableRenderer:
             :class:`RenderOutput` with ``image`` ``(H, W, 3)`` linear RGB.
         """
         if tuple(vertices.shape) != (self.num_vertices, 3) or tuple(albedo.shape) != (self.num_vertices, 3):
-            raise ValueError(f"DifferentiableRenderer.render: expected vertices and albedo ({self.num_vertices}, 3), "
-                             f"got {tuple(vertices.shape)} and {tuple(albedo.shape)}")
+            raise ValueError(
+                f"DifferentiableRenderer.render: expected vertices and albedo ({self.num_vertices}, 3), "
+                f"got {tuple(vertices.shape)} and {tuple(albedo.shape)}"
+            )
         light = self._light if light is None else light
         check_lighting(light)
         mi = use_variant(self.variant)  # another module (e.g. preview) may have switched the variant
@@ -224,8 +270,9 @@ class DifferentiableRenderer:
         emission = a * light.ambient.to(a)
         irradiance = light.irradiance.to(torch.float32)
         # plain tensor views: dr.wrap does not convert a torch.nn.Parameter (the fits' albedo and light are)
-        image = self._dr_render(*(x.contiguous().as_subclass(torch.Tensor) for x in (v, a, emission, irradiance)),
-                                self.spp, int(seed))
+        image = self._dr_render(
+            *(x.contiguous().as_subclass(torch.Tensor) for x in (v, a, emission, irradiance)), self.spp, int(seed)
+        )
         extras = self._ray_cast(mi, aovs)
         return RenderOutput(image=image, **extras)
 
@@ -276,12 +323,23 @@ class DifferentiableRenderer:
         return out
 
 
-def render(vertices: torch.Tensor, faces, albedo: torch.Tensor, camera, light: Lighting | None = None, *,
-           spp: int = 4, seed: int = 0, device: str = "cpu", aovs: bool = False) -> RenderOutput:
+def render(
+    vertices: torch.Tensor,
+    faces,
+    albedo: torch.Tensor,
+    camera,
+    light: Lighting | None = None,
+    *,
+    spp: int = 4,
+    seed: int = 0,
+    device: str = "cpu",
+    aovs: bool = False,
+) -> RenderOutput:
     """One-shot convenience: build a :class:`DifferentiableRenderer` and render once (see there).
     For loops, build the renderer once and call :meth:`DifferentiableRenderer.render`."""
-    r = DifferentiableRenderer(vertices.detach(), faces, albedo.detach(), camera, light, spp=spp, seed=seed,
-                               device=device)
+    r = DifferentiableRenderer(
+        vertices.detach(), faces, albedo.detach(), camera, light, spp=spp, seed=seed, device=device
+    )
     return r.render(vertices, albedo, light, seed=seed, aovs=aovs)
 
 
@@ -292,8 +350,9 @@ def _as_numpy(x, dtype) -> np.ndarray:
 
 
 def _unit(direction) -> list[float]:
-    d = np.asarray(direction.detach().cpu().double().numpy() if isinstance(direction, torch.Tensor) else direction,
-                   float)
+    d = np.asarray(
+        direction.detach().cpu().double().numpy() if isinstance(direction, torch.Tensor) else direction, float
+    )
     return (d / np.linalg.norm(d)).tolist()
 
 
@@ -307,4 +366,3 @@ def _frame_for(d: np.ndarray) -> np.ndarray:
     m = np.eye(4)
     m[:3, 0], m[:3, 1], m[:3, 2] = x, y, z
     return m
-

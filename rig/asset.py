@@ -38,6 +38,7 @@ def cached_per_asset(build):
 
     return get
 
+
 ASSET_DIR = Path(__file__).resolve().parent / "assets"
 DEFAULT_ASSET = ASSET_DIR / f"jnr_rig_v{TEMPLATE_VERSION}.npz"
 
@@ -88,8 +89,13 @@ class RigAsset:
 
     @property
     def layout(self) -> SkinningLayout:
-        return SkinningLayout(self.weight_rows, self.weight_cols, self.weight_free_index, len(self.weight_free),
-                              (len(self.vertices), len(self.joint_names)))
+        return SkinningLayout(
+            self.weight_rows,
+            self.weight_cols,
+            self.weight_free_index,
+            len(self.weight_free),
+            (len(self.vertices), len(self.joint_names)),
+        )
 
     @property
     def weights(self) -> np.ndarray:
@@ -110,11 +116,21 @@ def build_asset() -> RigAsset:
     w = initial_weights(mesh)
     layout = SkinningLayout.from_weights(w, mesh.mirror)
     return RigAsset(
-        vertices=mesh.vertices, faces=mesh.faces, face_uvs=mesh.face_uvs, regions=mesh.regions,
-        region_names=REGION_NAMES, mirror=mesh.mirror, joint_names=JOINT_NAMES,
-        parents=np.asarray(PARENTS, np.int64), joint_positions=np.array([j.position for j in JOINTS], float),
-        weight_rows=layout.rows, weight_cols=layout.cols, weight_free_index=layout.free_index,
-        weight_free=layout.free_values(w), eye_loops=np.stack(mesh.eye_loops), mouth_loop=mesh.mouth_loop,
+        vertices=mesh.vertices,
+        faces=mesh.faces,
+        face_uvs=mesh.face_uvs,
+        regions=mesh.regions,
+        region_names=REGION_NAMES,
+        mirror=mesh.mirror,
+        joint_names=JOINT_NAMES,
+        parents=np.asarray(PARENTS, np.int64),
+        joint_positions=np.array([j.position for j in JOINTS], float),
+        weight_rows=layout.rows,
+        weight_cols=layout.cols,
+        weight_free_index=layout.free_index,
+        weight_free=layout.free_values(w),
+        eye_loops=np.stack(mesh.eye_loops),
+        mouth_loop=mesh.mouth_loop,
         version=TEMPLATE_VERSION,
     )
 
@@ -136,8 +152,7 @@ def write_npz_atomic(path: str | Path, arrays: dict[str, np.ndarray]) -> None:
     write_bytes_atomic(path, buffer.getvalue(), make_parents=True)
 
 
-def read_npz(path: str | Path, error: type[Exception], what: str, remedy: str,
-             keys=None) -> dict[str, np.ndarray]:
+def read_npz(path: str | Path, error: type[Exception], what: str, remedy: str, keys=None) -> dict[str, np.ndarray]:
     """The arrays of an ``.npz`` file (``keys``, default all), read in full; a missing file raises
     ``error("<what> not found: <path> (<remedy>)")``, an unreadable one (or a missing key)
     ``error("<what> <path> is unreadable: ...")``."""
@@ -153,15 +168,18 @@ def read_npz(path: str | Path, error: type[Exception], what: str, remedy: str,
 
 def read_asset(path: str | Path) -> RigAsset:
     """Read an asset file (no caching). Raises :class:`AssetError` when it is unusable."""
-    fields = read_npz(path, AssetError, "rig asset", "rebuild it with `jnr rig build`",
-                      keys=RigAsset.__dataclass_fields__)
+    fields = read_npz(
+        path, AssetError, "rig asset", "rebuild it with `jnr rig build`", keys=RigAsset.__dataclass_fields__
+    )
     fields["region_names"] = tuple(str(s) for s in fields["region_names"])
     fields["joint_names"] = tuple(str(s) for s in fields["joint_names"])
     fields["version"] = int(fields["version"])
     asset = RigAsset(**fields)
     if asset.version != TEMPLATE_VERSION or asset.joint_names != JOINT_NAMES or asset.region_names != REGION_NAMES:
-        raise AssetError(f"rig asset {path} is version {asset.version} with another joint/region order; "
-                         f"this code expects version {TEMPLATE_VERSION} (rebuild it with `jnr rig build`)")
+        raise AssetError(
+            f"rig asset {path} is version {asset.version} with another joint/region order; "
+            f"this code expects version {TEMPLATE_VERSION} (rebuild it with `jnr rig build`)"
+        )
     return asset
 
 

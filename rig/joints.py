@@ -83,60 +83,120 @@ def _convert_limits(table: dict[str, tuple[float, float]]) -> dict[str, tuple[fl
 _S = "scale"
 _TABLE: list[tuple[str, str | None, tuple[float, float, float], dict[str, tuple[float, float]]]] = [
     ("root", None, (0.0, -160.0, -30.0), {}),
-    ("neck", "root", (0.0, -125.0, -25.0),
-     {"rotate_x": (-15, 15), "rotate_y": (-2.4, 1), "rotate_z": (-15, 15), _S: (0, 1.5)}),
-    ("skull_root", "root", (0.0, -50.0, -20.0),
-     {"rotate_x": (-25, 25), "rotate_y": (-15, 15), "rotate_z": (-15, 15), "scale_x": (0, 1.1)}),
+    (
+        "neck",
+        "root",
+        (0.0, -125.0, -25.0),
+        {"rotate_x": (-15, 15), "rotate_y": (-2.4, 1), "rotate_z": (-15, 15), _S: (0, 1.5)},
+    ),
+    (
+        "skull_root",
+        "root",
+        (0.0, -50.0, -20.0),
+        {"rotate_x": (-25, 25), "rotate_y": (-15, 15), "rotate_z": (-15, 15), "scale_x": (0, 1.1)},
+    ),
     ("cranium", "skull_root", (0.0, 55.0, -15.0), {"scale_x": (-1, 1), "scale_z": (-1, 1)}),
     ("crown", "cranium", (0.0, 105.0, -15.0), {"translate_y": (-4, 4)}),
     ("skull_center", "skull_root", (0.0, 10.0, 20.0), {}),
     ("brow_center", "skull_center", (0.0, 24.0, 82.0), {"translate_z": (-1, 1), "scale_y": (0, 1.5)}),
-    ("left_orbital", "skull_center", (30.0, 8.0, 66.0),
-     {"rotate_y": (-2, 2), "translate_x": (-1, 1), "translate_z": (-0.3, 0.3)}),
+    (
+        "left_orbital",
+        "skull_center",
+        (30.0, 8.0, 66.0),
+        {"rotate_y": (-2, 2), "translate_x": (-1, 1), "translate_z": (-0.3, 0.3)},
+    ),
     ("left_brow_outer", "left_orbital", (45.0, 25.0, 68.0), {"translate_z": (-1, 1), "scale_y": (0, 1.5)}),
-    ("left_eye_socket", "left_orbital", (28.8, 5.0, 64.0),
-     {"rotate_y": (-6.5, 9), "translate_x": (-1, 1), "translate_y": (-1, 1), _S: (0, 1.5)}),
+    (
+        "left_eye_socket",
+        "left_orbital",
+        (28.8, 5.0, 64.0),
+        {"rotate_y": (-6.5, 9), "translate_x": (-1, 1), "translate_y": (-1, 1), _S: (0, 1.5)},
+    ),
     ("left_upper_eyelid", "left_eye_socket", (28.8, 5.0, 58.0), {"rotate_x": (-6, 15)}),
     ("left_lower_eyelid", "left_eye_socket", (28.8, 5.0, 58.0), {"rotate_x": (-11, 4)}),
     ("left_cheek_bone", "left_orbital", (47.0, -15.0, 62.0), {"translate_y": (-1.7, 2)}),
-    ("right_orbital", "skull_center", (-30.0, 8.0, 66.0),
-     {"rotate_y": (-2, 2), "translate_x": (-1, 1), "translate_z": (-0.3, 0.3)}),
+    (
+        "right_orbital",
+        "skull_center",
+        (-30.0, 8.0, 66.0),
+        {"rotate_y": (-2, 2), "translate_x": (-1, 1), "translate_z": (-0.3, 0.3)},
+    ),
     ("right_brow_outer", "right_orbital", (-45.0, 25.0, 68.0), {"translate_z": (-1, 1), "scale_y": (0, 1.5)}),
-    ("right_eye_socket", "right_orbital", (-28.8, 5.0, 64.0),
-     {"rotate_y": (-6.5, 9), "translate_x": (-1, 1), "translate_y": (-1, 1), _S: (0, 1.5)}),
+    (
+        "right_eye_socket",
+        "right_orbital",
+        (-28.8, 5.0, 64.0),
+        {"rotate_y": (-6.5, 9), "translate_x": (-1, 1), "translate_y": (-1, 1), _S: (0, 1.5)},
+    ),
     ("right_upper_eyelid", "right_eye_socket", (-28.8, 5.0, 58.0), {"rotate_x": (-6, 15)}),
     ("right_lower_eyelid", "right_eye_socket", (-28.8, 5.0, 58.0), {"rotate_x": (-11, 4)}),
     ("right_cheek_bone", "right_orbital", (-47.0, -15.0, 62.0), {"translate_y": (-1.7, 2)}),
-    ("nose_root_a", "skull_center", (0.0, 12.0, 80.0),
-     {"translate_y": (-1, 1), "translate_z": (-1, 1), "scale_x": (0, 1.2)}),
+    (
+        "nose_root_a",
+        "skull_center",
+        (0.0, 12.0, 80.0),
+        {"translate_y": (-1, 1), "translate_z": (-1, 1), "scale_x": (0, 1.2)},
+    ),
     ("nose_root_b", "nose_root_a", (0.0, 5.0, 82.0), {}),
     ("nose_bridge", "nose_root_b", (0.0, -5.0, 85.0), {"translate_y": (-0.5, 0.8)}),
-    ("nose_ridge_a", "nose_bridge", (0.0, -15.0, 90.0),
-     {"rotate_x": (-10, 8), "rotate_z": (-2, 2), "scale_y": (0, 1.5)}),
+    (
+        "nose_ridge_a",
+        "nose_bridge",
+        (0.0, -15.0, 90.0),
+        {"rotate_x": (-10, 8), "rotate_z": (-2, 2), "scale_y": (0, 1.5)},
+    ),
     ("nose_ridge_b", "nose_ridge_a", (0.0, -26.0, 95.0), {"rotate_x": (-2, 2), "scale_y": (0, 1.5)}),
     ("ears", "skull_root", (0.0, -12.0, -15.0), {}),
     ("left_ear_position", "ears", (70.0, -12.0, -15.0), {"translate_x": (-1, 1), "translate_z": (-1.4, 1)}),
     ("left_ear_rotate_scale", "left_ear_position", (73.0, -12.0, -15.0), {"rotate_z": (-30, 15), _S: (0, 1.3)}),
     ("right_ear_position", "ears", (-70.0, -12.0, -15.0), {"translate_x": (-1, 1), "translate_z": (-1.4, 1)}),
-    ("right_ear_rotate_scale", "right_ear_position", (-73.0, -12.0, -15.0),
-     {"rotate_z": (-30, 15), _S: (0, 1.3)}),
+    ("right_ear_rotate_scale", "right_ear_position", (-73.0, -12.0, -15.0), {"rotate_z": (-30, 15), _S: (0, 1.3)}),
     ("lower_face_root", "skull_root", (0.0, -40.0, 30.0), {}),
-    ("jaw_root", "lower_face_root", (0.0, -36.2, 1.2),
-     {"translate_y": (-1.3, 0.6), "translate_z": (-1.3, 0.6), "scale_x": (0, 1.1)}),
+    (
+        "jaw_root",
+        "lower_face_root",
+        (0.0, -36.2, 1.2),
+        {"translate_y": (-1.3, 0.6), "translate_z": (-1.3, 0.6), "scale_x": (0, 1.1)},
+    ),
     ("maxilla", "lower_face_root", (0.0, -45.0, 75.0), {"translate_y": (-0.5, 0.7), "translate_z": (-1, 1)}),
-    ("nose_base_position", "maxilla", (0.0, -44.0, 86.0),
-     {"translate_x": (-0.4, 0.4), "translate_z": (-0.6, 0.6), "scale_x": (0, 1.2)}),
+    (
+        "nose_base_position",
+        "maxilla",
+        (0.0, -44.0, 86.0),
+        {"translate_x": (-0.4, 0.4), "translate_z": (-0.6, 0.6), "scale_x": (0, 1.2)},
+    ),
     ("nose_base_rotate", "nose_base_position", (0.0, -45.0, 88.0), {"rotate_x": (-8, 8)}),
-    ("nose_tip", "nose_base_rotate", (0.0, -33.0, 96.0),
-     {"translate_y": (-0.6, 0.6), "translate_z": (0.2, 1.1), _S: (0, 1.2)}),
+    (
+        "nose_tip",
+        "nose_base_rotate",
+        (0.0, -33.0, 96.0),
+        {"translate_y": (-0.6, 0.6), "translate_z": (0.2, 1.1), _S: (0, 1.2)},
+    ),
     ("nose_nostril", "nose_base_rotate", (0.0, -42.0, 90.0), {"rotate_x": (-8, 8), _S: (0, 1.2)}),
-    ("mouth_center_top", "maxilla", (0.0, -58.0, 85.0),
-     {"translate_y": (-1.3, 0.6), "translate_z": (-1.3, 0.6), "scale_x": (0, 1.2)}),
-    ("mouth_left_corner", "mouth_center_top", (22.0, -62.5, 72.0), {"translate_x": (-0.2, 0.2), "translate_y": (-0.2, 0.2)}),
-    ("mouth_right_corner", "mouth_center_top", (-22.0, -62.5, 72.0),
-     {"translate_x": (-0.2, 0.2), "translate_y": (-0.2, 0.2)}),
-    ("jaw_front", "mouth_center_top", (0.0, -88.0, 76.0),
-     {"rotate_z": (-0.9, 0.9), "translate_y": (-0.8, 0.5), "translate_z": (-0.5, 0.5), _S: (0, 1.5)}),
+    (
+        "mouth_center_top",
+        "maxilla",
+        (0.0, -58.0, 85.0),
+        {"translate_y": (-1.3, 0.6), "translate_z": (-1.3, 0.6), "scale_x": (0, 1.2)},
+    ),
+    (
+        "mouth_left_corner",
+        "mouth_center_top",
+        (22.0, -62.5, 72.0),
+        {"translate_x": (-0.2, 0.2), "translate_y": (-0.2, 0.2)},
+    ),
+    (
+        "mouth_right_corner",
+        "mouth_center_top",
+        (-22.0, -62.5, 72.0),
+        {"translate_x": (-0.2, 0.2), "translate_y": (-0.2, 0.2)},
+    ),
+    (
+        "jaw_front",
+        "mouth_center_top",
+        (0.0, -88.0, 76.0),
+        {"rotate_z": (-0.9, 0.9), "translate_y": (-0.8, 0.5), "translate_z": (-0.5, 0.5), _S: (0, 1.5)},
+    ),
     ("chin", "jaw_front", (0.0, -96.0, 76.0), {"translate_y": (-0.8, 0.5), "translate_z": (-0.5, 0.5), _S: (0, 1.5)}),
     ("top_lip", "jaw_front", (0.0, -57.0, 90.0), {"scale_y": (0, 1.4), "scale_z": (0, 2)}),
     ("mouth_center_bottom", "mouth_center_top", (0.0, -67.0, 85.0), {"translate_y": (-0.3, 0.8)}),
@@ -147,15 +207,22 @@ _TABLE: list[tuple[str, str | None, tuple[float, float, float], dict[str, tuple[
     ("right_chin", "chin", (-15.0, -98.0, 72.0), {"translate_x": (-0.2, 0.2), "translate_y": (-0.6, 0.6)}),
     ("left_jaw_root", "jaw_front", (50.0, -75.0, 15.0), {"translate_y": (-0.8, 0.8), "translate_z": (-0.5, 1.5)}),
     ("right_jaw_root", "jaw_front", (-50.0, -75.0, 15.0), {"translate_y": (-0.8, 0.8), "translate_z": (-0.5, 1.5)}),
-    ("left_crown_outer", "crown", (45.0, 95.0, -20.0),
-     {"translate_x": (-0.1, 0.1), "translate_y": (-0.1, 0.1), "translate_z": (-0.1, 0.1)}),
-    ("right_crown_outer", "crown", (-45.0, 95.0, -20.0),
-     {"translate_x": (-0.1, 0.1), "translate_y": (-0.1, 0.1), "translate_z": (-0.1, 0.1)}),
+    (
+        "left_crown_outer",
+        "crown",
+        (45.0, 95.0, -20.0),
+        {"translate_x": (-0.1, 0.1), "translate_y": (-0.1, 0.1), "translate_z": (-0.1, 0.1)},
+    ),
+    (
+        "right_crown_outer",
+        "crown",
+        (-45.0, 95.0, -20.0),
+        {"translate_x": (-0.1, 0.1), "translate_y": (-0.1, 0.1), "translate_z": (-0.1, 0.1)},
+    ),
 ]
 
 JOINTS: tuple[JointSpec, ...] = tuple(
-    JointSpec(name, parent, position, _convert_limits(table), dict(table))
-    for name, parent, position, table in _TABLE
+    JointSpec(name, parent, position, _convert_limits(table), dict(table)) for name, parent, position, table in _TABLE
 )
 JOINT_NAMES: tuple[str, ...] = tuple(j.name for j in JOINTS)
 JOINT_INDEX: dict[str, int] = {n: i for i, n in enumerate(JOINT_NAMES)}
@@ -163,10 +230,11 @@ PARENTS: tuple[int, ...] = tuple(-1 if j.parent is None else JOINT_INDEX[j.paren
 
 
 def mirror_joint_name(name: str) -> str:
-    """The name of the joint on the other side (``left_cheek`` <-> ``right_cheek``); midline joints map to themselves."""
+    """The name of the joint on the other side (``left_cheek`` <-> ``right_cheek``); midline joints map to
+    themselves."""
     for a, b in (("left_", "right_"), ("right_", "left_")):
         if name.startswith(a):
-            return b + name[len(a):]
+            return b + name[len(a) :]
     if name == "mouth_left_corner":
         return "mouth_right_corner"
     if name == "mouth_right_corner":
@@ -197,11 +265,15 @@ def joint_table_markdown() -> str:
 
     ``docs/joints.md`` holds this table (a test keeps the two the same).
     """
+
     def fmt(x: float) -> str:
         return f"{x:g}"
 
-    lines = ["| # | joint | parent | bind position (mm) | channel: limits (deg / mm / factor) | Table 1 (deg / cm / factor) |",
-             "|---|---|---|---|---|---|"]
+    lines = [
+        "| # | joint | parent | bind position (mm) | channel: limits (deg / mm / factor) "
+        "| Table 1 (deg / cm / factor) |",
+        "|---|---|---|---|---|---|",
+    ]
     for i, j in enumerate(JOINTS):
         ours = "<br>".join(f"`{c}`: [{fmt(lo)}, {fmt(hi)}]" for c, (lo, hi) in j.channels.items()) or "-"
         table = "<br>".join(f"{c}: [{fmt(lo)}, {fmt(hi)}]" for c, (lo, hi) in j.table_channels.items()) or "-"

@@ -32,15 +32,22 @@ def euler_to_matrix(angles: torch.Tensor) -> torch.Tensor:
     ca, cb, cc = torch.cos(angles).unbind(-1)
     sa, sb, sc = torch.sin(angles).unbind(-1)
     rows = (
-        cb * cc, sa * sb * cc - ca * sc, ca * sb * cc + sa * sc,
-        cb * sc, sa * sb * sc + ca * cc, ca * sb * sc - sa * cc,
-        -sb, sa * cb, ca * cb,
+        cb * cc,
+        sa * sb * cc - ca * sc,
+        ca * sb * cc + sa * sc,
+        cb * sc,
+        sa * sb * sc + ca * cc,
+        ca * sb * sc - sa * cc,
+        -sb,
+        sa * cb,
+        ca * cb,
     )
     return torch.stack(rows, dim=-1).reshape(angles.shape[:-1] + (3, 3))
 
 
-def channels_to_trs(theta: torch.Tensor, channel_joint: torch.Tensor, channel_kind: torch.Tensor,
-                    num_joints: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+def channels_to_trs(
+    theta: torch.Tensor, channel_joint: torch.Tensor, channel_kind: torch.Tensor, num_joints: int
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Scatter the flat parameter vector into per-joint rotation, translation and scale.
 
     Args:
@@ -53,8 +60,13 @@ def channels_to_trs(theta: torch.Tensor, channel_joint: torch.Tensor, channel_ki
         ``(rotation_rad (B, K, 3), translation_mm (B, K, 3), scale (B, K, 3))``; joints without a channel
         get zero rotation/translation and unit scale.
     """
-    check_shape(theta.dim() == 2 and theta.shape[1] == channel_joint.shape[0], "channels_to_trs", "theta",
-           f"(B, {channel_joint.shape[0]})", tuple(theta.shape))
+    check_shape(
+        theta.dim() == 2 and theta.shape[1] == channel_joint.shape[0],
+        "channels_to_trs",
+        "theta",
+        f"(B, {channel_joint.shape[0]})",
+        tuple(theta.shape),
+    )
     batch = theta.shape[0]
     # One (B, K, 10) table: rotate xyz, translate xyz, scale xyz offsets, uniform scale offset.
     table = theta.new_zeros(batch, num_joints * len(CHANNEL_KINDS))
@@ -77,9 +89,13 @@ def local_transforms(rotation: torch.Tensor, translation: torch.Tensor, scale: t
     Returns:
         ``(B, K, 4, 4)``.
     """
-    check_shape(rotation.shape == translation.shape == scale.shape and rotation.shape[-1] == 3, "local_transforms",
-           "rotation/translation/scale", "(B, K, 3) each", (tuple(rotation.shape), tuple(translation.shape),
-                                                             tuple(scale.shape)))
+    check_shape(
+        rotation.shape == translation.shape == scale.shape and rotation.shape[-1] == 3,
+        "local_transforms",
+        "rotation/translation/scale",
+        "(B, K, 3) each",
+        (tuple(rotation.shape), tuple(translation.shape), tuple(scale.shape)),
+    )
     linear = euler_to_matrix(rotation) * scale.unsqueeze(-2)
     top = torch.cat([linear, translation.unsqueeze(-1)], dim=-1)
     bottom = torch.zeros_like(top[..., :1, :])
@@ -87,8 +103,9 @@ def local_transforms(rotation: torch.Tensor, translation: torch.Tensor, scale: t
     return torch.cat([top, bottom], dim=-2)
 
 
-def joint_world_transforms(tau: torch.Tensor, bind_positions: torch.Tensor, parents: torch.Tensor,
-                           levels: list[torch.Tensor] | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+def joint_world_transforms(
+    tau: torch.Tensor, bind_positions: torch.Tensor, parents: torch.Tensor, levels: list[torch.Tensor] | None = None
+) -> tuple[torch.Tensor, torch.Tensor]:
     """Compose the joint transforms down the hierarchy (JNR eq. 1).
 
     Bind poses are translations ``B_k = T(p_k)`` (joint frames aligned with rig axes). With
@@ -108,11 +125,21 @@ def joint_world_transforms(tau: torch.Tensor, bind_positions: torch.Tensor, pare
         ``(world (B, K, 4, 4), skinning (B, K, 4, 4))``.
     """
     K = bind_positions.shape[-2]
-    check_shape(tau.dim() == 4 and tau.shape[1:] == (K, 4, 4), "joint_world_transforms", "tau", f"(B, {K}, 4, 4)",
-           tuple(tau.shape))
-    check_shape(bind_positions.shape[-1] == 3 and (bind_positions.dim() == 2 or (
-        bind_positions.dim() == 3 and bind_positions.shape[0] == tau.shape[0])), "joint_world_transforms",
-        "bind_positions", f"({K}, 3) or ({tau.shape[0]}, {K}, 3)", tuple(bind_positions.shape))
+    check_shape(
+        tau.dim() == 4 and tau.shape[1:] == (K, 4, 4),
+        "joint_world_transforms",
+        "tau",
+        f"(B, {K}, 4, 4)",
+        tuple(tau.shape),
+    )
+    check_shape(
+        bind_positions.shape[-1] == 3
+        and (bind_positions.dim() == 2 or (bind_positions.dim() == 3 and bind_positions.shape[0] == tau.shape[0])),
+        "joint_world_transforms",
+        "bind_positions",
+        f"({K}, 3) or ({tau.shape[0]}, {K}, 3)",
+        tuple(bind_positions.shape),
+    )
     check_shape(parents.shape == (K,), "joint_world_transforms", "parents", f"({K},)", tuple(parents.shape))
     if levels is None:
         levels = hierarchy_levels(parents)
@@ -137,8 +164,10 @@ def hierarchy_levels(parents: torch.Tensor) -> list[torch.Tensor]:
     depth: list[int] = []
     for p in parents.tolist():
         depth.append(0 if p < 0 else depth[p] + 1)
-    return [torch.tensor([i for i, d in enumerate(depth) if d == level], dtype=torch.long)
-            for level in range(max(depth) + 1)]
+    return [
+        torch.tensor([i for i, d in enumerate(depth) if d == level], dtype=torch.long)
+        for level in range(max(depth) + 1)
+    ]
 
 
 def skinning_basis(vertices: torch.Tensor, weights: torch.Tensor) -> torch.Tensor:
@@ -154,10 +183,20 @@ def skinning_basis(vertices: torch.Tensor, weights: torch.Tensor) -> torch.Tenso
     Returns:
         ``(V, 4K)`` or ``(B, V, 4K)``.
     """
-    check_shape(vertices.shape[-1] == 3 and vertices.dim() in (2, 3), "skinning_basis", "vertices", "(V, 3) or (B, V, 3)",
-           tuple(vertices.shape))
-    check_shape(weights.dim() in (2, 3) and weights.shape[-2] == vertices.shape[-2], "skinning_basis", "weights",
-           f"(V, K) or (B, V, K) with V = {vertices.shape[-2]}", tuple(weights.shape))
+    check_shape(
+        vertices.shape[-1] == 3 and vertices.dim() in (2, 3),
+        "skinning_basis",
+        "vertices",
+        "(V, 3) or (B, V, 3)",
+        tuple(vertices.shape),
+    )
+    check_shape(
+        weights.dim() in (2, 3) and weights.shape[-2] == vertices.shape[-2],
+        "skinning_basis",
+        "weights",
+        f"(V, K) or (B, V, K) with V = {vertices.shape[-2]}",
+        tuple(weights.shape),
+    )
     homogeneous = torch.cat([vertices, torch.ones_like(vertices[..., :1])], dim=-1)
     basis = weights.unsqueeze(-1) * homogeneous.unsqueeze(-2)
     return basis.flatten(-2)
@@ -173,11 +212,17 @@ def skin_with_basis(basis: torch.Tensor, skinning: torch.Tensor) -> torch.Tensor
     Returns:
         ``(B, V, 3)`` posed vertices, mm.
     """
-    check_shape(skinning.dim() == 4 and skinning.shape[-2:] == (4, 4), "skin_with_basis", "skinning", "(B, K, 4, 4)",
-           tuple(skinning.shape))
+    check_shape(
+        skinning.dim() == 4 and skinning.shape[-2:] == (4, 4),
+        "skin_with_basis",
+        "skinning",
+        "(B, K, 4, 4)",
+        tuple(skinning.shape),
+    )
     batch, K = skinning.shape[:2]
-    check_shape(basis.shape[-1] == 4 * K, "skin_with_basis", "basis", f"(V, {4 * K}) or (B, V, {4 * K})",
-           tuple(basis.shape))
+    check_shape(
+        basis.shape[-1] == 4 * K, "skin_with_basis", "basis", f"(V, {4 * K}) or (B, V, {4 * K})", tuple(basis.shape)
+    )
     if basis.dim() == 3:
         # (B, V, 4K) @ (B, 4K, 3)
         return torch.bmm(basis, skinning[:, :, :3, :].permute(0, 1, 3, 2).reshape(batch, 4 * K, 3))
@@ -197,11 +242,21 @@ def skin_vertices(vertices: torch.Tensor, weights: torch.Tensor, skinning: torch
     Returns:
         ``(B, V, 3)`` posed vertices in mm.
     """
-    check_shape(skinning.dim() == 4 and skinning.shape[-2:] == (4, 4), "skin_vertices", "skinning", "(B, K, 4, 4)",
-           tuple(skinning.shape))
+    check_shape(
+        skinning.dim() == 4 and skinning.shape[-2:] == (4, 4),
+        "skin_vertices",
+        "skinning",
+        "(B, K, 4, 4)",
+        tuple(skinning.shape),
+    )
     batch, K = skinning.shape[:2]
-    check_shape(weights.shape[-1] == K and weights.dim() in (2, 3), "skin_vertices", "weights", f"(V, {K}) or (B, V, {K})",
-           tuple(weights.shape))
+    check_shape(
+        weights.shape[-1] == K and weights.dim() in (2, 3),
+        "skin_vertices",
+        "weights",
+        f"(V, {K}) or (B, V, {K})",
+        tuple(weights.shape),
+    )
     basis = skinning_basis(vertices, weights)
     if basis.dim() == 3 and basis.shape[0] != batch:
         basis = basis.expand(batch, -1, -1)
@@ -240,14 +295,28 @@ def skin_vertices_shared_weights(vertices: torch.Tensor, weights: torch.Tensor, 
     Returns:
         ``(B, V, 3)`` posed vertices, mm (equal to :func:`skin_vertices`).
     """
-    check_shape(skinning.dim() == 4 and skinning.shape[-2:] == (4, 4), "skin_vertices_shared_weights", "skinning",
-                "(B, K, 4, 4)", tuple(skinning.shape))
+    check_shape(
+        skinning.dim() == 4 and skinning.shape[-2:] == (4, 4),
+        "skin_vertices_shared_weights",
+        "skinning",
+        "(B, K, 4, 4)",
+        tuple(skinning.shape),
+    )
     batch, K = skinning.shape[:2]
-    check_shape(weights.dim() == 2 and weights.shape[1] == K, "skin_vertices_shared_weights", "weights",
-                f"(V, {K})", tuple(weights.shape))
-    check_shape(vertices.shape[-1] == 3 and vertices.shape[-2] == weights.shape[0] and vertices.dim() in (2, 3),
-                "skin_vertices_shared_weights", "vertices", f"(V, 3) or (B, V, 3) with V = {weights.shape[0]}",
-                tuple(vertices.shape))
+    check_shape(
+        weights.dim() == 2 and weights.shape[1] == K,
+        "skin_vertices_shared_weights",
+        "weights",
+        f"(V, {K})",
+        tuple(weights.shape),
+    )
+    check_shape(
+        vertices.shape[-1] == 3 and vertices.shape[-2] == weights.shape[0] and vertices.dim() in (2, 3),
+        "skin_vertices_shared_weights",
+        "vertices",
+        f"(V, 3) or (B, V, 3) with V = {weights.shape[0]}",
+        tuple(vertices.shape),
+    )
     top = skinning[:, :, :3, :].permute(1, 0, 2, 3).reshape(K, batch * 12)
     blended = (weights.to(top.dtype) @ top).view(-1, batch, 3, 4).transpose(0, 1)  # (B, V, 3, 4)
     return (blended[..., :3] @ vertices.unsqueeze(-1)).squeeze(-1) + blended[..., 3]
@@ -268,13 +337,27 @@ def skin_vertices_blended(vertices: torch.Tensor, weights: torch.Tensor, skinnin
     Returns:
         ``(B, V, 3)`` posed vertices, mm.
     """
-    check_shape(skinning.dim() == 4 and skinning.shape[-2:] == (4, 4), "skin_vertices_blended", "skinning",
-                "(B, K, 4, 4)", tuple(skinning.shape))
+    check_shape(
+        skinning.dim() == 4 and skinning.shape[-2:] == (4, 4),
+        "skin_vertices_blended",
+        "skinning",
+        "(B, K, 4, 4)",
+        tuple(skinning.shape),
+    )
     batch, K = skinning.shape[:2]
-    check_shape(weights.dim() == 3 and weights.shape[0] == batch and weights.shape[2] == K, "skin_vertices_blended",
-                "weights", f"({batch}, V, {K})", tuple(weights.shape))
-    check_shape(vertices.shape[-1] == 3 and vertices.shape[-2] == weights.shape[1] and vertices.dim() in (2, 3),
-                "skin_vertices_blended", "vertices", f"(V, 3) or (B, V, 3) with V = {weights.shape[1]}",
-                tuple(vertices.shape))
+    check_shape(
+        weights.dim() == 3 and weights.shape[0] == batch and weights.shape[2] == K,
+        "skin_vertices_blended",
+        "weights",
+        f"({batch}, V, {K})",
+        tuple(weights.shape),
+    )
+    check_shape(
+        vertices.shape[-1] == 3 and vertices.shape[-2] == weights.shape[1] and vertices.dim() in (2, 3),
+        "skin_vertices_blended",
+        "vertices",
+        f"(V, 3) or (B, V, 3) with V = {weights.shape[1]}",
+        tuple(vertices.shape),
+    )
     blended = (weights.to(skinning.dtype) @ skinning[:, :, :3, :].reshape(batch, K, 12)).view(batch, -1, 3, 4)
     return (blended[..., :3] @ vertices.unsqueeze(-1)).squeeze(-1) + blended[..., 3]

@@ -21,8 +21,9 @@ LAMBDA_P = 0.3
 def vertex_rmse(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     """L_v (eq. 3): RMSE of vertex positions, ``(B, V, 3)`` x2 -> ``(B,)`` mm."""
     if pred.shape != target.shape or pred.shape[-1] != 3:
-        raise ShapeError(f"vertex_rmse: pred and target must both be (B, V, 3), got {tuple(pred.shape)} "
-                         f"and {tuple(target.shape)}")
+        raise ShapeError(
+            f"vertex_rmse: pred and target must both be (B, V, 3), got {tuple(pred.shape)} and {tuple(target.shape)}"
+        )
     return ((pred - target) ** 2).sum(-1).mean(-1).clamp_min(1e-20).sqrt()
 
 
@@ -56,8 +57,9 @@ def uniform_laplacian(faces: np.ndarray, num_vertices: int) -> torch.Tensor:
     deg = np.asarray(a.sum(axis=1)).ravel()
     lap = (sp.identity(num_vertices) - sp.diags(1.0 / deg) @ a).tocoo()
     idx = torch.tensor(np.stack([lap.row, lap.col]), dtype=torch.long)
-    return torch.sparse_coo_tensor(idx, torch.tensor(lap.data), (num_vertices, num_vertices),
-                                   check_invariants=True).coalesce()
+    return torch.sparse_coo_tensor(
+        idx, torch.tensor(lap.data), (num_vertices, num_vertices), check_invariants=True
+    ).coalesce()
 
 
 def laplacian_loss(pred: torch.Tensor, target: torch.Tensor, laplacian: torch.Tensor) -> torch.Tensor:
@@ -66,12 +68,20 @@ def laplacian_loss(pred: torch.Tensor, target: torch.Tensor, laplacian: torch.Te
     diff = pred - target
     B, V, _ = diff.shape
     lap_diff = torch.sparse.mm(lap, diff.permute(1, 0, 2).reshape(V, B * 3)).reshape(V, B, 3).permute(1, 0, 2)
-    return (lap_diff ** 2).sum(-1).mean(-1).clamp_min(1e-20).sqrt()
+    return (lap_diff**2).sum(-1).mean(-1).clamp_min(1e-20).sqrt()
 
 
-def rig_loss(pred: torch.Tensor, target: torch.Tensor, theta: torch.Tensor, low: torch.Tensor, high: torch.Tensor,
-             laplacian: torch.Tensor, lambda_m: float = LAMBDA_M, lambda_x: float = LAMBDA_X,
-             lambda_p: float = LAMBDA_P) -> dict[str, torch.Tensor]:
+def rig_loss(
+    pred: torch.Tensor,
+    target: torch.Tensor,
+    theta: torch.Tensor,
+    low: torch.Tensor,
+    high: torch.Tensor,
+    laplacian: torch.Tensor,
+    lambda_m: float = LAMBDA_M,
+    lambda_x: float = LAMBDA_X,
+    lambda_p: float = LAMBDA_P,
+) -> dict[str, torch.Tensor]:
     """Eq. 7: ``L_v + lambda_m L_m + lambda_x L_x + lambda_p L_p``; each term ``(B,)``, returned by name."""
     terms = {
         "vertex": vertex_rmse(pred, target),
@@ -79,6 +89,7 @@ def rig_loss(pred: torch.Tensor, target: torch.Tensor, theta: torch.Tensor, low:
         "limits": limit_loss(theta, low, high),
         "laplacian": laplacian_loss(pred, target, laplacian),
     }
-    terms["total"] = (terms["vertex"] + lambda_m * terms["regularizer"] + lambda_x * terms["limits"]
-                      + lambda_p * terms["laplacian"])
+    terms["total"] = (
+        terms["vertex"] + lambda_m * terms["regularizer"] + lambda_x * terms["limits"] + lambda_p * terms["laplacian"]
+    )
     return terms

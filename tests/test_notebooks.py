@@ -50,8 +50,9 @@ def test_notebook_runs(path: Path):
     nb = nbformat.read(path, as_version=4)
     nb.cells.append(nbformat.v4.new_code_cell(PREFIX_PROBE))  # which interpreter ran the notebook
     km = KernelManager(kernel_name=KERNEL_NAME, kernel_spec_manager=specs)
-    client = NotebookClient(nb, km=km, timeout=CELL_TIMEOUT_S, kernel_name=KERNEL_NAME,
-                            resources={"metadata": {"path": str(NOTEBOOK_DIR)}})
+    client = NotebookClient(
+        nb, km=km, timeout=CELL_TIMEOUT_S, kernel_name=KERNEL_NAME, resources={"metadata": {"path": str(NOTEBOOK_DIR)}}
+    )
     try:
         client.execute(env={**os.environ, "JNR_NOTEBOOK_FAST": "1"})
     except CellExecutionError as exc:
@@ -66,4 +67,5 @@ def test_notebook_runs(path: Path):
     reported = PREFIX_LINE.search(_stream_text(nb.cells[-1]))
     assert reported, f"{path.name}: the interpreter probe printed nothing: {nb.cells[-1].get('outputs')}"
     assert Path(reported.group(1).strip()).resolve() == Path(sys.prefix).resolve(), (
-        f"{path.name} ran on another interpreter ({reported.group(1)}) than the tests ({sys.prefix})")
+        f"{path.name} ran on another interpreter ({reported.group(1)}) than the tests ({sys.prefix})"
+    )

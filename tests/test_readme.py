@@ -10,7 +10,7 @@ README = (ROOT / "README.md").read_text()
 def test_python_example_runs(capsys):
     block = re.search(r"### From Python\n\n```python\n(.*?)```", README, re.DOTALL).group(1)
     namespace: dict = {}
-    exec(compile(block, "README.md", "exec"), namespace)  # noqa: S102 - our own documentation
+    exec(compile(block, "README.md", "exec"), namespace)
     fit, vertices = namespace["fit"], namespace["vertices"]
     assert fit.rig_vertices.shape == (4874, 3) and tuple(vertices.shape) == (1, 4874, 3)
     assert 0 < fit.nme < 0.2 and fit.landmark_fit.stages and not fit.stages  # photometric off

@@ -43,14 +43,17 @@ COMMAND_GROUPS = (demo, fit, fit_scan, animate, accessory, rig, data, train, eva
 def build_parser() -> argparse.ArgumentParser:
     """The ``jnr`` parser: every command's parser, made by its module."""
     parser = argparse.ArgumentParser(
-        prog="jnr", description="Joint-based Neural Rig: a 52-joint face rig, fitted to photos and point clouds.",
+        prog="jnr",
+        description="Joint-based Neural Rig: a 52-joint face rig, fitted to photos and point clouds.",
         formatter_class=argparse.RawDescriptionHelpFormatter,
         epilog="Units: millimetres in rig space (right-handed, +Y up, +Z out of the face); rotations in "
-               "degrees; scales as factors.\nParameter files: JSON {\"joints\": {\"nose_tip.translate_y\": 2.0, ...}}.")
+        'degrees; scales as factors.\nParameter files: JSON {"joints": {"nose_tip.translate_y": 2.0, ...}}.',
+    )
     parser.add_argument("-v", "--verbose", action="store_true", help="log progress details")
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
-    parser.add_argument("--version", action="version", version=f"jnr {package_version()}",
-                        help="print jnr's version and exit")
+    parser.add_argument(
+        "--version", action="version", version=f"jnr {package_version()}", help="print jnr's version and exit"
+    )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
     for group in COMMAND_GROUPS:
@@ -68,12 +71,14 @@ def _add_verbose_everywhere(sub: argparse._SubParsersAction) -> None:
             for action in nested:
                 _add_verbose_everywhere(action)
             continue
-        command.add_argument("-v", "--verbose", action="store_true", default=argparse.SUPPRESS,
-                             help="log progress details (as jnr -v)")
+        command.add_argument(
+            "-v", "--verbose", action="store_true", default=argparse.SUPPRESS, help="log progress details (as jnr -v)"
+        )
         quiet = next((a for a in command._actions if "--quiet" in a.option_strings), None)
         if quiet is None:
-            command.add_argument("--quiet", action="store_true", default=argparse.SUPPRESS,
-                                 help="no progress bars (as jnr --quiet)")
+            command.add_argument(
+                "--quiet", action="store_true", default=argparse.SUPPRESS, help="no progress bars (as jnr --quiet)"
+            )
         else:
             quiet.default = argparse.SUPPRESS
 
@@ -130,8 +135,14 @@ def main(argv: list[str] | None = None) -> int:
     except CliError as exc:
         print(f"jnr: error: {exc}", file=sys.stderr)
         return exc.code
-    except (InputError, FileNotFoundError, FileExistsError, IsADirectoryError, NotADirectoryError,
-            PermissionError) as exc:
+    except (
+        InputError,
+        FileNotFoundError,
+        FileExistsError,
+        IsADirectoryError,
+        NotADirectoryError,
+        PermissionError,
+    ) as exc:
         print(f"jnr: error: {_one_line(exc)}", file=sys.stderr)
         return EXIT_USAGE
     except BrokenPipeError:  # the reader went away (``jnr rig info --json | head``): stop quietly, as on SIGPIPE

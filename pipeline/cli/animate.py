@@ -7,6 +7,7 @@ import argparse
 from pathlib import Path
 
 from pipeline.cli.common import EXIT_OK, CliError, StageBars, check_output
+from pipeline.head.folders import RETARGET_FOLDER
 
 
 def _curves_path(text: str) -> Path:
@@ -34,25 +35,37 @@ def cmd_animate(args: argparse.Namespace) -> int:
     curves = read_curves(curves_path, fps=args.fps, head_units=args.head_units)
     bars = StageBars(args.quiet)
     try:
-        summary = animate_fit(args.fit_dir, curves, out, preview=preview, preview_fps=args.preview_fps,
-                              force=args.force, inputs=inputs, progress=bars)
+        summary = animate_fit(
+            args.fit_dir,
+            curves,
+            out,
+            preview=preview,
+            preview_fps=args.preview_fps,
+            force=args.force,
+            inputs=inputs,
+            progress=bars,
+        )
     finally:
         bars.close()
     turn = ", head rotation" if summary["head_rotation"] else ""
-    print(f"animated {summary['keyframes']} keyframes over {summary['duration_s']:.2f} s "
-          f"({summary['layout']} curves{turn}); wrote {out}"
-          + (f" and {preview} ({summary['preview_frames']} frames)" if preview is not None else ""))
+    print(
+        f"animated {summary['keyframes']} keyframes over {summary['duration_s']:.2f} s "
+        f"({summary['layout']} curves{turn}); wrote {out}"
+        + (f" and {preview} ({summary['preview_frames']} frames)" if preview is not None else "")
+    )
     return EXIT_OK
 
 
 def cmd_retarget(args: argparse.Namespace) -> int:
-    from pipeline.animation import RETARGET_FILES, retarget_fit
+    from pipeline.animation import retarget_fit
 
     out = Path(args.out)
     check_output(out, args.force, inputs=[args.source, args.target], kind="folder")
     report = retarget_fit(args.source, args.target, out, force=args.force)
-    print(f"the expression of {args.source} on the identity of {args.target} (largest vertex change "
-          f"{report['max_vertex_change_mm']:.1f} mm); wrote {out}/: {', '.join(RETARGET_FILES)}")
+    print(
+        f"the expression of {args.source} on the identity of {args.target} (largest vertex change "
+        f"{report['max_vertex_change_mm']:.1f} mm); wrote {out}/: {RETARGET_FOLDER.listing()}"
+    )
     return EXIT_OK
 
 
@@ -65,41 +78,51 @@ ANIMATE_EPILOG = (
     "nods down, +roll tilts the top towards the subject's left.\nOutputs: OUT.glb (the fit's skinned head with 52 "
     "ARKit morph targets and one animation: morph weights at every row, the skull_root rotation when the curves "
     "turn the head; glTF metres) and OUT.gif (grey preview rendered by jnr's renderer at --preview-fps).\n"
-    "Try it: jnr demo --out out/demo && jnr animate out/demo/astronaut example --out out/smile.glb")
+    "Try it: jnr demo --out out/demo && jnr animate out/demo/astronaut example --out out/smile.glb"
+)
 
 
 def add_commands(sub: argparse._SubParsersAction) -> None:
     """``jnr animate`` and ``jnr retarget``."""
     an = sub.add_parser(
-        "animate", help="drive a fitted head with ARKit curves (Live Link Face CSV): animated glTF + GIF preview",
+        "animate",
+        help="drive a fitted head with ARKit curves (Live Link Face CSV): animated glTF + GIF preview",
         formatter_class=argparse.RawDescriptionHelpFormatter,
         description="Animate a fit (a jnr fit or jnr fit-scan output folder) with ARKit expression curves: every row "
-                    "of the curves becomes a keyframe of the 52 morph-target weights (and of the head's rotation), "
-                    "written as a glTF animation that plays in Blender, Unity and three.js.",
-        epilog=ANIMATE_EPILOG)
+        "of the curves becomes a keyframe of the 52 morph-target weights (and of the head's rotation), "
+        "written as a glTF animation that plays in Blender, Unity and three.js.",
+        epilog=ANIMATE_EPILOG,
+    )
     an.add_argument("fit_dir", help="a jnr fit / jnr fit-scan output folder (its params.json)")
     an.add_argument("curves", help="curves CSV (Live Link Face or plain), or 'example'")
     an.add_argument("--out", required=True, help="animated glTF to write (.glb or .gltf)")
     an.add_argument("--preview", help="preview GIF to write (default: --out with .gif)")
     an.add_argument("--no-preview", action="store_true", help="write no preview")
     an.add_argument("--preview-fps", type=float, default=12.0, help="frames per second of the preview (default 12)")
-    an.add_argument("--fps", type=float, help="frame rate of the curves' timecodes or rows (default: 60 for Live "
-                                              "Link Face, 30 for a plain CSV without a time column)")
-    an.add_argument("--head-units", choices=["rad", "deg"],
-                    help="unit of the head angles (default: rad for Live Link Face, deg for a plain CSV)")
+    an.add_argument(
+        "--fps",
+        type=float,
+        help="frame rate of the curves' timecodes or rows (default: 60 for Live "
+        "Link Face, 30 for a plain CSV without a time column)",
+    )
+    an.add_argument(
+        "--head-units",
+        choices=["rad", "deg"],
+        help="unit of the head angles (default: rad for Live Link Face, deg for a plain CSV)",
+    )
     an.add_argument("--force", action="store_true", help="replace existing outputs")
     an.add_argument("--quiet", action="store_true", help="no progress bars")
     an.set_defaults(func=cmd_animate)
 
     rt = sub.add_parser(
-        "retarget", help="put one fit's expression on another fit's identity (JNR Fig. 7)",
+        "retarget",
+        help="put one fit's expression on another fit's identity (JNR Fig. 7)",
         formatter_class=argparse.RawDescriptionHelpFormatter,
         description="Retarget an expression: the source fit's 52 ARKit coefficients (the jaw's jawOpen, jawForward, "
-                    "jawLeft, jawRight among them) replace the target fit's; the target keeps its identity (joints, "
-                    "latent Z), camera, pose, light and texture.",
-        epilog="Outputs in --out: mesh.obj, mesh.ply (mm), mesh.glb (skinned, metres), params.json (a fit parameter "
-               "file: jnr rig edit / jnr animate take it), expressions.csv, preview.png (source | target | "
-               "retargeted), report.json.")
+        "jawLeft, jawRight among them) replace the target fit's; the target keeps its identity (joints, "
+        "latent Z), camera, pose, light and texture.",
+        epilog=f"Outputs in --out: {RETARGET_FOLDER.help_text()}.",
+    )
     rt.add_argument("source", help="the fit whose expression is taken")
     rt.add_argument("target", help="the fit whose identity is kept")
     rt.add_argument("--out", required=True, help="output folder (must not exist unless --force)")

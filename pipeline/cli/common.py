@@ -88,8 +88,9 @@ class StageBars:
         import time
 
         if self.bar is not None:
-            log.info("%s: %d/%d steps in %.1f s", self.stage, self.done, self.bar.total,
-                     time.perf_counter() - self.started)
+            log.info(
+                "%s: %d/%d steps in %.1f s", self.stage, self.done, self.bar.total, time.perf_counter() - self.started
+            )
             self.bar.close()
             self.bar = None
             self.stage = None
@@ -110,6 +111,7 @@ def parse_overrides(items: list[str] | None) -> dict:
 # The fit configurations from --config, --set and the options that stand for settings: the one place
 # where options become config overrides.
 # ------------------------------------------------------------------------------------------------------
+
 
 def fit_photo_overrides(args: argparse.Namespace) -> dict:
     """The photo fit's overrides: ``--set`` items, ``--landmarks-only`` (``photometric.enabled: false``) and

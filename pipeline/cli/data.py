@@ -16,8 +16,9 @@ def cmd_data_synth(args: argparse.Namespace) -> int:
     bars = StageBars(args.quiet)
     try:
         with staged_folder(out, args.force, marker={"command": "jnr data synth"}) as tmp:
-            write_population(tmp, seed=args.seed, splits=tuple(args.splits), file_format=args.format,
-                             overwrite=True, progress=bars)
+            write_population(
+                tmp, seed=args.seed, splits=tuple(args.splits), file_format=args.format, overwrite=True, progress=bars
+            )
     finally:
         bars.close()
     print(f"wrote {out / MANIFEST_NAME}")
@@ -36,9 +37,16 @@ def cmd_data_scan(args: argparse.Namespace) -> int:
     check_output(truth, args.force)
     if args.head < 0 or args.head >= 100:
         raise CliError(f"--head must be in 0..99 (the held-out heads), got {args.head}")
-    scan = write_heldout_scan(out, truth, head=args.head, expressive=args.expressive,
-                              camera=HIRES_CAMERA if args.hires else DepthCamera(), seed=args.seed,
-                              population_seed=args.population_seed, force=args.force)
+    scan = write_heldout_scan(
+        out,
+        truth,
+        head=args.head,
+        expressive=args.expressive,
+        camera=HIRES_CAMERA if args.hires else DepthCamera(),
+        seed=args.seed,
+        population_seed=args.population_seed,
+        force=args.force,
+    )
     print(f"wrote {out} ({len(scan.points)} points, mm, +Y up) and the true head {truth}")
     return EXIT_OK
 
@@ -48,22 +56,29 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     data = sub.add_parser("data", help="synthetic data: the head population that stands in for scans")
     data_sub = data.add_subparsers(dest="data_command", metavar="DATA_COMMAND")
     data_sub.required = True
-    synth = data_sub.add_parser("synth", help="write the synthetic head population as meshes with a manifest",
-                                description="Write the 85 train / 2 validation / 7 test identities and the "
-                                            "100 held-out heads (template topology, mm) and manifest.json.")
+    synth = data_sub.add_parser(
+        "synth",
+        help="write the synthetic head population as meshes with a manifest",
+        description="Write the 85 train / 2 validation / 7 test identities and the "
+        "100 held-out heads (template topology, mm) and manifest.json.",
+    )
     synth.add_argument("--out", required=True, help="output folder")
     synth.add_argument("--seed", type=int, default=0, help="population seed (default: 0)")
     synth.add_argument("--format", choices=("ply", "obj"), default="ply")
-    synth.add_argument("--splits", nargs="+", default=["train", "val", "test", "heldout"],
-                       choices=["train", "val", "test", "heldout"])
+    synth.add_argument(
+        "--splits", nargs="+", default=["train", "val", "test", "heldout"], choices=["train", "val", "test", "heldout"]
+    )
     synth.add_argument("--force", action="store_true", help="replace the output folder")
     synth.add_argument("--quiet", action="store_true", help="no progress bar")
     synth.set_defaults(func=cmd_data_synth)
-    scan = data_sub.add_parser("scan", help="write a simulated depth scan of a held-out synthetic head (PLY)",
-                               description="Render one held-out synthetic head (neutral or expressive) with a "
-                                           "Kinect-like depth camera: random yaw within +-45 deg, noise, holes, "
-                                           "outliers. Writes the cloud (mm, +Y up, with normals) and the true "
-                                           "head as OUT_truth.ply.")
+    scan = data_sub.add_parser(
+        "scan",
+        help="write a simulated depth scan of a held-out synthetic head (PLY)",
+        description="Render one held-out synthetic head (neutral or expressive) with a "
+        "Kinect-like depth camera: random yaw within +-45 deg, noise, holes, "
+        "outliers. Writes the cloud (mm, +Y up, with normals) and the true "
+        "head as OUT_truth.ply.",
+    )
     scan.add_argument("--out", required=True, help="output .ply file")
     scan.add_argument("--head", type=int, default=0, help="held-out head index, 0..99 (default: 0)")
     scan.add_argument("--expressive", action="store_true", help="add a synthetic expression")

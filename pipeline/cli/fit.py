@@ -1,5 +1,9 @@
 """``jnr fit PHOTO... --out DIR``: reconstruct the head in a photo, or in several in parallel processes or
-on a Dask cluster (:mod:`pipeline.photo.files`, :mod:`pipeline.photo.dask_runner`)."""
+on a Dask cluster (:mod:`pipeline.photo.photo_file`, :mod:`pipeline.photo.batch`,
+:mod:`pipeline.photo.dask_runner`).
+
+The ``--detector`` choices are the names in :mod:`landmarks.detector`'s registry (a light module: the
+detectors themselves, numpy and dlib are imported only when a photo is fitted)."""
 
 from __future__ import annotations
 
@@ -9,6 +13,7 @@ import os
 import sys
 from pathlib import Path
 
+from landmarks.detector import DEFAULT_DETECTOR, detector_names, detector_summary
 from pipeline.cli.common import (
     EXIT_FAILURE,
     EXIT_OK,
@@ -19,14 +24,15 @@ from pipeline.cli.common import (
     load_fit_photo_config,
     progress_bars_wanted,
 )
+from pipeline.head.folders import PHOTO_FOLDER, VIEWS_FOLDER
 
 
 def _fit_worker(task, threads: int):
-    """One photo (:class:`pipeline.photo.files.PhotoTask`) in a worker process, or in this one for
-    ``--jobs 1``: its :class:`~pipeline.photo.files.PhotoFileResult` (one per face with ``--face all``)."""
+    """One photo (:class:`pipeline.photo.task.PhotoTask`) in a worker process, or in this one for
+    ``--jobs 1``: its :class:`~pipeline.photo.summary.PhotoFileResult` (one per face with ``--face all``)."""
     import torch
 
-    from pipeline.photo.files import fit_photo_task
+    from pipeline.photo.task import fit_photo_task
     from pipeline.signals import worker_task
 
     torch.set_num_threads(threads)
@@ -51,7 +57,7 @@ def _with_bar(run, quiet: bool):
 
 
 def _runner(jobs: int, threads: int, quiet: bool):
-    """``run(tasks)`` for :func:`pipeline.photo.files.fit_photo_files`, with a progress bar: in this
+    """``run(tasks)`` for :func:`pipeline.photo.batch.fit_photo_files`, with a progress bar: in this
     process for one job, else in ``jobs`` spawned processes that die with this one: on an interrupt or
     SIGTERM here they are terminated (and remove their staged outputs) before the exception goes on."""
 
@@ -68,8 +74,12 @@ def _runner(jobs: int, threads: int, quiet: bool):
         if min(jobs, len(tasks)) == 1:  # e.g. one photo left to fit when resuming: no pool to start
             yield from one_by_one(tasks)
             return
-        pool = ProcessPoolExecutor(min(jobs, len(tasks)), mp_context=multiprocessing.get_context("spawn"),
-                                   initializer=worker_init, initargs=(os.getpid(),))
+        pool = ProcessPoolExecutor(
+            min(jobs, len(tasks)),
+            mp_context=multiprocessing.get_context("spawn"),
+            initializer=worker_init,
+            initargs=(os.getpid(),),
+        )
         results = []
         try:
             futures = [pool.submit(_fit_worker, t, threads) for t in tasks]
@@ -87,14 +97,12 @@ def _runner(jobs: int, threads: int, quiet: bool):
 
 def _output_names() -> str:
     """The files of one fit's folder, as printed."""
-    from pipeline.photo.outputs import OUTPUT_FILES
-
-    return ", ".join(OUTPUT_FILES)
+    return PHOTO_FOLDER.listing()
 
 
 def _face_option(text: str | None) -> int | str | None:
     """``--face``: None, a face number or ``all``."""
-    from pipeline.photo.files import FACE_ALL
+    from pipeline.photo.detection import FACE_ALL
 
     if text is None or text == FACE_ALL:
         return text
@@ -111,8 +119,10 @@ def _print_results(results) -> list:
     for r in results:
         if r.summary is not None and not r.kept:
             face = "" if r.face is None or r.faces_found is None else f" face {r.face} of {r.faces_found}"
-            print(f"{r.photo}{face}: {r.summary['mean_error_px']:.2f} px (NME {r.summary['nme']:.4f}), "
-                  f"{r.summary['fit_seconds']:.1f} s -> {r.summary['output']}")
+            print(
+                f"{r.photo}{face}: {r.summary['mean_error_px']:.2f} px (NME {r.summary['nme']:.4f}), "
+                f"{r.summary['fit_seconds']:.1f} s -> {r.summary['output']}"
+            )
     for r in failed:
         print(f"jnr: error: {r.error}", file=sys.stderr)
     return failed
@@ -126,49 +136,83 @@ def _exit_status(failed) -> int:
 
 def _fit_faces(args: argparse.Namespace, photo: Path, config, out: Path) -> int:
     """``jnr fit PHOTO --face all``: every face into OUT/face_<k>/ and OUT/summary.csv."""
-    from pipeline.photo.files import SUMMARY_FILE, fit_photo_faces
+    from pipeline.photo.photo_file import fit_photo_faces
+    from pipeline.photo.summary import SUMMARY_FILE
 
     bars = StageBars(args.quiet)
     try:
-        results = fit_photo_faces(photo, out, config=config, focal=args.focal, force=args.force, progress=bars,
-                                  command=command_line("jnr fit"), detector=args.detector)
+        results = fit_photo_faces(
+            photo,
+            out,
+            config=config,
+            focal=args.focal,
+            force=args.force,
+            progress=bars,
+            command=command_line("jnr fit"),
+            detector=args.detector,
+        )
     except FloatingPointError as exc:  # every face's fit diverged
         raise CliError(str(exc), EXIT_FAILURE) from None
     finally:
         bars.close()
     failed = _print_results(results)
-    print(f"fitted {len(results) - len(failed)} of {len(results)} faces in {photo}; wrote {out}/: face_<k>/ "
-          f"({_output_names()}) and {SUMMARY_FILE}")
+    print(
+        f"fitted {len(results) - len(failed)} of {len(results)} faces in {photo}; wrote {out}/: face_<k>/ "
+        f"({_output_names()}) and {SUMMARY_FILE}"
+    )
     return _exit_status(failed)
 
 
 def _fit_one(args: argparse.Namespace, photo: Path, config, out: Path) -> int:
-    from pipeline.photo.files import fit_photo_file
+    from pipeline.photo.photo_file import fit_photo_file
 
     bars = StageBars(args.quiet)
     try:
-        summary = fit_photo_file(photo, out, config=config, landmarks=args.landmarks, face=args.face,
-                                 focal=args.focal, force=args.force, progress=bars, command=command_line("jnr fit"),
-                                 detector=args.detector)
+        summary = fit_photo_file(
+            photo,
+            out,
+            config=config,
+            landmarks=args.landmarks,
+            face=args.face,
+            focal=args.focal,
+            force=args.force,
+            progress=bars,
+            command=command_line("jnr fit"),
+            detector=args.detector,
+        )
     except FloatingPointError as exc:  # a diverged fit
         raise CliError(str(exc), EXIT_FAILURE) from None
     finally:
         bars.close()
-    print(f"fitted {photo} in {summary['fit_seconds']:.1f} s: landmark error {summary['mean_error_px']:.2f} px "
-          f"(NME {summary['nme']:.4f})")
+    print(
+        f"fitted {photo} in {summary['fit_seconds']:.1f} s: landmark error {summary['mean_error_px']:.2f} px "
+        f"(NME {summary['nme']:.4f})"
+    )
     print(f"wrote {out}/: {_output_names()}")
     return EXIT_OK
 
 
 def _fit_several(args: argparse.Namespace, photos: list[Path], folders: list[Path], config, out: Path) -> int:
     """Several photos into OUT/<name>/ and OUT/summary.csv: resumed, in local processes or on a Dask cluster."""
-    from pipeline.photo.files import FACE_ALL, SUMMARY_FILE, fit_photo_files
+    from pipeline.photo.batch import fit_photo_files
+    from pipeline.photo.detection import FACE_ALL
+    from pipeline.photo.summary import SUMMARY_FILE
 
     if (args.landmarks and args.landmarks != "auto") or args.face not in (None, FACE_ALL):
-        raise CliError("--landmarks FILE and --face N apply to a single photo; for several, use --landmarks auto "
-                       "(a .pts/.json/.csv file beside each photo), detection or --face all")
-    common = dict(folders=folders, config=config, landmarks=args.landmarks, focal=args.focal, force=args.force,
-                  command=command_line("jnr fit"), detector=args.detector, face=args.face)
+        raise CliError(
+            "--landmarks FILE and --face N apply to a single photo; for several, use --landmarks auto "
+            "(a .pts/.json/.csv file beside each photo), detection or --face all"
+        )
+    common = dict(
+        folders=folders,
+        config=config,
+        landmarks=args.landmarks,
+        focal=args.focal,
+        force=args.force,
+        command=command_line("jnr fit"),
+        detector=args.detector,
+        face=args.face,
+    )
     if args.scheduler:
         from pipeline.photo.dask_runner import DaskRunner
 
@@ -199,7 +243,7 @@ def _fit_views(args: argparse.Namespace, photos: list[Path]) -> int:
     from pipeline.cli.common import fit_photo_overrides
     from pipeline.config import ConfigError, load_config
     from pipeline.photo.multiview import MultiViewConfig
-    from pipeline.photo.multiview_outputs import MIN_VIEWS, MULTIVIEW_OUTPUT_FILES, fit_multiview_files
+    from pipeline.photo.multiview_outputs import MIN_VIEWS, fit_multiview_files
 
     if len(photos) < MIN_VIEWS:
         raise CliError(f"--views needs at least {MIN_VIEWS} photos of the same person, got {len(photos)}")
@@ -213,25 +257,38 @@ def _fit_views(args: argparse.Namespace, photos: list[Path]) -> int:
     except ConfigError as exc:
         raise CliError(str(exc)) from None
     try:
-        summary = fit_multiview_files(photos, args.out, config=config, landmarks=args.landmarks, focal=args.focal,
-                                      force=args.force, command=command_line("jnr fit"), detector=args.detector)
+        summary = fit_multiview_files(
+            photos,
+            args.out,
+            config=config,
+            landmarks=args.landmarks,
+            focal=args.focal,
+            force=args.force,
+            command=command_line("jnr fit"),
+            detector=args.detector,
+        )
     except FloatingPointError as exc:
         raise CliError(str(exc), EXIT_FAILURE) from None
-    print(f"fitted {summary['views']} views of one head in {summary['seconds']:.1f} s: landmark error "
-          f"{summary['mean_error_px']:.2f} px (mean over views)")
-    print(f"wrote {args.out}/: {', '.join(MULTIVIEW_OUTPUT_FILES)}")
+    print(
+        f"fitted {summary['views']} views of one head in {summary['seconds']:.1f} s: landmark error "
+        f"{summary['mean_error_px']:.2f} px (mean over views)"
+    )
+    print(f"wrote {args.out}/: {VIEWS_FOLDER.listing()}")
     return EXIT_OK
 
 
 def cmd_fit(args: argparse.Namespace) -> int:
     """``jnr fit PHOTO... --out DIR``: single-photo reconstruction (see pipeline.photo.fit)."""
-    from pipeline.photo.files import FACE_ALL, photo_inputs
+    from pipeline.photo.detection import FACE_ALL
+    from pipeline.photo.inputs import photo_inputs
 
     if args.jobs is not None and args.jobs < 1:
         raise CliError(f"--jobs must be at least 1, got {args.jobs}")
     if args.scheduler is not None and args.jobs is not None:
-        raise CliError("--jobs sets the local processes; with --scheduler the Dask workers fit the photos (start "
-                       "them with `dask worker ADDRESS --nworkers N`): give one or the other")
+        raise CliError(
+            "--jobs sets the local processes; with --scheduler the Dask workers fit the photos (start "
+            "them with `dask worker ADDRESS --nworkers N`): give one or the other"
+        )
     if args.focal is not None and not math.isfinite(args.focal):
         raise CliError(f"--focal must be a number of pixels, got {args.focal}")
     args.face = _face_option(args.face)
@@ -239,13 +296,17 @@ def cmd_fit(args: argparse.Namespace) -> int:
         raise CliError("--face picks among the faces the detector finds; it cannot be used with --landmarks")
     photos, folders = photo_inputs(args.photos)
     if args.scheduler is not None and (args.views or (len(photos) == 1 and not folders)):
-        raise CliError("--scheduler fits several photos (a folder or a list) on a Dask cluster; one photo, or "
-                       "--views, is fitted here: leave --scheduler out")
+        raise CliError(
+            "--scheduler fits several photos (a folder or a list) on a Dask cluster; one photo, or "
+            "--views, is fitted here: leave --scheduler out"
+        )
     if args.views:
         return _fit_views(args, photos)
     if args.skinning is not None:
-        raise CliError("--skinning applies to --views (several photos of one person) or fit-scan: one photo's 68 "
-                       "landmarks do not determine ASM's 1,196 parameters, so the single-photo fit is JNR's")
+        raise CliError(
+            "--skinning applies to --views (several photos of one person) or fit-scan: one photo's 68 "
+            "landmarks do not determine ASM's 1,196 parameters, so the single-photo fit is JNR's"
+        )
     config = load_fit_photo_config(args)
     if len(photos) == 1 and not folders:
         fit = _fit_faces if args.face == FACE_ALL else _fit_one
@@ -259,7 +320,8 @@ FIT_DESCRIPTION = (
     "solvePnP, then fit the landmarks by Levenberg-Marquardt (~0.25 s) with an identity prior learned "
     "from the synthetic head population. --photometric adds stages with a robust photometric loss on the "
     "face pixels (Mitsuba 3 on the CPU; a per-vertex albedo, ambient + directional or SH light, the "
-    "latent Z of the neural skinning), ~20 s, which did not improve the geometry on validation photos.")
+    "latent Z of the neural skinning), ~20 s, which did not improve the geometry on validation photos."
+)
 FIT_EPILOG = (
     "Inputs: one or more image files (.jpg .jpeg .png .bmp .gif .tif .tiff .webp .ppm .pgm .pnm) or "
     "folders of them. Several photos are fitted in parallel processes (--jobs) or on a Dask cluster "
@@ -277,66 +339,100 @@ FIT_EPILOG = (
     "\nViews: --views fits the photos as views of ONE person (at least 2): one identity, a pose, expression "
     "and focal per view (single-view fits averaged, then refined together; --photometric adds photometric "
     "consistency between views, off by default, see docs/multiview.md; --skinning asm the ASM identity "
-    "model); OUT/ gets mesh.obj/.ply/.glb of the identity, params.json with per-view cameras, poses and "
-    "expressions, overlay_<k>.png per view, overlay.png (all of them), report.json, config.yaml."
+    f"model); OUT/ gets {VIEWS_FOLDER.listing()}."
     "\nLimits: images up to 120 megapixels; photos longer than 2048 px are fitted reduced "
     "by a power of two (camera and landmarks are still written in the photo's pixels); --focal within "
     "0.25-25 x the longer side; landmark files must look like a face in iBUG-68 order, in or near the "
     "image, not mirrored.\nSafety: --out must not be, contain or lie in an input or the working "
     "directory; --force replaces only a folder jnr wrote (it holds a .jnr-output file); outputs are "
     "moved into place atomically, and nothing is left behind on an error, Ctrl-C or SIGTERM.\n"
-    "Outputs: mesh.obj (with mesh.mtl and texture.png: the face unwrapped from the photo), mesh.ply "
-    "(rig space, mm, +Y up, vertex colours = albedo), mesh.glb (skinned glTF, textured), params.json (joints "
-    "by name, Z, expressions, camera, pose, light), overlay.png, render.png, landmarks.pts (input), "
-    "landmarks_fitted.pts, landmarks3d.json (camera frame, mm), expressions.csv (ARKit), "
-    "report.json (landmark error in px and NME, loss terms per stage, timings), config.yaml (the "
-    "settings used; --config on it repeats the fit).\nLandmarks: --landmarks "
-    "FILE (.pts 1-based as in iBUG 300-W, .json {\"landmarks\": [[x, y], ...]} or .csv index,x,y; 0-based "
+    f"Outputs: {PHOTO_FOLDER.help_text()}."
+    "\nLandmarks: --landmarks "
+    'FILE (.pts 1-based as in iBUG 300-W, .json {"landmarks": [[x, y], ...]} or .csv index,x,y; 0-based '
     "OpenCV pixels) skips detection.\nSchedule and settings: configs/fit_photo.yaml (--config) and "
-    "--set GROUP.KEY=VALUE (e.g. --set landmarks.prior.lambda_identity=0.1, --set photometric.spp=4).\nTry it: jnr fit photo.jpg --out out/photo")
+    "--set GROUP.KEY=VALUE (e.g. --set landmarks.prior.lambda_identity=0.1, --set photometric.spp=4).\n"
+    "Try it: jnr fit photo.jpg --out out/photo"
+)
+
+
+def _detector_help() -> str:
+    """The registered detectors for ``--help``: ``name (summary)``, the default marked."""
+    listed = []
+    for name in detector_names():
+        summary = detector_summary(name)
+        if name == DEFAULT_DETECTOR:
+            summary = f"default: {summary}" if summary else "default"
+        listed.append(f"{name} ({summary})" if summary else name)
+    return ", ".join(listed)
 
 
 def add_commands(sub: argparse._SubParsersAction) -> None:
     """``jnr fit``."""
-    from landmarks.detect import DETECTORS
-
-    fit = sub.add_parser("fit", help="reconstruct the head in a photo (landmarks + differentiable rendering)",
-                         formatter_class=argparse.RawDescriptionHelpFormatter, description=FIT_DESCRIPTION,
-                         epilog=FIT_EPILOG)
+    fit = sub.add_parser(
+        "fit",
+        help="reconstruct the head in a photo (landmarks + differentiable rendering)",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        description=FIT_DESCRIPTION,
+        epilog=FIT_EPILOG,
+    )
     fit.add_argument("photos", nargs="+", metavar="PHOTO", help="image file(s) or folder(s) of images")
     fit.add_argument("--out", required=True, help="output folder (per photo: OUT/<name>/ when several)")
-    fit.add_argument("--landmarks", metavar="FILE|auto",
-                     help="68 landmarks file (.pts, .json, .csv) instead of detection (one photo); 'auto': the "
-                          "file with the photo's name beside each photo (face.png -> face.pts), as in iBUG 300-W")
-    fit.add_argument("--face", metavar="N|all",
-                     help="which detected face, 0 = the largest (default: 0), or 'all': every face, into "
-                          "OUT/face_<k>/ with OUT/summary.csv (not with --landmarks)")
-    fit.add_argument("--detector", choices=DETECTORS, default="auto",
-                     help="dlib's face detector: hog (fast, frontal faces), cnn (finds turned, tilted and "
-                          "low-contrast faces; about 5 s for a 512 x 512 photo on 2 cores), auto (default: "
-                          "hog, and cnn only when hog finds no face); report.json lists every face found")
+    fit.add_argument(
+        "--landmarks",
+        metavar="FILE|auto",
+        help="68 landmarks file (.pts, .json, .csv) instead of detection (one photo); 'auto': the "
+        "file with the photo's name beside each photo (face.png -> face.pts), as in iBUG 300-W",
+    )
+    fit.add_argument(
+        "--face",
+        metavar="N|all",
+        help="which detected face, 0 = the largest (default: 0), or 'all': every face, into "
+        "OUT/face_<k>/ with OUT/summary.csv (not with --landmarks)",
+    )
+    fit.add_argument(
+        "--detector",
+        choices=detector_names(),
+        default=DEFAULT_DETECTOR,
+        help=f"the face detector: {_detector_help()}; report.json lists every face found",
+    )
     fit.add_argument("--focal", type=float, help="focal length in pixels (default: 1.4 x max(width, height))")
-    fit.add_argument("--landmarks-only", action="store_true",
-                     help="the landmark fit only (the default; kept for scripts)")
-    fit.add_argument("--photometric", action="store_true",
-                     help="after the landmark fit, the photometric stages (render + photo loss, ~20 s a photo; off by "
-                          "default: on synthetic validation photos they did not improve the geometry, see "
-                          "docs/fit_photo.md)")
-    fit.add_argument("--views", action="store_true",
-                     help="the photos are views of ONE person: fit one shared identity with a pose, expression and "
-                          "focal per view (at least 2 photos; OUT/ gets one mesh and overlay_<k>.png per view; "
-                          "--photometric adds photometric consistency between views; docs/multiview.md)")
-    fit.add_argument("--skinning", choices=("jnr", "asm"),
-                     help="with --views: the identity model, jnr (the rig's joints, default) or asm (adaptive skinning)")
+    fit.add_argument(
+        "--landmarks-only", action="store_true", help="the landmark fit only (the default; kept for scripts)"
+    )
+    fit.add_argument(
+        "--photometric",
+        action="store_true",
+        help="after the landmark fit, the photometric stages (render + photo loss, ~20 s a photo; off by "
+        "default: on synthetic validation photos they did not improve the geometry, see "
+        "docs/fit_photo.md)",
+    )
+    fit.add_argument(
+        "--views",
+        action="store_true",
+        help="the photos are views of ONE person: fit one shared identity with a pose, expression and "
+        "focal per view (at least 2 photos; OUT/ gets one mesh and overlay_<k>.png per view; "
+        "--photometric adds photometric consistency between views; docs/multiview.md)",
+    )
+    fit.add_argument(
+        "--skinning",
+        choices=("jnr", "asm"),
+        help="with --views: the identity model, jnr (the rig's joints, default) or asm (adaptive skinning)",
+    )
     fit.add_argument("--config", help="YAML overriding the fitting settings (e.g. configs/fit_photo.yaml)")
     fit.add_argument("--set", action="append", metavar="KEY=VALUE", help="override one setting (repeatable)")
     fit.add_argument("--jobs", type=int, help="parallel processes for several photos (default: the CPU count)")
-    fit.add_argument("--scheduler", metavar="ADDRESS",
-                     help="fit several photos on a Dask cluster: the address of its scheduler (e.g. tcp://host:8786, "
-                          "as `dask scheduler` prints it); the workers need jnr installed and the photos and --out "
-                          "at the same paths (docs/datasets.md); not with --jobs")
-    fit.add_argument("--force", action="store_true",
-                     help="replace output folders that exist (only jnr's own); for several photos: fit every photo "
-                          "again instead of keeping the complete outputs of an earlier run")
+    fit.add_argument(
+        "--scheduler",
+        metavar="ADDRESS",
+        help="fit several photos on a Dask cluster: the address of its scheduler (e.g. tcp://host:8786, "
+        "as `dask scheduler` prints it); the workers need jnr installed and the photos and --out "
+        "at the same paths (docs/datasets.md); not with --jobs",
+    )
+    fit.add_argument(
+        "--force",
+        action="store_true",
+        help="replace output folders that exist (only jnr's own); for several photos: fit every photo "
+        "again instead of keeping the complete outputs of an earlier run",
+    )
     fit.add_argument("--quiet", action="store_true", help="no progress bars")
     fit.set_defaults(func=cmd_fit)

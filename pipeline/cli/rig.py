@@ -8,7 +8,7 @@ import time
 from pathlib import Path
 
 from pipeline.cli.common import EXIT_FAILURE, EXIT_OK, CliError, check_output, log
-from pipeline.edit import MESH_FORMATS, MESH_SUFFIXES
+from pipeline.formats import MESH_FORMATS, MESH_SUFFIXES
 
 
 def format_for(path: Path, explicit: str | None) -> str:
@@ -16,8 +16,10 @@ def format_for(path: Path, explicit: str | None) -> str:
     suffix = path.suffix.lower()
     if explicit:
         if suffix not in MESH_SUFFIXES[explicit]:
-            raise CliError(f"--format {explicit} writes {' or '.join(MESH_SUFFIXES[explicit])} files, but --out is "
-                           f"{path}; change the suffix or the format")
+            raise CliError(
+                f"--format {explicit} writes {' or '.join(MESH_SUFFIXES[explicit])} files, but --out is "
+                f"{path}; change the suffix or the format"
+            )
         return explicit
     for name, suffixes in MESH_SUFFIXES.items():
         if suffix in suffixes:
@@ -51,10 +53,15 @@ def cmd_rig_build(args: argparse.Namespace) -> int:
     if args.check:
         committed = read_asset(args.out or DEFAULT_ASSET)
         diff = float(np.abs(committed.vertices - asset.vertices).max())
-        same = (diff <= 1e-6 and np.array_equal(committed.faces, asset.faces)
-                and float(np.abs(committed.weight_free - asset.weight_free).max()) <= 1e-9)
-        print(f"rebuilt in {time.perf_counter() - t0:.1f} s; largest vertex difference {diff:.3g} mm; "
-              f"{'identical' if same else 'DIFFERENT'}")
+        same = (
+            diff <= 1e-6
+            and np.array_equal(committed.faces, asset.faces)
+            and float(np.abs(committed.weight_free - asset.weight_free).max()) <= 1e-9
+        )
+        print(
+            f"rebuilt in {time.perf_counter() - t0:.1f} s; largest vertex difference {diff:.3g} mm; "
+            f"{'identical' if same else 'DIFFERENT'}"
+        )
         return EXIT_OK if same else EXIT_FAILURE
     save_asset(asset, out)
     print(f"wrote {out} ({len(asset.vertices)} vertices, {len(asset.faces)} faces) in {time.perf_counter() - t0:.1f} s")
@@ -88,20 +95,29 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     info.add_argument("--json", action="store_true", help="print JSON")
     info.set_defaults(func=cmd_rig_info)
 
-    build = rig_sub.add_parser("build", help="regenerate the template asset from code",
-                               description="Regenerate the template head, joints and initial skinning weights. "
-                                           "Without --out, rewrites the packaged asset.")
+    build = rig_sub.add_parser(
+        "build",
+        help="regenerate the template asset from code",
+        description="Regenerate the template head, joints and initial skinning weights. "
+        "Without --out, rewrites the packaged asset.",
+    )
     build.add_argument("--out", help="where to write the .npz (default: the packaged asset)")
     build.add_argument("--force", action="store_true", help="overwrite --out if it exists")
-    build.add_argument("--check", action="store_true",
-                       help="do not write; compare the rebuilt asset with --out (default: the packaged one) "
-                            "and exit 1 if they differ by more than 1e-6 mm")
+    build.add_argument(
+        "--check",
+        action="store_true",
+        help="do not write; compare the rebuilt asset with --out (default: the packaged one) "
+        "and exit 1 if they differ by more than 1e-6 mm",
+    )
     build.set_defaults(func=cmd_rig_build)
 
-    export = rig_sub.add_parser("export", help="write the rig as OBJ, PLY or skinned glTF 2.0",
-                                description="OBJ and PLY hold the (posed) mesh; glTF (.glb) holds the rest mesh "
-                                            "with 52 posable joints, inverse bind matrices and skin weights, "
-                                            "posed by --params.")
+    export = rig_sub.add_parser(
+        "export",
+        help="write the rig as OBJ, PLY or skinned glTF 2.0",
+        description="OBJ and PLY hold the (posed) mesh; glTF (.glb) holds the rest mesh "
+        "with 52 posable joints, inverse bind matrices and skin weights, "
+        "posed by --params.",
+    )
     export.add_argument("--format", choices=sorted(MESH_FORMATS), required=True)
     export.add_argument("--out", help="output file (default: jnr_rig.<ext> here)")
     export.add_argument("--params", help="parameter JSON to pose the rig with (default: rest pose)")
@@ -109,9 +125,12 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     export.add_argument("--force", action="store_true", help="overwrite the output")
     export.set_defaults(func=cmd_rig_export)
 
-    edit = rig_sub.add_parser("edit", help="write the head edited by a parameter file",
-                              description="Pose the rig with named parameters and write the edited head.")
-    edit.add_argument("params", help="parameter JSON, e.g. {\"joints\": {\"nose_tip.translate_z\": 5}}")
+    edit = rig_sub.add_parser(
+        "edit",
+        help="write the head edited by a parameter file",
+        description="Pose the rig with named parameters and write the edited head.",
+    )
+    edit.add_argument("params", help='parameter JSON, e.g. {"joints": {"nose_tip.translate_z": 5}}')
     edit.add_argument("--out", required=True, help="output mesh: .obj, .ply, .glb or .gltf")
     edit.add_argument("--format", choices=sorted(MESH_FORMATS), help="override the format chosen by suffix")
     edit.add_argument("--clamp", action="store_true", help="clamp out-of-limit parameters (with a warning)")

@@ -31,10 +31,15 @@ def _train_artifact(args: argparse.Namespace, option: str, default_path, build) 
 
 
 def cmd_identity_prior(args: argparse.Namespace) -> int:
-    from pipeline.fitting.identity import default_identity_prior_path, train_identity_prior
+    from pipeline.fitting.identity import default_identity_prior_path
+    from pipeline.train import train_identity_prior
 
-    result = _train_artifact(args, "--identity-prior", default_identity_prior_path,
-                             lambda out, bars: train_identity_prior(out, progress=bars).meta)
+    result = _train_artifact(
+        args,
+        "--identity-prior",
+        default_identity_prior_path,
+        lambda out, bars: train_identity_prior(out, progress=bars).meta,
+    )
     print(json.dumps(result, indent=2))
     return EXIT_OK
 
@@ -44,8 +49,15 @@ def cmd_asm_init(args: argparse.Namespace) -> int:
 
     def build(out, bars) -> dict:
         arrays = save_initial_gmm(out, progress=bars)
-        return {f"K={k}": dict(zip(("rms_weight_error", "max_weight_error", "seconds"),
-                                   (round(float(x), 4) for x in arrays[f"k{k}_report"]))) for k in INIT_COMPONENTS}
+        return {
+            f"K={k}": dict(
+                zip(
+                    ("rms_weight_error", "max_weight_error", "seconds"),
+                    (round(float(x), 4) for x in arrays[f"k{k}_report"]),
+                )
+            )
+            for k in INIT_COMPONENTS
+        }
 
     print(json.dumps(_train_artifact(args, "--asm-init", default_init_path, build), indent=2))
     return EXIT_OK
@@ -71,26 +83,44 @@ def cmd_train(args: argparse.Namespace) -> int:
         report = train(config, out, log_path=log_path, progress=bars)
     finally:
         bars.close()
-    print(json.dumps({"artifact": str(out), "log": str(log_path), "counts": report.counts,
-                      "seconds": report.seconds, "train_rmse_mm_per_joint_fit": report.rmse_train_mm["per_joint_fit"]},
-                     indent=2))
+    print(
+        json.dumps(
+            {
+                "artifact": str(out),
+                "log": str(log_path),
+                "counts": report.counts,
+                "seconds": report.seconds,
+                "train_rmse_mm_per_joint_fit": report.rmse_train_mm["per_joint_fit"],
+            },
+            indent=2,
+        )
+    )
     return EXIT_OK
 
 
 def add_commands(sub: argparse._SubParsersAction) -> None:
     """``jnr train``."""
-    tr = sub.add_parser("train", help="learn the linear and neural skinning weights from the synthetic population",
-                        description="Fit joints, learn global linear weights (alternating), synthesise "
-                                    "skinning-weight sets, train the auto-encoder and fine-tune the decoder "
-                                    "WGAN-style. Writes rig/assets/jnr_skinning_v2.npz unless --out is given.")
-    tr.add_argument("--identity-prior", action="store_true",
-                    help="instead: fit the joints of the training population (85 train heads + 215 more from the "
-                         "same distribution, ~3 min) and write the identity prior of the photo fit, a PPCA Gaussian "
-                         "of the fitted joints (rig/assets/jnr_identity_prior_v2.npz unless --out is given)")
-    tr.add_argument("--asm-init", action="store_true",
-                    help="instead: fit the initial Gaussian mixtures of the ASM skinning model (K = 2, 3, 5 per "
-                         "bone) to the rig's painted weights in UV space, ~10 min (rig/assets/jnr_asm_init_v2.npz "
-                         "unless --out is given)")
+    tr = sub.add_parser(
+        "train",
+        help="learn the linear and neural skinning weights from the synthetic population",
+        description="Fit joints, learn global linear weights (alternating), synthesise "
+        "skinning-weight sets, train the auto-encoder and fine-tune the decoder "
+        "WGAN-style. Writes rig/assets/jnr_skinning_v2.npz unless --out is given.",
+    )
+    tr.add_argument(
+        "--identity-prior",
+        action="store_true",
+        help="instead: fit the joints of the training population (85 train heads + 215 more from the "
+        "same distribution, ~3 min) and write the identity prior of the photo fit, a PPCA Gaussian "
+        "of the fitted joints (rig/assets/jnr_identity_prior_v2.npz unless --out is given)",
+    )
+    tr.add_argument(
+        "--asm-init",
+        action="store_true",
+        help="instead: fit the initial Gaussian mixtures of the ASM skinning model (K = 2, 3, 5 per "
+        "bone) to the rig's painted weights in UV space, ~10 min (rig/assets/jnr_asm_init_v2.npz "
+        "unless --out is given)",
+    )
     tr.add_argument("--config", help="YAML file overriding TrainConfig fields (configs/train.yaml)")
     tr.add_argument("--set", action="append", metavar="KEY=VALUE", help="override one setting (repeatable)")
     tr.add_argument("--out", help="artifact path (default: the packaged rig/assets/jnr_skinning_v2.npz)")

@@ -22,8 +22,8 @@ to each head:
 Each row reports (JSON: ``splits[split][row]``):
 
 - the error: the point-to-point distance between fitted and true vertices (mm), mean over a head's
-  vertices (:func:`pipeline.evaluation.metrics.mean_vertex_error`), then ``mean_mm``, sample ``std_mm``
-  (ddof=1), ``median_mm`` over the ``heads`` (:func:`pipeline.evaluation.metrics.summarize`);
+  vertices (:func:`pipeline.metrics.mean_vertex_error`), then ``mean_mm``, sample ``std_mm``
+  (ddof=1), ``median_mm`` over the ``heads`` (:func:`pipeline.metrics.summarize`);
 - ``seconds_per_head``: wall-clock seconds (:func:`time.perf_counter`) around the row's fitting calls
   only (not the error measurement, data generation or model training/loading), divided by the number of
   heads; fits run in chunks of :data:`EVAL_CHUNK` heads, on the CPU threads torch is given, after one
@@ -45,7 +45,16 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from pipeline.evaluation.metrics import mean_vertex_error, summarize
+from pipeline.evaluation.pca_model import train_pca
+from pipeline.metrics import mean_vertex_error, summarize
+from pipeline.synthetic.population import population_split, similarity_normalised
+from rig.asset import load_asset
+from rig.errors import InputError, SetupError
+from rig.model import JointRig
+from rig.parameters import NUM_PARAMETERS
+from rig.skinning.joint_fit import fit_joints
+from rig.skinning.linear import solve_weights, valid_weights
+from rig.skinning.neural import LATENT, fit_neural, load_neural
 
 EVAL_CHUNK = 20
 """Heads fitted together by the iterative fits (rig and ASM rows)."""
@@ -60,7 +69,8 @@ PCA_ROWS = tuple(f"pca_k{k}" for k in PCA_COMPONENTS)
 ASM_COMPONENTS = (2, 5)
 """GMM components ``K`` of the ASM rows (ASM's Table 7)."""
 ASM_ROWS = ("asm_static", "asm_dynamic_binding") + tuple(
-    row for k in ASM_COMPONENTS for row in (f"asm_gmm_k{k}", f"asm_k{k}"))
+    row for k in ASM_COMPONENTS for row in (f"asm_gmm_k{k}", f"asm_k{k}")
+)
 CAPACITY_ROWS = JNR_ROWS + (ORACLE_ROW,) + PCA_ROWS + ASM_ROWS
 """Every row name of the capacity table, in table order."""
 
@@ -84,7 +94,7 @@ def _per_head_error(pred: torch.Tensor, target: torch.Tensor) -> np.ndarray:
 
 
 def _summary(errors: list[np.ndarray], seconds: float | None = None, row: str = "") -> dict:
-    """Mean, sample std (ddof=1) and median over heads (:func:`pipeline.evaluation.metrics.summarize`);
+    """Mean, sample std (ddof=1) and median over heads (:func:`pipeline.metrics.summarize`);
     with ``seconds`` (the row's total fitting time), also ``seconds_per_head``.
 
     A fit that returned non-finite vertices gives a NaN error, which is kept (the mean is NaN: a failed
@@ -98,22 +108,28 @@ def _summary(errors: list[np.ndarray], seconds: float | None = None, row: str = 
     bad = int((~np.isfinite(per_head)).sum())
     if bad:
         out["nonfinite_heads"] = bad
-        warnings.warn(f"jnr eval capacity: {row or 'a row'}: {bad} of {s.n} fits returned non-finite vertices",
-                      RuntimeWarning, stacklevel=2)
+        warnings.warn(
+            f"jnr eval capacity: {row or 'a row'}: {bad} of {s.n} fits returned non-finite vertices",
+            RuntimeWarning,
+            stacklevel=2,
+        )
     return out
 
 
-def _oracle_errors(rig, targets: torch.Tensor, linear_theta: torch.Tensor, linear_free: torch.Tensor,
-                   settings: CapacitySettings, rounds: int = 3) -> tuple[list[np.ndarray], float]:
+def _oracle_errors(
+    rig,
+    targets: torch.Tensor,
+    linear_theta: torch.Tensor,
+    linear_free: torch.Tensor,
+    settings: CapacitySettings,
+    rounds: int = 3,
+) -> tuple[list[np.ndarray], float]:
     """Per-head optimal weights alternated with joint refits, from the learned-linear joint fit:
     the per-head errors and the seconds spent solving and refitting (not the learned-linear start)."""
-    from rig.skinning.joint_fit import fit_joints
-    from rig.skinning.linear import solve_weights, valid_weights
-
     errs, seconds = [], 0.0
     for start in range(0, targets.shape[0], EVAL_CHUNK):
-        chunk = targets[start:start + EVAL_CHUNK]
-        theta = linear_theta[start:start + EVAL_CHUNK]
+        chunk = targets[start : start + EVAL_CHUNK]
+        theta = linear_theta[start : start + EVAL_CHUNK]
         t0 = time.perf_counter()
         for r in range(rounds):
             w = valid_weights(rig, solve_weights(rig, theta, chunk, linear_free, reg=1.0))
@@ -121,10 +137,11 @@ def _oracle_errors(rig, targets: torch.Tensor, linear_theta: torch.Tensor, linea
                 theta = fit_joints(rig, chunk, weights=w, init=theta, iterations=settings.joint_iterations // 2).theta
         seconds += time.perf_counter() - t0
         with torch.no_grad():
-            errs.extend(_per_head_error(rig(theta[i:i + 1], weights=w[i]).vertices[0], chunk[i])
-                        for i in range(chunk.shape[0]))
+            errs.extend(
+                _per_head_error(rig(theta[i : i + 1], weights=w[i]).vertices[0], chunk[i])
+                for i in range(chunk.shape[0])
+            )
     return errs, seconds
-
 
 
 @functools.lru_cache(maxsize=2)
@@ -132,9 +149,6 @@ def pca_training_heads(seed: int = 0) -> np.ndarray:
     """The PCA's training heads: the ``train`` split (85 heads, the learned skinning's training heads),
     each mapped onto the template by its least-squares similarity as the evaluated heads are:
     ``(85, V, 3)`` float64 mm, read-only (cached: the split takes seconds to synthesise)."""
-    from pipeline.synthetic.population import population_split, similarity_normalised
-    from rig.asset import load_asset
-
     heads = similarity_normalised(population_split("train", seed=seed).vertices, load_asset().vertices)
     heads.flags.writeable = False
     return heads
@@ -142,39 +156,43 @@ def pca_training_heads(seed: int = 0) -> np.ndarray:
 
 def _check_models(models) -> tuple[str, ...]:
     """``models`` as a tuple in table order, or :class:`rig.errors.InputError` naming the bad one."""
-    from rig.errors import InputError
-
     if isinstance(models, str):
         models = (models,)
     models = tuple(models)
     unknown = [m for m in models if m not in MODEL_GROUPS]
     if unknown or not models:
-        raise InputError(f"evaluate_capacity: models must be a non-empty subset of {', '.join(MODEL_GROUPS)}, "
-                         f"got {', '.join(map(str, models)) or 'none'}")
+        raise InputError(
+            f"evaluate_capacity: models must be a non-empty subset of {', '.join(MODEL_GROUPS)}, "
+            f"got {', '.join(map(str, models)) or 'none'}"
+        )
     return tuple(m for m in MODEL_GROUPS if m in models)
 
 
 def load_asm():
     """``(AdaptiveSkinning, AsmVariant, fit_asm)`` from :mod:`rig.skinning.asm`, or a
     :class:`rig.errors.SetupError` that says how to run without the ASM rows."""
-    from rig.errors import SetupError
-
     try:
         from rig.skinning.asm import AdaptiveSkinning, AsmVariant, fit_asm
     except ImportError as exc:
-        raise SetupError(f"the ASM rows need rig.skinning.asm (AdaptiveSkinning, AsmVariant, fit_asm), which "
-                         f"could not be imported ({exc}); leave them out with --models jnr,pca") from None
+        raise SetupError(
+            f"the ASM rows need rig.skinning.asm (AdaptiveSkinning, AsmVariant, fit_asm), which "
+            f"could not be imported ({exc}); leave them out with --models jnr,pca"
+        ) from None
     return AdaptiveSkinning, AsmVariant, fit_asm
 
 
 def _asm_rows(asm_variant) -> list[tuple[str, int, object]]:
     """``(row, K, AsmVariant)`` of the ASM rows in :data:`ASM_ROWS` order; the rows without GMM weights
     use the first ``K`` (they do not depend on it)."""
-    rows = [("asm_static", ASM_COMPONENTS[0], asm_variant(dynamic_binding=False, gmm_weights=False)),
-            ("asm_dynamic_binding", ASM_COMPONENTS[0], asm_variant(dynamic_binding=True, gmm_weights=False))]
+    rows = [
+        ("asm_static", ASM_COMPONENTS[0], asm_variant(dynamic_binding=False, gmm_weights=False)),
+        ("asm_dynamic_binding", ASM_COMPONENTS[0], asm_variant(dynamic_binding=True, gmm_weights=False)),
+    ]
     for k in ASM_COMPONENTS:
-        rows += [(f"asm_gmm_k{k}", k, asm_variant(dynamic_binding=False, gmm_weights=True)),
-                 (f"asm_k{k}", k, asm_variant(dynamic_binding=True, gmm_weights=True))]
+        rows += [
+            (f"asm_gmm_k{k}", k, asm_variant(dynamic_binding=False, gmm_weights=True)),
+            (f"asm_k{k}", k, asm_variant(dynamic_binding=True, gmm_weights=True)),
+        ]
     return rows
 
 
@@ -187,12 +205,10 @@ def _total_floats(parts: dict) -> int:
     return int(sum(int(v) for v in parts.values()))
 
 
-def _jnr_rows(rig, neural, targets: torch.Tensor, split: str, settings: CapacitySettings, oracle: bool,
-              progress) -> dict:
+def _jnr_rows(
+    rig, neural, targets: torch.Tensor, split: str, settings: CapacitySettings, oracle: bool, progress
+) -> dict:
     """The rig rows (initial, learned linear, neural, and the oracle) of one split."""
-    from rig.skinning.joint_fit import fit_joints
-    from rig.skinning.neural import fit_neural
-
     rows: dict = {}
     linear_w = neural.linear_weights().detach()
     n = targets.shape[0]
@@ -201,7 +217,7 @@ def _jnr_rows(rig, neural, targets: torch.Tensor, split: str, settings: Capacity
     for name, weights in (("initial", None), ("learned_linear", linear_w)):
         errs, thetas, seconds = [], [], 0.0
         for start in range(0, n, EVAL_CHUNK):
-            chunk = targets[start:start + EVAL_CHUNK]
+            chunk = targets[start : start + EVAL_CHUNK]
             t0 = time.perf_counter()
             fit = fit_joints(rig, chunk, weights=weights, iterations=settings.joint_iterations)
             seconds += time.perf_counter() - t0
@@ -214,10 +230,15 @@ def _jnr_rows(rig, neural, targets: torch.Tensor, split: str, settings: Capacity
     linear_theta = torch.cat(thetas)  # the last loop's: learned linear
     errs, seconds = [], 0.0
     for start in range(0, n, EVAL_CHUNK):
-        chunk = targets[start:start + EVAL_CHUNK]
+        chunk = targets[start : start + EVAL_CHUNK]
         t0 = time.perf_counter()
-        fit = fit_neural(neural, chunk, cycles=settings.cycles, joint_iterations=settings.joint_iterations,
-                         z_iterations=settings.z_iterations)
+        fit = fit_neural(
+            neural,
+            chunk,
+            cycles=settings.cycles,
+            joint_iterations=settings.joint_iterations,
+            z_iterations=settings.z_iterations,
+        )
         seconds += time.perf_counter() - t0
         with torch.no_grad():
             errs.append(_per_head_error(rig(fit.theta, weights=neural(fit.z)).vertices, chunk))
@@ -255,7 +276,7 @@ def _asm_fit_rows(rig, asm, targets: torch.Tensor, split: str, settings: Capacit
         fit_asm(model, targets[:1], variant=variant, iterations=2, progress=None)  # warm-up, untimed
         errs, seconds = [], 0.0
         for start in range(0, n, EVAL_CHUNK):
-            chunk = targets[start:start + EVAL_CHUNK]
+            chunk = targets[start : start + EVAL_CHUNK]
             t0 = time.perf_counter()
             fit = fit_asm(model, chunk, variant=variant, progress=None, **options)
             seconds += time.perf_counter() - t0
@@ -266,9 +287,15 @@ def _asm_fit_rows(rig, asm, targets: torch.Tensor, split: str, settings: Capacit
     return rows
 
 
-def evaluate_capacity(splits: tuple[str, ...] = ("test", "heldout"), settings: CapacitySettings = CapacitySettings(),
-                      neural_path: str | None = None, limit: int | None = None, progress=None,
-                      oracle: bool = False, models: tuple[str, ...] = MODEL_GROUPS) -> dict:
+def evaluate_capacity(
+    splits: tuple[str, ...] = ("test", "heldout"),
+    settings: CapacitySettings = CapacitySettings(),
+    neural_path: str | None = None,
+    limit: int | None = None,
+    progress=None,
+    oracle: bool = False,
+    models: tuple[str, ...] = MODEL_GROUPS,
+) -> dict:
     """Fit each model of ``models`` to each split's heads; return errors, fitting times and model sizes.
 
     Args:
@@ -294,45 +321,52 @@ def evaluate_capacity(splits: tuple[str, ...] = ("test", "heldout"), settings: C
         InputError: unknown ``models``, or ``oracle`` without ``"jnr"``.
         SetupError: ``"asm"`` in ``models`` but :mod:`rig.skinning.asm` cannot be imported.
     """
-    from pipeline.evaluation.pca_model import train_pca
-    from pipeline.synthetic.population import population_split, similarity_normalised
-    from rig.errors import InputError
-    from rig.model import JointRig
-    from rig.parameters import NUM_PARAMETERS
-
     models = _check_models(models)
     if oracle and "jnr" not in models:
-        raise InputError("evaluate_capacity: oracle (per-head optimal weights) starts from the jnr rows' "
-                         "learned-linear fit; add jnr to models")
+        raise InputError(
+            "evaluate_capacity: oracle (per-head optimal weights) starts from the jnr rows' "
+            "learned-linear fit; add jnr to models"
+        )
     asm = load_asm() if "asm" in models else None  # fail before any work
     rig = JointRig(dtype=torch.float32)
     template_and_joints = 3 * rig.num_vertices + 3 * rig.num_joints
     S = rig.num_skinning_floats
-    result: dict = {"model_floats": {}, "settings": settings.__dict__, "models": list(models), "splits": {},
-                    "training": {}}
+    result: dict = {
+        "model_floats": {},
+        "settings": settings.__dict__,
+        "models": list(models),
+        "splits": {},
+        "training": {},
+    }
     floats = result["model_floats"]
     neural = None
     if "jnr" in models:
-        from rig.skinning.neural import LATENT, load_neural
-
         neural, meta = load_neural(rig, neural_path)
         result["training"].update(meta.get("counts", {}))
-        rig_parts = {"template_and_joints": template_and_joints, "skinning": S, "decoder": 0,
-                     "joint_parameters": NUM_PARAMETERS}
+        rig_parts = {
+            "template_and_joints": template_and_joints,
+            "skinning": S,
+            "decoder": 0,
+            "joint_parameters": NUM_PARAMETERS,
+        }
         floats["initial"] = dict(rig_parts)
         floats["learned_linear"] = dict(rig_parts)
         floats["neural"] = {**rig_parts, "decoder": neural.decoder.num_weights, "latent": LATENT}
         if oracle:
-            floats[ORACLE_ROW] = {"template_and_joints": template_and_joints, "skinning_per_head": S,
-                                  "joint_parameters": NUM_PARAMETERS}
+            floats[ORACLE_ROW] = {
+                "template_and_joints": template_and_joints,
+                "skinning_per_head": S,
+                "joint_parameters": NUM_PARAMETERS,
+            }
     pcas: dict = {}
     if "pca" in models:
         train_heads = pca_training_heads(settings.seed)
         t0 = time.perf_counter()
         largest = train_pca(train_heads, max(PCA_COMPONENTS))  # the smaller models are its first k components
         pcas = {f"pca_k{k}": largest.truncated(k) for k in PCA_COMPONENTS}
-        result["training"].update({"pca_train_heads": int(train_heads.shape[0]),
-                                   "pca_train_seconds": round(time.perf_counter() - t0, 3)})
+        result["training"].update(
+            {"pca_train_heads": int(train_heads.shape[0]), "pca_train_seconds": round(time.perf_counter() - t0, 3)}
+        )
         floats.update({name: pca.num_floats() for name, pca in pcas.items()})
     if asm is not None:
         adaptive_skinning, asm_variant, _ = asm

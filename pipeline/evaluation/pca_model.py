@@ -108,8 +108,9 @@ class PcaShapeModel:
         """``(B, k)`` coefficients -> ``(B, V, 3)`` mm heads."""
         a = torch.as_tensor(coefficients).to(self.mean)
         if a.ndim != 2 or a.shape[1] != self.k:
-            raise ShapeError(f"PcaShapeModel.reconstruct: coefficients must have shape (B, {self.k}), "
-                             f"got {tuple(a.shape)}")
+            raise ShapeError(
+                f"PcaShapeModel.reconstruct: coefficients must have shape (B, {self.k}), got {tuple(a.shape)}"
+            )
         return self.mean + (a @ self.components).reshape(a.shape[0], self.num_vertices, 3)
 
     def fit(self, targets, ridge: float = 0.0) -> torch.Tensor:
@@ -137,8 +138,9 @@ def train_pca(vertices, k: int) -> PcaShapeModel:
     x = _as_heads(vertices, "train_pca", "vertices").to(torch.float64)
     n = int(x.shape[0])
     if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or not 1 <= k <= n - 1:
-        raise InputError(f"train_pca: k must be an integer in [1, N - 1] = [1, {n - 1}] for N = {n} training "
-                         f"heads, got {k!r}")
+        raise InputError(
+            f"train_pca: k must be an integer in [1, N - 1] = [1, {n - 1}] for N = {n} training heads, got {k!r}"
+        )
     mean = x.mean(0)
     centred = (x - mean).reshape(n, -1)
     # the SVD of the tall (3V, N) transpose: the same factors, several times faster than the wide one

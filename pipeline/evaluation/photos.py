@@ -1,6 +1,6 @@
 """Validation of the photo fit on synthetic renders of held-out heads (NoW-style), ``jnr eval photos``.
 
-Each photo (:func:`pipeline.synthetic.photos.synthetic_photo`) is a held-out synthetic head (neutral
+Each photo (:func:`pipeline.synthetic.photos.simulate.synthetic_photo`) is a held-out synthetic head (neutral
 or with a synthetic expression that is not one of the rig's blendshapes), rendered with a different
 renderer and light model than the fitting one (path tracing, a point light and an environment, 64
 samples per pixel) at yaw within +-30 deg; its landmarks are the projected true landmarks plus
@@ -11,7 +11,7 @@ samples per pixel) at yaw within +-30 deg; its landmarks are the projected true 
 2. refined by similarity ICP of the true face-region points onto the fitted surface,
 3. the **scan-to-mesh distance** of every true face-region vertex (forehead, brows, eyelids, nose,
    cheeks, lips, chin) to the fitted surface is reported (median, mean, std, mm;
-   :func:`pipeline.evaluation.metrics.distance_stats`).
+   :func:`pipeline.metrics.distance_stats`).
 
 The **pose error** is the angle of the rotation that best aligns (rigidly, face region) the fitted
 head as the fit places it in the camera frame onto the true head in the camera frame
@@ -23,7 +23,7 @@ finds no face is left out and counted).
 Because the true head has the template's topology, the **true vertex error** (same vertex, after
 the same alignment) is reported too; it also measures sliding along the surface, which the
 scan-to-mesh distance does not see. The template head, aligned the same way, is the reference that
-any fit must beat. Summaries over photos (:mod:`pipeline.evaluation.metrics`): mean ± sample std
+any fit must beat. Summaries over photos (:mod:`pipeline.metrics`): mean ± sample std
 (ddof=1) and median.
 """
 
@@ -37,7 +37,14 @@ from typing import ClassVar
 
 import numpy as np
 
-from pipeline.evaluation.metrics import (
+from landmarks.detect import detect_landmarks
+from landmarks.detector import NoFaceError
+from landmarks.ibug68.embedding import ibug68_embedding
+from landmarks.ibug68.positions import landmark_positions
+from pipeline.camera import solve_pose
+from pipeline.evaluation.scans import scan_seed
+from pipeline.fitting.state import head_vertices
+from pipeline.metrics import (
     ALL,
     Column,
     Evaluation,
@@ -46,12 +53,15 @@ from pipeline.evaluation.metrics import (
     mean_vertex_error,
     scan_to_mesh_distances,
 )
-from pipeline.evaluation.scans import scan_seed
 from pipeline.photo.fit import FitPhotoConfig, fit_photo
-from pipeline.scan.registration import MeshDistance
+from pipeline.synthetic.photos.settings import PhotoSettings
+from pipeline.synthetic.photos.simulate import synthetic_photo
 from rig.asset import load_asset
 from rig.expressions import EXPRESSION_NAMES
-from rig.geometry import Similarity
+from rig.geometry import RIG_TO_OPENCV, Similarity, closest_surface_points, head_angles
+from rig.model import JointRig
+from rig.parameters import NUM_PARAMETERS
+from rig.skinning.neural import LATENT, load_neural
 from rig.template import FACE_REGIONS
 
 INNER_LANDMARKS = tuple(range(17, 68))
@@ -61,8 +71,15 @@ INNER_LANDMARKS = tuple(range(17, 68))
 KINDS: tuple[str, ...] = ("neutral", "expressive")
 METHODS: tuple[str, ...] = ("jnr", "landmarks", "template")
 #: Per-photo metrics summarised by :meth:`PhotoEvaluation.summary` (mean, std and median over photos).
-METRICS: tuple[str, ...] = ("s2m_median_mm", "s2m_mean_mm", "s2m_std_mm", "vertex_mean_mm", "pose_error_deg",
-                            "landmark_error_px", "seconds")
+METRICS: tuple[str, ...] = (
+    "s2m_median_mm",
+    "s2m_mean_mm",
+    "s2m_std_mm",
+    "vertex_mean_mm",
+    "pose_error_deg",
+    "landmark_error_px",
+    "seconds",
+)
 LANDMARK_SOURCES: tuple[str, ...] = ("noisy", "dlib")
 
 
@@ -98,7 +115,7 @@ class PhotoRecord:
 
 @dataclass(frozen=True)
 class PhotoEvaluation(Evaluation):
-    """All records and the settings of :func:`evaluate_photos` (:class:`pipeline.evaluation.metrics.Evaluation`).
+    """All records and the settings of :func:`evaluate_photos` (:class:`pipeline.metrics.Evaluation`).
 
     :meth:`summary`: per kind (``neutral``, ``expressive``, and ``all`` photos) and method, ``n`` and for
     every name in :data:`METRICS` ``<metric>`` (mean over photos), ``<metric>_std`` (sample std over
@@ -112,14 +129,25 @@ class PhotoEvaluation(Evaluation):
     GROUPS: ClassVar[tuple[Group, ...]] = (Group("kind", (*KINDS, ALL), title="photos"), Group("method", METHODS))
     METRICS: ClassVar[tuple[str, ...]] = METRICS
     COLUMNS: ClassVar[tuple[Column, ...]] = (
-        Column("s2m median mm", "s2m_median_mm"), Column("s2m mean mm", "s2m_mean_mm"),
-        Column("s2m std mm", "s2m_std_mm"), Column("vertex mean mm", "vertex_mean_mm"),
-        Column("pose error deg", "pose_error_deg"), Column("landmarks px", "landmark_error_px"), Column("seconds", "seconds", digits=1),
+        Column("s2m median mm", "s2m_median_mm"),
+        Column("s2m mean mm", "s2m_mean_mm"),
+        Column("s2m std mm", "s2m_std_mm"),
+        Column("vertex mean mm", "vertex_mean_mm"),
+        Column("pose error deg", "pose_error_deg"),
+        Column("landmarks px", "landmark_error_px"),
+        Column("seconds", "seconds", digits=1),
     )
 
 
-def now_style_error(fitted: np.ndarray, truth: np.ndarray, faces: np.ndarray, face_vertices: np.ndarray,
-                    fitted_landmarks: np.ndarray, true_landmarks: np.ndarray, icp_iterations: int = 10) -> dict:
+def now_style_error(
+    fitted: np.ndarray,
+    truth: np.ndarray,
+    faces: np.ndarray,
+    face_vertices: np.ndarray,
+    fitted_landmarks: np.ndarray,
+    true_landmarks: np.ndarray,
+    icp_iterations: int = 10,
+) -> dict:
     """NoW-style face-region error of a fitted head against the true head (module docstring).
 
     Args:
@@ -136,7 +164,8 @@ def now_style_error(fitted: np.ndarray, truth: np.ndarray, faces: np.ndarray, fa
     points = truth[face_vertices]
     for _ in range(icp_iterations):
         aligned = align.apply(fitted)
-        d, closest, _ = MeshDistance(aligned, faces).query(points)
+        found = closest_surface_points(points, aligned, faces)
+        d, closest = found.distance, found.closest
         keep = d <= max(3.0 * np.median(d), 1.0)
         # closest points expressed on the unaligned fitted mesh correspond to the true points
         source = ((closest - align.translation) / align.scale) @ align.rotation
@@ -148,26 +177,37 @@ def now_style_error(fitted: np.ndarray, truth: np.ndarray, faces: np.ndarray, fa
     return {**stats.as_dict("s2m_"), "vertex_mean_mm": float(vertex), "scale": float(s)}
 
 
-def pose_error_deg(fitted: np.ndarray, rotation: np.ndarray, translation: np.ndarray, truth: np.ndarray,
-                   true_rotation: np.ndarray, true_translation: np.ndarray, asset=None) -> float:
+def pose_error_deg(
+    fitted: np.ndarray,
+    rotation: np.ndarray,
+    translation: np.ndarray,
+    truth: np.ndarray,
+    true_rotation: np.ndarray,
+    true_translation: np.ndarray,
+    asset=None,
+) -> float:
     """Angle (deg) of the best rigid rotation (Kabsch, face-region vertices) taking the fitted head, as its pose
     places it in the camera frame, onto the true head in the camera frame.
 
     Args:
         fitted, truth: ``(V, 3)`` rig-space heads, mm; rotation/translation and true_rotation/true_translation:
-            their head poses (:mod:`pipeline.photo.camera`).
+            their head poses (:mod:`pipeline.camera`).
     """
     return pose_error_angles(fitted, rotation, translation, truth, true_rotation, true_translation, asset)[0]
 
 
-def pose_error_angles(fitted: np.ndarray, rotation: np.ndarray, translation: np.ndarray, truth: np.ndarray,
-                      true_rotation: np.ndarray, true_translation: np.ndarray, asset=None
-                      ) -> tuple[float, float, float, float]:
+def pose_error_angles(
+    fitted: np.ndarray,
+    rotation: np.ndarray,
+    translation: np.ndarray,
+    truth: np.ndarray,
+    true_rotation: np.ndarray,
+    true_translation: np.ndarray,
+    asset=None,
+) -> tuple[float, float, float, float]:
     """:func:`pose_error_deg` and the signed ``(yaw, pitch, roll)`` (deg, :func:`rig.geometry.head_angles`'
     convention, in the camera's axes) of the rotation that corrects the fitted face: positive pitch means
     the true face is tipped further down than the fitted one."""
-    from rig.geometry import RIG_TO_OPENCV, head_angles
-
     asset = load_asset() if asset is None else asset
     face = asset.region_mask(*FACE_REGIONS)
     a = np.asarray(fitted, np.float64)[face] @ (RIG_TO_OPENCV @ rotation).T + translation
@@ -184,8 +224,6 @@ def face_error(fitted: np.ndarray, truth: np.ndarray, asset=None) -> dict:
     """:func:`now_style_error` of a fitted head against the true head (both template topology, mm): aligned
     on the inner landmarks (:data:`INNER_LANDMARKS`), scored over the face regions
     (:data:`rig.template.FACE_REGIONS`)."""
-    from landmarks.ibug68 import ibug68_embedding, landmark_positions
-
     asset = load_asset() if asset is None else asset
     embedding = ibug68_embedding(asset)
 
@@ -195,9 +233,17 @@ def face_error(fitted: np.ndarray, truth: np.ndarray, asset=None) -> dict:
     return now_style_error(fitted, truth, asset.faces, asset.region_mask(*FACE_REGIONS), inner(fitted), inner(truth))
 
 
-def evaluate_photos(n_neutral: int = 5, n_expressive: int = 5, *, first: int = 0, seed: int = 0,
-                    config: FitPhotoConfig | None = None, settings=None, landmarks: str = "noisy",
-                    progress: Callable[[PhotoRecord], None] | None = None) -> PhotoEvaluation:
+def evaluate_photos(
+    n_neutral: int = 5,
+    n_expressive: int = 5,
+    *,
+    first: int = 0,
+    seed: int = 0,
+    config: FitPhotoConfig | None = None,
+    settings=None,
+    landmarks: str = "noisy",
+    progress: Callable[[PhotoRecord], None] | None = None,
+) -> PhotoEvaluation:
     """Fit synthetic photos of the first held-out heads and score them (module docstring).
 
     Args:
@@ -207,7 +253,7 @@ def evaluate_photos(n_neutral: int = 5, n_expressive: int = 5, *, first: int = 0
             benchmark scores heads from 20 on).
         seed: seed of the photos (placement, light, albedo, landmark noise).
         config: fitting settings (default :class:`FitPhotoConfig`).
-        settings: :class:`pipeline.synthetic.photos.PhotoSettings` (default ones).
+        settings: :class:`pipeline.synthetic.photos.settings.PhotoSettings` (default ones).
         landmarks: ``"noisy"`` (the true landmarks + 1 px noise) or ``"dlib"`` (dlib's detection on the
             render, HOG then the CNN; photos without a detection are skipped and listed in the settings).
         progress: called with each record as it is made.
@@ -215,22 +261,15 @@ def evaluate_photos(n_neutral: int = 5, n_expressive: int = 5, *, first: int = 0
     Returns:
         :class:`PhotoEvaluation` with records for ``jnr``, ``landmarks`` and ``template`` per photo.
     """
-    from pipeline.fitting.state import head_vertices
-    from pipeline.synthetic.photos import PhotoSettings, synthetic_photo
-    from rig.model import JointRig
-    from rig.parameters import NUM_PARAMETERS
-    from rig.skinning.neural import LATENT, load_neural
-
     for name, value in (("first", first), ("n_neutral", n_neutral), ("n_expressive", n_expressive)):
         if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not 0 <= value <= 100:
             raise ValueError(f"evaluate_photos: {name} must be an integer in [0, 100], got {value!r}")
     if first + max(n_neutral, n_expressive) > 100:
-        raise ValueError(f"evaluate_photos: heads {first}..{first + max(n_neutral, n_expressive) - 1} exceed the "
-                         "100 held-out heads")
+        raise ValueError(
+            f"evaluate_photos: heads {first}..{first + max(n_neutral, n_expressive) - 1} exceed the 100 held-out heads"
+        )
     if landmarks not in LANDMARK_SOURCES:
         raise ValueError(f"evaluate_photos: landmarks must be one of {list(LANDMARK_SOURCES)}, got {landmarks!r}")
-    from landmarks.detect import NoFaceError, detect_landmarks
-    from pipeline.photo.camera import solve_pose
 
     config = config or FitPhotoConfig()
     settings = settings or PhotoSettings()
@@ -239,7 +278,6 @@ def evaluate_photos(n_neutral: int = 5, n_expressive: int = 5, *, first: int = 0
     rig = JointRig()
     neural, _ = load_neural(rig)
     template = head_vertices(rig, neural, np.zeros(NUM_PARAMETERS), np.zeros(LATENT), np.zeros(len(EXPRESSION_NAMES)))
-    from landmarks.ibug68 import ibug68_embedding, landmark_positions
 
     template_landmarks = landmark_positions(template, ibug68_embedding(asset), asset.faces)[0]
     records: list[PhotoRecord] = []
@@ -252,8 +290,9 @@ def evaluate_photos(n_neutral: int = 5, n_expressive: int = 5, *, first: int = 0
 
     for kind, count in (("neutral", n_neutral), ("expressive", n_expressive)):
         for index in range(first, first + count):
-            photo = synthetic_photo(index, expressive=kind == "expressive", seed=scan_seed(seed, "photo-" + kind, index),
-                                    settings=settings)
+            photo = synthetic_photo(
+                index, expressive=kind == "expressive", seed=scan_seed(seed, "photo-" + kind, index), settings=settings
+            )
             truth = photo.gt_vertices
             target = photo.landmarks2d
             if landmarks == "dlib":
@@ -269,15 +308,39 @@ def evaluate_photos(n_neutral: int = 5, n_expressive: int = 5, *, first: int = 0
             lfit = fit.landmark_fit
             t_rot, t_trans = solve_pose(target, template_landmarks, photo.width, photo.height, photo.focal)
             for method, vertices, rot, trans, lm_px, secs in (
-                    ("jnr", fit.rig_vertices, fit.rotation, fit.translation, float(fit.error_px.mean()), seconds),
-                    ("landmarks", head_vertices(rig, neural, lfit.theta, lfit.z, lfit.expressions), lfit.rotation,
-                     lfit.translation, float(lfit.error_px.mean()), lfit.seconds),
-                    ("template", template, t_rot, t_trans, math.nan, 0.0)):
+                ("jnr", fit.rig_vertices, fit.rotation, fit.translation, float(fit.error_px.mean()), seconds),
+                (
+                    "landmarks",
+                    head_vertices(rig, neural, lfit.theta, lfit.z, lfit.expressions),
+                    lfit.rotation,
+                    lfit.translation,
+                    float(lfit.error_px.mean()),
+                    lfit.seconds,
+                ),
+                ("template", template, t_rot, t_trans, math.nan, 0.0),
+            ):
                 err = face_error(vertices, truth, asset)
                 pose = pose_error_deg(vertices, rot, trans, truth, photo.rotation, photo.translation, asset)
-                add(**common, method=method, s2m_median_mm=err["s2m_median_mm"], s2m_mean_mm=err["s2m_mean_mm"],
-                    s2m_std_mm=err["s2m_std_mm"], vertex_mean_mm=err["vertex_mean_mm"], pose_error_deg=pose,
-                    landmark_error_px=lm_px, seconds=secs)
-    return PhotoEvaluation(tuple(records), settings={"first": first, "n_neutral": n_neutral, "n_expressive": n_expressive,
-                                                     "seed": seed, "landmarks": landmarks, "missed_by_dlib": missed,
-                                                     "photo_settings": dict(settings.__dict__)})
+                add(
+                    **common,
+                    method=method,
+                    s2m_median_mm=err["s2m_median_mm"],
+                    s2m_mean_mm=err["s2m_mean_mm"],
+                    s2m_std_mm=err["s2m_std_mm"],
+                    vertex_mean_mm=err["vertex_mean_mm"],
+                    pose_error_deg=pose,
+                    landmark_error_px=lm_px,
+                    seconds=secs,
+                )
+    return PhotoEvaluation(
+        tuple(records),
+        settings={
+            "first": first,
+            "n_neutral": n_neutral,
+            "n_expressive": n_expressive,
+            "seed": seed,
+            "landmarks": landmarks,
+            "missed_by_dlib": missed,
+            "photo_settings": dict(settings.__dict__),
+        },
+    )

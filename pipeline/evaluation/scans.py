@@ -16,7 +16,7 @@ not the rig's blendshapes, so the fit cannot reproduce them exactly).
 Metrics, all in mm:
 
 - **scan-to-mesh** (``s2m_*``): the exact distance from *every* scan point to the fitted surface
-  (:func:`pipeline.evaluation.metrics.scan_to_mesh_distances`; std over the points, ddof=0).
+  (:func:`pipeline.metrics.scan_to_mesh_distances`; std over the points, ddof=0).
   The outliers of the scan (~1 %) are kept, so the mean and the std include them; the median is
   the robust figure. This is what a user without ground truth can measure.
 - **true vertex error** (``vertex_*``): ``|fitted_v - true_v|`` per vertex, with the known
@@ -24,7 +24,7 @@ Metrics, all in mm:
   face region (:data:`rig.template.FACE_REGIONS`), over all vertices (includes the back of the
   head that no scan sees), and over the face-region vertices the camera saw.
 
-Summaries over scans (:mod:`pipeline.evaluation.metrics`): mean ± sample std (ddof=1) and median.
+Summaries over scans (:mod:`pipeline.metrics`): mean ± sample std (ddof=1) and median.
 
 Timing: ``jnr`` is ``fit.timings["total"]`` (pre-alignment + fit; models loaded once beforehand);
 ``nricp_amberg`` is the same pre-alignment's seconds plus the ``nricp_amberg`` call, so both pay for
@@ -42,7 +42,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from pipeline.evaluation.metrics import (
+from pipeline.metrics import (
     Column,
     Evaluation,
     Group,
@@ -50,6 +50,17 @@ from pipeline.evaluation.metrics import (
     scan_to_mesh_distances,
     vertex_errors,
 )
+from pipeline.scan.baseline import DEFAULT_STEPS, nricp_baseline
+from pipeline.scan.fit import FitScanConfig, fit_scan
+from pipeline.scan.pointcloud.validate import validate_points
+from pipeline.synthetic.expressive import expressive_split
+from pipeline.synthetic.population import SPLIT_SIZES
+from pipeline.synthetic.scans import DepthCamera, ScanSettings, simulate_scan
+from rig.asset import load_asset
+from rig.expressions import ExpressionModel
+from rig.model import JointRig
+from rig.skinning.neural import load_neural
+from rig.template import FACE_REGIONS
 
 __all__ = ["KINDS", "METHODS", "METRICS", "ScanEvaluation", "ScanRecord", "evaluate_scans", "scan_seed"]
 
@@ -57,8 +68,15 @@ KINDS: tuple[str, ...] = ("neutral", "expressive")
 METHODS: tuple[str, ...] = ("jnr", "asm_k2", "asm_k3", "asm_k5", "nricp_amberg")
 #: Per-scan metrics summarised by :meth:`ScanEvaluation.summary` (mean, std and median over scans).
 METRICS: tuple[str, ...] = (
-    "s2m_median_mm", "s2m_mean_mm", "s2m_std_mm", "vertex_mean_mm", "vertex_median_mm",
-    "vertex_all_mean_mm", "vertex_visible_mean_mm", "prealign_vertex_mean_mm", "seconds",
+    "s2m_median_mm",
+    "s2m_mean_mm",
+    "s2m_std_mm",
+    "vertex_mean_mm",
+    "vertex_median_mm",
+    "vertex_all_mean_mm",
+    "vertex_visible_mean_mm",
+    "prealign_vertex_mean_mm",
+    "seconds",
 )
 
 
@@ -100,7 +118,7 @@ class ScanRecord:
 
 @dataclass(frozen=True)
 class ScanEvaluation(Evaluation):
-    """Result of :func:`evaluate_scans` (:class:`pipeline.evaluation.metrics.Evaluation`).
+    """Result of :func:`evaluate_scans` (:class:`pipeline.metrics.Evaluation`).
 
     Attributes:
         records: one :class:`ScanRecord` per (scan, method), in scan order (neutral first).
@@ -118,9 +136,12 @@ class ScanEvaluation(Evaluation):
     GROUPS: ClassVar[tuple[Group, ...]] = (Group("method", METHODS), Group("kind", KINDS))
     METRICS: ClassVar[tuple[str, ...]] = METRICS
     COLUMNS: ClassVar[tuple[Column, ...]] = (
-        Column("s2m median (mm)", "s2m_median_mm"), Column("s2m mean (mm)", "s2m_mean_mm"),
-        Column("s2m std (mm)", "s2m_std_mm"), Column("vertex err face (mm)", "vertex_mean_mm"),
-        Column("vertex err seen (mm)", "vertex_visible_mean_mm"), Column("vertex err all (mm)", "vertex_all_mean_mm"),
+        Column("s2m median (mm)", "s2m_median_mm"),
+        Column("s2m mean (mm)", "s2m_mean_mm"),
+        Column("s2m std (mm)", "s2m_std_mm"),
+        Column("vertex err face (mm)", "vertex_mean_mm"),
+        Column("vertex err seen (mm)", "vertex_visible_mean_mm"),
+        Column("vertex err all (mm)", "vertex_all_mean_mm"),
         Column("prealigned template (mm)", "prealign_vertex_mean_mm"),
         Column("seconds (median)", "seconds", digits=1, statistic="median"),
     )
@@ -144,14 +165,26 @@ def _s2m_stats(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray) -> d
 
 def _vertex_stats(vertices: np.ndarray, truth: np.ndarray, face: np.ndarray, seen: np.ndarray) -> dict:
     e = vertex_errors(vertices, truth)
-    return {"vertex_mean_mm": float(e[face].mean()), "vertex_median_mm": float(np.median(e[face])),
-            "vertex_all_mean_mm": float(e.mean()),
-            "vertex_visible_mean_mm": float(e[seen].mean()) if seen.any() else math.nan}
+    return {
+        "vertex_mean_mm": float(e[face].mean()),
+        "vertex_median_mm": float(np.median(e[face])),
+        "vertex_all_mean_mm": float(e.mean()),
+        "vertex_visible_mean_mm": float(e[seen].mean()) if seen.any() else math.nan,
+    }
 
 
-def evaluate_scans(n_neutral: int = 5, n_expressive: int = 5, *, seed: int = 0, config=None, camera=None,
-                   settings=None, baseline: bool = True, split: str = "heldout",
-                   progress: Callable[[ScanRecord], None] | None = None) -> ScanEvaluation:
+def evaluate_scans(
+    n_neutral: int = 5,
+    n_expressive: int = 5,
+    *,
+    seed: int = 0,
+    config=None,
+    camera=None,
+    settings=None,
+    baseline: bool = True,
+    split: str = "heldout",
+    progress: Callable[[ScanRecord], None] | None = None,
+) -> ScanEvaluation:
     """Simulate one scan per held-out head, fit it with jnr (and the nricp_amberg baseline), measure.
 
     Args:
@@ -171,19 +204,8 @@ def evaluate_scans(n_neutral: int = 5, n_expressive: int = 5, *, seed: int = 0, 
 
     Raises:
         ValueError: negative or too large counts, both zero, a negative seed, an unknown split;
-            :class:`pipeline.scan.pointcloud.CloudError` (a ValueError) if a scan fails the pre-alignment.
+            :class:`pipeline.scan.pointcloud.cloud.CloudError` (a ValueError) if a scan fails the pre-alignment.
     """
-    from pipeline.scan.baseline import nricp_baseline
-    from pipeline.scan.fit import FitScanConfig, fit_scan
-    from pipeline.scan.pointcloud import validate_points
-    from pipeline.synthetic.expressive import expressive_split
-    from pipeline.synthetic.scans import DepthCamera, ScanSettings, simulate_scan
-    from rig.asset import load_asset
-    from rig.expressions import ExpressionModel
-    from rig.model import JointRig
-    from rig.skinning.neural import load_neural
-    from rig.template import FACE_REGIONS
-
     n_neutral, n_expressive = _check_arguments(n_neutral, n_expressive, seed, split)
     config = config or FitScanConfig()
     camera = camera or DepthCamera()
@@ -212,28 +234,52 @@ def evaluate_scans(n_neutral: int = 5, n_expressive: int = 5, *, seed: int = 0, 
         # simulate_scan's world frame is +Y up, mm: the rig frame, so the cloud is not transformed.
         cloud = validate_points(scan.points, scan.normals, units="mm", frame="y-up")
         seen = face & scan.visible
-        common = {"name": heads.names[i], "kind": kind, "points": len(scan.points),
-                  "hole_fraction": float(scan.hole_fraction)}
+        common = {
+            "name": heads.names[i],
+            "kind": kind,
+            "points": len(scan.points),
+            "hole_fraction": float(scan.hole_fraction),
+        }
 
         fit = fit_scan(cloud, config, rig=rig, neural=neural, expressions=expressions)
         al = fit.prealign
         prealigned = float(al.scale) * asset.vertices @ np.asarray(al.rotation).T + np.asarray(al.translation)
         pre_err = float(vertex_errors(prealigned, scan.gt_vertices)[face].mean())
         method = "jnr" if config.skinning == "jnr" else f"asm_k{config.asm_components}"
-        add(**common, method=method, seconds=float(fit.timings["total"]),
+        add(
+            **common,
+            method=method,
+            seconds=float(fit.timings["total"]),
             **_s2m_stats(scan.points, fit.vertices, asset.faces),
-            **_vertex_stats(fit.vertices, scan.gt_vertices, face, seen), prealign_vertex_mean_mm=pre_err)
+            **_vertex_stats(fit.vertices, scan.gt_vertices, face, seen),
+            prealign_vertex_mean_mm=pre_err,
+        )
 
         if baseline:
-            base = nricp_baseline(asset.vertices, asset.faces, cloud.points, rotation=al.rotation,
-                                  translation=al.translation, scale=al.scale)
-            add(**common, method="nricp_amberg", seconds=float(fit.timings["prealign"] + base.seconds),
+            base = nricp_baseline(
+                asset.vertices,
+                asset.faces,
+                cloud.points,
+                rotation=al.rotation,
+                translation=al.translation,
+                scale=al.scale,
+            )
+            add(
+                **common,
+                method="nricp_amberg",
+                seconds=float(fit.timings["prealign"] + base.seconds),
                 **_s2m_stats(scan.points, base.vertices, asset.faces),
-                **_vertex_stats(base.vertices, scan.gt_vertices, face, seen), prealign_vertex_mean_mm=pre_err)
+                **_vertex_stats(base.vertices, scan.gt_vertices, face, seen),
+                prealign_vertex_mean_mm=pre_err,
+            )
 
     run_settings = {
-        "n_neutral": n_neutral, "n_expressive": n_expressive, "seed": int(seed), "split": split,
-        "camera": asdict(camera), "scan_settings": asdict(settings),
+        "n_neutral": n_neutral,
+        "n_expressive": n_expressive,
+        "seed": int(seed),
+        "split": split,
+        "camera": asdict(camera),
+        "scan_settings": asdict(settings),
         **_fit_settings(config, baseline),
         "finished": time.strftime("%Y-%m-%d %H:%M:%S"),
     }
@@ -241,8 +287,6 @@ def evaluate_scans(n_neutral: int = 5, n_expressive: int = 5, *, seed: int = 0, 
 
 
 def _check_arguments(n_neutral, n_expressive, seed, split: str) -> tuple[int, int]:
-    from pipeline.synthetic.population import SPLIT_SIZES
-
     if split not in SPLIT_SIZES:
         raise ValueError(f"evaluate_scans: split must be one of {list(SPLIT_SIZES)}, got {split!r}")
     n_neutral = _check_count(n_neutral, "n_neutral", SPLIT_SIZES[split])
@@ -258,11 +302,10 @@ def _fit_settings(config, baseline: bool) -> dict:
     """The schedule, the baseline's steps and the thread count, for the evaluation's settings."""
     import torch
 
-    from pipeline.scan.baseline import DEFAULT_STEPS
-
     return {
         "stages": [(s.name, list(s.free), s.iterations) for s in config.stages],
-        "baseline": bool(baseline), "baseline_steps": [list(s) for s in DEFAULT_STEPS] if baseline else None,
+        "baseline": bool(baseline),
+        "baseline_steps": [list(s) for s in DEFAULT_STEPS] if baseline else None,
         "s2m": "over all scan points, outliers included",
         "torch_threads": torch.get_num_threads(),
     }

@@ -1,10 +1,13 @@
 """The one staged fitting engine of jnr: a schedule of stages, each an optimiser over named groups.
 
-The landmark, photometric and point-cloud fits are definitions on top of it: a
-:class:`~pipeline.fitting.state.FitState`, an *objective* that returns the named loss terms of one step
-(:class:`Loss`), a schedule (a tuple of :class:`Stage`), learning rates by parameter group, and
-optional hooks before each stage (re-select outliers, re-pick the light) and before each step
-(rebuild correspondences). Per stage, :func:`run_schedule` does, in this order::
+The landmark, photometric, point-cloud and multi-view fits are definitions on top of it: a state
+(:class:`~pipeline.fitting.state.FitState` or another :class:`~pipeline.fitting.state.GroupedParameters`), an
+*objective* that returns the named loss terms of one step (:class:`Loss`: the values of the fit's
+:class:`~pipeline.fitting.terms.Term` s, :func:`~pipeline.fitting.terms.term_values`), a schedule (a tuple of
+:class:`Stage`), learning rates by parameter group, and optional hooks before each stage (re-select outliers,
+re-pick the light) and before each step (rebuild correspondences). The same terms are minimised by
+Levenberg-Marquardt stages (:func:`pipeline.fitting.least_squares.run_lm_stage`), logged as the same
+:class:`StageLog`. Per Adam stage, :func:`run_schedule` does, in this order::
 
     optimiser = Adam(state.parameter_groups(stage.free, lr))       # one group per named tensor
     for it in range(stage.iterations):
@@ -28,7 +31,7 @@ from typing import Any, ClassVar, NamedTuple
 
 import torch
 
-from pipeline.fitting.state import FREE_GROUPS, FitState
+from pipeline.fitting.state import FREE_GROUPS, GroupedParameters
 from rig.optim import Progress, frozen
 
 
@@ -49,8 +52,9 @@ class Stage:
     def __post_init__(self) -> None:
         bad = [f for f in self.free if f not in self.groups]
         if bad or not self.free:
-            raise ValueError(f"stage {self.name!r}: free must be a non-empty subset of {list(self.groups)}, "
-                             f"got {list(self.free)}")
+            raise ValueError(
+                f"stage {self.name!r}: free must be a non-empty subset of {list(self.groups)}, got {list(self.free)}"
+            )
         if self.iterations < 0:
             raise ValueError(f"stage {self.name!r}: iterations must be >= 0, got {self.iterations}")
 
@@ -127,16 +131,24 @@ def _scalar(value: Any) -> Any:
     return float(value.detach()) if isinstance(value, torch.Tensor) else value
 
 
-def run_stage(state: FitState, stage: Stage, objective: Objective, lr, *, label: str = "the fit",
-              progress: Progress | None = None,
-              before_stage: Callable[[Stage], Mapping[str, Any] | None] | None = None,
-              before_step: Callable[[Stage, int], None] | None = None) -> StageLog | None:
+def run_stage(
+    state: GroupedParameters,
+    stage: Stage,
+    objective: Objective,
+    lr,
+    *,
+    label: str = "the fit",
+    progress: Progress | None = None,
+    before_stage: Callable[[Stage], Mapping[str, Any] | None] | None = None,
+    before_step: Callable[[Stage, int], None] | None = None,
+) -> StageLog | None:
     """Run one stage (module docstring); None when it has nothing to do (0 iterations, or only groups
     the state cannot move).
 
     Args:
-        state: the fit state; its :meth:`~pipeline.fitting.state.FitState.parameter_groups` and
-            :meth:`~pipeline.fitting.state.FitState.project` define what moves and how it is limited.
+        state: the fit state (:class:`~pipeline.fitting.state.GroupedParameters`, e.g. a
+            :class:`~pipeline.fitting.state.FitState`); its ``parameter_groups`` and ``project`` define what
+            moves and how it is limited.
         stage: the stage. objective: ``objective(free) -> Loss``.
         lr: learning-rate config (fields named by ``state.GROUPS``).
         label: how a divergence error names the fit.
@@ -161,8 +173,9 @@ def run_stage(state: FitState, stage: Stage, objective: Objective, lr, *, label:
         result = objective(free)
         loss = result.total
         if not torch.isfinite(loss):
-            raise FloatingPointError(f"{label} diverged in stage {stage.name!r} (non-finite loss); "
-                                     "try smaller learning rates in the config")
+            raise FloatingPointError(
+                f"{label} diverged in stage {stage.name!r} (non-finite loss); try smaller learning rates in the config"
+            )
         if loss_start is None:
             loss_start = float(loss.detach())
         for name, value in result.terms.items():  # read only: the step is the same with or without it
@@ -173,23 +186,45 @@ def run_stage(state: FitState, stage: Stage, objective: Objective, lr, *, label:
         state.project(free)
         if progress is not None:
             progress(stage.name, it + 1, stage.iterations)
-    return StageLog(name=stage.name, free=free, iterations=stage.iterations, loss_start=loss_start,
-                    loss_end=float(loss.detach()), terms={k: _scalar(v) for k, v in result.terms.items()},
-                    metrics={**stage_metrics, **{k: _scalar(v) for k, v in result.metrics.items()}},
-                    seconds=time.perf_counter() - t0, history={k: tuple(v) for k, v in history.items()})
+    return StageLog(
+        name=stage.name,
+        free=free,
+        iterations=stage.iterations,
+        loss_start=loss_start,
+        loss_end=float(loss.detach()),
+        terms={k: _scalar(v) for k, v in result.terms.items()},
+        metrics={**stage_metrics, **{k: _scalar(v) for k, v in result.metrics.items()}},
+        seconds=time.perf_counter() - t0,
+        history={k: tuple(v) for k, v in history.items()},
+    )
 
 
-def run_schedule(state: FitState, stages: tuple[Stage, ...], objective: Objective, lr, *,
-                 label: str = "the fit", progress: Progress | None = None,
-                 before_stage: Callable[[Stage], Mapping[str, Any] | None] | None = None,
-                 before_step: Callable[[Stage, int], None] | None = None) -> tuple[StageLog, ...]:
+def run_schedule(
+    state: GroupedParameters,
+    stages: tuple[Stage, ...],
+    objective: Objective,
+    lr,
+    *,
+    label: str = "the fit",
+    progress: Progress | None = None,
+    before_stage: Callable[[Stage], Mapping[str, Any] | None] | None = None,
+    before_step: Callable[[Stage, int], None] | None = None,
+) -> tuple[StageLog, ...]:
     """Run every stage of ``stages`` in order (:func:`run_stage`) with the state's neural-skinning
     decoder frozen; returns one :class:`StageLog` per stage that ran."""
     logs: list[StageLog] = []
     with frozen(None if state.neural is None else state.neural.decoder):
         for stage in stages:
-            log = run_stage(state, stage, objective, lr, label=label, progress=progress,
-                            before_stage=before_stage, before_step=before_step)
+            log = run_stage(
+                state,
+                stage,
+                objective,
+                lr,
+                label=label,
+                progress=progress,
+                before_stage=before_stage,
+                before_step=before_step,
+            )
             if log is not None:
                 logs.append(log)
     return tuple(logs)

@@ -24,7 +24,6 @@ The committed prior is ``rig/assets/jnr_identity_prior_v<version>.npz``, made by
 from __future__ import annotations
 
 import json
-import time
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
@@ -32,9 +31,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from rig.asset import ASSET_DIR, TEMPLATE_VERSION, AssetError, write_npz_atomic
 from rig.lbs import ShapeError
-from rig.optim import Progress
-from rig.parameters import NUM_PARAMETERS
+from rig.parameters import NUM_PARAMETERS, theta_limits
 
 PRIOR_COMPONENTS = (2, 4, 8, 16, 32, 48, 64, 80, 96)
 """The ranks tried by the cross-validation of :func:`build_identity_prior`."""
@@ -42,8 +41,6 @@ PRIOR_COMPONENTS = (2, 4, 8, 16, 32, 48, 64, 80, 96)
 
 def default_identity_prior_path() -> Path:
     """The committed prior (``rig/assets/jnr_identity_prior_v<template version>.npz``)."""
-    from rig.asset import ASSET_DIR, TEMPLATE_VERSION
-
     return ASSET_DIR / f"jnr_identity_prior_v{TEMPLATE_VERSION}.npz"
 
 
@@ -115,11 +112,17 @@ class IdentityPrior:
 
     def save(self, path: str | Path) -> None:
         """Write the prior as one ``.npz`` of named float64 arrays (atomic)."""
-        from rig.asset import write_npz_atomic
-
-        write_npz_atomic(path, {"mean": self.mean, "components": self.components, "variances": self.variances,
-                                "noise": np.array(self.noise), "span": self.span,
-                                "meta_json": np.array(json.dumps(self.meta))})
+        write_npz_atomic(
+            path,
+            {
+                "mean": self.mean,
+                "components": self.components,
+                "variances": self.variances,
+                "noise": np.array(self.noise),
+                "span": self.span,
+                "meta_json": np.array(json.dumps(self.meta)),
+            },
+        )
 
 
 def load_identity_prior(path: str | Path | None = None) -> IdentityPrior:
@@ -128,14 +131,18 @@ def load_identity_prior(path: str | Path | None = None) -> IdentityPrior:
     Raises:
         rig.asset.AssetError: the file is missing or does not match the rig's parameters.
     """
-    from rig.asset import AssetError
-
     path = Path(path) if path else default_identity_prior_path()
     if not path.is_file():
         raise AssetError(f"identity prior not found: {path} (make it with `jnr train --identity-prior`)")
     with np.load(path, allow_pickle=False) as data:
-        prior = IdentityPrior(mean=data["mean"], components=data["components"], variances=data["variances"],
-                              noise=float(data["noise"]), span=data["span"], meta=json.loads(str(data["meta_json"])))
+        prior = IdentityPrior(
+            mean=data["mean"],
+            components=data["components"],
+            variances=data["variances"],
+            noise=float(data["noise"]),
+            span=data["span"],
+            meta=json.loads(str(data["meta_json"])),
+        )
     if prior.mean.shape != (NUM_PARAMETERS,) or prior.components.shape[1:] != (NUM_PARAMETERS,):
         raise AssetError(f"{path} has {prior.mean.shape[0]} joint channels, the rig {NUM_PARAMETERS}; rebuild it")
     return prior
@@ -146,16 +153,23 @@ def _ppca(u: np.ndarray, k: int, floor: float) -> tuple[np.ndarray, np.ndarray, 
     _, s, vt = np.linalg.svd(u - mean, full_matrices=True)
     n, p = u.shape
     eig = np.zeros(p)
-    eig[:len(s)] = s * s / max(n - 1, 1)
+    eig[: len(s)] = s * s / max(n - 1, 1)
     k = min(k, n - 1, p - 1)
     noise = max(float(eig[k:].mean()), floor)
     keep = eig[:k] > noise
     return mean, vt[:k][keep], eig[:k][keep], noise
 
 
-def build_identity_prior(theta: np.ndarray, span: np.ndarray, *, components: tuple[int, ...] = PRIOR_COMPONENTS,
-                         folds: int = 5, seed: int = 0, noise_floor: float = 1e-4, meta: dict | None = None
-                         ) -> IdentityPrior:
+def build_identity_prior(
+    theta: np.ndarray,
+    span: np.ndarray,
+    *,
+    components: tuple[int, ...] = PRIOR_COMPONENTS,
+    folds: int = 5,
+    seed: int = 0,
+    noise_floor: float = 1e-4,
+    meta: dict | None = None,
+) -> IdentityPrior:
     """The PPCA prior of fitted joint channels, its rank chosen by cross-validated log-likelihood.
 
     Args:
@@ -174,8 +188,9 @@ def build_identity_prior(theta: np.ndarray, span: np.ndarray, *, components: tup
     if theta.ndim != 2 or theta.shape[1] != span.shape[0]:
         raise ShapeError(f"build_identity_prior: theta must be (N, {span.shape[0]}), got {theta.shape}")
     if len(theta) < 2 * folds:
-        raise ValueError(f"build_identity_prior: need at least {2 * folds} heads for {folds}-fold validation, "
-                         f"got {len(theta)}")
+        raise ValueError(
+            f"build_identity_prior: need at least {2 * folds} heads for {folds}-fold validation, got {len(theta)}"
+        )
     u = theta / span
     order = np.random.default_rng(seed).permutation(len(u))
     table = {}
@@ -192,79 +207,24 @@ def build_identity_prior(theta: np.ndarray, span: np.ndarray, *, components: tup
         table[k] = float(np.mean(ll))
     best = max(table, key=table.get)
     mean, comp, var, noise = _ppca(u, best, noise_floor)
-    return IdentityPrior(mean, comp, var, noise, span,
-                         {**(meta or {}), "rank": int(len(var)), "heads": int(len(u)),
-                          "cv_log_likelihood": {str(k): v for k, v in table.items()}})
+    return IdentityPrior(
+        mean,
+        comp,
+        var,
+        noise,
+        span,
+        {
+            **(meta or {}),
+            "rank": int(len(var)),
+            "heads": int(len(u)),
+            "cv_log_likelihood": {str(k): v for k, v in table.items()},
+        },
+    )
 
 
 def clip_to_limits(theta: np.ndarray) -> np.ndarray:
     """Joint channels ``(N, P)`` clipped into the rig's limits: the known-correspondence fits keep them there
     by a soft penalty only (5 % of the values fall outside, the ears' translations by up to 4 mm), while
     the photo fit projects into the limits, so the prior describes what a photo fit can reach."""
-    from rig.parameters import theta_limits
-
     low, high = (t.numpy() for t in theta_limits(torch.float64))
     return np.clip(np.asarray(theta, np.float64), low, high)
-
-
-def fit_population_joints(vertices: np.ndarray, *, iterations: int = 400, chunk: int = 32,
-                          progress: Progress | None = None) -> np.ndarray:
-    """Joint channels of heads in the template's topology (known correspondence).
-
-    Each head is similarity-normalised onto the template (:func:`pipeline.synthetic.population.similarity_normalised`:
-    a photo or scan fit has its own pose and scale), then fitted by eq. 7 with the learned linear weights
-    (:func:`rig.skinning.joint_fit.fit_joints`; the latent Z adds 0.02 mm here, see ``jnr eval capacity``).
-
-    Args:
-        vertices: ``(N, V, 3)`` heads, mm.
-        iterations: Adam steps per head. chunk: heads per batch.
-
-    Returns:
-        ``(N, P)`` float64 joint channels (deg, mm, ``scale - 1``).
-    """
-    from pipeline.synthetic.population import similarity_normalised
-    from rig.model import JointRig
-    from rig.skinning.joint_fit import fit_joints
-    from rig.skinning.neural import load_neural
-
-    rig = JointRig()
-    neural, _ = load_neural(rig)
-    weights = neural.linear_weights().detach()
-    targets = torch.as_tensor(similarity_normalised(vertices, rig.asset.vertices), dtype=rig.template.dtype)
-    out = []
-    for start in range(0, len(targets), chunk):
-        out.append(fit_joints(rig, targets[start:start + chunk], weights=weights, iterations=iterations).theta)
-        if progress is not None:
-            progress("identity prior: joints", min(start + chunk, len(targets)), len(targets))
-    return torch.cat(out).double().numpy()
-
-
-def train_identity_prior(out_path: str | Path | None = None, *, seed: int = 0, extra_heads: int = 215,
-                         iterations: int = 400, progress: Progress | None = None) -> IdentityPrior:
-    """Fit the training population's joints and write the prior (``jnr train --identity-prior``).
-
-    The heads: the 85 of the ``train`` split plus ``extra_heads`` more drawn from the same (unshifted)
-    distribution with seeds of their own stream (never the ``val``, ``test`` or ``heldout`` seeds).
-    """
-    from pipeline.synthetic.population import population_split, sample_head, split_seeds, synthesize_heads
-    from rig.skinning.joint_fit import parameter_span
-
-    t0 = time.perf_counter()
-    train = population_split("train", seed=seed)
-    vertices = [train.vertices]
-    if extra_heads:
-        used = set().union(*(set(split_seeds(s, seed).tolist()) for s in ("train", "val", "test", "heldout")))
-        ss = np.random.SeedSequence([seed, 0x1D_E7_17])
-        seeds = [int(s) for s in ss.generate_state(extra_heads + 16, dtype=np.uint32) if int(s) not in used]
-        drawn = [sample_head(s) for s in seeds[:extra_heads]]
-        vertices.append(synthesize_heads(np.stack([d[1] for d in drawn]), np.stack([d[0] for d in drawn])))
-    vertices = np.concatenate(vertices)
-    theta = fit_population_joints(vertices, iterations=iterations, progress=progress)
-    prior = build_identity_prior(clip_to_limits(theta), parameter_span(torch.float64).numpy(),
-                                 meta={"seed": seed, "train_heads": int(len(train.vertices)),
-                                       "extra_heads": int(extra_heads), "iterations": iterations})
-    prior = IdentityPrior(prior.mean, prior.components, prior.variances, prior.noise, prior.span,
-                          {**prior.meta, "seconds": round(time.perf_counter() - t0, 1)})
-    prior.save(out_path or default_identity_prior_path())
-    return prior
-

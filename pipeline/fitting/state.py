@@ -23,11 +23,16 @@ from kornia.geometry.conversions import axis_angle_to_rotation_matrix
 from scipy.spatial.transform import Rotation
 from torch import nn
 
+from pipeline.camera import camera_center_in_rig
+from pipeline.fitting.identity import IdentityPrior
+from pipeline.fitting.priors import PriorWeights, asm_prior_terms, jnr_prior_terms
+from pipeline.fitting.terms import Inputs, Term
 from rig.expressions import EXPRESSION_NAMES, ExpressionModel, expression_limits
 from rig.geometry import RIG_TO_OPENCV
 from rig.lbs import skin_vertices, skin_with_basis, skinning_basis
 from rig.model import JointRig
 from rig.parameters import NUM_PARAMETERS, theta_limits
+from rig.skinning.asm import TAU_UNITS, UV_UNIT, AdaptiveSkinning, AsmParameters
 from rig.skinning.neural import LATENT, NeuralSkinning
 
 FREE_GROUPS = ("pose", "joints", "latent", "expressions")
@@ -48,7 +53,43 @@ class RigModels:
     expressions: ExpressionModel
 
 
-class FitState(nn.Module):
+class GroupedParameters(nn.Module):
+    """Parameters named by group (what a stage frees): what the engine (:func:`pipeline.fitting.engine.
+    run_schedule`) and the LM stages (:class:`pipeline.fitting.least_squares.StateVector`) need of a fit state.
+
+    Subclasses set :attr:`GROUPS` and may narrow :meth:`available`, add box limits (:meth:`limits`) and a
+    projection after each step (:meth:`project`).
+    """
+
+    GROUPS: ClassVar[dict[str, tuple[tuple[str, str], ...]]] = {}
+    """group -> ``(parameter name, learning-rate field)`` pairs, in the optimiser's order."""
+
+    neural: NeuralSkinning | None = None
+    """Neural skinning whose decoder the engine freezes while it runs (None: nothing to freeze)."""
+
+    def available(self, free: tuple[str, ...]) -> tuple[str, ...]:
+        """``free`` without the groups this state cannot move."""
+        return free
+
+    def parameter_groups(self, free: tuple[str, ...], lr) -> list[dict]:
+        """The optimiser's parameter groups for the groups ``free``: one ``{"params": [p], "lr": ...}`` per
+        parameter, its step read from the field of ``lr`` that :attr:`GROUPS` names."""
+        groups = self.GROUPS
+        return [
+            {"params": [getattr(self, name)], "lr": float(getattr(lr, field))}
+            for g in free
+            for name, field in groups[g]
+        ]
+
+    def limits(self, name: str) -> tuple[torch.Tensor, torch.Tensor] | None:
+        """The box limits of parameter ``name`` (what a least-squares solver keeps it in); None: unbounded."""
+        return None
+
+    def project(self, free: tuple[str, ...]) -> None:
+        """After a step: project what ``free`` moved back into its limits (nothing here)."""
+
+
+class FitState(GroupedParameters):
     """Joints ``theta (P,)``, latent ``z (50,)``, expressions ``c (E,)`` and a head rotation, as parameters.
 
     Args:
@@ -70,8 +111,15 @@ class FitState(nn.Module):
     }
     """group -> ``(parameter name, learning-rate field)`` pairs, in the optimiser's order."""
 
-    def __init__(self, rig: JointRig, neural: NeuralSkinning | None, expressions: ExpressionModel,
-                 rotation: np.ndarray, *, hard_joint_limits: bool = True) -> None:
+    def __init__(
+        self,
+        rig: JointRig,
+        neural: NeuralSkinning | None,
+        expressions: ExpressionModel,
+        rotation: np.ndarray,
+        *,
+        hard_joint_limits: bool = True,
+    ) -> None:
         super().__init__()
         self.models = RigModels(rig, neural, expressions)
         self.hard_joint_limits = hard_joint_limits
@@ -107,12 +155,15 @@ class FitState(nn.Module):
         """``free`` without the groups this state cannot move (``latent`` without neural skinning)."""
         return tuple(g for g in free if not (g == "latent" and self.neural is None))
 
-    def parameter_groups(self, free: tuple[str, ...], lr) -> list[dict]:
-        """The optimiser's parameter groups for the groups ``free``: one ``{"params": [p], "lr": ...}`` per
-        parameter, its step read from the field of ``lr`` that :attr:`GROUPS` names."""
-        groups = self.GROUPS
-        return [{"params": [getattr(self, name)], "lr": float(getattr(lr, field))}
-                for g in free for name, field in groups[g]]
+    def limits(self, name: str) -> tuple[torch.Tensor, torch.Tensor] | None:
+        """The box limits of parameter ``name`` (what a least-squares solver keeps it in): the joint channels
+        ``theta_n`` within their limits over their span, the expression coefficients ``c`` within theirs;
+        None for the others."""
+        if name == "theta_n":
+            return self.low / self.span, self.high / self.span
+        if name == "c":
+            return self.c_low, self.c_high
+        return None
 
     def project(self, free: tuple[str, ...]) -> None:
         """After a step: project what ``free`` moved back into its limits (expressions always; joints
@@ -174,12 +225,34 @@ class FitState(nn.Module):
             self.z.copy_(torch.as_tensor(z, dtype=self.dtype))
             self.c.copy_(torch.as_tensor(expressions, dtype=self.dtype))
 
+    # -- the loss terms -----------------------------------------------------------------------------
+    def term_inputs(self) -> Inputs:
+        """The parameters as batch-1 tensors by the names the terms read (:mod:`pipeline.fitting.terms`):
+        ``theta_n``, ``theta`` (joint units), ``z``, ``c``; live, so gradients flow to every parameter."""
+        return Inputs(
+            theta_n=lambda: self.theta_n[None],
+            theta=lambda: self.theta[None],
+            z=lambda: self.z[None],
+            c=lambda: self.c[None],
+        )
+
+    def prior_terms(
+        self, weights: PriorWeights, *, lambda_m: float | None = None, identity: IdentityPrior | None = None
+    ) -> tuple[Term, ...]:
+        """The priors of this head model with ``weights`` (:func:`pipeline.fitting.priors.jnr_prior_terms`:
+        L_m, L_x, latent, expressions, identity, symmetry); ``lambda_m`` overrides L_m's weight."""
+        return jnr_prior_terms(weights, self.low, self.high, lambda_m=lambda_m, identity=identity)
+
     def arrays(self) -> dict[str, np.ndarray]:
         """The fitted values as float64 arrays: ``theta (P,)``, ``z (50,)``, ``expressions (E,)``,
         ``rotation (3, 3)``."""
         with torch.no_grad():
-            return {"theta": self.theta.double().numpy(), "z": self.z.double().numpy(),
-                    "expressions": self.c.double().numpy(), "rotation": self.rotation().double().numpy()}
+            return {
+                "theta": self.theta.double().numpy(),
+                "z": self.z.double().numpy(),
+                "expressions": self.c.double().numpy(),
+                "rotation": self.rotation().double().numpy(),
+            }
 
 
 class PhotoState(FitState):
@@ -195,19 +268,28 @@ class PhotoState(FitState):
     :meth:`add_appearance`.
     """
 
-    GROUPS: ClassVar[dict[str, tuple[tuple[str, str], ...]]] = {**FitState.GROUPS,
-              "pose": (("rotvec", "rotation"), ("translation", "translation")),
-              "albedo": (("albedo", "albedo"),),
-              "light": (("ambient", "light"), ("irradiance", "light"), ("sh", "light"))}
+    GROUPS: ClassVar[dict[str, tuple[tuple[str, str], ...]]] = {
+        **FitState.GROUPS,
+        "pose": (("rotvec", "rotation"), ("translation", "translation")),
+        "albedo": (("albedo", "albedo"),),
+        "light": (("ambient", "light"), ("irradiance", "light"), ("sh", "light")),
+    }
 
-    def __init__(self, rig: JointRig, neural: NeuralSkinning | None, expressions: ExpressionModel,
-                 rotation: np.ndarray, translation: np.ndarray) -> None:
+    def __init__(
+        self,
+        rig: JointRig,
+        neural: NeuralSkinning | None,
+        expressions: ExpressionModel,
+        rotation: np.ndarray,
+        translation: np.ndarray,
+    ) -> None:
         super().__init__(rig, neural, expressions, rotation)
         self.register_buffer("flip", torch.tensor(RIG_TO_OPENCV, dtype=self.dtype))
         self.translation = nn.Parameter(torch.tensor(translation, dtype=self.dtype))
 
-    def add_appearance(self, albedo: torch.Tensor, ambient: torch.Tensor, irradiance: torch.Tensor,
-                       sh: torch.Tensor | None = None) -> None:
+    def add_appearance(
+        self, albedo: torch.Tensor, ambient: torch.Tensor, irradiance: torch.Tensor, sh: torch.Tensor | None = None
+    ) -> None:
         """The photometric parameters: ``albedo (V, 3)``, ``ambient (3,)``, ``irradiance (3,)``, linear RGB, and
         the spherical-harmonic light ``sh (9, 3)`` (zeros by default; used by the ``sh`` light model only)."""
         self.albedo = nn.Parameter(albedo.detach().clone())
@@ -226,16 +308,18 @@ class PhotoState(FitState):
 
     def to_camera(self, points: torch.Tensor, free: tuple[str, ...] = ()) -> torch.Tensor:
         """``(N, 3)`` rig space -> OpenCV camera space, mm; the pose carries gradients if ``pose`` is free."""
-        rot, t = (self.rotation(), self.translation) if "pose" in free else (
-            self.rotation().detach(), self.translation.detach())
+        rot, t = (
+            (self.rotation(), self.translation)
+            if "pose" in free
+            else (self.rotation().detach(), self.translation.detach())
+        )
         return points @ (self.flip @ rot).T + t
 
     def camera_center(self) -> np.ndarray:
         """``(3,)`` float64 camera centre in rig space, mm."""
-        from pipeline.photo.camera import camera_center_in_rig
-
-        return camera_center_in_rig(self.rotation().detach().double().numpy(),
-                                    self.translation.detach().double().numpy())
+        return camera_center_in_rig(
+            self.rotation().detach().double().numpy(), self.translation.detach().double().numpy()
+        )
 
 
 class ScanState(FitState):
@@ -249,8 +333,17 @@ class ScanState(FitState):
     Joints are kept in their limits by the soft penalty L_x only (JNR's point-cloud fit).
     """
 
-    def __init__(self, rig: JointRig, neural: NeuralSkinning | None, expressions: ExpressionModel,
-                 rotation: np.ndarray, translation: np.ndarray, scale: float, *, fit_scale: bool = True) -> None:
+    def __init__(
+        self,
+        rig: JointRig,
+        neural: NeuralSkinning | None,
+        expressions: ExpressionModel,
+        rotation: np.ndarray,
+        translation: np.ndarray,
+        scale: float,
+        *,
+        fit_scale: bool = True,
+    ) -> None:
         super().__init__(rig, neural, expressions, rotation, hard_joint_limits=False)
         self.log_scale = nn.Parameter(torch.tensor(math.log(scale), dtype=self.dtype))
         self.translation = nn.Parameter(torch.tensor(translation, dtype=self.dtype))
@@ -273,8 +366,11 @@ def head_vertices(rig: JointRig, neural: NeuralSkinning | None, theta, z, expres
     with torch.no_grad():
         c = torch.as_tensor(np.asarray(expressions, np.float64), dtype=dtype)[None]
         rest = ExpressionModel(rig.asset, dtype=dtype).vertices(c)[0]
-        weights = rig.dense_weights() if neural is None else neural(
-            torch.as_tensor(np.asarray(z, np.float64), dtype=dtype)[None])[0]
+        weights = (
+            rig.dense_weights()
+            if neural is None
+            else neural(torch.as_tensor(np.asarray(z, np.float64), dtype=dtype)[None])[0]
+        )
         theta = torch.as_tensor(np.asarray(theta, np.float64), dtype=dtype)[None]
         return rig(theta, weights=weights, vertices=rest).vertices[0].double().numpy()
 
@@ -294,10 +390,16 @@ class AsmScanState(ScanState):
         expressions, rotation, translation, scale, fit_scale: as :class:`ScanState`.
     """
 
-    def __init__(self, model, expressions: ExpressionModel, rotation: np.ndarray, translation: np.ndarray,
-                 scale: float, *, fit_scale: bool = True) -> None:
-        from rig.skinning.asm import TAU_UNITS, UV_UNIT
-
+    def __init__(
+        self,
+        model: AdaptiveSkinning,
+        expressions: ExpressionModel,
+        rotation: np.ndarray,
+        translation: np.ndarray,
+        scale: float,
+        *,
+        fit_scale: bool = True,
+    ) -> None:
         super().__init__(model.rig, None, expressions, rotation, translation, scale, fit_scale=fit_scale)
         self.asm = model
         init = model.initial(1)
@@ -308,9 +410,16 @@ class AsmScanState(ScanState):
         self.log_pi = nn.Parameter(init.log_pi[0].clone())
         self.mu_n = nn.Parameter(init.mu[0] / UV_UNIT)
         self.chol = nn.Parameter(init.chol[0].clone())
-        self.GROUPS = {**self.GROUPS, "joints": (("tau_n", "asm_bones"),),
-                       "latent": (("zeta_n", "asm_skinning"), ("log_pi", "asm_skinning"), ("mu_n", "asm_skinning"),
-                                  ("chol", "asm_skinning"))}
+        self.GROUPS = {
+            **self.GROUPS,
+            "joints": (("tau_n", "asm_bones"),),
+            "latent": (
+                ("zeta_n", "asm_skinning"),
+                ("log_pi", "asm_skinning"),
+                ("mu_n", "asm_skinning"),
+                ("chol", "asm_skinning"),
+            ),
+        }
 
     def available(self, free: tuple[str, ...]) -> tuple[str, ...]:
         return free
@@ -319,17 +428,19 @@ class AsmScanState(ScanState):
         if "expressions" in free:
             self.clamp_expressions()
 
-    def asm_parameters(self, free: tuple[str, ...] = ("joints", "latent")):
+    def asm_parameters(self, free: tuple[str, ...] = ("joints", "latent")) -> AsmParameters:
         """The current :class:`rig.skinning.asm.AsmParameters` (batch 1); groups not in ``free`` detached."""
-        from rig.skinning.asm import AsmParameters
 
         def grad(t: torch.Tensor, group: str) -> torch.Tensor:
             return t if group in free else t.detach()
 
-        return AsmParameters(tau=grad(self.tau_n * self.tau_unit, "joints")[None],
-                             zeta=grad(self.zeta_n * self.uv_unit, "latent")[None],
-                             log_pi=grad(self.log_pi, "latent")[None], mu=grad(self.mu_n * self.uv_unit, "latent")[None],
-                             chol=grad(self.chol, "latent")[None])
+        return AsmParameters(
+            tau=grad(self.tau_n * self.tau_unit, "joints")[None],
+            zeta=grad(self.zeta_n * self.uv_unit, "latent")[None],
+            log_pi=grad(self.log_pi, "latent")[None],
+            mu=grad(self.mu_n * self.uv_unit, "latent")[None],
+            chol=grad(self.chol, "latent")[None],
+        )
 
     def rig_vertices(self, free: tuple[str, ...] = ()) -> torch.Tensor:
         """``(V, 3)`` rig-space vertices of the ASM head, mm; only the groups in ``free`` carry gradients."""
@@ -338,7 +449,18 @@ class AsmScanState(ScanState):
         rest = expr.template + expr(c[None])[0]
         return self.asm(self.asm_parameters(free), vertices=rest).vertices[0]
 
-    def load_asm(self, params) -> None:
+    def term_inputs(self) -> Inputs:
+        """:meth:`FitState.term_inputs` and ``asm`` (:meth:`asm_parameters`, both groups live)."""
+        return super().term_inputs().add(asm=self.asm_parameters)
+
+    def prior_terms(
+        self, weights: PriorWeights, *, lambda_m: float | None = None, identity: IdentityPrior | None = None
+    ) -> tuple[Term, ...]:
+        """ASM's priors instead of the joints' (:func:`pipeline.fitting.priors.asm_prior_terms`: eq. 19
+        following L_m's schedule, expressions, smoothness); ``identity`` does not apply."""
+        return asm_prior_terms(weights, self.asm, lambda_m=lambda_m)
+
+    def load_asm(self, params: AsmParameters) -> None:
         """Start from fitted :class:`rig.skinning.asm.AsmParameters` (batch 1)."""
         with torch.no_grad():
             self.tau_n.copy_(params.tau[0] / self.tau_unit)

@@ -1,12 +1,13 @@
 """Fitting a batch of photos on a Dask cluster: ``jnr fit FOLDER --out DIR --scheduler ADDRESS``.
 
-:class:`DaskRunner` is a ``run`` for :func:`pipeline.photo.files.fit_photo_files`: it connects to a
-running ``dask.distributed`` scheduler, submits one :func:`~pipeline.photo.files.fit_photo_task` per
-photo (:func:`fit_on_worker`) and yields each photo's results as its fit completes (``distributed.as_completed``), so the
+:class:`DaskRunner` is a ``run`` for :func:`pipeline.photo.batch.fit_photo_files`: it connects to a
+running ``dask.distributed`` scheduler, submits one :func:`~pipeline.photo.task.fit_photo_task` per
+photo (:func:`fit_on_worker`) and yields each photo's results as its fit completes (``distributed.as_completed``), so
+the
 summary rows, the resuming and the outputs are those of the local process pool. A worker writes its
 photo's output folder itself, so the workers must see the photos and ``--out`` at the same paths as this
 machine (a shared file system) and must have jnr installed (the task is sent by reference to
-:func:`~pipeline.photo.files.fit_photo_task`); the paths are sent as absolute paths and the results
+:func:`~pipeline.photo.task.fit_photo_task`); the paths are sent as absolute paths and the results
 name them as the caller gave them.
 
 ``distributed`` is imported only here and only when a runner is made, so jnr starts without it.
@@ -24,6 +25,8 @@ import threading
 from collections.abc import Iterator
 from dataclasses import replace
 
+from pipeline.photo.summary import PhotoFileResult
+from pipeline.photo.task import PhotoTask, fit_photo_task
 from rig.errors import InputError, SetupError
 
 DEFAULT_TIMEOUT_S = 10.0
@@ -39,12 +42,10 @@ _ONE_FIT_AT_A_TIME = threading.Lock()
 fits in two threads of one worker break each other (seen: "Plugin direct_projective not found")."""
 
 
-def fit_on_worker(task):
-    """What a Dask worker runs for one photo: :func:`pipeline.photo.files.fit_photo_task`, one fit per
+def fit_on_worker(task: PhotoTask) -> tuple[PhotoFileResult, ...]:
+    """What a Dask worker runs for one photo: :func:`pipeline.photo.task.fit_photo_task`, one fit per
     worker process at a time (a worker started with ``--nthreads 2`` runs its fits in turn; start one
     worker process per core instead: ``dask worker ADDRESS --nworkers N --nthreads 1``)."""
-    from pipeline.photo.files import fit_photo_task
-
     with _ONE_FIT_AT_A_TIME:
         return fit_photo_task(task)
 
@@ -54,8 +55,10 @@ def _distributed():
     try:
         import distributed
     except ImportError:
-        raise SetupError("--scheduler needs Dask's 'distributed' package, which is not installed: "
-                         "pip install 'jnr[cluster]' (here and on every worker)") from None
+        raise SetupError(
+            "--scheduler needs Dask's 'distributed' package, which is not installed: "
+            "pip install 'jnr[cluster]' (here and on every worker)"
+        ) from None
     return distributed
 
 
@@ -79,8 +82,9 @@ def check_address(address: str) -> str:
 
             parse_host_port(location)
     except (ValueError, TypeError) as exc:
-        raise InputError(f"--scheduler {address!r} is not a Dask scheduler address ({exc}); "
-                         "expected e.g. tcp://host:8786") from None
+        raise InputError(
+            f"--scheduler {address!r} is not a Dask scheduler address ({exc}); expected e.g. tcp://host:8786"
+        ) from None
     return text
 
 
@@ -95,18 +99,25 @@ async def _probe(address: str, timeout_s: float) -> None:
 
 def _unreachable(address: str, timeout_s: float, exc: BaseException) -> SchedulerError:
     reason = " ".join(str(exc).split()) or type(exc).__name__
-    return SchedulerError(f"cannot reach the Dask scheduler at {address} within {timeout_s:g} s ({reason}); "
-                          f"is `dask scheduler` running there?")
+    return SchedulerError(
+        f"cannot reach the Dask scheduler at {address} within {timeout_s:g} s ({reason}); "
+        f"is `dask scheduler` running there?"
+    )
 
 
-def _absolute(task):
+def _absolute(task: PhotoTask) -> PhotoTask:
     """``task`` with absolute paths (a worker's working directory is not this one's)."""
-    return replace(task, photo=os.path.abspath(task.photo), out=os.path.abspath(task.out),
-                   inputs=tuple(os.path.abspath(p) for p in task.inputs))
+    return replace(
+        task,
+        photo=os.path.abspath(task.photo),
+        out=os.path.abspath(task.out),
+        inputs=tuple(os.path.abspath(p) for p in task.inputs),
+    )
 
 
-def _as_given(result, task, sent):
+def _as_given(result: PhotoFileResult, task: PhotoTask, sent: PhotoTask) -> PhotoFileResult:
     """A worker's result, its paths named as the caller gave them in ``task`` (``sent``: what was sent)."""
+
     def given(text: str | None) -> str | None:
         if text is None:
             return None
@@ -118,10 +129,8 @@ def _as_given(result, task, sent):
     return replace(result, photo=task.photo, summary=summary, error=given(result.error))
 
 
-def _worker_failure(task, exc: BaseException):
+def _worker_failure(task: PhotoTask, exc: BaseException) -> tuple[PhotoFileResult, ...]:
     """The result of a task whose worker failed (it died, or could not run jnr)."""
-    from pipeline.photo.files import PhotoFileResult
-
     message = " ".join(str(exc).split()) or type(exc).__name__
     if isinstance(exc, ImportError):
         message += " (is jnr installed on the Dask workers?)"
@@ -129,11 +138,11 @@ def _worker_failure(task, exc: BaseException):
 
 
 class DaskRunner:
-    """``run(tasks)`` for :func:`pipeline.photo.files.fit_photo_files` on a ``dask.distributed`` cluster.
+    """``run(tasks)`` for :func:`pipeline.photo.batch.fit_photo_files` on a ``dask.distributed`` cluster.
 
     Connects when made (so a wrong address fails before any output is written); use it as a context
     manager, or call :meth:`close`. Calling it submits one task per photo and yields, as each completes,
-    the tuple of its :class:`~pipeline.photo.files.PhotoFileResult` (a worker that died or cannot run
+    the tuple of its :class:`~pipeline.photo.summary.PhotoFileResult` (a worker that died or cannot run
     jnr becomes that photo's error row); closing the generator early (an interrupt) cancels the tasks
     not yet done (a fit already running on a worker still writes its output, kept by the next resume).
 
@@ -168,15 +177,17 @@ class DaskRunner:
             self.client.wait_for_workers(1, timeout=self.timeout_s)
         except (OSError, asyncio.TimeoutError, TimeoutError):
             self.close()
-            raise SchedulerError(f"the Dask scheduler at {self.address} has no workers (waited "
-                                 f"{self.timeout_s:g} s); start some with `dask worker {self.address}`") from None
+            raise SchedulerError(
+                f"the Dask scheduler at {self.address} has no workers (waited "
+                f"{self.timeout_s:g} s); start some with `dask worker {self.address}`"
+            ) from None
 
     @property
     def workers(self) -> int:
         """How many workers the scheduler has now."""
         return len(self.client.nthreads())
 
-    def __call__(self, tasks: list) -> Iterator[tuple]:
+    def __call__(self, tasks: list[PhotoTask]) -> Iterator[tuple[PhotoFileResult, ...]]:
         from distributed import as_completed
 
         sent = [_absolute(t) for t in tasks]
@@ -186,7 +197,7 @@ class DaskRunner:
                 task, remote = futures[future]
                 try:
                     results = future.result()
-                except Exception as exc:  # noqa: BLE001 - a worker's failure is that photo's error row
+                except Exception as exc:
                     yield _worker_failure(task, exc)
                     continue
                 yield tuple(_as_given(r, task, remote) for r in results)

@@ -30,7 +30,7 @@ light; freer geometry in them made the geometry worse, since a photo's light is 
 
 The renderer's world is the OpenCV camera frame of the photo (the model moves rig-space vertices
 there, as for the landmarks); the light is reported in rig space as well
-(:func:`pipeline.photo.camera.camera_direction_to_rig`).
+(:func:`pipeline.camera.camera_direction_to_rig`).
 """
 
 from __future__ import annotations
@@ -40,21 +40,23 @@ import time
 from dataclasses import dataclass, field
 from typing import ClassVar
 
+import cv2
 import numpy as np
 import torch
 from kornia.geometry.camera import PinholeCamera
 
-from pipeline.evaluation.metrics import landmark_errors
-from pipeline.fitting.engine import LearningRates, Loss, Stage, StageLog, run_schedule
-from pipeline.fitting.priors import PriorWeights, rig_prior_terms
-from pipeline.fitting.state import FREE_GROUPS, PhotoState
-from pipeline.photo.camera import (
+from pipeline.camera import (
     camera_direction_to_rig,
     check_focal,
     default_focal,
     make_camera,
 )
-from pipeline.photo.colour import srgb_to_linear
+from pipeline.colour import srgb_to_linear
+from pipeline.fitting.engine import LearningRates, Loss, Stage, StageLog, run_schedule
+from pipeline.fitting.priors import PriorWeights
+from pipeline.fitting.state import FREE_GROUPS, PhotoState
+from pipeline.fitting.terms import L2, Charbonnier, Inputs, Term, term_values
+from pipeline.metrics import landmark_errors
 from pipeline.photo.landmark_fit import (
     LandmarkFit,
     LandmarkFitConfig,
@@ -62,8 +64,13 @@ from pipeline.photo.landmark_fit import (
     check_landmarks_2d_shape,
     fit_landmarks,
 )
+from pipeline.photo.sh import fit_sh, sh_basis
+from render.backend import reproducible
+from render.lighting import Lighting
+from render.renderer import DifferentiableRenderer
+from rig.asset import REGION_NAMES
 from rig.expressions import ExpressionModel
-from rig.geometry import mesh_edges
+from rig.geometry import mesh_edges, vertex_normals
 from rig.model import JointRig
 from rig.optim import Progress
 from rig.skinning.neural import NeuralSkinning, load_neural
@@ -95,16 +102,23 @@ class PhotoStage(Stage):
     groups: ClassVar[tuple[str, ...]] = PHOTO_GROUPS
 
 
-def photo_schedule(appearance_iterations: int = 25, joint_iterations: int = 30, latent_iterations: int = 15,
-                   expression_iterations: int = 25, final_joint_iterations: int = 25) -> tuple[PhotoStage, ...]:
+def photo_schedule(
+    appearance_iterations: int = 25,
+    joint_iterations: int = 30,
+    latent_iterations: int = 15,
+    expression_iterations: int = 25,
+    final_joint_iterations: int = 25,
+) -> tuple[PhotoStage, ...]:
     """The default photometric schedule (120 steps): albedo + light; then JNR 4.3's alternation
     (pose + joints, Z, pose + expressions, pose + joints), each with albedo and light. 0 leaves a stage out."""
     look = ("albedo", "light")
-    stages = (PhotoStage("appearance", look, appearance_iterations),
-              PhotoStage("photo joints", ("pose", "joints") + look, joint_iterations),
-              PhotoStage("photo latent", ("latent",) + look, latent_iterations),
-              PhotoStage("photo expressions", ("pose", "expressions") + look, expression_iterations),
-              PhotoStage("photo joints 2", ("pose", "joints") + look, final_joint_iterations))
+    stages = (
+        PhotoStage("appearance", look, appearance_iterations),
+        PhotoStage("photo joints", ("pose", "joints") + look, joint_iterations),
+        PhotoStage("photo latent", ("latent",) + look, latent_iterations),
+        PhotoStage("photo expressions", ("pose", "expressions") + look, expression_iterations),
+        PhotoStage("photo joints 2", ("pose", "joints") + look, final_joint_iterations),
+    )
     return tuple(s for s in stages if s.iterations > 0)
 
 
@@ -119,8 +133,7 @@ class PhotoLearningRates(LearningRates):
     """Ambient and irradiance of the light, linear RGB."""
 
 
-PHOTO_LEARNING_RATES = PhotoLearningRates(rotation=0.003, translation=0.5, joints=0.004, latent=0.02,
-                                          expressions=0.02)
+PHOTO_LEARNING_RATES = PhotoLearningRates(rotation=0.003, translation=0.5, joints=0.004, latent=0.02, expressions=0.02)
 """The photometric stages' steps: smaller than the landmark fit's, which they refine."""
 
 
@@ -191,11 +204,11 @@ class PhotometricConfig:
             raise ValueError(f"light_model must be one of {list(LIGHT_MODELS)}, got {self.light_model!r}")
         if self.light_directions < 1:
             raise ValueError(f"light_directions must be >= 1, got {self.light_directions}")
-        from rig.asset import REGION_NAMES
-
         bad = [r for r in self.face_regions if r not in REGION_NAMES]
         if bad or not self.face_regions:
-            raise ValueError(f"face_regions must be a non-empty subset of {list(REGION_NAMES)}, got {list(self.face_regions)}")
+            raise ValueError(
+                f"face_regions must be a non-empty subset of {list(REGION_NAMES)}, got {list(self.face_regions)}"
+            )
 
 
 @dataclass(frozen=True)
@@ -228,25 +241,33 @@ class Crop:
         s = self.scale
         cx, cy = (width - 1) / 2.0, (height - 1) / 2.0
         # pixel centres at integers: continuous coordinate u + 0.5 scales about the crop's corner
-        k = torch.tensor([[focal * s, 0.0, (cx + 0.5 - self.x0) * s - 0.5, 0.0],
-                          [0.0, focal * s, (cy + 0.5 - self.y0) * s - 0.5, 0.0],
-                          [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]], dtype=dtype)
-        return PinholeCamera(k[None], torch.eye(4, dtype=dtype)[None], torch.tensor([float(self.size)], dtype=dtype),
-                             torch.tensor([float(self.size)], dtype=dtype))
+        k = torch.tensor(
+            [
+                [focal * s, 0.0, (cx + 0.5 - self.x0) * s - 0.5, 0.0],
+                [0.0, focal * s, (cy + 0.5 - self.y0) * s - 0.5, 0.0],
+                [0.0, 0.0, 1.0, 0.0],
+                [0.0, 0.0, 0.0, 1.0],
+            ],
+            dtype=dtype,
+        )
+        return PinholeCamera(
+            k[None],
+            torch.eye(4, dtype=dtype)[None],
+            torch.tensor([float(self.size)], dtype=dtype),
+            torch.tensor([float(self.size)], dtype=dtype),
+        )
 
     def cut(self, image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(H, W, C)`` photo -> ``(size, size, C)`` float32 crop (area-averaged) and its ``(size, size)``
         float32 in-photo mask."""
-        import cv2
-
         h, w = image.shape[:2]
         pad = np.zeros((self.side, self.side, image.shape[2]), np.float32)
         inside = np.zeros((self.side, self.side), np.float32)
         xa, ya = max(self.x0, 0), max(self.y0, 0)
         xb, yb = min(self.x0 + self.side, w), min(self.y0 + self.side, h)
         if xb > xa and yb > ya:
-            pad[ya - self.y0:yb - self.y0, xa - self.x0:xb - self.x0] = image[ya:yb, xa:xb]
-            inside[ya - self.y0:yb - self.y0, xa - self.x0:xb - self.x0] = 1.0
+            pad[ya - self.y0 : yb - self.y0, xa - self.x0 : xb - self.x0] = image[ya:yb, xa:xb]
+            inside[ya - self.y0 : yb - self.y0, xa - self.x0 : xb - self.x0] = 1.0
         interp = cv2.INTER_AREA if self.size < self.side else cv2.INTER_LINEAR
         out = cv2.resize(pad, (self.size, self.size), interpolation=interp)
         mask = cv2.resize(inside, (self.size, self.size), interpolation=interp)
@@ -343,8 +364,9 @@ def hemisphere_directions(n: int) -> np.ndarray:
     return np.stack([r * np.cos(phi), r * np.sin(phi), z], 1)
 
 
-def fit_light(albedo_img: np.ndarray, normals: np.ndarray, target: np.ndarray, directions: np.ndarray
-               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def fit_light(
+    albedo_img: np.ndarray, normals: np.ndarray, target: np.ndarray, directions: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per-pixel ``target ~ albedo (ambient + irradiance / pi * max(0, n . -d))``: the best ``d`` of
     ``directions`` and its non-negative ambient/irradiance (linear least squares per channel).
 
@@ -367,16 +389,23 @@ def fit_light(albedo_img: np.ndarray, normals: np.ndarray, target: np.ndarray, d
     return best[1], best[2], best[3]
 
 
-def fit_photo(image, landmarks2d, *, focal: float | None = None, config: FitPhotoConfig | None = None,
-              rig: JointRig | None = None, neural: NeuralSkinning | None = None,
-              progress: Progress | None = None) -> PhotoFit:
+def fit_photo(
+    image,
+    landmarks2d,
+    *,
+    focal: float | None = None,
+    config: FitPhotoConfig | None = None,
+    rig: JointRig | None = None,
+    neural: NeuralSkinning | None = None,
+    progress: Progress | None = None,
+) -> PhotoFit:
     """Reconstruct the head in one photo (module docstring).
 
     Args:
-        image: ``(H, W, 3)`` uint8 sRGB (as :func:`landmarks.detect.load_image` returns) or float32
+        image: ``(H, W, 3)`` uint8 sRGB (as :func:`landmarks.images.load_image` returns) or float32
             linear RGB in [0, 1].
         landmarks2d: ``(68, 2)`` pixels (OpenCV, 0-based), iBUG-68 order.
-        focal: focal length in pixels (default :func:`pipeline.photo.camera.default_focal`).
+        focal: focal length in pixels (default :func:`pipeline.camera.default_focal`).
         config: settings and schedules (default :class:`FitPhotoConfig`).
         rig, neural: the models (default: the committed rig, float32, and its learned skinning).
         progress: :data:`rig.optim.Progress`, called after every step of both fits.
@@ -395,37 +424,25 @@ def fit_photo(image, landmarks2d, *, focal: float | None = None, config: FitPhot
     height, width = photo.shape[:2]
     focal = default_focal(width, height) if focal is None else check_focal(focal, width, height)
     rig = rig or JointRig()
-    if config.landmarks.use_neural and neural is None:
-        neural, _ = load_neural(rig)
     if not config.landmarks.use_neural:
         neural = None
-    lfit = fit_landmarks(lm, width, height, focal=focal, config=config.landmarks, rig=rig, neural=neural,
-                         progress=progress)
+    elif neural is None:
+        neural, _ = load_neural(rig)
+    lfit = fit_landmarks(
+        lm, width, height, focal=focal, config=config.landmarks, rig=rig, neural=neural, progress=progress
+    )
     t_landmarks = time.perf_counter() - t0
 
     dtype = rig.template.dtype
-    asset = rig.asset
-    state = PhotoState(rig, neural, ExpressionModel(asset, dtype=dtype), lfit.rotation, lfit.translation)
+    state = PhotoState(rig, neural, ExpressionModel(rig.asset, dtype=dtype), lfit.rotation, lfit.translation)
     state.load(lfit.theta, lfit.z, lfit.expressions)
-    term = LandmarkTerm(asset, lm, make_camera(width, height, focal, dtype=dtype, pose=False),
-                        config.landmarks.huber_delta_px, config.landmarks.contour_weight,
-                        config.landmarks.landmark_weighting)
-    settings = config.photometric
-    stages: tuple[StageLog, ...] = ()
-    crop = None
-    # Without photometric stages nothing of the appearance is fitted: a grey albedo and a key light from
-    # the camera's upper left (travelling right, down and forward) + fill, so that render.png and
-    # overlay.png show the fitted shape shaded rather than flat.
-    albedo_np = np.full((len(asset.vertices), 3), 0.5)
-    light_cam = np.array([0.3, 0.4, 1.0]) / np.linalg.norm([0.3, 0.4, 1.0])
-    ambient_np, irradiance_np = np.full(3, 0.35), np.full(3, 2.0)
+    landmark = config.landmarks
+    camera = make_camera(width, height, focal, dtype=dtype, pose=False)
+    term = LandmarkTerm(
+        rig.asset, lm, camera, landmark.huber_delta_px, landmark.contour_weight, landmark.landmark_weighting
+    )
     t1 = time.perf_counter()
-    if settings.enabled and any(s.iterations > 0 for s in settings.stages):
-        crop = face_crop(lm, settings.render_size, settings.crop_margin)
-        light_cam, stages = _photometric(photo, crop, focal, state, term, settings, progress)
-        albedo_np, ambient_np, irradiance_np = (state.albedo.detach().double().numpy(),
-                                                state.ambient.detach().double().numpy(),
-                                                state.irradiance.detach().double().numpy())
+    appearance, stages, crop = _appearance(photo, lm, focal, state, term, config.photometric, progress)
     t_photo = time.perf_counter() - t1
 
     with torch.no_grad():
@@ -436,32 +453,89 @@ def fit_photo(image, landmarks2d, *, focal: float | None = None, config: FitPhot
     values = state.arrays()
     rotation = values["rotation"]
     error, nme = landmark_errors(projected, lm)
-    return PhotoFit(theta=values["theta"], z=values["z"], expressions=values["expressions"], rotation=rotation,
-                    translation=translation, focal=focal, width=width, height=height,
-                    camera=make_camera(width, height, focal, rotation=rotation, translation=translation),
-                    rig_vertices=v.double().numpy(), albedo=albedo_np, ambient=ambient_np,
-                    irradiance=irradiance_np, light_direction_camera=light_cam,
-                    light_direction_rig=camera_direction_to_rig(light_cam, rotation),
-                    landmarks2d=lm, landmarks_px=projected, error_px=error, nme=nme, landmark_fit=lfit,
-                    stages=stages, crop=crop, landmarks3d_camera=landmarks3d_camera,
-                    timings={"landmarks": t_landmarks, "photometric": t_photo,
-                             "total": time.perf_counter() - t0})
+    return PhotoFit(
+        theta=values["theta"],
+        z=values["z"],
+        expressions=values["expressions"],
+        rotation=rotation,
+        translation=translation,
+        focal=focal,
+        width=width,
+        height=height,
+        camera=make_camera(width, height, focal, rotation=rotation, translation=translation),
+        rig_vertices=v.double().numpy(),
+        albedo=appearance["albedo"],
+        ambient=appearance["ambient"],
+        irradiance=appearance["irradiance"],
+        light_direction_camera=appearance["light_camera"],
+        light_direction_rig=camera_direction_to_rig(appearance["light_camera"], rotation),
+        landmarks2d=lm,
+        landmarks_px=projected,
+        error_px=error,
+        nme=nme,
+        landmark_fit=lfit,
+        stages=stages,
+        crop=crop,
+        landmarks3d_camera=landmarks3d_camera,
+        timings={"landmarks": t_landmarks, "photometric": t_photo, "total": time.perf_counter() - t0},
+    )
 
 
-def _photometric(photo: np.ndarray, crop: Crop, focal: float, state: PhotoState, term: LandmarkTerm,
-                 settings: PhotometricConfig, progress: Progress | None):
+def _appearance(
+    photo: np.ndarray,
+    lm: np.ndarray,
+    focal: float,
+    state: PhotoState,
+    term: LandmarkTerm,
+    settings: PhotometricConfig,
+    progress: Progress | None,
+) -> tuple[dict[str, np.ndarray], tuple[StageLog, ...], Crop | None]:
+    """The photometric stages when enabled (updating ``state``): ``({albedo, ambient, irradiance,
+    light_camera}, stage logs, crop)``. Without them nothing of the appearance is fitted: a grey albedo and a
+    key light from the camera's upper left (travelling right, down and forward) + fill, so that render.png and
+    overlay.png show the fitted shape shaded rather than flat."""
+    if not (settings.enabled and any(s.iterations > 0 for s in settings.stages)):
+        light = np.array([0.3, 0.4, 1.0]) / np.linalg.norm([0.3, 0.4, 1.0])
+        grey = np.full((len(state.rig.asset.vertices), 3), 0.5)
+        shown = {"albedo": grey, "ambient": np.full(3, 0.35), "irradiance": np.full(3, 2.0), "light_camera": light}
+        return shown, (), None
+    crop = face_crop(lm, settings.render_size, settings.crop_margin)
+    light, stages = _photometric(photo, crop, focal, state, term, settings, progress)
+    appearance = {
+        "albedo": state.albedo.detach().double().numpy(),
+        "ambient": state.ambient.detach().double().numpy(),
+        "irradiance": state.irradiance.detach().double().numpy(),
+        "light_camera": light,
+    }
+    return appearance, stages, crop
+
+
+def _photometric(
+    photo: np.ndarray,
+    crop: Crop,
+    focal: float,
+    state: PhotoState,
+    term: LandmarkTerm,
+    settings: PhotometricConfig,
+    progress: Progress | None,
+):
     """The photometric stages; updates ``state`` in place. Returns the light direction (camera frame)
     and the stage logs."""
-    from render.backend import reproducible
-
     threads = torch.get_num_threads()
     if settings.reproducible:  # torch's CPU scatter-adds (index backward) are order-dependent on several threads too
         torch.set_num_threads(1)
     try:
         with reproducible(settings.reproducible):
             fit = PhotometricObjective(photo, crop, focal, state, term, settings)
-            stages = run_schedule(state, settings.stages, fit, settings.lr, label="fit_photo", progress=progress,
-                                  before_stage=fit.before_stage)
+            stages = run_schedule(
+                state,
+                settings.stages,
+                fit,
+                settings.lr,
+                label="fit_photo",
+                progress=progress,
+                before_stage=fit.before_stage,
+            )
             return np.asarray(fit.direction, float), stages
     finally:
         torch.set_num_threads(threads)
@@ -475,11 +549,15 @@ class PhotometricObjective:
     (:meth:`~pipeline.fitting.state.PhotoState.add_appearance`).
     """
 
-    def __init__(self, photo: np.ndarray, crop: Crop, focal: float, state: PhotoState, term: LandmarkTerm,
-                 settings: PhotometricConfig) -> None:
-        from render.lighting import Lighting
-        from render.renderer import DifferentiableRenderer
-
+    def __init__(
+        self,
+        photo: np.ndarray,
+        crop: Crop,
+        focal: float,
+        state: PhotoState,
+        term: LandmarkTerm,
+        settings: PhotometricConfig,
+    ) -> None:
         self.state, self.term, self.settings = state, term, settings
         asset = state.rig.asset
         height, width = photo.shape[:2]
@@ -491,21 +569,29 @@ class PhotometricObjective:
         with torch.no_grad():
             v_cam0 = state.to_camera(state.rig_vertices()).to(dtype)
         n_vertices = len(asset.vertices)
-        self.renderer = DifferentiableRenderer(v_cam0, asset.faces, torch.full((n_vertices, 3), 0.5),
-                                               crop.camera(focal, width, height, dtype=dtype),
-                                               Lighting(torch.full((3,), 1.0), torch.zeros(3),
-                                                        torch.tensor([0.0, 0.0, 1.0])),
-                                               spp=settings.spp, seed=settings.seed, regions=asset.regions)
+        self.renderer = DifferentiableRenderer(
+            v_cam0,
+            asset.faces,
+            torch.full((n_vertices, 3), 0.5),
+            crop.camera(focal, width, height, dtype=dtype),
+            Lighting(torch.full((3,), 1.0), torch.zeros(3), torch.tensor([0.0, 0.0, 1.0])),
+            spp=settings.spp,
+            seed=settings.seed,
+            regions=asset.regions,
+        )
         # start colour: the median of the face pixels seen from the landmark fit's pose
         with torch.no_grad():
             first = self.renderer.render(v_cam0, torch.full((n_vertices, 3), 0.5), aovs=True)
             m = self.face_mask(first.region_ids) > 0
             if int(m.sum()) < 50:
-                raise ValueError(f"fit_photo: the face covers only {int(m.sum())} pixels of the "
-                                 f"{crop.size}x{crop.size} crop; the landmarks do not match the head")
+                raise ValueError(
+                    f"fit_photo: the face covers only {int(m.sum())} pixels of the "
+                    f"{crop.size}x{crop.size} crop; the landmarks do not match the head"
+                )
             self.start_colour = self.target[m].median(0).values.clamp(0.02, 0.98)
-        state.add_appearance(self.start_colour.repeat(n_vertices, 1), torch.full((3,), 1.0, dtype=dtype),
-                             torch.zeros(3, dtype=dtype))
+        state.add_appearance(
+            self.start_colour.repeat(n_vertices, 1), torch.full((3,), 1.0, dtype=dtype), torch.zeros(3, dtype=dtype)
+        )
         self.direction = np.array([0.0, 0.0, 1.0])
         self.faces = torch.as_tensor(np.asarray(asset.faces, np.int64))
         self.edges = torch.as_tensor(mesh_edges(asset.faces))
@@ -513,17 +599,24 @@ class PhotometricObjective:
         self.candidates = hemisphere_directions(settings.light_directions)
         self.inlier: torch.Tensor | None = None
         self.stages_started = 0
+        self.terms = (
+            self.photo_term(),
+            term.term(settings.lambda_landmarks, name="landmarks"),
+            *state.prior_terms(settings.prior),
+            *self.albedo_prior_terms(),
+        )
 
     def face_mask(self, region_ids: torch.Tensor) -> torch.Tensor:
         """``(S, S)`` 1 on face-region pixels inside the photo."""
         return torch.isin(region_ids, self.face_region_ids).to(self.dtype) * self.inside
 
     def light(self):
-        from render.lighting import Lighting
-
         if self.settings.light_model == "sh":  # the shading is in the albedo: the renderer only emits it
-            return Lighting(torch.ones(3, dtype=self.dtype), torch.zeros(3, dtype=self.dtype),
-                            torch.as_tensor(self.direction, dtype=self.dtype))
+            return Lighting(
+                torch.ones(3, dtype=self.dtype),
+                torch.zeros(3, dtype=self.dtype),
+                torch.as_tensor(self.direction, dtype=self.dtype),
+            )
         return Lighting(self.state.ambient, self.state.irradiance, torch.as_tensor(self.direction, dtype=self.dtype))
 
     def shaded_albedo(self, v_cam: torch.Tensor, albedo: torch.Tensor) -> torch.Tensor:
@@ -531,9 +624,7 @@ class PhotometricObjective:
         times the SH irradiance of each vertex normal (``sh``; differentiable in vertices, albedo and light)."""
         if self.settings.light_model != "sh":
             return albedo
-        from pipeline.photo.sh import sh_basis, vertex_normals_torch
-
-        irradiance = sh_basis(vertex_normals_torch(v_cam, self.faces)) @ self.state.sh.to(v_cam.dtype)
+        irradiance = sh_basis(vertex_normals(v_cam, self.faces)) @ self.state.sh.to(v_cam.dtype)
         return albedo * irradiance.clamp_min(0.0)
 
     def residual_norm(self, image: torch.Tensor) -> torch.Tensor:
@@ -542,24 +633,36 @@ class PhotometricObjective:
     def before_stage(self, stage: Stage) -> dict:
         """Re-pick the light direction (and, before the first stage, its ambient and irradiance) and the
         outlier pixels from the current state."""
-        from render.lighting import Lighting
-
         state, dtype = self.state, self.dtype
         with torch.no_grad():
             v_cam = state.to_camera(state.rig_vertices()).to(dtype)
             albedo = state.albedo.clamp(0, 1)
-            flat = self.renderer.render(v_cam, albedo, Lighting(torch.ones(3), torch.zeros(3),
-                                                                torch.as_tensor(self.direction, dtype=dtype)), aovs=True)
+            flat = self.renderer.render(
+                v_cam,
+                albedo,
+                Lighting(torch.ones(3), torch.zeros(3), torch.as_tensor(self.direction, dtype=dtype)),
+                aovs=True,
+            )
             m = self.face_mask(flat.region_ids) > 0
             if self.settings.light_model == "sh":
-                from pipeline.photo.sh import fit_sh
-
-                state.sh.copy_(torch.as_tensor(fit_sh(flat.image[m].double().numpy(), flat.normals[m].double().numpy(),
-                                                      self.target[m].double().numpy(), self.settings.sh_ridge),
-                                               dtype=dtype))
+                state.sh.copy_(
+                    torch.as_tensor(
+                        fit_sh(
+                            flat.image[m].double().numpy(),
+                            flat.normals[m].double().numpy(),
+                            self.target[m].double().numpy(),
+                            self.settings.sh_ridge,
+                        ),
+                        dtype=dtype,
+                    )
+                )
             else:
-                self.direction, amb, irr = fit_light(flat.image[m].double().numpy(), flat.normals[m].double().numpy(),
-                                                     self.target[m].double().numpy(), self.candidates)
+                self.direction, amb, irr = fit_light(
+                    flat.image[m].double().numpy(),
+                    flat.normals[m].double().numpy(),
+                    self.target[m].double().numpy(),
+                    self.candidates,
+                )
                 if self.stages_started == 0:
                     state.ambient.copy_(torch.as_tensor(amb, dtype=dtype))
                     state.irradiance.copy_(torch.as_tensor(irr, dtype=dtype))
@@ -572,28 +675,62 @@ class PhotometricObjective:
             threshold = float(med + self.settings.outlier_mads * 1.4826 * mad)
             self.inlier = (e <= max(threshold, 0.05)).to(dtype)
             outlier_fraction = float(1.0 - self.inlier[m].mean()) if bool(m.any()) else 0.0
-        return {"outlier_fraction": outlier_fraction,
-                "light_direction_camera": tuple(float(x) for x in self.direction)}
+        return {"outlier_fraction": outlier_fraction, "light_direction_camera": tuple(float(x) for x in self.direction)}
 
-    def albedo_prior_terms(self) -> dict[str, torch.Tensor]:
-        albedo, w = self.state.albedo, self.settings.albedo_prior
-        smooth = (albedo[self.edges[:, 0]] - albedo[self.edges[:, 1]]).square().sum(-1).mean()
-        sym = (albedo - albedo[self.mirror]).square().sum(-1).mean()
-        mean = (albedo - self.start_colour).square().sum(-1).mean()
-        return {"albedo_smooth": w.smooth * smooth, "albedo_symmetry": w.symmetry * sym, "albedo_mean": w.mean * mean}
+    def photo_term(self) -> Term:
+        """``photo``: ``lambda_photo`` times the mean Charbonnier distance of the linear-RGB residual over the
+        inlier face pixels (inputs ``image (B, S, S, 3)``, ``pixel_weights (S * S,)``)."""
+        s = self.settings
+
+        def residual(p: Inputs) -> torch.Tensor:
+            image = p["image"]
+            return (image - self.target).reshape(image.shape[0], -1, 3)
+
+        return Term(
+            "photo",
+            s.lambda_photo,
+            residual,
+            Charbonnier(s.charbonnier_eps),
+            normaliser="weights",
+            group_weights="pixel_weights",
+            min_normaliser=1.0,
+        )
+
+    def albedo_prior_terms(self) -> tuple[Term, ...]:
+        """``albedo_smooth``, ``albedo_symmetry``, ``albedo_mean``: mean squared differences of the albedo
+        (input ``albedo (V, 3)``, the parameter itself: each term reads it as the optimiser sees it) along mesh
+        edges, to the mirror vertex and to the start colour."""
+        w, edges, mirror = self.settings.albedo_prior, self.edges, self.mirror
+
+        def along_edges(p: Inputs) -> torch.Tensor:
+            return (p["albedo"][edges[:, 0]] - p["albedo"][edges[:, 1]])[None]
+
+        def to_mirror(p: Inputs) -> torch.Tensor:
+            return (p["albedo"] - p["albedo"][mirror])[None]
+
+        def to_start(p: Inputs) -> torch.Tensor:
+            return (p["albedo"] - self.start_colour)[None]
+
+        return (
+            Term("albedo_smooth", w.smooth, along_edges, L2(), normaliser="mean"),
+            Term("albedo_symmetry", w.symmetry, to_mirror, L2(), normaliser="mean"),
+            Term("albedo_mean", w.mean, to_start, L2(), normaliser="mean"),
+        )
 
     def __call__(self, free: tuple[str, ...]) -> Loss:
         """One step's loss: render -> Charbonnier over the inlier face pixels, landmarks, priors."""
-        state, s = self.state, self.settings
+        state = self.state
         geometry = tuple(g for g in free if g in FREE_GROUPS)
         v = state.rig_vertices(geometry)
         v_cam = state.to_camera(v, geometry).to(self.dtype)
         out = self.renderer.render(v_cam, self.shaded_albedo(v_cam, state.albedo), self.light(), aovs=True)
         weight = self.face_mask(out.region_ids) * self.inlier
-        count = weight.sum().clamp_min(1.0)
-        rho = (self.residual_norm(out.image) + s.charbonnier_eps ** 2).sqrt() - s.charbonnier_eps
-        photo_loss = (rho * weight).sum() / count
-        lm_loss = self.term(state, v, geometry)
-        terms = {"photo": s.lambda_photo * photo_loss, "landmarks": s.lambda_landmarks * lm_loss,
-                 **rig_prior_terms(state, s.prior), **self.albedo_prior_terms()}
-        return Loss(terms, {"photo": photo_loss, "landmarks_px2": lm_loss, "pixels": int(weight.sum())})
+        inputs = state.term_inputs().add(
+            {"image": out.image[None], "pixel_weights": weight.reshape(-1)},
+            landmarks_px=lambda: self.term.pixels(state, v, geometry),
+            albedo=lambda: state.albedo,
+        )
+        unweighted: dict[str, torch.Tensor] = {}
+        terms = term_values(self.terms, inputs, unweighted)
+        metrics = {"photo": unweighted["photo"], "landmarks_px2": unweighted["landmarks"], "pixels": int(weight.sum())}
+        return Loss(terms, metrics)

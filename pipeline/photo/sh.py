@@ -37,20 +37,20 @@ def sh_basis(normals):
     if normals.shape[-1] != 3:
         raise ShapeError(f"sh_basis: normals must have shape (..., 3), got {tuple(normals.shape)}")
     x, y, z = normals[..., 0], normals[..., 1], normals[..., 2]
-    parts = [_C0 * (x * 0 + 1), _C1 * y, _C1 * z, _C1 * x, _C2 * x * y, _C2 * y * z, _C3 * (3 * z * z - 1),
-             _C2 * x * z, _C4 * (x * x - y * y)]
+    parts = [
+        _C0 * (x * 0 + 1),
+        _C1 * y,
+        _C1 * z,
+        _C1 * x,
+        _C2 * x * y,
+        _C2 * y * z,
+        _C3 * (3 * z * z - 1),
+        _C2 * x * z,
+        _C4 * (x * x - y * y),
+    ]
     if isinstance(normals, torch.Tensor):
         return torch.stack(parts, -1)
     return np.stack(parts, -1)
-
-
-def vertex_normals_torch(vertices: torch.Tensor, faces: torch.Tensor) -> torch.Tensor:
-    """Differentiable area-weighted unit vertex normals: ``(V, 3)`` vertices, ``(F, 3)`` int64 faces ->
-    ``(V, 3)`` (outward for a counter-clockwise mesh)."""
-    a, b, c = vertices[faces[:, 0]], vertices[faces[:, 1]], vertices[faces[:, 2]]
-    fn = torch.linalg.cross(b - a, c - a)
-    n = torch.zeros_like(vertices).index_add(0, faces.reshape(-1), fn.repeat_interleave(3, 0))
-    return n / n.norm(dim=-1, keepdim=True).clamp_min(1e-12)
 
 
 def fit_sh(albedo: np.ndarray, normals: np.ndarray, target: np.ndarray, ridge: float = 1e-3) -> np.ndarray:
@@ -62,12 +62,14 @@ def fit_sh(albedo: np.ndarray, normals: np.ndarray, target: np.ndarray, ridge: f
     """
     albedo, normals, target = (np.asarray(x, np.float64) for x in (albedo, normals, target))
     if not (albedo.shape == target.shape == normals.shape and albedo.ndim == 2 and albedo.shape[1] == 3):
-        raise ShapeError(f"fit_sh: albedo, normals and target must all be (N, 3), got {albedo.shape}, "
-                         f"{normals.shape}, {target.shape}")
+        raise ShapeError(
+            f"fit_sh: albedo, normals and target must all be (N, 3), got {albedo.shape}, "
+            f"{normals.shape}, {target.shape}"
+        )
     basis = sh_basis(normals)  # (N, 9)
     out = np.zeros((SH_COEFFICIENTS, 3))
     for c in range(3):
-        design = albedo[:, c:c + 1] * basis
+        design = albedo[:, c : c + 1] * basis
         gram = design.T @ design
         gram += ridge * np.trace(gram) / SH_COEFFICIENTS * np.eye(SH_COEFFICIENTS)
         out[:, c] = np.linalg.solve(gram, design.T @ target[:, c])

@@ -18,7 +18,7 @@ Conventions:
   ``u = (col + 0.5) / S``, ``v = 1 - (row + 0.5) / S`` in OBJ / OpenGL UVs (``v`` up, the template's
   ``face_uvs``); glTF's ``TEXCOORD_0`` is ``(u, 1 - v)`` for the same image.
 - **Camera**: ``x_cam = extrinsics @ [x_rig, 1]`` (OpenCV axes: x right, y down, z forward, mm), pixel
-  ``= K @ x_cam / z`` with pixel centres at integer coordinates (:mod:`pipeline.photo.camera`).
+  ``= K @ x_cam / z`` with pixel centres at integer coordinates (:mod:`pipeline.camera`).
 
 Seams need nothing special: the UVs are per face corner, so each triangle is rasterised with its own
 corners' UVs and a vertex on a seam is sampled from both sides.
@@ -31,11 +31,21 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pipeline.colour import linear_to_srgb
 from rig.errors import InputError, shape_error
 from rig.geometry import vertex_normals
 
-__all__ = ["FULL_WEIGHT_COS", "TEXTURE_SIZE", "VISIBLE_COS", "UVTexture", "rasterize_triangles",
-           "texture_from_fit", "unwrap_texture", "uv_raster", "zbuffer"]
+__all__ = [
+    "FULL_WEIGHT_COS",
+    "TEXTURE_SIZE",
+    "VISIBLE_COS",
+    "UVTexture",
+    "rasterize_triangles",
+    "texture_from_fit",
+    "unwrap_texture",
+    "uv_raster",
+    "zbuffer",
+]
 
 TEXTURE_SIZE = 1024
 """Side of ``texture.png`` in texels (the template's UV islands cover 22 % of the square, the face
@@ -77,8 +87,7 @@ class UVTexture:
         return float((self.photo_weight[covered] > 0).mean()) if covered.any() else 0.0
 
 
-def rasterize_triangles(points: np.ndarray, width: int, height: int
-                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def rasterize_triangles(points: np.ndarray, width: int, height: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Every (pixel, triangle) pair whose pixel centre lies in the triangle, by bounding boxes.
 
     Args:
@@ -201,9 +210,18 @@ def _check_camera(intrinsics, extrinsics) -> tuple[np.ndarray, np.ndarray]:
     return k, e
 
 
-def unwrap_texture(photo: np.ndarray, vertices: np.ndarray, faces: np.ndarray, face_uvs: np.ndarray, *,
-                   intrinsics: np.ndarray, extrinsics: np.ndarray, fill_colours: np.ndarray | None = None,
-                   skin_faces: np.ndarray | None = None, size: int = TEXTURE_SIZE) -> UVTexture:
+def unwrap_texture(
+    photo: np.ndarray,
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    face_uvs: np.ndarray,
+    *,
+    intrinsics: np.ndarray,
+    extrinsics: np.ndarray,
+    fill_colours: np.ndarray | None = None,
+    skin_faces: np.ndarray | None = None,
+    size: int = TEXTURE_SIZE,
+) -> UVTexture:
     """Unwrap a photo into a mesh's UVs (module docstring).
 
     Args:
@@ -254,8 +272,10 @@ def unwrap_texture(photo: np.ndarray, vertices: np.ndarray, faces: np.ndarray, f
         raise shape_error(func, "faces", "(F, 3) integer", f.shape)
     f = f.astype(np.int64)
     if len(f) == 0 or f.min() < 0 or f.max() >= len(v):
-        raise InputError(f"{func}: faces must index the {len(v)} vertices, got range [{f.min(initial=0)}, "
-                         f"{f.max(initial=0)}] over {len(f)} faces")
+        raise InputError(
+            f"{func}: faces must index the {len(v)} vertices, got range [{f.min(initial=0)}, "
+            f"{f.max(initial=0)}] over {len(f)} faces"
+        )
     uv = np.asarray(face_uvs, np.float64)
     if uv.shape != (len(f), 3, 2) or not np.isfinite(uv).all():
         raise shape_error(func, "face_uvs", f"({len(f)}, 3, 2) finite", uv.shape)
@@ -331,8 +351,9 @@ def unwrap_texture(photo: np.ndarray, vertices: np.ndarray, faces: np.ndarray, f
         if not pick.any():
             pick = weight > 0
         if not pick.any():
-            raise InputError(f"{func}: no texel is seen by the camera, so there is no colour to fill with "
-                             "(give fill_colours)")
+            raise InputError(
+                f"{func}: no texel is seen by the camera, so there is no colour to fill with (give fill_colours)"
+            )
         fill_rgb = np.broadcast_to(np.median(photo_rgb[pick], axis=0), photo_rgb.shape)
         how = "median of visible texels"
     rgb = weight[:, None] * photo_rgb + (1.0 - weight[:, None]) * fill_rgb
@@ -342,8 +363,7 @@ def unwrap_texture(photo: np.ndarray, vertices: np.ndarray, faces: np.ndarray, f
     weight_img = np.zeros((size, size), np.float32)
     weight_img[covered] = weight
     image = _pad_islands(image, covered)
-    return UVTexture(image=image, photo_weight=weight_img, face=face_img, fill=how,
-                     seconds=time.perf_counter() - t0)
+    return UVTexture(image=image, photo_weight=weight_img, face=face_img, fill=how, seconds=time.perf_counter() - t0)
 
 
 def _transform(matrix: np.ndarray, points: np.ndarray) -> np.ndarray:
@@ -367,9 +387,16 @@ def _pad_islands(image: np.ndarray, covered: np.ndarray) -> np.ndarray:
     return flat[lookup[labels.ravel()]].reshape(image.shape)
 
 
-def texture_from_fit(photo: np.ndarray, fit, faces: np.ndarray, face_uvs: np.ndarray, *,
-                     regions: np.ndarray | None = None, skin_region_ids=None,
-                     size: int = TEXTURE_SIZE) -> UVTexture:
+def texture_from_fit(
+    photo: np.ndarray,
+    fit,
+    faces: np.ndarray,
+    face_uvs: np.ndarray,
+    *,
+    regions: np.ndarray | None = None,
+    skin_region_ids=None,
+    size: int = TEXTURE_SIZE,
+) -> UVTexture:
     """:func:`unwrap_texture` of a photo fit: its head (``fit.rig_vertices``), its camera, and its fitted
     albedo as the fill (sRGB-encoded) when the photometric stages ran; otherwise (the default landmark fit,
     whose albedo is a placeholder) the median colour of the seen skin texels.
@@ -382,17 +409,26 @@ def texture_from_fit(photo: np.ndarray, fit, faces: np.ndarray, face_uvs: np.nda
             first vertex is in one of them give the median fill.
         size: the texture's side in texels.
     """
-    from pipeline.photo.colour import linear_to_srgb
-
     img = np.asarray(photo)
     if img.shape[:2] != (fit.height, fit.width):
-        raise InputError(f"texture_from_fit: the photo is {img.shape[1]} x {img.shape[0]} px, the fit's camera "
-                         f"{fit.width} x {fit.height}")
+        raise InputError(
+            f"texture_from_fit: the photo is {img.shape[1]} x {img.shape[0]} px, the fit's camera "
+            f"{fit.width} x {fit.height}"
+        )
     intrinsics = fit.camera.intrinsics[0].detach().double().numpy()
     extrinsics = fit.camera.extrinsics[0].detach().double().numpy()
     fill = linear_to_srgb(np.asarray(fit.albedo, np.float64)) if len(fit.stages) else None
     skin = None
     if regions is not None and skin_region_ids is not None:
         skin = np.isin(np.asarray(regions)[np.asarray(faces)[:, 0]], list(skin_region_ids))
-    return unwrap_texture(img, fit.rig_vertices, faces, face_uvs, intrinsics=intrinsics, extrinsics=extrinsics,
-                          fill_colours=fill, skin_faces=skin, size=size)
+    return unwrap_texture(
+        img,
+        fit.rig_vertices,
+        faces,
+        face_uvs,
+        intrinsics=intrinsics,
+        extrinsics=extrinsics,
+        fill_colours=fill,
+        skin_faces=skin,
+        size=size,
+    )

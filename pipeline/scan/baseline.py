@@ -46,20 +46,16 @@ __all__ = ["DEFAULT_STEPS", "BaselineResult", "nricp_baseline"]
 #: normal weighting ``wn`` = 0.5, at most 10 iterations (the eps rule usually ends it after ~4).
 #:
 #: Units: nricp_amberg divides everything by the template's bounding-box diagonal first, so ``ws``
-#: is unit-free and needs no rescaling for millimetres. On the rig template (4,978 vertices, ~5 mm
-#: edges) the useful range is narrow: ``ws`` >= 0.3 is indistinguishable from one global affine
-#: map, ``ws`` <= 0.005 lets vertices snap to single cloud points (folds, 5+ mm errors).
-#: A coarse-to-fine schedule with decreasing stiffness (Amberg et al.; e.g. 0.05 -> 0.02 -> 0.01 ->
-#: 0.005, or 0.03 -> 0.01) was tried and was *worse* on a frontal partial scan of a known 5 mm
-#: deformation (mean vertex error on nose/cheeks/forehead 1.0-1.6 mm vs 0.75 mm, from 1.08 mm
-#: unregistered): the stiff steps cannot represent a local deformation, so the nearly-affine
-#: template slides tangentially to absorb it, and nearest-point data cannot pull it back (sliding
-#: along the surface costs nothing). With a good rigid pre-alignment, as here, one step at the
-#: softest stable stiffness is the better baseline. ``wl`` weights the anchors that hold unseen
-#: vertices at their pre-aligned positions (see :func:`nricp_baseline`); 0 turns them off.
-DEFAULT_STEPS: tuple[tuple[float, float, float, int], ...] = (
-    (0.01, 1.0, 0.5, 10),
-)
+#: is unit-free and needs no rescaling for millimetres. The useful range of ``ws`` on the rig template
+#: is narrow: too stiff is one global affine map, too soft lets vertices snap to single cloud points.
+#: A coarse-to-fine schedule with decreasing stiffness (Amberg et al.) was tried and was *worse*: the
+#: stiff steps cannot represent a local deformation, so the nearly-affine template slides tangentially
+#: to absorb it, and nearest-point data cannot pull it back (sliding along the surface costs nothing).
+#: With a good rigid pre-alignment, as here, one step at the softest stable stiffness is the better
+#: baseline (the trials and their figures: ``docs/fit_scan.md``, "The baseline"). ``wl`` weights the
+#: anchors that hold unseen vertices at their pre-aligned positions (see :func:`nricp_baseline`); 0
+#: turns them off.
+DEFAULT_STEPS: tuple[tuple[float, float, float, int], ...] = ((0.01, 1.0, 0.5, 10),)
 
 
 @dataclass(frozen=True)
@@ -84,8 +80,9 @@ def _array(x, name: str, shape: tuple[int | None, ...]) -> np.ndarray:
     try:
         a = np.asarray(x, dtype=np.float64)
     except (TypeError, ValueError):
-        raise ValueError(f"nricp_baseline: {name} must be a float array of shape {shape}; "
-                         f"got {type(x).__name__}") from None
+        raise ValueError(
+            f"nricp_baseline: {name} must be a float array of shape {shape}; got {type(x).__name__}"
+        ) from None
     if a.ndim != len(shape) or any(s is not None and s != n for s, n in zip(shape, a.shape)):
         raise ValueError(f"nricp_baseline: {name} must have shape {shape}; got {a.shape}")
     if not np.all(np.isfinite(a)):
@@ -109,17 +106,25 @@ def _check_steps(steps) -> list[list]:
         if not all(np.isfinite(v) and v >= 0 for v in (ws, wl, wn)) or ws <= 0:
             raise ValueError(f"nricp_baseline: steps[{i}] needs ws > 0 and wl, wn >= 0 finite; got {row}")
         if max_iter is not None and (int(max_iter) != max_iter or max_iter < 1):
-            raise ValueError(f"nricp_baseline: steps[{i}] max_iter must be a positive int or None; "
-                             f"got {max_iter}")
+            raise ValueError(f"nricp_baseline: steps[{i}] max_iter must be a positive int or None; got {max_iter}")
         out.append([float(ws), float(wl), float(wn), None if max_iter is None else int(max_iter)])
     return out
 
 
-def nricp_baseline(template_vertices: np.ndarray, faces: np.ndarray, cloud: np.ndarray, *,
-                   rotation: np.ndarray, translation: np.ndarray, scale: float = 1.0,
-                   cloud_normals: np.ndarray | None = None, steps: list | None = None,
-                   distance_threshold_mm: float = 10.0, max_points: int | None = 20000,
-                   seed: int = 0) -> BaselineResult:
+def nricp_baseline(
+    template_vertices: np.ndarray,
+    faces: np.ndarray,
+    cloud: np.ndarray,
+    *,
+    rotation: np.ndarray,
+    translation: np.ndarray,
+    scale: float = 1.0,
+    cloud_normals: np.ndarray | None = None,
+    steps: list | None = None,
+    distance_threshold_mm: float = 10.0,
+    max_points: int | None = 20000,
+    seed: int = 0,
+) -> BaselineResult:
     """Register the template to a point cloud with trimesh's non-rigid ICP (the baseline).
 
     The template is moved into the cloud frame, ``x = scale * rotation @ x_rig + translation``,
@@ -130,7 +135,7 @@ def nricp_baseline(template_vertices: np.ndarray, faces: np.ndarray, cloud: np.n
     with no cloud point within the threshold *after the pre-alignment* are also passed to
     nricp_amberg as landmarks pinned to their pre-aligned positions (weight ``wl`` of each step):
     without this, their per-vertex affine maps are extrapolated from the scan's border and the back
-    of the head drifts by 5-25 mm on a frontal scan.
+    of the head drifts (``docs/fit_scan.md``, "The baseline").
 
     Args:
         template_vertices: ``(V, 3)`` template vertices in rig space, mm.
@@ -176,15 +181,15 @@ def nricp_baseline(template_vertices: np.ndarray, faces: np.ndarray, cloud: np.n
     if tri.ndim != 2 or tri.shape[1] != 3 or len(tri) == 0 or not np.issubdtype(tri.dtype, np.integer):
         raise ValueError(f"nricp_baseline: faces must be a non-empty (F, 3) int array; got {tri.shape} {tri.dtype}")
     if tri.min() < 0 or tri.max() >= len(verts):
-        raise ValueError(f"nricp_baseline: faces index outside [0, {len(verts)}); "
-                         f"got range [{tri.min()}, {tri.max()}]")
+        raise ValueError(f"nricp_baseline: faces index outside [0, {len(verts)}); got range [{tri.min()}, {tri.max()}]")
     points = _array(cloud, "cloud", (None, 3))
     if len(points) < 4:
         raise ValueError(f"nricp_baseline: cloud needs at least 4 points; got {len(points)}")
     R = _array(rotation, "rotation", (3, 3))
     if not np.allclose(R.T @ R, np.eye(3), atol=1e-6) or np.linalg.det(R) <= 0:
-        raise ValueError(f"nricp_baseline: rotation must be a proper rotation (R^T R = I, det +1); "
-                         f"got det {np.linalg.det(R):.6g}")
+        raise ValueError(
+            f"nricp_baseline: rotation must be a proper rotation (R^T R = I, det +1); got det {np.linalg.det(R):.6g}"
+        )
     t = _array(translation, "translation", (3,))
     if not (np.isfinite(scale) and scale > 0):
         raise ValueError(f"nricp_baseline: scale must be finite and > 0; got {scale}")
@@ -194,9 +199,12 @@ def nricp_baseline(template_vertices: np.ndarray, faces: np.ndarray, cloud: np.n
         raise ValueError(f"nricp_baseline: max_points must be an int >= 4 or None; got {max_points}")
     if cloud_normals is not None:
         _array(cloud_normals, "cloud_normals", (len(points), 3))
-        warnings.warn("nricp_baseline: cloud_normals are ignored; trimesh's nricp_amberg cannot take target "
-                      "normals for a point cloud and estimates them from point neighbourhoods", UserWarning,
-                      stacklevel=2)
+        warnings.warn(
+            "nricp_baseline: cloud_normals are ignored; trimesh's nricp_amberg cannot take target "
+            "normals for a point cloud and estimates them from point neighbourhoods",
+            UserWarning,
+            stacklevel=2,
+        )
     schedule = _check_steps(DEFAULT_STEPS if steps is None else steps)
 
     if max_points is not None and len(points) > max_points:
@@ -209,9 +217,11 @@ def nricp_baseline(template_vertices: np.ndarray, faces: np.ndarray, cloud: np.n
     unseen = cKDTree(points).query(source.vertices)[0] > distance_threshold_mm
     n_close = int((~unseen).sum())
     if n_close < 4:
-        raise ValueError(f"nricp_baseline: only {n_close} template vertices lie within "
-                         f"{distance_threshold_mm} mm of the cloud after the pre-alignment (need >= 4); "
-                         "check rotation/translation/scale and the cloud's units")
+        raise ValueError(
+            f"nricp_baseline: only {n_close} template vertices lie within "
+            f"{distance_threshold_mm} mm of the cloud after the pre-alignment (need >= 4); "
+            "check rotation/translation/scale and the cloud's units"
+        )
 
     start = time.perf_counter()
     # Anchors: vertices with no cloud point within the threshold after the pre-alignment (the unseen
@@ -220,11 +230,16 @@ def nricp_baseline(template_vertices: np.ndarray, faces: np.ndarray, cloud: np.n
     # extrapolated from the scan's border and the back of the head drifts by centimetres.
     anchors = np.flatnonzero(unseen)
     use_anchors = len(anchors) > 0 and any(row[1] > 0 for row in schedule)
-    registered = nricp_amberg(source, points,
-                              source_landmarks=anchors if use_anchors else None,
-                              target_positions=source.vertices[anchors].copy() if use_anchors else None,
-                              steps=schedule, distance_threshold=threshold,
-                              use_faces=False, use_vertex_normals=False)
+    registered = nricp_amberg(
+        source,
+        points,
+        source_landmarks=anchors if use_anchors else None,
+        target_positions=source.vertices[anchors].copy() if use_anchors else None,
+        steps=schedule,
+        distance_threshold=threshold,
+        use_faces=False,
+        use_vertex_normals=False,
+    )
     seconds = time.perf_counter() - start
 
     registered = np.asarray(registered, dtype=np.float64)

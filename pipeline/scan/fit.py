@@ -8,8 +8,10 @@ NICP, and a regulariser L_m (eq. 4) that diminishes while the correspondences co
    ICP (every yaw, a few pitches) or the similarity of the 3D landmarks, with a scale. Landmarks are
    first checked (:func:`landmarks.points3d.check_landmarks_3d`); a cloud of which less than
    ``min_inlier_fraction`` lies near the aligned head is rejected as not a head before the per-point
-   work of the fit (the scan border). Large clouds arrive subsampled (:func:`pipeline.scan.pointcloud.validate_points`).
-2. **Stages** (:class:`pipeline.fitting.engine.Stage`, run by :func:`pipeline.fitting.engine.run_schedule`): each optimises some of ``pose`` (rotation + translation in the cloud
+   work of the fit (the scan border). Large clouds arrive subsampled
+   (:func:`pipeline.scan.pointcloud.validate.validate_points`).
+2. **Stages** (:class:`pipeline.fitting.engine.Stage`, run by :func:`pipeline.fitting.engine.run_schedule`): each
+   optimises some of ``pose`` (rotation + translation in the cloud
    frame), ``joints`` (the 105 channels), ``latent`` (Z) and ``expressions`` (the 52 ARKit coefficients) with
    Adam, rebuilding correspondences every ``correspondence_every`` iterations:
 
@@ -22,7 +24,8 @@ NICP, and a regulariser L_m (eq. 4) that diminishes while the correspondences co
    both found with KD-trees and rejected when farther than an adaptive distance, when the normals
    disagree by more than ``normal_angle_deg``, or (model -> cloud) when the cloud point lies on the
    scan's border (a vertex outside the scanned area would otherwise be pulled to the border), under
-   a Geman-McClure robust loss whose scale is a high quantile of the residuals. Regions the scan misses (holes, the back of the head) get no data
+   a Geman-McClure robust loss whose scale is a high quantile of the residuals. Regions the scan misses (holes, the
+   back of the head) get no data
    term and are filled by the rig's prior (joints, neural skinning, expression limits).
 3. **Diminishing L_m**: its weight starts at ``lambda_m_start`` and shrinks towards ``lambda_m_end``
    as the correspondences settle (the median vertex motion between two rebuilds falls below
@@ -44,41 +47,43 @@ import numpy as np
 import torch
 from scipy.spatial import cKDTree
 
+from landmarks.points3d import check_landmarks_3d, match_landmarks
 from pipeline.fitting.engine import LearningRates, Loss, Stage, StageLog, run_schedule
-from pipeline.fitting.priors import PriorWeights, rig_prior_terms
+from pipeline.fitting.priors import PriorWeights
 from pipeline.fitting.state import AsmScanState, ScanState
-from pipeline.scan.pointcloud import (
-    CloudError,
-    PointCloud,
-    boundary_mask,
-    estimate_normals,
-)
+from pipeline.fitting.terms import Inputs, Term, Value, term_values
+from pipeline.scan.pointcloud.cloud import CloudError, PointCloud
+from pipeline.scan.pointcloud.normals import boundary_mask, estimate_normals
 from pipeline.scan.registration import (
     RigidAlignment,
     closest_on_one_ring,
     incident_faces,
     rigid_prealign,
-    vertex_normals,
 )
 from rig.expressions import ExpressionModel
-from rig.geometry import Similarity
+from rig.geometry import Similarity, vertex_normals
 from rig.model import JointRig
 from rig.optim import Progress
 from rig.parameters import NUM_PARAMETERS
-from rig.skinning.asm import asm_params_to_dict
+from rig.skinning.asm import AdaptiveSkinning, asm_params_to_dict
 from rig.skinning.neural import LATENT, NeuralSkinning, load_neural
 from rig.template import FACE_REGIONS
 
 
-def jnr_schedule(joint_iterations: int = 30, latent_iterations: int = 15, expression_iterations: int = 30,
-                 identity_cycles: int = 2, outer_cycles: int = 2, coarse_iterations: int = 20) -> tuple[Stage, ...]:
+def jnr_schedule(
+    joint_iterations: int = 30,
+    latent_iterations: int = 15,
+    expression_iterations: int = 30,
+    identity_cycles: int = 2,
+    outer_cycles: int = 2,
+    coarse_iterations: int = 20,
+) -> tuple[Stage, ...]:
     """JNR 4.3's schedule: (joints, then Z) x ``identity_cycles``, then expressions; all x ``outer_cycles``.
 
     Before it, a coarse stage (pose and expressions, ``coarse_iterations``; 0 leaves it out) lets the
     expressions take up large deformations such as an open jaw: started with the joints, the fit
-    explains an open mouth with joint motion and stays in that local minimum (measured: lips 4 mm
-    off when fitting the rig's own posed, expressive vertices as a cloud; 0.7 mm with the coarse
-    stage). JNR runs 500 iterations per
+    explains an open mouth with joint motion and stays in that local minimum (measured on the rig's own
+    posed, expressive vertices fitted as a cloud: ``docs/fit_scan.md``). JNR runs 500 iterations per
     stage on a GPU; the defaults are scaled to a 2-core CPU.
     """
     stages: list[Stage] = []
@@ -146,8 +151,8 @@ class CorrespondenceConfig:
     tangential_weight: float = 0.1
     """Weight of the tangential part of the cloud -> model residual (to the closest surface point):
     1 is point-to-point, 0 point-to-plane. Model -> cloud pairs are point-to-plane (the cloud is discrete).
-    Measured on noisy simulated scans of 5 held-out heads: 1.0 gives 2.5 mm true vertex error, 0.1
-    1.05 mm, 0 1.04 mm (noise pulls a point-to-point fit sideways); a little keeps sliding in check."""
+    Noise pulls a point-to-point fit sideways; a little tangential weight keeps sliding in check (chosen
+    on noisy simulated scans of held-out heads: ``docs/fit_scan.md``, "Settings")."""
     model_to_cloud_weight: float = 1.0
     """Weight of the model -> cloud pairs relative to the cloud -> model pairs."""
     boundary_k: int = 16
@@ -262,7 +267,7 @@ def plane_residual(d: torch.Tensor, n: torch.Tensor, tangential: float) -> torch
     """Squared point-to-plane distance plus a weighted tangential part: ``d, n (M, 3) -> (M,)`` mm^2."""
     normal = (d * n).sum(-1)
     tangent = d - normal[:, None] * n
-    return normal ** 2 + tangential * (tangent ** 2).sum(-1)
+    return normal**2 + tangential * (tangent**2).sum(-1)
 
 
 def geman_mcclure(e: torch.Tensor, sigma: float) -> torch.Tensor:
@@ -273,8 +278,10 @@ def geman_mcclure(e: torch.Tensor, sigma: float) -> torch.Tensor:
 
 class ScanObjective:
     """The non-rigid ICP loss of one cloud: correspondences rebuilt every ``correspondences.every`` steps
-    (:meth:`rebuild`, the engine's ``before_step``), the robust data term, the rig priors with L_m
-    diminishing as the correspondences settle, and the optional 3D landmark term.
+    (:meth:`rebuild`, the engine's ``before_step``), the robust data term, the head model's priors
+    (:meth:`~pipeline.fitting.state.FitState.prior_terms`) with L_m diminishing as the correspondences settle,
+    and the optional 3D landmark term, as :class:`~pipeline.fitting.terms.Term` s (the data and landmark terms
+    are given by their values: Adam only).
 
     Args:
         state: the fit state (:class:`~pipeline.fitting.state.ScanState`).
@@ -284,22 +291,34 @@ class ScanObjective:
         landmarks: ``(vertex ids (L,), positions (L, 3) mm)`` or None.
     """
 
-    def __init__(self, state: ScanState, points: np.ndarray, normals: np.ndarray, border: np.ndarray,
-                 view_dir: np.ndarray | None, config: FitScanConfig, rng: np.random.Generator,
-                 landmarks: tuple[np.ndarray, np.ndarray] | None) -> None:
+    def __init__(
+        self,
+        state: ScanState,
+        points: np.ndarray,
+        normals: np.ndarray,
+        border: np.ndarray,
+        view_dir: np.ndarray | None,
+        config: FitScanConfig,
+        rng: np.random.Generator,
+        landmarks: tuple[np.ndarray, np.ndarray] | None,
+    ) -> None:
         c = config.correspondences
         dtype = state.dtype
         self.state, self.config, self.c = state, config, c
         self.points, self.normals, self.border, self.view_dir = points, normals, border, view_dir
-        sub = np.sort(rng.choice(len(points), size=c.max_cloud_points, replace=False)) \
-            if len(points) > c.max_cloud_points else np.arange(len(points))
+        sub = (
+            np.sort(rng.choice(len(points), size=c.max_cloud_points, replace=False))
+            if len(points) > c.max_cloud_points
+            else np.arange(len(points))
+        )
         self.p_sub, self.n_sub = points[sub], normals[sub]
         self.cloud_tree = cKDTree(points)
         self.P_sub = torch.as_tensor(self.p_sub, dtype=dtype)
         self.P_all = torch.as_tensor(points, dtype=dtype)
         self.cos_max = math.cos(math.radians(c.normal_angle_deg))
-        self.landmarks = None if landmarks is None else (torch.as_tensor(landmarks[0]),
-                                                         torch.as_tensor(landmarks[1], dtype=dtype))
+        self.landmarks = (
+            None if landmarks is None else (torch.as_tensor(landmarks[0]), torch.as_tensor(landmarks[1], dtype=dtype))
+        )
         faces = state.rig.asset.faces
         self.incident = incident_faces(faces, len(state.rig.asset.vertices))
         self.max_d, self.lambda_m, self.previous = c.max_distance_mm, config.prior.lambda_m, None
@@ -327,10 +346,12 @@ class ScanObjective:
         ok2 = (d2 <= self.max_d) & ~self.border[k2] & ((vn * self.normals[k2]).sum(1) >= self.cos_max)
         if self.view_dir is not None:
             ok2 &= vn @ self.view_dir > c.min_facing
-        e1 = plane_residual(torch.from_numpy(self.p_sub[ok1] - q1[ok1]), torch.from_numpy(n1[ok1]),
-                            c.tangential_weight).numpy()
-        e2 = plane_residual(torch.from_numpy(v_cloud[ok2] - self.points[k2[ok2]]),
-                            torch.from_numpy(self.normals[k2[ok2]]), 0.0).numpy()
+        e1 = plane_residual(
+            torch.from_numpy(self.p_sub[ok1] - q1[ok1]), torch.from_numpy(n1[ok1]), c.tangential_weight
+        ).numpy()
+        e2 = plane_residual(
+            torch.from_numpy(v_cloud[ok2] - self.points[k2[ok2]]), torch.from_numpy(self.normals[k2[ok2]]), 0.0
+        ).numpy()
         return (f1, b1, n1, ok1), (k2, ok2), np.sqrt(np.concatenate([e1, e2]))
 
     def rebuild(self, v_cloud: np.ndarray) -> Pairs:
@@ -346,52 +367,98 @@ class ScanObjective:
             target = p.lambda_m_end + (p.lambda_m - p.lambda_m_end) * min(1.0, motion / p.settle_mm)
             self.lambda_m = min(self.lambda_m, target)
         self.previous = v_cloud.copy()
-        return Pairs(c_i=torch.as_tensor(np.flatnonzero(ok1), dtype=torch.long),
-                     c_tri=torch.as_tensor(faces[f1[ok1]], dtype=torch.long),
-                     c_bary=torch.as_tensor(torch.as_tensor(b1[ok1], dtype=dtype)),
-                     c_n=torch.as_tensor(torch.as_tensor(n1[ok1], dtype=dtype)),
-                     m_j=torch.as_tensor(np.flatnonzero(ok2), dtype=torch.long),
-                     m_k=torch.as_tensor(k2[ok2], dtype=torch.long),
-                     m_n=torch.as_tensor(torch.as_tensor(self.normals[k2[ok2]], dtype=dtype)), sigma=float(sigma))
+        return Pairs(
+            c_i=torch.as_tensor(np.flatnonzero(ok1), dtype=torch.long),
+            c_tri=torch.as_tensor(faces[f1[ok1]], dtype=torch.long),
+            c_bary=torch.as_tensor(torch.as_tensor(b1[ok1], dtype=dtype)),
+            c_n=torch.as_tensor(torch.as_tensor(n1[ok1], dtype=dtype)),
+            m_j=torch.as_tensor(np.flatnonzero(ok2), dtype=torch.long),
+            m_k=torch.as_tensor(k2[ok2], dtype=torch.long),
+            m_n=torch.as_tensor(torch.as_tensor(self.normals[k2[ok2]], dtype=dtype)),
+            sigma=float(sigma),
+        )
 
     def __call__(self, free: tuple[str, ...]) -> Loss:
-        """One step's loss: ``sqrt(mean robust residual)``, the rig priors, the landmark RMSE."""
+        """One step's loss: ``sqrt(mean robust residual)``, the head model's priors, the landmark RMSE."""
         pairs, c = self.pairs, self.c
         v_rig = self.state.rig_vertices(free)
         v_cloud = self.state.to_cloud(v_rig)
         on_surface = (pairs.c_bary[:, :, None] * v_cloud[pairs.c_tri]).sum(1)
         e1 = plane_residual(self.P_sub[pairs.c_i] - on_surface, pairs.c_n, c.tangential_weight)
         e2 = plane_residual(v_cloud[pairs.m_j] - self.P_all[pairs.m_k], pairs.m_n, 0.0)
-        w2 = c.model_to_cloud_weight
-        robust = (geman_mcclure(e1, pairs.sigma).sum() + w2 * geman_mcclure(e2, pairs.sigma).sum()) / (
-            len(e1) + w2 * len(e2))
-        terms = {"data": (robust + 1e-12).sqrt(), **rig_prior_terms(self.state, self.config.prior, lambda_m=self.lambda_m)}
-        smooth = self.config.prior.lambda_asm_smooth
-        if smooth and getattr(self.state, "asm", None) is not None:
-            offset = v_rig - self.state.rig.template
-            terms["smooth"] = smooth * torch.sparse.mm(self.state.rig.laplacian, offset).square().sum(-1).mean()
-        if self.landmarks is not None:
-            ids, positions = self.landmarks
-            terms["landmarks"] = self.config.lambda_landmarks * ((v_cloud[ids] - positions) ** 2).sum(-1).mean().sqrt()
+        inputs = self.state.term_inputs().add({"rig_vertices": v_rig[None], "cloud_vertices": v_cloud[None]})
+        terms = (
+            self.data_term(e1, e2, pairs.sigma),
+            *self.state.prior_terms(self.config.prior, lambda_m=self.lambda_m),
+            *(() if self.landmarks is None else (self.landmark_term(),)),
+        )
         data_rms = e1.detach().clamp_max((3 * pairs.sigma) ** 2).mean().sqrt()
-        return Loss(terms, {"data_rms_mm": data_rms, "lambda_m": self.lambda_m,
-                            "pairs_cloud_to_model": len(pairs.c_i), "pairs_model_to_cloud": len(pairs.m_j)})
+        return Loss(
+            term_values(terms, inputs),
+            {
+                "data_rms_mm": data_rms,
+                "lambda_m": self.lambda_m,
+                "pairs_cloud_to_model": len(pairs.c_i),
+                "pairs_model_to_cloud": len(pairs.m_j),
+            },
+        )
+
+    def data_term(self, e1: torch.Tensor, e2: torch.Tensor, sigma: float) -> Term:
+        """``data``: ``sqrt(mean robust residual)`` of the squared residuals ``e1 (M,)`` (cloud -> model) and
+        ``e2 (K,)`` (model -> cloud, weighted ``model_to_cloud_weight``), Geman-McClure at scale ``sigma``."""
+        w2 = self.c.model_to_cloud_weight
+
+        def root_mean_robust(p: Inputs) -> torch.Tensor:
+            robust = (geman_mcclure(e1, sigma).sum() + w2 * geman_mcclure(e2, sigma).sum()) / (len(e1) + w2 * len(e2))
+            return (robust + 1e-12).sqrt()[None, None]
+
+        return Term(
+            "data",
+            1.0,
+            root_mean_robust,
+            Value(),
+            lm="none",
+            note="the root of a mean robust residual is not a sum of squares",
+        )
+
+    def landmark_term(self) -> Term:
+        """``landmarks``: ``lambda_landmarks`` times the RMSE of the 3D landmarks (mm, cloud frame; the input
+        ``cloud_vertices (B, V, 3)``)."""
+        ids, positions = self.landmarks
+        return Term(
+            "landmarks",
+            self.config.lambda_landmarks,
+            lambda p: ((p["cloud_vertices"][:, ids] - positions) ** 2).sum(-1).mean(-1).sqrt()[:, None],
+            Value(),
+            lm="none",
+            note="an RMSE (the root of a mean) is not a sum of squares",
+        )
 
 
 def _cloud_normals(cloud: PointCloud, config: FitScanConfig) -> np.ndarray:
     """``(N, 3)`` unit normals of the cloud: its own, or estimated (PCA over ``normals_k`` neighbours)."""
-    return cloud.normals if cloud.normals is not None else estimate_normals(cloud.points,
-                                                                            k=config.correspondences.normals_k)
+    return (
+        cloud.normals
+        if cloud.normals is not None
+        else estimate_normals(cloud.points, k=config.correspondences.normals_k)
+    )
 
 
-def fit_scan(cloud: PointCloud, config: FitScanConfig | None = None, *,
-             landmarks: Mapping[str, np.ndarray] | None = None, rig: JointRig | None = None,
-             neural: NeuralSkinning | None = None, expressions: ExpressionModel | None = None,
-             progress: Progress | None = None, landmarks_source: str = "--landmarks") -> ScanFit:
+def fit_scan(
+    cloud: PointCloud,
+    config: FitScanConfig | None = None,
+    *,
+    landmarks: Mapping[str, np.ndarray] | None = None,
+    rig: JointRig | None = None,
+    neural: NeuralSkinning | None = None,
+    expressions: ExpressionModel | None = None,
+    progress: Progress | None = None,
+    landmarks_source: str = "--landmarks",
+) -> ScanFit:
     """Fit the rig (pose, joints, Z, expressions) to a point cloud.
 
     Args:
-        cloud: the validated cloud (:func:`pipeline.scan.pointcloud.read_point_cloud`), mm, rig frame.
+        cloud: the validated cloud (:func:`pipeline.scan.pointcloud.read.read_point_cloud`), mm, rig frame.
         config: settings and schedule (default :class:`FitScanConfig`).
         landmarks: optional ``{name: (3,) mm}`` 3D landmarks in the cloud's frame
             (:data:`landmarks.points3d.LANDMARK_NAMES_3D`); they replace the rigid search and add a term.
@@ -412,15 +479,7 @@ def fit_scan(cloud: PointCloud, config: FitScanConfig | None = None, *,
     config = config or FitScanConfig()
     t_start = time.perf_counter()
     rig = rig or JointRig()
-    asm_model = None
-    if config.skinning == "asm":
-        from rig.skinning.asm import AdaptiveSkinning
-
-        asm_model, neural = AdaptiveSkinning(rig, components=config.asm_components), None
-    elif config.use_neural and neural is None:
-        neural, _ = load_neural(rig)
-    if not config.use_neural:
-        neural = None
+    asm_model, neural = _head_models(config, rig, neural)
     expressions = expressions or ExpressionModel(rig.asset, dtype=rig.template.dtype)
     rng = np.random.default_rng(config.seed)
     normals = _cloud_normals(cloud, config)
@@ -432,56 +491,108 @@ def fit_scan(cloud: PointCloud, config: FitScanConfig | None = None, *,
     border = boundary_mask(cloud.points, k=config.correspondences.boundary_k)
     t_prealign = time.perf_counter() - t_start
 
+    pose = (align.rotation, align.translation, align.scale)
     if asm_model is not None:
-        state = AsmScanState(asm_model, expressions, align.rotation, align.translation, align.scale,
-                             fit_scale=config.fit_scale)
+        state = AsmScanState(asm_model, expressions, *pose, fit_scale=config.fit_scale)
     else:
-        state = ScanState(rig, neural, expressions, align.rotation, align.translation, align.scale,
-                          fit_scale=config.fit_scale)
+        state = ScanState(rig, neural, expressions, *pose, fit_scale=config.fit_scale)
     objective = ScanObjective(state, cloud.points, normals, border, view_dir, config, rng, marks)
     t_fit = time.perf_counter()
-    stages = run_schedule(state, config.stages, objective, config.lr, label="fit-scan", progress=progress,
-                          before_step=objective.before_step)
+    stages = run_schedule(
+        state,
+        config.stages,
+        objective,
+        config.lr,
+        label="fit-scan",
+        progress=progress,
+        before_step=objective.before_step,
+    )
     with torch.no_grad():
         v_rig = state.rig_vertices()
         v_cloud = state.to_cloud(v_rig)
     values = state.arrays()
     t_end = time.perf_counter()
-    return ScanFit(theta=values["theta"], z=values["z"], expressions=values["expressions"],
-                   rotation=values["rotation"], translation=state.translation.detach().double().numpy(),
-                   scale=state.scale, vertices=v_cloud.double().numpy(), rig_vertices=v_rig.double().numpy(),
-                   prealign=align, stages=stages,
-                   timings={"prealign": t_prealign, "fit": t_end - t_fit, "total": t_end - t_start},
-                   asm=None if asm_model is None else asm_params_to_dict(state.asm_parameters(()),
-                                                                         rig.asset.joint_names))
+    return ScanFit(
+        theta=values["theta"],
+        z=values["z"],
+        expressions=values["expressions"],
+        rotation=values["rotation"],
+        translation=state.translation.detach().double().numpy(),
+        scale=state.scale,
+        vertices=v_cloud.double().numpy(),
+        rig_vertices=v_rig.double().numpy(),
+        prealign=align,
+        stages=stages,
+        timings={"prealign": t_prealign, "fit": t_end - t_fit, "total": t_end - t_start},
+        asm=None if asm_model is None else asm_params_to_dict(state.asm_parameters(()), rig.asset.joint_names),
+    )
 
 
-def _prealign(cloud: PointCloud, normals: np.ndarray, view_dir: np.ndarray | None, config: FitScanConfig,
-              rig: JointRig, neural: NeuralSkinning | None, landmarks: Mapping[str, np.ndarray] | None,
-              landmarks_source: str) -> tuple[RigidAlignment, tuple[np.ndarray, np.ndarray] | None]:
+def _head_models(
+    config: FitScanConfig, rig: JointRig, neural: NeuralSkinning | None
+) -> tuple[AdaptiveSkinning | None, NeuralSkinning | None]:
+    """``(ASM model or None, neural skinning or None)`` of the head model ``config.skinning`` (the learned
+    skinning loaded when needed and not given)."""
+    if config.skinning == "asm":
+        return AdaptiveSkinning(rig, components=config.asm_components), None
+    if not config.use_neural:
+        return None, None
+    return None, neural if neural is not None else load_neural(rig)[0]
+
+
+def _prealign(
+    cloud: PointCloud,
+    normals: np.ndarray,
+    view_dir: np.ndarray | None,
+    config: FitScanConfig,
+    rig: JointRig,
+    neural: NeuralSkinning | None,
+    landmarks: Mapping[str, np.ndarray] | None,
+    landmarks_source: str,
+) -> tuple[RigidAlignment, tuple[np.ndarray, np.ndarray] | None]:
     """Check the landmarks, align the template rigidly and reject a cloud that is not a head. Returns the
     alignment and the matched landmarks ``(vertex ids, positions)`` (None without landmarks)."""
     asset, dtype, points = rig.asset, rig.template.dtype, cloud.points
     with torch.no_grad():
-        start_vertices = (neural.rig(torch.zeros(1, NUM_PARAMETERS, dtype=dtype), weights=neural(
-            torch.zeros(1, LATENT, dtype=dtype))[0]).vertices[0].numpy() if neural is not None else asset.vertices)
+        start_vertices = (
+            neural.rig(
+                torch.zeros(1, NUM_PARAMETERS, dtype=dtype), weights=neural(torch.zeros(1, LATENT, dtype=dtype))[0]
+            )
+            .vertices[0]
+            .numpy()
+            if neural is not None
+            else asset.vertices
+        )
     marks = None
     if landmarks:
-        from landmarks.points3d import check_landmarks_3d, match_landmarks
-
         lm_ids, lm_pos, lm_names = match_landmarks(landmarks, asset)
-        check_landmarks_3d(lm_pos, lm_names, reference=start_vertices[lm_ids], cloud=points, view_direction=view_dir,
-                           source=landmarks_source)
+        check_landmarks_3d(
+            lm_pos,
+            lm_names,
+            reference=start_vertices[lm_ids],
+            cloud=points,
+            view_direction=view_dir,
+            source=landmarks_source,
+        )
         marks = (lm_ids, lm_pos)
     # The not-a-head test (the pre-alignment's inlier fraction) comes before the per-point work only
     # the fit needs (the scan border).
-    align = rigid_prealign(points, normals, start_vertices, asset.faces, face_mask=asset.region_mask(*FACE_REGIONS),
-                           seed=config.seed, yaw_step_deg=config.prealign.yaw_step_deg, with_scale=config.prealign.scale,
-                           landmarks=None if marks is None else (start_vertices[marks[0]], marks[1]))
+    align = rigid_prealign(
+        points,
+        normals,
+        start_vertices,
+        asset.faces,
+        face_mask=asset.region_mask(*FACE_REGIONS),
+        seed=config.seed,
+        yaw_step_deg=config.prealign.yaw_step_deg,
+        with_scale=config.prealign.scale,
+        landmarks=None if marks is None else (start_vertices[marks[0]], marks[1]),
+    )
     if align.inlier_fraction < config.prealign.min_inlier_fraction:
-        sampled = (f" (a random {len(points)} of its {cloud.input_points})"
-                   if cloud.input_points > len(points) else "")
-        raise CloudError(f"the cloud does not look like a head: after the best rigid alignment only "
-                         f"{100 * align.inlier_fraction:.0f} % of its points{sampled} lie within 8 mm of the head "
-                         f"model (need {100 * config.prealign.min_inlier_fraction:.0f} %)")
+        sampled = f" (a random {len(points)} of its {cloud.input_points})" if cloud.input_points > len(points) else ""
+        raise CloudError(
+            f"the cloud does not look like a head: after the best rigid alignment only "
+            f"{100 * align.inlier_fraction:.0f} % of its points{sampled} lie within 8 mm of the head "
+            f"model (need {100 * config.prealign.min_inlier_fraction:.0f} %)"
+        )
     return align, marks

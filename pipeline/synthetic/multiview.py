@@ -1,13 +1,14 @@
 """Synthetic multi-view photo sets of one held-out head, with known truth (issue 15).
 
 Several uncalibrated photos of one person: the same held-out head (never seen in training) and the same
-albedo in every view (:func:`pipeline.synthetic.photos.synthesize_albedo`, drawn once), each view with its
+albedo in every view (:func:`pipeline.synthetic.photos.albedo.synthesize_albedo`, drawn once), each view with its
 own random head pose (yaw within ``yaw_deg_range``, default ±60°; pitch and roll as
-:class:`~pipeline.synthetic.photos.PhotoSettings`), its own focal length (``focal_factor_range``), light,
+:class:`~pipeline.synthetic.photos.settings.PhotoSettings`), its own focal length (``focal_factor_range``), light,
 background and landmark noise, and a small expression of its own: MakeHuman expression units
 (:mod:`pipeline.synthetic.expressive`, not the rig's ARKit shapes), sampled as for the expressive heads and
 scaled by ``expression_scale`` (default 0.25: strengths 0.1-0.25 of the artist's unit). Each view is
-path-traced by :func:`render.reference.render_reference` through :func:`~pipeline.synthetic.photos.simulate_photo`
+path-traced by :func:`render.reference.render_reference` through
+:func:`~pipeline.synthetic.photos.simulate.simulate_photo`
 (a renderer and light model unlike the fitting ones).
 
 The truth of the identity is :attr:`SyntheticViews.neutral_vertices` (the head without expression, rig
@@ -24,7 +25,9 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from pipeline.synthetic.photos import PhotoSettings, SyntheticPhoto, simulate_photo, synthesize_albedo
+from pipeline.synthetic.photos.albedo import synthesize_albedo
+from pipeline.synthetic.photos.settings import PhotoSettings, SyntheticPhoto
+from pipeline.synthetic.photos.simulate import simulate_photo
 from rig.asset import RigAsset, load_asset
 
 __all__ = ["MultiViewSettings", "SyntheticViews", "simulate_views", "synthetic_views"]
@@ -38,7 +41,7 @@ class MultiViewSettings:
 
     Attributes:
         photo: the camera, light and albedo distributions of each view
-            (:class:`~pipeline.synthetic.photos.PhotoSettings`); its ``yaw_deg_range`` is replaced by
+            (:class:`~pipeline.synthetic.photos.settings.PhotoSettings`); its ``yaw_deg_range`` is replaced by
             :attr:`yaw_deg_range`.
         yaw_deg_range: head yaw of each view, degrees (uniform).
         expression_scale: factor on the sampled MakeHuman expression coefficients of each view (0: the
@@ -54,8 +57,9 @@ class MultiViewSettings:
             raise TypeError(f"MultiViewSettings: photo must be a PhotoSettings, got {type(self.photo).__name__}")
         lo, hi = (float(x) for x in self.yaw_deg_range)
         if not (-90.0 <= lo <= hi <= 90.0):
-            raise ValueError(f"MultiViewSettings: yaw_deg_range must be (low, high) within [-90, 90], got "
-                             f"{self.yaw_deg_range!r}")
+            raise ValueError(
+                f"MultiViewSettings: yaw_deg_range must be (low, high) within [-90, 90], got {self.yaw_deg_range!r}"
+            )
         if not (np.isfinite(self.expression_scale) and 0.0 <= self.expression_scale <= 1.0):
             raise ValueError(f"MultiViewSettings: expression_scale must be in [0, 1], got {self.expression_scale!r}")
 
@@ -65,7 +69,7 @@ class SyntheticViews:
     """``N`` synthetic photos of one head (``V`` vertices).
 
     Attributes:
-        photos: ``N`` :class:`~pipeline.synthetic.photos.SyntheticPhoto`, each with its pose, focal, landmarks
+        photos: ``N`` :class:`~pipeline.synthetic.photos.settings.SyntheticPhoto`, each with its pose, focal, landmarks
             and its own expressive mesh ``gt_vertices`` (rig space, mm).
         neutral_vertices: ``(V, 3)`` float64 the head without expression, rig space, mm: the identity.
         expression_coefficients: ``(N, 34)`` the MakeHuman unit coefficients of each view
@@ -92,9 +96,16 @@ class SyntheticViews:
         return replace(self, photos=self.photos[:n], expression_coefficients=self.expression_coefficients[:n])
 
 
-def simulate_views(neutral_vertices, n_views: int, rng: np.random.Generator | int,
-                   settings: MultiViewSettings = MultiViewSettings(), asset: RigAsset | None = None, *,
-                   name: str = "", render: bool = True) -> SyntheticViews:
+def simulate_views(
+    neutral_vertices,
+    n_views: int,
+    rng: np.random.Generator | int,
+    settings: MultiViewSettings = MultiViewSettings(),
+    asset: RigAsset | None = None,
+    *,
+    name: str = "",
+    render: bool = True,
+) -> SyntheticViews:
     """Photograph one head ``n_views`` times (module docstring).
 
     Args:
@@ -111,7 +122,7 @@ def simulate_views(neutral_vertices, n_views: int, rng: np.random.Generator | in
         :class:`SyntheticViews`.
 
     Raises:
-        ValueError: bad ``n_views`` or vertices, or :func:`~pipeline.synthetic.photos.simulate_photo`'s errors.
+        ValueError: bad ``n_views`` or vertices, or :func:`~pipeline.synthetic.photos.simulate.simulate_photo`'s errors.
     """
     from pipeline.synthetic.expressive import expressive_offsets, sample_expression_coefficients
 
@@ -131,14 +142,23 @@ def simulate_views(neutral_vertices, n_views: int, rng: np.random.Generator | in
         c = sample_expression_coefficients(view_rng, 1)[0] * settings.expression_scale
         coefficients.append(c)
         expressive = v + expressive_offsets(c, asset)
-        photos.append(simulate_photo(expressive, view_rng, photo_settings, asset, name=f"{name}_view{k:02d}",
-                                     albedo=albedo, render=render))
-    return SyntheticViews(photos=tuple(photos), neutral_vertices=v, expression_coefficients=np.array(coefficients),
-                          albedo=albedo, name=str(name))
+        photos.append(
+            simulate_photo(
+                expressive, view_rng, photo_settings, asset, name=f"{name}_view{k:02d}", albedo=albedo, render=render
+            )
+        )
+    return SyntheticViews(
+        photos=tuple(photos),
+        neutral_vertices=v,
+        expression_coefficients=np.array(coefficients),
+        albedo=albedo,
+        name=str(name),
+    )
 
 
-def synthetic_views(index: int, n_views: int, *, seed: int = 0, settings: MultiViewSettings = MultiViewSettings(),
-                    render: bool = True) -> SyntheticViews:
+def synthetic_views(
+    index: int, n_views: int, *, seed: int = 0, settings: MultiViewSettings = MultiViewSettings(), render: bool = True
+) -> SyntheticViews:
     """``n_views`` photos of held-out head ``index`` (``population_split("heldout", 0)``, 0..99).
 
     The generator is seeded from ``(seed, index)``: the first ``k`` views are the same for any ``n_views >= k``.
@@ -157,5 +177,6 @@ def synthetic_views(index: int, n_views: int, *, seed: int = 0, settings: MultiV
         raise ValueError(f"synthetic_views: index must be an integer in [0, {n_heads - 1}], got {index!r}")
     population = population_split("heldout", 0, first=int(index) + 1)  # the same heads, without making all 100
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), int(index), _VIEWS_STREAM]))
-    return simulate_views(population.vertices[int(index)], n_views, rng, settings,
-                          name=population.names[int(index)], render=render)
+    return simulate_views(
+        population.vertices[int(index)], n_views, rng, settings, name=population.names[int(index)], render=render
+    )

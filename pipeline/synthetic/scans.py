@@ -19,10 +19,18 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rig.geometry import RIG_TO_OPENCV, head_rotation
+from rig.geometry import RIG_TO_OPENCV, face_normals, head_rotation
 
-__all__ = ["HIRES_CAMERA", "WORLD_TO_CAMERA", "DepthCamera", "ScanSettings", "SyntheticScan", "render_depth",
-           "simulate_scan", "write_heldout_scan"]
+__all__ = [
+    "HIRES_CAMERA",
+    "WORLD_TO_CAMERA",
+    "DepthCamera",
+    "ScanSettings",
+    "SyntheticScan",
+    "render_depth",
+    "simulate_scan",
+    "write_heldout_scan",
+]
 
 WORLD_TO_CAMERA = RIG_TO_OPENCV
 """Rotation from world axes (+Y up, camera looking along -Z) to the OpenCV camera axes (a proper rotation)."""
@@ -120,6 +128,7 @@ class SyntheticScan:
 # Rasterisation
 # ----------------------------------------------------------------------------------------------------
 
+
 def _check_mesh(vertices, faces, fn: str) -> tuple[np.ndarray, np.ndarray]:
     v = np.asarray(vertices, dtype=float)
     f = np.asarray(faces)
@@ -134,8 +143,9 @@ def _check_mesh(vertices, faces, fn: str) -> tuple[np.ndarray, np.ndarray]:
     return v, f.astype(np.int64)
 
 
-def render_depth(vertices_cam: np.ndarray, faces: np.ndarray,
-                 camera: DepthCamera = DepthCamera()) -> tuple[np.ndarray, np.ndarray]:
+def render_depth(
+    vertices_cam: np.ndarray, faces: np.ndarray, camera: DepthCamera = DepthCamera()
+) -> tuple[np.ndarray, np.ndarray]:
     """Z-buffer rasterisation of a triangle mesh.
 
     Each pixel centre (integer ``(u, v)``) gets the nearest triangle that contains it (screen-space
@@ -162,8 +172,7 @@ def render_depth(vertices_cam: np.ndarray, faces: np.ndarray,
     keep = (z[f] > _NEAR_MM).all(axis=1)
     fid = np.flatnonzero(keep)
     t = uv[f[fid]]  # (F', 3, 2)
-    area = ((t[:, 1, 0] - t[:, 0, 0]) * (t[:, 2, 1] - t[:, 0, 1]) -
-            (t[:, 1, 1] - t[:, 0, 1]) * (t[:, 2, 0] - t[:, 0, 0]))
+    area = (t[:, 1, 0] - t[:, 0, 0]) * (t[:, 2, 1] - t[:, 0, 1]) - (t[:, 1, 1] - t[:, 0, 1]) * (t[:, 2, 0] - t[:, 0, 0])
     u0 = np.maximum(np.ceil(t[..., 0].min(axis=1)), 0).astype(np.int64)
     u1 = np.minimum(np.floor(t[..., 0].max(axis=1)), w - 1).astype(np.int64)
     v0 = np.maximum(np.ceil(t[..., 1].min(axis=1)), 0).astype(np.int64)
@@ -188,7 +197,7 @@ def render_depth(vertices_cam: np.ndarray, faces: np.ndarray,
         tk = t[sl][k]
         a0, a1, a2 = tk[:, 0], tk[:, 1], tk[:, 2]
 
-        def edge(p, q):  # signed area of (p, q, pixel)
+        def edge(p, q, pu=pu, pv=pv):  # signed area of (p, q, pixel)
             return (q[:, 0] - p[:, 0]) * (pv - p[:, 1]) - (q[:, 1] - p[:, 1]) * (pu - p[:, 0])
 
         ar = area[sl][k]
@@ -219,6 +228,7 @@ def _rays(camera: DepthCamera, u: np.ndarray, v: np.ndarray) -> np.ndarray:
 # Scan simulation
 # ----------------------------------------------------------------------------------------------------
 
+
 def _angle(value, rng_range, rng: np.random.Generator, name: str) -> float:
     lo, hi = rng_range
     if lo > hi:
@@ -237,7 +247,7 @@ def _edge_mask(depth: np.ndarray, jump_mm: float) -> np.ndarray:
     centre = pad[1:-1, 1:-1]
     bad = np.zeros(depth.shape, bool)
     for dy, dx in ((0, 1), (2, 1), (1, 0), (1, 2)):
-        nb = pad[dy:dy + depth.shape[0], dx:dx + depth.shape[1]]
+        nb = pad[dy : dy + depth.shape[0], dx : dx + depth.shape[1]]
         with np.errstate(invalid="ignore"):
             bad |= ~np.isfinite(nb) | (np.abs(nb - centre) > jump_mm)
     return bad & np.isfinite(depth)
@@ -249,7 +259,7 @@ def _holes(valid: np.ndarray, target: float, rng: np.random.Generator) -> np.nda
     n_valid = int(valid.sum())
     if target <= 0.0 or n_valid == 0:
         return holes
-    vv, uu = np.mgrid[0:valid.shape[0], 0:valid.shape[1]]
+    vv, uu = np.mgrid[0 : valid.shape[0], 0 : valid.shape[1]]
     ys, xs = np.nonzero(valid)
     for _ in range(40):
         missing = target * n_valid - (holes & valid).sum()
@@ -295,10 +305,17 @@ def _depth_normals(points_img: np.ndarray, valid: np.ndarray) -> np.ndarray:
     return np.where(norm > 0, n / np.maximum(norm, 1e-12), 0.0)
 
 
-def simulate_scan(vertices: np.ndarray, faces: np.ndarray, *, rng: np.random.Generator | int,
-                  settings: ScanSettings = ScanSettings(), camera: DepthCamera = DepthCamera(),
-                  yaw_deg: float | None = None, pitch_deg: float | None = None,
-                  roll_deg: float | None = None) -> SyntheticScan:
+def simulate_scan(
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    *,
+    rng: np.random.Generator | int,
+    settings: ScanSettings = ScanSettings(),
+    camera: DepthCamera = DepthCamera(),
+    yaw_deg: float | None = None,
+    pitch_deg: float | None = None,
+    roll_deg: float | None = None,
+) -> SyntheticScan:
     """Simulate one depth scan of a head.
 
     Args:
@@ -359,8 +376,7 @@ def simulate_scan(vertices: np.ndarray, faces: np.ndarray, *, rng: np.random.Gen
     valid = rendered.copy()
     if s.edge_dropout:
         vv, uu = np.nonzero(rendered)
-        tri = cam[f[face_id[vv, uu]]]
-        n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+        n = face_normals(cam, f[face_id[vv, uu]])
         ray = _rays(camera, uu.astype(float), vv.astype(float))
         cosang = np.abs((n * ray).sum(1)) / np.maximum(np.linalg.norm(n, axis=1) * np.linalg.norm(ray, axis=1), 1e-12)
         grazing = np.zeros_like(rendered)
@@ -404,13 +420,30 @@ def simulate_scan(vertices: np.ndarray, faces: np.ndarray, *, rng: np.random.Gen
     points_world = points @ WORLD_TO_CAMERA + camera_position  # WORLD_TO_CAMERA is its own inverse/transpose
     normals_world = None if normals is None else normals @ WORLD_TO_CAMERA
     final_depth = np.where(valid, z, np.inf)
-    return SyntheticScan(points=points_world, normals=normals_world, gt_vertices=world, rotation=rotation,
-                         translation=translation, visible=visible, hole_fraction=hole_fraction,
-                         camera_position=camera_position, depth=final_depth)
+    return SyntheticScan(
+        points=points_world,
+        normals=normals_world,
+        gt_vertices=world,
+        rotation=rotation,
+        translation=translation,
+        visible=visible,
+        hole_fraction=hole_fraction,
+        camera_position=camera_position,
+        depth=final_depth,
+    )
 
 
-def write_heldout_scan(out, truth, *, head: int = 0, expressive: bool = False, camera: DepthCamera = DepthCamera(),
-                       seed: int = 0, population_seed: int = 0, force: bool = False) -> SyntheticScan:
+def write_heldout_scan(
+    out,
+    truth,
+    *,
+    head: int = 0,
+    expressive: bool = False,
+    camera: DepthCamera = DepthCamera(),
+    seed: int = 0,
+    population_seed: int = 0,
+    force: bool = False,
+) -> SyntheticScan:
     """Simulate a scan of a held-out synthetic head and write it (``jnr data scan``), each file atomically.
 
     Args:
@@ -431,7 +464,7 @@ def write_heldout_scan(out, truth, *, head: int = 0, expressive: bool = False, c
     import trimesh
 
     from pipeline.files import staged_file
-    from pipeline.scan.pointcloud import write_point_cloud_ply
+    from pipeline.scan.pointcloud.write import write_point_cloud_ply
     from pipeline.synthetic.expressive import expressive_split
     from rig.asset import load_asset
 

@@ -178,8 +178,14 @@ def _place_new(tmp: Path, out: Path, kind: str) -> bool:
     return True
 
 
-def move_into_place(tmp: str | os.PathLike, out: str | os.PathLike, *, replace: bool = False, kind: str = "file",
-                    check_replace: Callable[[Path], None] | None = None) -> None:
+def move_into_place(
+    tmp: str | os.PathLike,
+    out: str | os.PathLike,
+    *,
+    replace: bool = False,
+    kind: str = "file",
+    check_replace: Callable[[Path], None] | None = None,
+) -> None:
     """Move the finished temporary ``tmp`` to ``out`` in one atomic step (module docstring).
 
     Args:
@@ -229,9 +235,13 @@ def _staged(tmp: Path, finish: Callable[[Path], None]) -> Iterator[Path]:
 
 
 @contextmanager
-def staged_folder(out: str | os.PathLike, *, replace: bool = False,
-                  check_replace: Callable[[Path], None] | None = None,
-                  before_move: Callable[[Path], None] | None = None) -> Iterator[Path]:
+def staged_folder(
+    out: str | os.PathLike,
+    *,
+    replace: bool = False,
+    check_replace: Callable[[Path], None] | None = None,
+    before_move: Callable[[Path], None] | None = None,
+) -> Iterator[Path]:
     """Write a folder atomically: yields a new hidden temporary folder beside ``out`` to fill; when the
     block ends without an error it is moved to ``out`` (:func:`move_into_place`), otherwise removed.
 
@@ -260,8 +270,9 @@ def staged_folder(out: str | os.PathLike, *, replace: bool = False,
 
 
 @contextmanager
-def staged_file(out: str | os.PathLike, *, replace: bool = False,
-                check_replace: Callable[[Path], None] | None = None) -> Iterator[Path]:
+def staged_file(
+    out: str | os.PathLike, *, replace: bool = False, check_replace: Callable[[Path], None] | None = None
+) -> Iterator[Path]:
     """Write one file atomically: yields a new, empty hidden temporary file beside ``out`` with the same
     suffix (writers that pick the format from the suffix still work); when the block ends without an
     error it is moved to ``out`` (:func:`move_into_place`), otherwise removed.

@@ -33,7 +33,15 @@ import trimesh
 from rig.errors import shape_error
 from rig.io.atomic import write_bytes_atomic
 
-__all__ = ["OBJ_DIGITS", "RIG_SPACE_COMMENT", "check_mesh_arrays", "export_mesh", "resolve_format", "split_uv_seams", "write_mtl"]
+__all__ = [
+    "OBJ_DIGITS",
+    "RIG_SPACE_COMMENT",
+    "check_mesh_arrays",
+    "export_mesh",
+    "resolve_format",
+    "split_uv_seams",
+    "write_mtl",
+]
 
 OBJ_DIGITS = 10
 RIG_SPACE_COMMENT = "millimetres, rig space: right-handed, +Y up, +Z out of the face, +X the subject's left"
@@ -89,10 +97,7 @@ def check_mesh_arrays(
         raise ValueError(f"{func}: faces must be integer vertex indices, got dtype {f.dtype}")
     f = f.astype(np.int64)
     if f.min() < 0 or f.max() >= n_vertices:
-        raise ValueError(
-            f"{func}: faces index vertices out of range [0, {n_vertices}): "
-            f"min {f.min()}, max {f.max()}"
-        )
+        raise ValueError(f"{func}: faces index vertices out of range [0, {n_vertices}): min {f.min()}, max {f.max()}")
 
     uv = None
     if face_uvs is not None:
@@ -119,9 +124,7 @@ def check_mesh_arrays(
                 )
             colors = np.clip(colors, 0.0, 1.0)
         else:
-            raise ValueError(
-                f"{func}: vertex_colors must be float in [0, 1] or uint8, got dtype {c.dtype}"
-            )
+            raise ValueError(f"{func}: vertex_colors must be float in [0, 1] or uint8, got dtype {c.dtype}")
     return v, f, uv, colors
 
 
@@ -237,10 +240,7 @@ def _obj_text_trimesh(vertices, faces, uvs, colors, header: str) -> str:
 def _obj_text_uv_and_colors(vertices, faces, uvs, colors, header: str) -> str:
     """OBJ text with ``v x y z r g b`` lines and UVs (trimesh's OBJ export holds one or the other)."""
     fmt = f"{{:.{OBJ_DIGITS}f}}"
-    v_lines = [
-        "v " + " ".join(fmt.format(x) for x in row)
-        for row in np.column_stack([vertices, colors])
-    ]
+    v_lines = ["v " + " ".join(fmt.format(x) for x in row) for row in np.column_stack([vertices, colors])]
     vt_lines = ["vt " + " ".join(fmt.format(x) for x in row) for row in uvs]
     f1 = faces + 1
     f_lines = [f"f {a}/{a} {b}/{b} {c}/{c}" for a, b, c in f1]
@@ -283,8 +283,9 @@ def _with_material(text: str, mtllib: str, material: str) -> str:
     while head < len(lines) and lines[head].startswith("#"):
         head += 1
     first_face = next((i for i, ln in enumerate(lines) if ln.startswith("f ")), len(lines))
-    return "\n".join([*lines[:head], f"mtllib {mtllib}", *lines[head:first_face], f"usemtl {material}",
-                      *lines[first_face:]])
+    return "\n".join(
+        [*lines[:head], f"mtllib {mtllib}", *lines[head:first_face], f"usemtl {material}", *lines[first_face:]]
+    )
 
 
 def write_mtl(path: str | os.PathLike, material: str, texture: str, *, diffuse=(1.0, 1.0, 1.0)) -> None:
@@ -313,11 +314,19 @@ def write_mtl(path: str | os.PathLike, material: str, texture: str, *, diffuse=(
     kd = np.asarray(diffuse, dtype=np.float64)
     if kd.shape != (3,) or not np.isfinite(kd).all() or kd.min() < 0 or kd.max() > 1:
         raise ValueError(f"{func}: diffuse must be 3 numbers in [0, 1], got {diffuse!r}")
-    text = "\n".join([
-        "# jnr", f"newmtl {material}", "Ka 0.000000 0.000000 0.000000",
-        "Kd " + " ".join(f"{x:.6f}" for x in kd), "Ks 0.000000 0.000000 0.000000", "d 1.000000", "illum 1",
-        f"map_Kd {texture}", "",
-    ])
+    text = "\n".join(
+        [
+            "# jnr",
+            f"newmtl {material}",
+            "Ka 0.000000 0.000000 0.000000",
+            "Kd " + " ".join(f"{x:.6f}" for x in kd),
+            "Ks 0.000000 0.000000 0.000000",
+            "d 1.000000",
+            "illum 1",
+            f"map_Kd {texture}",
+            "",
+        ]
+    )
     write_bytes_atomic(Path(path), text.encode("utf-8"))
 
 

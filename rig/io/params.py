@@ -3,7 +3,7 @@
 A file is ``{"joints": {"nose_tip.translate_y": 2.0, "neck.scale": 1.1, ...}}`` (optionally with a
 ``"units"`` entry), or just the inner object of names to values. Channels not named stay at rest; names
 and limits are those of :data:`rig.parameters.CHANNELS`. The fits' own ``params.json`` files (joints,
-latent Z and expressions) are written by :mod:`pipeline.photo.outputs` / :mod:`pipeline.scan.outputs`.
+latent Z and expressions, and the fit around them) follow :mod:`pipeline.head.params`.
 """
 
 from __future__ import annotations

@@ -57,8 +57,21 @@ class Influence:
 
 
 _X, _Y, _Z = 0, 1, 2
-_FACE = ("forehead", "brows", "eyelids", "nose", "cheeks", "lips", "chin", "jaw", "eyeballs", "mouth_interior",
-         "teeth", "tongue", "eye_pockets")
+_FACE = (
+    "forehead",
+    "brows",
+    "eyelids",
+    "nose",
+    "cheeks",
+    "lips",
+    "chin",
+    "jaw",
+    "eyeballs",
+    "mouth_interior",
+    "teeth",
+    "tongue",
+    "eye_pockets",
+)
 # Anchors and boxes in mm on the MakeHuman template (rig.template; landmarks listed in rig.joints): the
 # mouth slit at y = -62, the eyelid rims between y = -0.3 and 7.8, menton y = -104, neck cut y = -166.
 INFLUENCES: dict[str, Influence] = {
@@ -83,8 +96,9 @@ INFLUENCES: dict[str, Influence] = {
     "ears": Influence(regions=("ears",), radius=14.0),
     "left_ear_position": Influence(regions=("ears",), radius=10.0),
     "left_ear_rotate_scale": Influence(regions=("ears",), radius=4.0),
-    "lower_face_root": Influence(regions=("cheeks", "jaw", "chin", "lips", "mouth_interior"),
-                                 box=((_Y, -1e9, -30.0),), radius=20.0),
+    "lower_face_root": Influence(
+        regions=("cheeks", "jaw", "chin", "lips", "mouth_interior"), box=((_Y, -1e9, -30.0),), radius=20.0
+    ),
     "jaw_root": Influence(regions=("jaw", "chin", "cheeks"), box=((_Y, -1e9, -50.0),), radius=20.0),
     "maxilla": Influence(anchors=((0.0, -50.0, 86.0),), ball=20.0, radius=16.0),
     "nose_base_position": Influence(anchors=((0.0, -43.0, 90.0),), ball=10.0, radius=10.0),
@@ -104,14 +118,24 @@ INFLUENCES: dict[str, Influence] = {
     "left_crown_outer": Influence(anchors=((45.0, 92.0, -20.0),), ball=12.0, radius=30.0),
 }
 """Where each joint paints (midline and left joints; right joints mirror their left twin)."""
-RIGID_PIECES: dict[str, str] = {"left_eyeball": "left_eye_socket", "upper_teeth": "maxilla",
-                                "lower_teeth": "jaw_front", "tongue": "jaw_front"}
+RIGID_PIECES: dict[str, str] = {
+    "left_eyeball": "left_eye_socket",
+    "upper_teeth": "maxilla",
+    "lower_teeth": "jaw_front",
+    "tongue": "jaw_front",
+}
 """Separate pieces of the head follow one joint rigidly (the right eyeball: ``right_eye_socket``)."""
 
 
 def _mirror_influence(inf: Influence) -> Influence:
-    return Influence(regions=inf.regions, box=inf.box, anchors=tuple((-x, y, z) for x, y, z in inf.anchors),
-                     ball=inf.ball, radius=inf.radius, priority=inf.priority)
+    return Influence(
+        regions=inf.regions,
+        box=inf.box,
+        anchors=tuple((-x, y, z) for x, y, z in inf.anchors),
+        ball=inf.ball,
+        radius=inf.radius,
+        priority=inf.priority,
+    )
 
 
 def influence_of(joint: str) -> Influence:
@@ -169,7 +193,7 @@ def paint_weights(mesh: TemplateMesh) -> np.ndarray:
         radius = inf.radius * FALLOFF_SCALE
         d = dijkstra(graph, indices=np.flatnonzero(seeds), min_only=True, limit=radius)
         t = np.clip(d / radius, 0.0, 1.0)
-        a = np.where(np.isfinite(d), (1.0 - t ** 2) ** 3, 0.0)
+        a = np.where(np.isfinite(d), (1.0 - t**2) ** 3, 0.0)
         w *= (1.0 - a)[:, None]
         w[:, k] += a
     return w
@@ -180,8 +204,9 @@ def symmetrise_weights(w: np.ndarray, mirror: np.ndarray) -> np.ndarray:
     return 0.5 * (w + w[mirror][:, list(JOINT_MIRROR)])
 
 
-def sparsify_weights(w: np.ndarray, mirror: np.ndarray, max_influences: int = MAX_INFLUENCES,
-                     prune_below: float = PRUNE_BELOW) -> np.ndarray:
+def sparsify_weights(
+    w: np.ndarray, mirror: np.ndarray, max_influences: int = MAX_INFLUENCES, prune_below: float = PRUNE_BELOW
+) -> np.ndarray:
     """Keep each vertex's largest weights (at most ``max_influences``), prune small ones, renormalise.
 
     On midline vertices a joint and its mirror twin are kept or dropped together so that the result
@@ -232,8 +257,13 @@ class SkinningLayout:
         mirror_key = mirror[rows] * w.shape[1] + jm[cols]
         rep = np.minimum(key, mirror_key)
         unique, free_index = np.unique(rep, return_inverse=True)
-        return SkinningLayout(rows.astype(np.int64), cols.astype(np.int64), free_index.astype(np.int64),
-                              len(unique), (int(w.shape[0]), int(w.shape[1])))
+        return SkinningLayout(
+            rows.astype(np.int64),
+            cols.astype(np.int64),
+            free_index.astype(np.int64),
+            len(unique),
+            (int(w.shape[0]), int(w.shape[1])),
+        )
 
     def free_values(self, w: np.ndarray) -> np.ndarray:
         """The free floats of a (symmetric) weight matrix in this layout, ``(S,)``."""
@@ -256,16 +286,21 @@ def rigid_pieces(mesh: TemplateMesh) -> dict[str, np.ndarray]:
     v = mesh.vertices
     eyeballs = mesh.regions == name("eyeballs")
     teeth = mesh.regions == name("teeth")
-    graph = sp.coo_matrix((np.ones(3 * len(mesh.faces)), (mesh.faces.ravel(), np.roll(mesh.faces, 1, 1).ravel())),
-                          shape=(len(v), len(v)))
+    graph = sp.coo_matrix(
+        (np.ones(3 * len(mesh.faces)), (mesh.faces.ravel(), np.roll(mesh.faces, 1, 1).ravel())), shape=(len(v), len(v))
+    )
     _, component = connected_components(graph, directed=False)
     strips = np.unique(component[teeth])
     if len(strips) != 2:
         raise RuntimeError(f"the template's teeth are {len(strips)} pieces, expected an upper and a lower strip")
     upper = max(strips, key=lambda c: v[component == c, 1].mean())
-    return {"left_eyeball": eyeballs & (v[:, 0] > 0), "right_eyeball": eyeballs & (v[:, 0] < 0),
-            "upper_teeth": teeth & (component == upper), "lower_teeth": teeth & (component != upper),
-            "tongue": mesh.regions == name("tongue")}
+    return {
+        "left_eyeball": eyeballs & (v[:, 0] > 0),
+        "right_eyeball": eyeballs & (v[:, 0] < 0),
+        "upper_teeth": teeth & (component == upper),
+        "lower_teeth": teeth & (component != upper),
+        "tongue": mesh.regions == name("tongue"),
+    }
 
 
 def initial_weights(mesh: TemplateMesh) -> np.ndarray:

@@ -41,10 +41,20 @@ def parameter_span(dtype: torch.dtype = torch.float32) -> torch.Tensor:
     return (high - low).clamp_min(1e-3)
 
 
-def fit_joints(rig: JointRig, targets: torch.Tensor, *, weights: torch.Tensor | None = None,
-               init: torch.Tensor | None = None, iterations: int = 500, lr: float = 0.01,
-               lambda_m: float = LAMBDA_M, lambda_x: float = LAMBDA_X, lambda_p: float = LAMBDA_P,
-               snapshot_every: int = 0, progress: Progress | None = None) -> JointFit:
+def fit_joints(
+    rig: JointRig,
+    targets: torch.Tensor,
+    *,
+    weights: torch.Tensor | None = None,
+    init: torch.Tensor | None = None,
+    iterations: int = 500,
+    lr: float = 0.01,
+    lambda_m: float = LAMBDA_M,
+    lambda_x: float = LAMBDA_X,
+    lambda_p: float = LAMBDA_P,
+    snapshot_every: int = 0,
+    progress: Progress | None = None,
+) -> JointFit:
     """Fit joint parameters to meshes with known correspondence by minimising eq. 7.
 
     Args:

@@ -40,10 +40,19 @@ def valid_weights(rig: JointRig, free: torch.Tensor) -> torch.Tensor:
     return dense / dense.sum(-1, keepdim=True).clamp_min(1e-12)
 
 
-def fit_linear_weights(rig: JointRig, targets: torch.Tensor, theta: torch.Tensor, init_free: torch.Tensor, *,
-                       iterations: int = 300, lr: float = 1e-3, lambda_p: float = LAMBDA_P,
-                       batch_size: int | None = None, seed: int = 0,
-                       progress: Progress | None = None) -> tuple[torch.Tensor, list[float]]:
+def fit_linear_weights(
+    rig: JointRig,
+    targets: torch.Tensor,
+    theta: torch.Tensor,
+    init_free: torch.Tensor,
+    *,
+    iterations: int = 300,
+    lr: float = 1e-3,
+    lambda_p: float = LAMBDA_P,
+    batch_size: int | None = None,
+    seed: int = 0,
+    progress: Progress | None = None,
+) -> tuple[torch.Tensor, list[float]]:
     """One global weight matrix for many heads with fixed joints: minimise mean ``L_v + lambda_p L_p``.
 
     Args:
@@ -101,10 +110,18 @@ class LinearSkinningResult:
     weight_losses: list[float] = field(default_factory=list)
 
 
-def learn_linear_skinning(rig: JointRig, targets: torch.Tensor, *, cycles: int = 3, joint_iterations: int = 300,
-                          weight_iterations: int = 300, joint_lr: float = 0.01, weight_lr: float = 1e-3,
-                          snapshot_every: int = 50,
-                          progress: Progress | None = None) -> LinearSkinningResult:
+def learn_linear_skinning(
+    rig: JointRig,
+    targets: torch.Tensor,
+    *,
+    cycles: int = 3,
+    joint_iterations: int = 300,
+    weight_iterations: int = 300,
+    joint_lr: float = 0.01,
+    weight_lr: float = 1e-3,
+    snapshot_every: int = 50,
+    progress: Progress | None = None,
+) -> LinearSkinningResult:
     """JNR's alternation: fit joints with the current weights, then the global weights with those joints.
 
     Starts from the rig's initial weights. ``progress(stage, step, total)`` is called per iteration.
@@ -121,16 +138,25 @@ def learn_linear_skinning(rig: JointRig, targets: torch.Tensor, *, cycles: int =
 
     for cycle in range(cycles + 1):
         w = valid_weights(rig, free).detach()
-        fit = fit_joints(rig, targets, weights=w, init=theta, iterations=joint_iterations, lr=joint_lr,
-                         snapshot_every=snapshot_every, progress=tick(f"joints {cycle + 1}"))
+        fit = fit_joints(
+            rig,
+            targets,
+            weights=w,
+            init=theta,
+            iterations=joint_iterations,
+            lr=joint_lr,
+            snapshot_every=snapshot_every,
+            progress=tick(f"joints {cycle + 1}"),
+        )
         done += joint_iterations
         theta = fit.theta
         rmse.append(float(fit.rmse.mean()))
         snaps.append(fit.snapshots if len(fit.snapshots) else fit.theta[None])
         if cycle == cycles:
             break
-        free, losses = fit_linear_weights(rig, targets, theta, free, iterations=weight_iterations, lr=weight_lr,
-                                          progress=tick(f"weights {cycle + 1}"))
+        free, losses = fit_linear_weights(
+            rig, targets, theta, free, iterations=weight_iterations, lr=weight_lr, progress=tick(f"weights {cycle + 1}")
+        )
         done += weight_iterations
         weight_losses.extend(losses)
     return LinearSkinningResult(free, theta, rmse, torch.cat(snaps), weight_losses)
@@ -139,6 +165,7 @@ def learn_linear_skinning(rig: JointRig, targets: torch.Tensor, *, cycles: int =
 # ----------------------------------------------------------------------------------------------------
 # Closed-form per-head weights
 # ----------------------------------------------------------------------------------------------------
+
 
 @dataclass(frozen=True)
 class OrbitSystem:
@@ -167,11 +194,11 @@ class OrbitSystem:
         for r, c, f in zip(rows, cols, fidx):
             per_vertex.setdefault(int(r), []).append((int(c), int(f)))
         orbits = sorted({(min(v, int(mirror[v])), max(v, int(mirror[v]))) for v in range(len(mirror))})
-        O = len(orbits)
+        n_orbits = len(orbits)
         verts = np.array(orbits, dtype=np.int64)
-        entry_float = -np.ones((O, 2, 4), np.int64)
-        entry_joint = np.zeros((O, 2, 4), np.int64)
-        floats = -np.ones((O, 4), np.int64)
+        entry_float = -np.ones((n_orbits, 2, 4), np.int64)
+        entry_joint = np.zeros((n_orbits, 2, 4), np.int64)
+        floats = -np.ones((n_orbits, 4), np.int64)
         for o, (a, b) in enumerate(orbits):
             slots: dict[int, int] = {}
             for side, v in enumerate((a, b)):
@@ -186,8 +213,16 @@ class OrbitSystem:
         return OrbitSystem(verts, entry_float, entry_joint, floats)
 
 
-def solve_weights(rig: JointRig, theta: torch.Tensor, targets: torch.Tensor, prior_free: torch.Tensor, *,
-                  reg: float = 1e-3, system: OrbitSystem | None = None, chunk: int = 64) -> torch.Tensor:
+def solve_weights(
+    rig: JointRig,
+    theta: torch.Tensor,
+    targets: torch.Tensor,
+    prior_free: torch.Tensor,
+    *,
+    reg: float = 1e-3,
+    system: OrbitSystem | None = None,
+    chunk: int = 64,
+) -> torch.Tensor:
     """Per-head optimal free floats for fixed joints: for each mirror orbit of vertices solve
 
     ``min_f |G f - t|^2 + reg * |f - f_prior|^2  s.t.  sum_k w_vk = 1``
@@ -204,8 +239,9 @@ def solve_weights(rig: JointRig, theta: torch.Tensor, targets: torch.Tensor, pri
         ``(N, S)`` free floats of valid weights (rows sum to 1).
     """
     if theta.shape[0] != targets.shape[0]:
-        raise ShapeError(f"solve_weights: theta (N, P) and targets (N, V, 3) disagree: {tuple(theta.shape)}, "
-                         f"{tuple(targets.shape)}")
+        raise ShapeError(
+            f"solve_weights: theta (N, P) and targets (N, V, 3) disagree: {tuple(theta.shape)}, {tuple(targets.shape)}"
+        )
     system = system or OrbitSystem.from_rig(rig)
     dtype = torch.float64
     verts = torch.as_tensor(system.vertices)
@@ -214,7 +250,7 @@ def solve_weights(rig: JointRig, theta: torch.Tensor, targets: torch.Tensor, pri
     floats = torch.as_tensor(system.floats)
     valid_entry = ef >= 0
     valid_float = floats >= 0
-    O = verts.shape[0]
+    n_orbits = verts.shape[0]
     prior = prior_free.to(dtype)[floats.clamp_min(0)] * valid_float  # (O, 4)
     rest = rig.template.to(dtype)[verts]  # (O, 2, 3)
     # One-hot map entry -> slot: (O, 2, 4 entries, 4 slots).
@@ -223,7 +259,7 @@ def solve_weights(rig: JointRig, theta: torch.Tensor, targets: torch.Tensor, pri
     out = torch.zeros(theta.shape[0], prior_free.shape[0], dtype=dtype)
     eye = torch.eye(4, dtype=dtype)
     for start in range(0, theta.shape[0], chunk):
-        th = theta[start:start + chunk].to(dtype)
+        th = theta[start : start + chunk].to(dtype)
         n = th.shape[0]
         with torch.no_grad():
             _, A = rig.joint_transforms(th.to(rig.template.dtype))
@@ -233,11 +269,11 @@ def solve_weights(rig: JointRig, theta: torch.Tensor, targets: torch.Tensor, pri
         p = (Ae[..., :3, :3] @ rest[None, :, :, None, :, None]).squeeze(-1) + Ae[..., :3, 3]
         # G: (n, O, 2*3 equations, 4 slots)
         G = torch.einsum("nosec,osek->nosck", p, onehot)
-        G = G.reshape(n, O, 6, 4)
-        t = targets[start:start + chunk].to(dtype)[:, verts].reshape(n, O, 6)
+        G = G.reshape(n, n_orbits, 6, 4)
+        t = targets[start : start + chunk].to(dtype)[:, verts].reshape(n, n_orbits, 6)
         # Midline orbits list the same vertex twice: count its equations once.
         same = (verts[:, 0] == verts[:, 1]).to(dtype)
-        row_w = torch.ones(O, 6, dtype=dtype)
+        row_w = torch.ones(n_orbits, 6, dtype=dtype)
         row_w[:, 3:] = (1.0 - same)[:, None]
         G = G * row_w[None, :, :, None]
         t = t * row_w[None]
@@ -248,15 +284,15 @@ def solve_weights(rig: JointRig, theta: torch.Tensor, targets: torch.Tensor, pri
         H = H + torch.diag_embed(pad * 1e6)[None]
         # KKT: [H c; c^T 0] [f; mu] = [g; 1]
         c = constraint[None].expand(n, -1, -1)
-        K = torch.zeros(n, O, 5, 5, dtype=dtype)
+        K = torch.zeros(n, n_orbits, 5, 5, dtype=dtype)
         K[..., :4, :4] = H
         K[..., :4, 4] = c
         K[..., 4, :4] = c
-        rhs = torch.cat([g, torch.ones(n, O, 1, dtype=dtype)], -1)
+        rhs = torch.cat([g, torch.ones(n, n_orbits, 1, dtype=dtype)], -1)
         sol = torch.linalg.solve(K, rhs[..., None]).squeeze(-1)[..., :4]
         sol = sol.clamp_min(0.0) * valid_float
         sol = sol / (sol * c).sum(-1, keepdim=True).clamp_min(1e-12)
-        out[start:start + n, floats[valid_float]] = sol[:, valid_float]
+        out[start : start + n, floats[valid_float]] = sol[:, valid_float]
     return out.to(rig.template.dtype)
 
 

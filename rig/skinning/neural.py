@@ -42,8 +42,10 @@ class GroupLinear(nn.Module):
     def __init__(self, in_features: int, out_features: int, groups: int) -> None:
         super().__init__()
         if in_features % groups or out_features % groups:
-            raise ValueError(f"GroupLinear: in_features {in_features} and out_features {out_features} must be "
-                             f"divisible by groups {groups}")
+            raise ValueError(
+                f"GroupLinear: in_features {in_features} and out_features {out_features} must be "
+                f"divisible by groups {groups}"
+            )
         self.groups = groups
         self.in_features, self.out_features = in_features, out_features
         self.weight = nn.Parameter(torch.empty(out_features // groups, in_features // groups))
@@ -71,10 +73,16 @@ class SkinningDecoder(nn.Module):
         super().__init__()
         self.num_floats = num_floats
         padded = int(math.ceil(num_floats / 10.0) * 10)
-        self.layers = nn.ModuleList([
-            nn.Linear(latent, 100, bias=False), nn.Linear(100, 175, bias=False), nn.Linear(175, 250, bias=False),
-            GroupLinear(250, 500, 2), GroupLinear(500, 1100, 5), GroupLinear(1100, padded, 10),
-        ])
+        self.layers = nn.ModuleList(
+            [
+                nn.Linear(latent, 100, bias=False),
+                nn.Linear(100, 175, bias=False),
+                nn.Linear(175, 250, bias=False),
+                GroupLinear(250, 500, 2),
+                GroupLinear(500, 1100, 5),
+                GroupLinear(1100, padded, 10),
+            ]
+        )
 
     def forward(self, z: torch.Tensor) -> torch.Tensor:
         x = z
@@ -134,13 +142,24 @@ class NeuralTrainingLog:
     critic: list[float]
 
 
-def train_autoencoder(decoder: SkinningDecoder, encoder: SkinningEncoder, residuals: torch.Tensor,
-                      val_residuals: torch.Tensor, *, epochs: int = 30, batch_size: int = 64, lr: float = 1e-3,
-                      seed: int = 0, progress: Progress | None = None) -> tuple[list[float], list[float]]:
+def train_autoencoder(
+    decoder: SkinningDecoder,
+    encoder: SkinningEncoder,
+    residuals: torch.Tensor,
+    val_residuals: torch.Tensor,
+    *,
+    epochs: int = 30,
+    batch_size: int = 64,
+    lr: float = 1e-3,
+    seed: int = 0,
+    progress: Progress | None = None,
+) -> tuple[list[float], list[float]]:
     """Phase 1: auto-encode training residuals (weights minus learned linear weights) with an L1 loss
     plus eq. 9's sparsity term on the decoded residual. Returns per-epoch train and validation losses."""
     if residuals.dim() != 2 or residuals.shape[1] != decoder.num_floats:
-        raise ShapeError(f"train_autoencoder: residuals must be (N, {decoder.num_floats}), got {tuple(residuals.shape)}")
+        raise ShapeError(
+            f"train_autoencoder: residuals must be (N, {decoder.num_floats}), got {tuple(residuals.shape)}"
+        )
     gen = torch.Generator().manual_seed(seed)
     opt = torch.optim.Adam(list(decoder.parameters()) + list(encoder.parameters()), lr=lr)
     train_log, val_log = [], []
@@ -148,7 +167,7 @@ def train_autoencoder(decoder: SkinningDecoder, encoder: SkinningEncoder, residu
         perm = torch.randperm(residuals.shape[0], generator=gen)
         total = 0.0
         for start in range(0, len(perm), batch_size):
-            x = residuals[perm[start:start + batch_size]]
+            x = residuals[perm[start : start + batch_size]]
             rec = decoder(encoder(x))
             loss = (x - rec).abs().sum(-1).mean() + LAMBDA_SPARSE * rec.abs().sum(-1).mean()
             opt.zero_grad()
@@ -163,9 +182,20 @@ def train_autoencoder(decoder: SkinningDecoder, encoder: SkinningEncoder, residu
     return train_log, val_log
 
 
-def train_wgan(decoder: SkinningDecoder, encoder: SkinningEncoder, critic: Critic, residuals: torch.Tensor, *,
-               iterations: int = 300, batch_size: int = 64, lr: float = 1e-4, critic_steps: int = 5,
-               clip: float = 0.05, seed: int = 0, progress: Progress | None = None) -> tuple[list[float], list[float]]:
+def train_wgan(
+    decoder: SkinningDecoder,
+    encoder: SkinningEncoder,
+    critic: Critic,
+    residuals: torch.Tensor,
+    *,
+    iterations: int = 300,
+    batch_size: int = 64,
+    lr: float = 1e-4,
+    critic_steps: int = 5,
+    clip: float = 0.05,
+    seed: int = 0,
+    progress: Progress | None = None,
+) -> tuple[list[float], list[float]]:
     """Phase 2: drop the encoder as a generator input and fine-tune the decoder from noise ``Z``.
 
     Critic loss eq. 8: ``C(E(D(Z))) - C(E(J))`` minimised (Wasserstein estimate, weight clipping as in
@@ -196,8 +226,11 @@ def train_wgan(decoder: SkinningDecoder, encoder: SkinningEncoder, critic: Criti
             z = torch.randn(batch_size, LATENT, generator=gen)
             fake = decoder(z)
             rec = decoder(encoder(real))
-            loss_g = ((real - rec).abs().sum(-1).mean() + LAMBDA_SPARSE * fake.abs().sum(-1).mean()
-                      - LAMBDA_ADV * critic(encoder(fake)).mean())
+            loss_g = (
+                (real - rec).abs().sum(-1).mean()
+                + LAMBDA_SPARSE * fake.abs().sum(-1).mean()
+                - LAMBDA_ADV * critic(encoder(fake)).mean()
+            )
             opt_d.zero_grad()
             loss_g.backward()
             opt_d.step()
@@ -211,6 +244,7 @@ def train_wgan(decoder: SkinningDecoder, encoder: SkinningEncoder, critic: Criti
 # ----------------------------------------------------------------------------------------------------
 # The trained model and the test-time fit
 # ----------------------------------------------------------------------------------------------------
+
 
 class NeuralSkinning(nn.Module):
     """Learned linear weights plus the decoder: ``Z (N, 50) -> valid weights (N, V, K)``.
@@ -254,10 +288,19 @@ class NeuralFit:
     rmse_per_stage: list[list[float]]
 
 
-def fit_neural(neural: NeuralSkinning, targets: torch.Tensor, *, cycles: int = 2, joint_iterations: int = 300,
-               z_iterations: int = 200, joint_lr: float = 0.01, z_lr: float = 0.02, z_prior: float = 1e-3,
-               init: torch.Tensor | None = None,
-               progress: Progress | None = None) -> NeuralFit:
+def fit_neural(
+    neural: NeuralSkinning,
+    targets: torch.Tensor,
+    *,
+    cycles: int = 2,
+    joint_iterations: int = 300,
+    z_iterations: int = 200,
+    joint_lr: float = 0.01,
+    z_lr: float = 0.02,
+    z_prior: float = 1e-3,
+    init: torch.Tensor | None = None,
+    progress: Progress | None = None,
+) -> NeuralFit:
     """JNR's test-time fit (4.4): ``Z = 0``, fit the joints, then fit ``Z`` with the joints fixed; repeat.
 
     Args:
@@ -278,8 +321,15 @@ def fit_neural(neural: NeuralSkinning, targets: torch.Tensor, *, cycles: int = 2
         for cycle in range(cycles):
             with torch.no_grad():
                 w = neural(z)
-            fit = fit_joints(rig, targets, weights=w, init=theta, iterations=joint_iterations, lr=joint_lr,
-                             progress=(lambda _, it, n, c=cycle: progress(f"joints {c + 1}", it, n)) if progress else None)
+            fit = fit_joints(
+                rig,
+                targets,
+                weights=w,
+                init=theta,
+                iterations=joint_iterations,
+                lr=joint_lr,
+                progress=(lambda _, it, n, c=cycle: progress(f"joints {c + 1}", it, n)) if progress else None,
+            )
             theta = fit.theta
             stages.append(fit.rmse.tolist())
             with torch.no_grad():
@@ -289,8 +339,11 @@ def fit_neural(neural: NeuralSkinning, targets: torch.Tensor, *, cycles: int = 2
             for it in range(z_iterations):
                 w = neural(zz)
                 pred = skin_vertices(rig.template, w, skinning)
-                loss = (vertex_rmse(pred, targets) + LAMBDA_P * laplacian_loss(pred, targets, rig.laplacian)
-                        + z_prior * zz.square().sum(-1)).sum()
+                loss = (
+                    vertex_rmse(pred, targets)
+                    + LAMBDA_P * laplacian_loss(pred, targets, rig.laplacian)
+                    + z_prior * zz.square().sum(-1)
+                ).sum()
                 opt.zero_grad()
                 loss.backward()
                 opt.step()
@@ -332,7 +385,7 @@ def load_neural(rig, path=None) -> tuple[NeuralSkinning, dict]:
         raise AssetError(f"learned skinning not found: {path} (train it with `jnr train`)")
     with np.load(path, allow_pickle=False) as data:
         linear = torch.as_tensor(data["linear_free"])
-        state = {k[len("decoder."):]: torch.as_tensor(data[k]) for k in data.files if k.startswith("decoder.")}
+        state = {k[len("decoder.") :]: torch.as_tensor(data[k]) for k in data.files if k.startswith("decoder.")}
         meta = json.loads(str(data["meta_json"]))
     if linear.shape[0] != rig.num_skinning_floats:
         raise AssetError(f"{path} has {linear.shape[0]} skinning floats, the rig {rig.num_skinning_floats}; retrain it")

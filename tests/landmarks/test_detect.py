@@ -1,4 +1,5 @@
-"""Face and 68-landmark detection on a real portrait (skimage's astronaut) with dlib."""
+"""Face and 68-landmark detection on a real portrait (skimage's astronaut) with dlib's detectors, through the
+detector interface (:mod:`landmarks.detector`): by name, and as the classes of :mod:`landmarks.dlib_detector`."""
 
 import numpy as np
 import pytest
@@ -8,23 +9,29 @@ skimage_data = pytest.importorskip("skimage.data")
 
 from PIL import Image
 
-from landmarks.detect import (
+from landmarks.detect import detect_faces, detect_landmarks
+from landmarks.detector import DetectionError, FaceDetection, FaceDetector, NoFaceError, create_detector
+from landmarks.dlib_detector import (
     CNN_MIN_CONFIDENCE,
-    DetectionError,
-    FaceDetection,
-    detect_faces,
-    detect_landmarks,
-    load_image,
+    DEFAULT_MIN_SCORE,
+    CnnDetector,
+    HogDetector,
+    auto_detector,
     shape_predictor_path,
 )
+from landmarks.images import load_image
 
 try:
-    from landmarks.ibug68 import IBUG68_MIRROR
+    from landmarks.ibug68.names import IBUG68_MIRROR
 except ImportError:  # ibug68 needs torch; the permutation is standard iBUG-68
     IBUG68_MIRROR = tuple(
-        [16 - i for i in range(17)] + [26 - i for i in range(5)] + [21 - i for i in range(5)]
-        + [27, 28, 29, 30] + [35, 34, 33, 32, 31]
-        + [45, 44, 43, 42, 47, 46] + [39, 38, 37, 36, 41, 40]
+        [16 - i for i in range(17)]
+        + [26 - i for i in range(5)]
+        + [21 - i for i in range(5)]
+        + [27, 28, 29, 30]
+        + [35, 34, 33, 32, 31]
+        + [45, 44, 43, 42, 47, 46]
+        + [39, 38, 37, 36, 41, 40]
         + [54, 53, 52, 51, 50, 49, 48, 59, 58, 57, 56, 55]
         + [64, 63, 62, 61, 60, 67, 66, 65]
     )
@@ -162,19 +169,69 @@ class TestDetectors:
         assert detect_landmarks(astronaut).detector == "hog"  # HOG finds it: the CNN is not run
 
     def test_unknown_detector(self, astronaut):
-        with pytest.raises(DetectionError, match="detector must be one of"):
+        with pytest.raises(DetectionError, match="unknown face detector 'yolo'; the detectors are hog, cnn, auto"):
             detect_faces(astronaut, detector="yolo")
+
+
+class TestInterface:
+    """dlib's detectors as :class:`~landmarks.detector.FaceDetector` classes: the registry makes them, and
+    :func:`detect_faces` by name gives what the class gives, sorted."""
+
+    def test_the_registry_makes_the_dlib_classes(self):
+        hog, cnn, auto = (create_detector(name) for name in ("hog", "cnn", "auto"))
+        assert isinstance(hog, HogDetector) and isinstance(cnn, CnnDetector)
+        assert all(isinstance(d, FaceDetector) for d in (hog, cnn, auto))
+        assert (hog.name, cnn.name, auto.name) == ("hog", "cnn", "auto")
+        assert [d.name for d in auto.detectors] == ["hog", "cnn"]
+        assert (hog.upsample, hog.min_score, cnn.min_confidence) == (1, DEFAULT_MIN_SCORE, CNN_MIN_CONFIDENCE)
+        assert create_detector("hog", upsample=2, min_score=0.0).min_score == 0.0
+
+    def test_by_name_equals_by_class(self, two_faces, astronaut_face):
+        by_class = sorted(HogDetector().detect(two_faces), key=lambda f: -f.area)
+        by_name = detect_faces(two_faces, "hog")
+        assert len(by_name) == len(by_class) == 2
+        for a, b in zip(by_name, by_class):
+            np.testing.assert_array_equal(a.landmarks, b.landmarks)
+            np.testing.assert_array_equal(a.box, b.box)
+            assert a.score == b.score and a.detector == b.detector == "hog"
+        (given,) = detect_faces(two_faces[:, :512], HogDetector())  # an instance instead of a name
+        np.testing.assert_array_equal(given.landmarks, astronaut_face.landmarks)
+
+    def test_auto_is_hog_where_hog_finds_a_face(self, astronaut, astronaut_face):
+        (face,) = auto_detector().detect(astronaut)
+        assert face.detector == "hog"
+        np.testing.assert_array_equal(face.landmarks, astronaut_face.landmarks)
+        assert astronaut_face.landmarks.flags.writeable is False and astronaut_face.box.flags.writeable is False
+
+    def test_bad_options(self, astronaut):
+        with pytest.raises(DetectionError, match="HogDetector: upsample must be an integer >= 0; got 1.5"):
+            create_detector("hog", upsample=1.5)
+        with pytest.raises(DetectionError, match="CnnDetector: min_confidence must be a finite number"):
+            CnnDetector(min_confidence=float("nan"))
+        with pytest.raises(TypeError):
+            create_detector("cnn", min_score=0.0)  # the CNN's threshold is min_confidence
+        with pytest.raises(DetectionError, match="apply to a detector given by name"):
+            detect_faces(astronaut, HogDetector(), upsample=0)
+        with pytest.raises(DetectionError, match=r"HogDetector.detect: image must be .*got shape \(4, 4\)"):
+            HogDetector().detect(np.zeros((4, 4), np.uint8))
 
 
 class TestExceptions:
     def test_no_face(self):
         grey = np.full((200, 200, 3), 128, np.uint8)
         assert detect_faces(grey) == []
-        with pytest.raises(DetectionError, match="no face found"):
+        with pytest.raises(NoFaceError, match="no face found"):
             detect_landmarks(grey)
 
-    @pytest.mark.parametrize("image", [np.zeros((10, 10), np.uint8), np.zeros((10, 10, 3), np.float32),
-                                       np.zeros((10, 10, 4), np.uint8), np.zeros((0, 10, 3), np.uint8)])
+    @pytest.mark.parametrize(
+        "image",
+        [
+            np.zeros((10, 10), np.uint8),
+            np.zeros((10, 10, 3), np.float32),
+            np.zeros((10, 10, 4), np.uint8),
+            np.zeros((0, 10, 3), np.uint8),
+        ],
+    )
     def test_bad_image(self, image):
         with pytest.raises(DetectionError, match=r"detect_faces: image .*got shape"):
             detect_faces(image)
@@ -183,37 +240,13 @@ class TestExceptions:
         grey = np.full((20, 20, 3), 128, np.uint8)
         with pytest.raises(DetectionError, match="upsample"):
             detect_faces(grey, upsample=-1)
+        with pytest.raises(DetectionError, match="min_score"):
+            detect_faces(grey, min_score=float("inf"))
         with pytest.raises(DetectionError, match="face must be"):
             detect_landmarks(grey, face="0")
 
-    def test_missing_file(self, tmp_path):
-        with pytest.raises(FileNotFoundError, match="nope.png"):
-            load_image(tmp_path / "nope.png")
 
-    def test_corrupt_file(self, tmp_path):
-        path = tmp_path / "corrupt.png"
-        path.write_bytes(np.random.default_rng(0).integers(0, 256, 1000, dtype=np.uint8).tobytes())
-        with pytest.raises(DetectionError, match="corrupt.png"):
-            load_image(path)
-
-
-class TestLoadImage:
-    @pytest.mark.parametrize("mode", ["L", "RGBA", "RGB", "P"])
-    def test_modes_load_as_rgb(self, tmp_path, astronaut, mode):
-        path = tmp_path / f"img_{mode}.png"
-        Image.fromarray(astronaut[:40, :60]).convert(mode).save(path)
-        image = load_image(path)
-        assert image.shape == (40, 60, 3) and image.dtype == np.uint8
-        if mode == "RGB":
-            np.testing.assert_array_equal(image, astronaut[:40, :60])
-
-    def test_exif_orientation_applied(self, tmp_path, astronaut):
-        path = tmp_path / "rotated.jpg"
-        exif = Image.Exif()
-        exif[0x0112] = 6  # stored sideways: the viewer rotates 90 degrees clockwise
-        Image.fromarray(astronaut[:40, :60]).save(path, exif=exif)
-        assert load_image(path).shape == (60, 40, 3)
-
+class TestLoadedImage:
     def test_loaded_portrait_detects(self, tmp_path, astronaut, astronaut_face):
         path = tmp_path / "astronaut.png"
         Image.fromarray(astronaut).save(path)

@@ -23,8 +23,9 @@ def bench():
 
 
 def test_detected_landmarks_sit_on_the_embedding(bench, asset, tmp_path_factory):
-    data = bench.render_and_detect([-15.0, 0.0, 15.0], [0.0], [20], tmp_path_factory.mktemp("views"), True,
-                                   log=lambda *_: None)
+    data = bench.render_and_detect(
+        [-15.0, 0.0, 15.0], [0.0], [20], tmp_path_factory.mktemp("views"), True, log=lambda *_: None
+    )
     assert data["found"].sum() >= 2
     inner = slice(17, 68)
     corrected = np.linalg.norm(bench.offsets(data, asset, corrected=True)[:, inner], axis=2).mean()

@@ -54,23 +54,30 @@ def _pts(lines, n=68):
     return f"version: 1\nn_points: {n}\n{{\n" + "\n".join(lines) + "\n}\n"
 
 
-@pytest.mark.parametrize("name, text, message", [
-    ("count.pts", _pts(["1 2"] * 67, 67), "expected 68 landmarks, got 67"),
-    ("declared.pts", _pts(["1 2"] * 67), "n_points says 68 but the file lists 67"),
-    ("nan.pts", _pts(["1 2"] * 10 + ["nan 3"] + ["1 2"] * 57), r"line 14: non-finite"),
-    ("word.pts", _pts(["1 2"] * 5 + ["1 x"] + ["1 2"] * 62), r"line 9: not a number: 'x'"),
-    ("three.pts", _pts(["1 2 3"] + ["1 2"] * 67), r"line 4: expected 'x y'"),
-    ("open.pts", "version: 1\nn_points: 68\n{\n" + "1 2\n" * 68, "no '}'"),
-    ("count.csv", "index,x,y\n" + "".join(f"{i},1,2\n" for i in range(60)), "expected 68 landmarks, got 60"),
-    ("header.csv", "i,x,y\n0,1,2\n", "line 1: expected the header"),
-    ("inf.csv", "index,x,y\n" + "".join(f"{i},{'inf' if i == 3 else 1},2\n" for i in range(68)), "line 5: non-finite"),
-    ("index.csv", "index,x,y\n0,1,2\n2,1,2\n", "line 3: expected index 1"),
-    ("short.csv", "index,x,y\n0,1\n", "line 2: expected 'index,x,y'"),
-    ("count.json", json.dumps({"landmarks": [[1, 2]] * 5}), "expected 68 landmarks, got 5"),
-    ("bad.json", '{"landmarks": [', "invalid JSON"),
-    ("row.json", json.dumps({"landmarks": [[1, 2]] * 3 + [[1, "a"]] + [[1, 2]] * 64}), "landmark 3"),
-    ("conv.json", json.dumps({"landmarks": [[1, 2]] * 68, "convention": "mp468"}), "unsupported convention"),
-])
+@pytest.mark.parametrize(
+    "name, text, message",
+    [
+        ("count.pts", _pts(["1 2"] * 67, 67), "expected 68 landmarks, got 67"),
+        ("declared.pts", _pts(["1 2"] * 67), "n_points says 68 but the file lists 67"),
+        ("nan.pts", _pts(["1 2"] * 10 + ["nan 3"] + ["1 2"] * 57), r"line 14: non-finite"),
+        ("word.pts", _pts(["1 2"] * 5 + ["1 x"] + ["1 2"] * 62), r"line 9: not a number: 'x'"),
+        ("three.pts", _pts(["1 2 3"] + ["1 2"] * 67), r"line 4: expected 'x y'"),
+        ("open.pts", "version: 1\nn_points: 68\n{\n" + "1 2\n" * 68, "no '}'"),
+        ("count.csv", "index,x,y\n" + "".join(f"{i},1,2\n" for i in range(60)), "expected 68 landmarks, got 60"),
+        ("header.csv", "i,x,y\n0,1,2\n", "line 1: expected the header"),
+        (
+            "inf.csv",
+            "index,x,y\n" + "".join(f"{i},{'inf' if i == 3 else 1},2\n" for i in range(68)),
+            "line 5: non-finite",
+        ),
+        ("index.csv", "index,x,y\n0,1,2\n2,1,2\n", "line 3: expected index 1"),
+        ("short.csv", "index,x,y\n0,1\n", "line 2: expected 'index,x,y'"),
+        ("count.json", json.dumps({"landmarks": [[1, 2]] * 5}), "expected 68 landmarks, got 5"),
+        ("bad.json", '{"landmarks": [', "invalid JSON"),
+        ("row.json", json.dumps({"landmarks": [[1, 2]] * 3 + [[1, "a"]] + [[1, 2]] * 64}), "landmark 3"),
+        ("conv.json", json.dumps({"landmarks": [[1, 2]] * 68, "convention": "mp468"}), "unsupported convention"),
+    ],
+)
 def test_bad_files_raise_with_file_and_line(tmp_path, name, text, message):
     path = tmp_path / name
     path.write_text(text)

@@ -2,28 +2,88 @@ import numpy as np
 import pytest
 import torch
 
-from landmarks import ibug68 as ibug
-from landmarks.ibug68 import (
-    CHIN,
-    CONTOUR_ANGLES_DEG,
-    IBUG68_MIRROR,
-    IBUG68_NAMES,
-    LANDMARK_CORRECTIONS_MM,
-    LandmarkEmbedding,
-    contour_candidates,
-    contour_landmarks,
-    ibug68_embedding,
-    landmark_positions,
-    snap_domain_points,
-)
+from landmarks.ibug68.contour import contour_candidates, contour_landmarks
+from landmarks.ibug68.corrections import CONTOUR_ANGLES_DEG, LANDMARK_CORRECTIONS_MM
+from landmarks.ibug68.domains import snap_domain_points
+from landmarks.ibug68.embedding import LandmarkEmbedding, _build_embedding, ibug68_embedding
+from landmarks.ibug68.names import CHIN, IBUG68_MIRROR, IBUG68_NAMES
+from landmarks.ibug68.outline import _outline
+from landmarks.ibug68.placement import _outer_lip_ring
+from landmarks.ibug68.positions import landmark_positions
 from rig.lbs import ShapeError
 
 # Verified visually (front and side previews of the MakeHuman head, and dlib's detections on renders:
 # benchmarks/bench_landmark_offsets.py) before pinning.
-GOLDEN_FACES = [3479, 2809, 1163, 1237, 1175, 1058, 1272, 993, 1504, 5323, 5602, 5389, 5504, 5567, 5492, 7134, 7793,
-                315, 287, 282, 1479, 284, 4624, 5809, 4623, 4626, 4655, 170, 169, 2528, 2207, 403, 455, 424, 4794,
-                4743, 1655, 1625, 1652, 1644, 1629, 3128, 5972, 5980, 5952, 5982, 7447, 5956, 536, 601, 605, 589,
-                4944, 4941, 4876, 4958, 4975, 922, 634, 618, 696, 845, 680, 5183, 5036, 5183, 845, 845]
+GOLDEN_FACES = [
+    3479,
+    2809,
+    1163,
+    1237,
+    1175,
+    1058,
+    1272,
+    993,
+    1504,
+    5323,
+    5602,
+    5389,
+    5504,
+    5567,
+    5492,
+    7134,
+    7793,
+    315,
+    287,
+    282,
+    1479,
+    284,
+    4624,
+    5809,
+    4623,
+    4626,
+    4655,
+    170,
+    169,
+    2528,
+    2207,
+    403,
+    455,
+    424,
+    4794,
+    4743,
+    1655,
+    1625,
+    1652,
+    1644,
+    1629,
+    3128,
+    5972,
+    5980,
+    5952,
+    5982,
+    7447,
+    5956,
+    536,
+    601,
+    605,
+    589,
+    4944,
+    4941,
+    4876,
+    4958,
+    4975,
+    922,
+    634,
+    618,
+    696,
+    845,
+    680,
+    5183,
+    5036,
+    5183,
+    845,
+    845,
+]
 
 MIDLINE = [8, 27, 28, 29, 30, 33, 51, 57, 62, 66]
 
@@ -81,7 +141,9 @@ def test_mirror_pairs_are_exact_mirror_images(asset, corrected):
     emb = ibug68_embedding(asset, corrected=corrected)
     for i, j in enumerate(IBUG68_MIRROR):
         if i != j:
-            assert sorted(asset.mirror[asset.faces[emb.faces[i]]].tolist()) == sorted(asset.faces[emb.faces[j]].tolist())
+            assert sorted(asset.mirror[asset.faces[emb.faces[i]]].tolist()) == sorted(
+                asset.faces[emb.faces[j]].tolist()
+            )
 
 
 def test_order_matches_ibug(pts):
@@ -152,21 +214,21 @@ def test_committed_corrections_reproduce_the_embedding(asset, emb, pts, heuristi
         np.testing.assert_array_equal(pts[k], heuristic_pts[k])
     assert {62, 66}.isdisjoint(rows)
     # the contour angles are outline vertices' directions, in order along the outline
-    outline = ibug._outline(asset)
+    outline = _outline(asset)
     assert len(CONTOUR_ANGLES_DEG) == 8 and list(CONTOUR_ANGLES_DEG) == sorted(CONTOUR_ANGLES_DEG)
     for k, angle in zip(range(16, 8, -1), CONTOUR_ANGLES_DEG):
         c = int(np.argmin(np.abs(outline.angles - angle)))
         assert abs(outline.angles[c] - angle) < 0.051
         np.testing.assert_array_equal(pts[k], asset.vertices[outline.vertex_ids[c]])
     # a pure function of the asset and the tables: rebuilt from scratch, the same faces and weights
-    rebuilt = ibug._build_embedding(asset, corrected=True)
+    rebuilt = _build_embedding(asset, corrected=True)
     np.testing.assert_array_equal(rebuilt.faces, emb.faces)
     np.testing.assert_array_equal(rebuilt.barycentric, emb.barycentric)
 
 
 def test_geometric_placement_sits_on_the_lip_rims_and_bow(asset, heuristic_pts):
     v, p = asset.vertices, heuristic_pts
-    ring = ibug._outer_lip_ring(asset)
+    ring = _outer_lip_ring(asset)
     lips = asset.region_mask("lips")
     assert lips[ring].all() and len(ring) == len(asset.mouth_loop)
     for k in range(48, 60):
@@ -239,6 +301,7 @@ def test_contour_far_side_moves_towards_visible_silhouette(asset, pts):
     assert (p[far, 0] - static[:, 0])[:4].min() > 5.0  # the cheek's points (1-4) move well inwards
     # they sit near the silhouette: normals almost perpendicular to the view direction
     from rig.geometry import vertex_normals
+
     n = vertex_normals(asset.vertices, asset.faces)
     cam = np.array(_yaw_camera(30.0))
     ids = [int(np.argmin(np.linalg.norm(asset.vertices - q, axis=1))) for q in p[far]]
@@ -284,7 +347,7 @@ def test_contour_picks_need_only_the_support_vertices():
     """``contour_support_ids`` lists every vertex the pick reads: a mesh with only those filled in picks the same."""
     import torch as _torch
 
-    from landmarks.ibug68 import contour_support_ids, contour_vertex_ids
+    from landmarks.ibug68.contour import contour_support_ids, contour_vertex_ids
     from rig.asset import load_asset
     from rig.geometry import head_rotation
     from rig.model import JointRig
@@ -293,8 +356,13 @@ def test_contour_picks_need_only_the_support_vertices():
     asset = load_asset()
     support = contour_support_ids(asset)
     assert 0 < len(support) < len(asset.vertices) // 2
-    v = JointRig(dtype=_torch.float64)(random_theta(_torch.Generator().manual_seed(2), 1, spread=0.4,
-                                                    dtype=_torch.float64)).vertices[0].numpy()
+    v = (
+        JointRig(dtype=_torch.float64)(
+            random_theta(_torch.Generator().manual_seed(2), 1, spread=0.4, dtype=_torch.float64)
+        )
+        .vertices[0]
+        .numpy()
+    )
     only = np.zeros_like(v)
     only[support] = v[support]
     for yaw in (-35.0, 0.0, 25.0):

@@ -20,8 +20,12 @@ def _camera(fx=800.0, fy=820.0, cx=300.5, cy=250.25, width=640, height=480, rota
     if rotation is not None:
         E[:3, :3] = torch.as_tensor(rotation, dtype=torch.float64)
     E[:3, 3] = torch.as_tensor(t, dtype=torch.float64)
-    return PinholeCamera(K[None], E[None], torch.tensor([float(height)], dtype=torch.float64),
-                         torch.tensor([float(width)], dtype=torch.float64))
+    return PinholeCamera(
+        K[None],
+        E[None],
+        torch.tensor([float(height)], dtype=torch.float64),
+        torch.tensor([float(width)], dtype=torch.float64),
+    )
 
 
 def _rot_y(deg):
@@ -51,7 +55,9 @@ def test_projection_matches_pinhole_formula_with_rotated_extrinsics():
 
 def _setup(b=2, seed=0):
     g = torch.Generator().manual_seed(seed)
-    pts = torch.randn(b, 68, 3, generator=g, dtype=torch.float64) * 30 + torch.tensor([0.0, 0.0, 600.0], dtype=torch.float64)
+    pts = torch.randn(b, 68, 3, generator=g, dtype=torch.float64) * 30 + torch.tensor(
+        [0.0, 0.0, 600.0], dtype=torch.float64
+    )
     cam = _camera(rotation=_rot_y(10.0), t=(3.0, 4.0, 20.0))
     return pts, cam, g
 
@@ -137,14 +143,16 @@ def test_bad_arguments_raise():
 
 
 def test_detector_weights_follow_the_measured_errors():
-    """Inverse variance of dlib's measured errors (docs/landmark_offsets.json), symmetric, within [0.05, 1]."""
+    """Inverse variance of dlib's measured errors (benchmarks/results/landmark_offsets.json), symmetric, within
+    [0.05, 1]."""
     import json
     from pathlib import Path
 
-    from landmarks.ibug68 import IBUG68_MIRROR
+    from landmarks.ibug68.names import IBUG68_MIRROR
     from landmarks.loss import DETECTOR_ERROR_PX, detector_landmark_weights
 
-    table = json.loads((Path(__file__).resolve().parents[2] / "docs" / "landmark_offsets.json").read_text())
+    results = Path(__file__).resolve().parents[2] / "benchmarks" / "results"
+    table = json.loads((results / "landmark_offsets.json").read_text())
     measured = [lm["error"] for lm in table["corrected"]["landmarks"]]
     assert len(DETECTOR_ERROR_PX) == 68
     np.testing.assert_allclose(DETECTOR_ERROR_PX, measured, atol=0.006)
@@ -159,7 +167,7 @@ def test_detector_weights_follow_the_measured_errors():
 
 
 def test_landmark_weights_of_both_weightings():
-    from landmarks.ibug68 import CHIN, JAW_CONTOUR
+    from landmarks.ibug68.names import CHIN, JAW_CONTOUR
     from landmarks.loss import CONTOUR_WEIGHT, detector_landmark_weights, landmark_weights
 
     contour = [i for i in JAW_CONTOUR if i != CHIN]

@@ -6,12 +6,10 @@ import numpy as np
 import pytest
 import torch
 
-from landmarks.ibug68 import (
-    IBUG68_MIRROR,
-    contour_landmarks,
-    ibug68_embedding,
-    landmark_positions,
-)
+from landmarks.ibug68.contour import contour_landmarks
+from landmarks.ibug68.embedding import ibug68_embedding
+from landmarks.ibug68.names import IBUG68_MIRROR
+from landmarks.ibug68.positions import landmark_positions
 from landmarks.plausibility import (
     INNER_LANDMARKS,
     MAX_AFFINE_RESIDUAL,
@@ -23,8 +21,7 @@ from landmarks.plausibility import (
     fit_affine_camera,
     reference_landmarks,
 )
-from pipeline.photo.camera import RIG_TO_OPENCV, camera_center_in_rig
-from pipeline.synthetic.photos import head_rotation
+from pipeline.camera import RIG_TO_OPENCV, camera_center_in_rig
 from pipeline.synthetic.population import population_split
 from rig.expressions import (
     EXPRESSION_NAMES,
@@ -32,6 +29,7 @@ from rig.expressions import (
     coefficients_from_dict,
     expression_limits,
 )
+from rig.geometry import head_rotation
 
 W = H = 640
 MIRROR = list(IBUG68_MIRROR)
@@ -41,7 +39,7 @@ MARGIN = 1.5
 
 class Views:
     """Synthetic 2D landmarks of rig heads: static embedding for 17-67, the silhouette for the jaw contour
-    (as :func:`pipeline.synthetic.photos.simulate_photo`), Gaussian pixel noise."""
+    (as :func:`pipeline.synthetic.photos.simulate.simulate_photo`), Gaussian pixel noise."""
 
     def __init__(self, asset):
         self.asset = asset
@@ -54,8 +52,19 @@ class Views:
         c = torch.as_tensor(np.asarray(coefficients, np.float64))[None]
         return head + self.expressions(c)[0].numpy()
 
-    def project(self, vertices, yaw=0.0, pitch=0.0, roll=0.0, distance_mm=None, *, interocular_px=100.0,
-                noise_px=0.0, rng=None, centre=(W / 2, H / 2)) -> np.ndarray:
+    def project(
+        self,
+        vertices,
+        yaw=0.0,
+        pitch=0.0,
+        roll=0.0,
+        distance_mm=None,
+        *,
+        interocular_px=100.0,
+        noise_px=0.0,
+        rng=None,
+        centre=(W / 2, H / 2),
+    ) -> np.ndarray:
         """``(68, 2)`` pixels; ``distance_mm=None`` is orthographic. The frontal inter-ocular distance is
         ``interocular_px`` at the face centre's depth."""
         lm = landmark_positions(vertices, self.embedding, self.asset.faces)[0]
@@ -195,8 +204,9 @@ class TestAccepted:
         assert check_landmarks_2d(pts, W, H).view_cosine > 0.5
 
     def test_small_face(self, views, asset):
-        pts = views.project(asset.vertices, 20.0, 10.0, 0.0, 600.0, interocular_px=20.0, noise_px=0.5,
-                            rng=np.random.default_rng(2))
+        pts = views.project(
+            asset.vertices, 20.0, 10.0, 0.0, 600.0, interocular_px=20.0, noise_px=0.5, rng=np.random.default_rng(2)
+        )
         assert check_landmarks_2d(pts, W, H).interocular_px > 15.0
 
     def test_partial_face_at_the_border(self, frontal):

@@ -14,8 +14,16 @@ from landmarks.points3d import (
 )
 from rig.geometry import Similarity
 
-GOLDEN = {"left_eye_outer": 3240, "left_eye_inner": 3254, "right_eye_inner": 1104, "right_eye_outer": 1090,
-          "nose_tip": 1497, "mouth_left": 2730, "mouth_right": 527, "chin": 991}
+GOLDEN = {
+    "left_eye_outer": 3240,
+    "left_eye_inner": 3254,
+    "right_eye_inner": 1104,
+    "right_eye_outer": 1090,
+    "nose_tip": 1497,
+    "mouth_left": 2730,
+    "mouth_right": 527,
+    "chin": 991,
+}
 
 
 def test_landmark_order_and_vertices_are_pinned(asset):
@@ -69,8 +77,7 @@ def test_fit_similarity_equals_the_similarity_fit_and_sees_reflections(rng):
         assert proper == pytest.approx(np.sqrt(((best.apply(a) - b) ** 2).sum(1).mean()), rel=1e-9)
         mirrored = a * [-1.0, 1.0, 1.0]  # the best improper fit is the best proper fit of the mirror image
         best = Similarity.fit(mirrored, b, with_scale=True)
-        assert improper == pytest.approx(np.sqrt(((best.apply(mirrored) - b) ** 2).sum(1).mean()),
-                                         rel=1e-9)
+        assert improper == pytest.approx(np.sqrt(((best.apply(mirrored) - b) ** 2).sum(1).mean()), rel=1e-9)
 
 
 def test_plausible_landmarks_are_accepted(template_marks, rng):
@@ -85,15 +92,18 @@ def test_plausible_landmarks_are_accepted(template_marks, rng):
     assert check_landmarks_3d(placed[[4, 5, 7]], [names[i] for i in (4, 5, 7)]).min_separation_mm > 40  # 3 suffice
 
 
-@pytest.mark.parametrize("case, message", [
-    ("coincident", "0 mm apart"),
-    ("metres", r"are 0\.0011 x the size of the template's \(accepted 0\.5-2\)"),
-    ("ten_times", r"are 11 x the size"),
-    ("mirrored", "look mirrored"),
-    ("shuffled", "not face-like"),
-    ("swapped_flat", "away from the scanner"),
-    ("far", r"'chin' is \d+(\.\d+)? mm from the nearest cloud point \(at most 75 mm accepted\)"),
-])
+@pytest.mark.parametrize(
+    "case, message",
+    [
+        ("coincident", "0 mm apart"),
+        ("metres", r"are 0\.0011 x the size of the template's \(accepted 0\.5-2\)"),
+        ("ten_times", r"are 11 x the size"),
+        ("mirrored", "look mirrored"),
+        ("shuffled", "not face-like"),
+        ("swapped_flat", "away from the scanner"),
+        ("far", r"'chin' is \d+(\.\d+)? mm from the nearest cloud point \(at most 75 mm accepted\)"),
+    ],
+)
 def test_implausible_landmarks_are_rejected_with_what_was_wrong(template_marks, case, message):
     marks, names, front = template_marks
     placed, rot = _placed(marks)

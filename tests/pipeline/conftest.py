@@ -6,11 +6,9 @@ def photo_dir(tmp_path_factory):
     """Two small synthetic photos with their landmarks beside them (face.png + face.pts)."""
     import shutil
 
-    from pipeline.synthetic.photos import (
-        PhotoSettings,
-        synthetic_photo,
-        write_synthetic_photo,
-    )
+    from pipeline.synthetic.photos.settings import PhotoSettings
+    from pipeline.synthetic.photos.simulate import synthetic_photo
+    from pipeline.synthetic.photos.write import write_synthetic_photo
 
     root = tmp_path_factory.mktemp("photos")
     settings = PhotoSettings(width=128, height=128, spp=4, offset_px=4)
@@ -24,8 +22,13 @@ def photo_dir(tmp_path_factory):
 
 def fast_fit_args(*extra):
     """``jnr fit`` settings that keep a CLI fit to a few seconds."""
-    return ["--landmarks-only", "--set", "landmarks.stages=[{name: a, free: [pose, joints], iterations: 5}]",
-            "--quiet", *extra]
+    return [
+        "--landmarks-only",
+        "--set",
+        "landmarks.stages=[{name: a, free: [pose, joints], iterations: 5}]",
+        "--quiet",
+        *extra,
+    ]
 
 
 @pytest.fixture(scope="session")
@@ -43,3 +46,25 @@ def two_faces_photo(tmp_path_factory):
     path = tmp_path_factory.mktemp("two_faces") / "two_faces.png"
     Image.fromarray(canvas).save(path)
     return path
+
+
+def rig_head_vertices(params: dict, rig=None):
+    """``(V, 3)`` float64 mm: a JNR fit's ``params.json`` entries (``joints``, ``latent_z``, ``expressions`` by
+    name) posed straight by the rig's own pieces (the learned skinning of Z, the ARKit shapes, the joint
+    hierarchy), without pipeline.head: the tests' independent oracle for every reader of a fit's head."""
+    import numpy as np
+    import torch
+
+    from rig.expressions import ExpressionModel, coefficients_from_dict
+    from rig.model import JointRig
+    from rig.parameters import params_to_theta
+    from rig.skinning.neural import load_neural
+
+    rig = rig if rig is not None and rig.template.dtype == torch.float64 else JointRig(dtype=torch.float64)
+    theta = params_to_theta(params["joints"], dtype=torch.float64)
+    c = coefficients_from_dict(params["expressions"], dtype=torch.float64)
+    z = torch.as_tensor(np.asarray(params["latent_z"], np.float64))
+    with torch.no_grad():
+        rest = ExpressionModel(rig.asset, dtype=torch.float64).vertices(c[None])[0]
+        weights = load_neural(rig)[0](z[None])[0]
+        return rig(theta[None], weights=weights, vertices=rest).vertices[0].numpy()

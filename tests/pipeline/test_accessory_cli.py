@@ -23,7 +23,7 @@ from pipeline.cli import main
 from pipeline.synthetic.accessories import EXAMPLES, example_obj_text
 from rig.accessory import outer_skin_faces, rigid_attachment, signed_distance, transfer_skinning
 from rig.expressions import EXPRESSION_NAMES, morph_targets
-from rig.io.gltf import read_skinned_gltf
+from tests.support.gltf_reader import read_skinned_gltf
 
 
 def run(capsys, *argv):
@@ -32,8 +32,12 @@ def run(capsys, *argv):
     return code, out, err
 
 
-FIT_JOINTS = {"crown.translate_y": 12.0, "cranium.scale_x": 1.05, "nose_root_a.translate_z": 4.0,
-              "skull_root.rotate_y": 8.0}
+FIT_JOINTS = {
+    "crown.translate_y": 12.0,
+    "cranium.scale_x": 1.05,
+    "nose_root_a.translate_z": 4.0,
+    "skull_root.rotate_y": 8.0,
+}
 FIT_EXPRESSIONS = {"browInnerUp": 0.6, "eyeBlinkLeft": 0.8, "jawOpen": 0.3}
 
 
@@ -42,9 +46,13 @@ def fit_dir(tmp_path_factory):
     """A fit's output folder: a params.json as jnr fit-scan writes it (joints, latent Z, expressions)."""
     folder = tmp_path_factory.mktemp("fit")
     rng = np.random.default_rng(0)
-    params = {"format": "jnr-scan-params/1", "skinning": "jnr", "joints": FIT_JOINTS,
-              "latent_z": [float(x) for x in rng.normal(0.0, 0.3, 50)],
-              "expressions": {n: FIT_EXPRESSIONS.get(n, 0.0) for n in EXPRESSION_NAMES}}
+    params = {
+        "format": "jnr-scan-params/1",
+        "skinning": "jnr",
+        "joints": FIT_JOINTS,
+        "latent_z": [float(x) for x in rng.normal(0.0, 0.3, 50)],
+        "expressions": {n: FIT_EXPRESSIONS.get(n, 0.0) for n in EXPRESSION_NAMES},
+    }
     (folder / "params.json").write_text(json.dumps(params))
     return folder
 
@@ -57,13 +65,23 @@ def examples(asset):
 @pytest.fixture(scope="module")
 def transfers(asset, examples):
     skin = outer_skin_faces(asset)
-    return {name: transfer_skinning(asset.vertices, skin, asset.weights, morph_targets(asset), item.vertices,
-                                    joint_distance=joint_distance(asset)) for name, item in examples.items()}
+    return {
+        name: transfer_skinning(
+            asset.vertices,
+            skin,
+            asset.weights,
+            morph_targets(asset),
+            item.vertices,
+            joint_distance=joint_distance(asset),
+        )
+        for name, item in examples.items()
+    }
 
 
 # ----------------------------------------------------------------------------------------------------
 # The shipped examples
 # ----------------------------------------------------------------------------------------------------
+
 
 def _obj_arrays(text):
     lines = text.splitlines()
@@ -98,14 +116,26 @@ def test_examples_are_closed_symmetric_and_clear_of_the_skin(asset, examples, na
 # Following the head
 # ----------------------------------------------------------------------------------------------------
 
+
 def _cases(*names):
     return tuple(c for c in FOLLOW_CASES if c[0] in names)
 
 
-GLASSES_CASES = _cases("nose_root_a.translate_z +10", "cranium.scale_x 1.1", "left_ear_position.translate_x +10",
-                       "browDownLeft 1", "browInnerUp 1", "edits + expressions")
-CAP_CASES = _cases("crown.translate_y +40", "cranium.scale_x 1.1", "brow_center.translate_z +10", "browInnerUp 1",
-                   "edits + expressions")
+GLASSES_CASES = _cases(
+    "nose_root_a.translate_z +10",
+    "cranium.scale_x 1.1",
+    "left_ear_position.translate_x +10",
+    "browDownLeft 1",
+    "browInnerUp 1",
+    "edits + expressions",
+)
+CAP_CASES = _cases(
+    "crown.translate_y +40",
+    "cranium.scale_x 1.1",
+    "brow_center.translate_z +10",
+    "browInnerUp 1",
+    "edits + expressions",
+)
 
 
 @pytest.mark.parametrize("name, cases, attachment_bound", [("glasses", GLASSES_CASES, 2.5), ("cap", CAP_CASES, 5.0)])
@@ -116,9 +146,16 @@ def test_examples_follow_joint_edits_and_expressions(asset, examples, transfers,
     crown up 40 mm); glued: 7.89 mm deep (glasses, nose root 10 mm forward), 36.8 mm (cap, crown up 40 mm)."""
     item, transfer = examples[name], transfers[name]
     rows = {r["case"]: r for r in follow_figures(item.vertices, item.faces, transfer, cases, asset=asset)}
-    naive = {r["case"]: r for r in follow_figures(
-        item.vertices, item.faces, rigid_attachment(transfer, asset.joint_names.index("skull_root")), cases,
-        asset=asset)}
+    naive = {
+        r["case"]: r
+        for r in follow_figures(
+            item.vertices,
+            item.faces,
+            rigid_attachment(transfer, asset.joint_names.index("skull_root")),
+            cases,
+            asset=asset,
+        )
+    }
     for case, row in rows.items():
         assert row["penetration_mm"] < 0.5, (case, row)
         assert row["attachment_mm"] < attachment_bound, (case, row)
@@ -138,16 +175,25 @@ def test_smoothing_keeps_the_glasses_from_tearing(asset, examples):
     skin = outer_skin_faces(asset)
     tear = {}
     for sigma in (0.0, 5.0):
-        t = transfer_skinning(asset.vertices, skin, asset.weights, None, item.vertices, smoothing_mm=sigma,
-                              joint_distance=joint_distance(asset))
-        tear[sigma] = max(r["tear_mm"] for r in follow_figures(item.vertices, item.faces, t, (), random_edits=3,
-                                                               asset=asset))
+        t = transfer_skinning(
+            asset.vertices,
+            skin,
+            asset.weights,
+            None,
+            item.vertices,
+            smoothing_mm=sigma,
+            joint_distance=joint_distance(asset),
+        )
+        tear[sigma] = max(
+            r["tear_mm"] for r in follow_figures(item.vertices, item.faces, t, (), random_edits=3, asset=asset)
+        )
     assert tear[5.0] < 0.5 * tear[0.0]
 
 
 # ----------------------------------------------------------------------------------------------------
 # jnr accessory
 # ----------------------------------------------------------------------------------------------------
+
 
 def _skin_file(back, vertices, joints, weights, targets):
     """LBS of an attachment from the file's own node transforms and morph weights (numpy, mm)."""
@@ -188,8 +234,9 @@ def test_cli_writes_the_accessory_on_the_fit(capsys, tmp_path, fit_dir, examples
     assert att["name"] == "glasses" and len(att["vertices"]) == len(item.vertices)
     assert att["morph_targets"].shape == (52, len(item.vertices), 3)
     np.testing.assert_allclose(back["morph_weights"], [FIT_EXPRESSIONS.get(n, 0.0) for n in EXPRESSION_NAMES])
-    np.testing.assert_allclose(_skin_file(back, att["vertices"], att["joints"], att["weights"], att["morph_targets"]),
-                               posed, atol=2e-3)
+    np.testing.assert_allclose(
+        _skin_file(back, att["vertices"], att["joints"], att["weights"], att["morph_targets"]), posed, atol=2e-3
+    )
 
     npz = np.load(out / "accessory_weights.npz")
     assert npz["weights"].shape == (len(item.vertices), 52) and np.allclose(npz["weights"].sum(1), 1.0)
@@ -218,12 +265,15 @@ def test_cli_refuses_an_existing_output_without_force(capsys, tmp_path, fit_dir)
     assert json.loads((out / "report.json").read_text())["falloff_mm"] == 4.0
 
 
-@pytest.mark.parametrize("content, message", [
-    ("this is not an OBJ file\n", "no triangles"),
-    ("v 0 0 0\nv 1 0 0\nv 0 nan 0\nf 1 2 3\n", "non-finite"),
-    ("v 0 0 2000\nv 10 0 2000\nv 0 10 2000\nf 1 2 3\n", "from the template's skin"),
-    ("v 0 0 0\nv 3000 0 0\nv 0 10 0\nf 1 2 3\n", "millimetres"),
-])
+@pytest.mark.parametrize(
+    "content, message",
+    [
+        ("this is not an OBJ file\n", "no triangles"),
+        ("v 0 0 0\nv 1 0 0\nv 0 nan 0\nf 1 2 3\n", "non-finite"),
+        ("v 0 0 2000\nv 10 0 2000\nv 0 10 2000\nf 1 2 3\n", "from the template's skin"),
+        ("v 0 0 0\nv 3000 0 0\nv 0 10 0\nf 1 2 3\n", "millimetres"),
+    ],
+)
 def test_cli_bad_accessory_is_one_line_exit_2(capsys, tmp_path, fit_dir, content, message):
     bad = tmp_path / "bad.obj"
     bad.write_text(content)
@@ -237,9 +287,13 @@ def test_cli_bad_fit_and_options_are_one_line_exit_2(capsys, tmp_path, fit_dir):
     asm = tmp_path / "asm_fit"
     asm.mkdir()
     (asm / "params.json").write_text(json.dumps({"skinning": "asm", "asm": {}, "expressions": {}}))
-    cases = [((asm, "glasses"), "ASM fit"), ((tmp_path / "missing", "glasses"), "not found"),
-             ((fit_dir, tmp_path / "none.obj"), "not found"), ((fit_dir, fit_dir / "params.json"), ".obj"),
-             ((fit_dir, "glasses", "--falloff", "-1"), "--falloff")]
+    cases = [
+        ((asm, "glasses"), "ASM fit"),
+        ((tmp_path / "missing", "glasses"), "not found"),
+        ((fit_dir, tmp_path / "none.obj"), "not found"),
+        ((fit_dir, fit_dir / "params.json"), ".obj"),
+        ((fit_dir, "glasses", "--falloff", "-1"), "--falloff"),
+    ]
     for (fit, accessory, *options), message in cases:
         code, _, err = run(capsys, "accessory", fit, accessory, "--out", tmp_path / "out", *options)
         assert code == 2 and err.count("\n") == 1 and message in err, err
@@ -252,7 +306,11 @@ def test_transfer_uses_the_fits_weights(asset, fit_dir, examples):
     cap = examples["cap"]
     result = accessory_on_fit(head, cap)
     skin = outer_skin_faces(asset)
-    expected = transfer_skinning(asset.vertices, skin, head.weights, None, cap.vertices, joint_distance=joint_distance(asset))
-    template = transfer_skinning(asset.vertices, skin, asset.weights, None, cap.vertices, joint_distance=joint_distance(asset))
+    expected = transfer_skinning(
+        asset.vertices, skin, head.weights, None, cap.vertices, joint_distance=joint_distance(asset)
+    )
+    template = transfer_skinning(
+        asset.vertices, skin, asset.weights, None, cap.vertices, joint_distance=joint_distance(asset)
+    )
     np.testing.assert_allclose(result.skinning.weights, expected.weights, atol=1e-12)
     assert np.abs(result.skinning.weights - template.weights).max() > 1e-2

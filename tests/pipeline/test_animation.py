@@ -23,11 +23,11 @@ from pipeline.animation import (
     write_curves,
 )
 from pipeline.cli import main
-from pipeline.scan.outputs import rig_vertices_from_params
 from rig.expressions import EXPRESSION_NAMES
-from rig.io.gltf import read_skinned_gltf
 from rig.model import JointRig
 from rig.parameters import random_theta, theta_to_params
+from tests.pipeline.conftest import rig_head_vertices
+from tests.support.gltf_reader import read_skinned_gltf
 
 
 def _fit_folder(root, seed: int, expressions: dict | None = None):
@@ -36,8 +36,11 @@ def _fit_folder(root, seed: int, expressions: dict | None = None):
     generator = torch.Generator().manual_seed(seed)
     theta = random_theta(generator, 1, spread=0.5)[0].double()
     z = torch.randn(50, generator=generator, dtype=torch.float64) * 0.5
-    params = {"joints": theta_to_params(theta), "latent_z": z.tolist(),
-              "expressions": expressions if expressions is not None else {"mouthSmileLeft": 0.3}}
+    params = {
+        "joints": theta_to_params(theta),
+        "latent_z": z.tolist(),
+        "expressions": expressions if expressions is not None else {"mouthSmileLeft": 0.3},
+    }
     folder = root / f"fit{seed}"
     folder.mkdir()
     (folder / "params.json").write_text(json.dumps(params))
@@ -93,15 +96,18 @@ def test_plain_layout_subset_frames_and_units(tmp_path):
     np.testing.assert_allclose(read_curves(path, head_units="rad").head_rotation[2, 0], np.degrees(20.0))
 
 
-@pytest.mark.parametrize("text, match", [
-    ("jawOpen,smileyness\n0,0\n", "unknown column"),
-    ("time,jawOpen\n0,0\n0,0.5\n", "increase"),
-    ("jawOpen\nnan\n", "finite"),
-    ("jawOpen\nabc\n", "not a number"),
-    ("jawOpen\n", "no rows"),
-    ("time\n0\n", "no ARKit"),
-    ("jawOpen,eyeBlinkLeft\n0\n", "cells"),
-])
+@pytest.mark.parametrize(
+    "text, match",
+    [
+        ("jawOpen,smileyness\n0,0\n", "unknown column"),
+        ("time,jawOpen\n0,0\n0,0.5\n", "increase"),
+        ("jawOpen\nnan\n", "finite"),
+        ("jawOpen\nabc\n", "not a number"),
+        ("jawOpen\n", "no rows"),
+        ("time\n0\n", "no ARKit"),
+        ("jawOpen,eyeBlinkLeft\n0\n", "cells"),
+    ],
+)
 def test_bad_curves_are_refused(tmp_path, text, match):
     path = tmp_path / "bad.csv"
     path.write_text(text)
@@ -124,17 +130,18 @@ def test_out_of_range_coefficients_are_clamped_with_a_warning(tmp_path):
 
 def test_animated_head_is_the_rig_at_every_keyframe(tmp_path):
     """Without head angles each keyframe's head is the fit's parameters with that row's expressions, as the rig
-    itself poses it (rig_vertices_from_params: the rig forward pass with the fit's neural weights)."""
+    itself poses it (rig_head_vertices: the rig forward pass with the fit's neural weights)."""
     head = load_fit_head(_fit_folder(tmp_path, 3))
     curves = example_curves()
     rows = [0, 13, 45]
     taus = np.repeat(head.tau[None], len(rows), axis=0)
     frames = posed_frames(head, curves.coefficients[rows], taus)
     for k, row in enumerate(rows):
-        params = dict(head.params, expressions={n: float(c) for n, c in zip(EXPRESSION_NAMES, curves.coefficients[row])
-                                                if c != 0.0})
-        np.testing.assert_allclose(frames[k], rig_vertices_from_params(params, rig=JointRig(dtype=torch.float64)),
-                                   atol=1e-6)
+        params = dict(
+            head.fit.data,
+            expressions={n: float(c) for n, c in zip(EXPRESSION_NAMES, curves.coefficients[row]) if c != 0.0},
+        )
+        np.testing.assert_allclose(frames[k], rig_head_vertices(params, rig=JointRig(dtype=torch.float64)), atol=1e-6)
     assert np.abs(frames[1] - frames[0]).max() > 1.0  # the blink row moves the eyelids
 
 
@@ -159,7 +166,9 @@ def test_head_angles_turn_the_skull_about_its_joint(tmp_path):
     world, _ = joint_world_transforms(torch.as_tensor(head.tau[None]), rig.bind_positions, rig.parents, rig.levels)
     parent = world[0, int(rig.parents[j])].numpy()
     frame = parent.copy()
-    frame[:3, 3] = parent[:3, :3] @ (rig.bind_positions[j] - rig.bind_positions[int(rig.parents[j])]).numpy() + parent[:3, 3]
+    frame[:3, 3] = (
+        parent[:3, :3] @ (rig.bind_positions[j] - rig.bind_positions[int(rig.parents[j])]).numpy() + parent[:3, 3]
+    )
     turn = np.eye(4)
     turn[:3, :3] = head_rotation_matrices(angles[1:])[0]
     expected_move = frame @ turn @ np.linalg.inv(frame)
@@ -221,8 +230,9 @@ def test_jnr_animate_bad_input_is_one_line(tmp_path, capsys):
     ]
     for k, (args, message) in enumerate(cases):
         if k == 0:  # once as a user runs it: a separate process, one line on stderr, no traceback
-            run = subprocess.run([sys.executable, "-m", "pipeline.cli", "animate", *args, "--no-preview"],
-                                 capture_output=True, text=True)
+            run = subprocess.run(
+                [sys.executable, "-m", "pipeline.cli", "animate", *args, "--no-preview"], capture_output=True, text=True
+            )
             code, err = run.returncode, run.stderr
         else:
             code, err = main(["animate", *args, "--no-preview"]), capsys.readouterr().err
@@ -246,7 +256,7 @@ def test_jnr_retarget_puts_the_source_expression_on_the_target(tmp_path):
     target_params = json.loads((target / "params.json").read_text())
     assert params["expressions"] == smile  # the source's coefficients, exactly
     assert params["joints"] == target_params["joints"] and params["latent_z"] == target_params["latent_z"]
-    expected = rig_vertices_from_params(dict(target_params, expressions=smile), rig=JointRig(dtype=torch.float64))
+    expected = rig_head_vertices(dict(target_params, expressions=smile), rig=JointRig(dtype=torch.float64))
     import trimesh
 
     ply = trimesh.load(out / "mesh.ply", process=False)
@@ -255,15 +265,19 @@ def test_jnr_retarget_puts_the_source_expression_on_the_target(tmp_path):
     np.testing.assert_allclose(glb["morph_weights"][[EXPRESSION_NAMES.index(n) for n in smile]], list(smile.values()))
     assert np.count_nonzero(glb["morph_weights"]) == len(smile)
     # the expression really moved the target's head, and only the expression did
-    unchanged = rig_vertices_from_params(dict(target_params, expressions={}))
+    unchanged = rig_head_vertices(dict(target_params, expressions={}))
     assert np.linalg.norm(expected - unchanged, axis=1).max() > 3.0
     report = json.loads((out / "report.json").read_text())
     assert report["max_vertex_change_mm"] == pytest.approx(
-        np.linalg.norm(expected - rig_vertices_from_params(target_params, rig=JointRig(dtype=torch.float64)),
-                       axis=1).max(), abs=1e-6)
+        np.linalg.norm(expected - rig_head_vertices(target_params, rig=JointRig(dtype=torch.float64)), axis=1).max(),
+        abs=1e-6,
+    )
     assert sorted(p.name for p in out.iterdir() if not p.name.startswith(".")) == sorted(
-        ["mesh.obj", "mesh.ply", "mesh.glb", "params.json", "expressions.csv", "preview.png", "report.json"])
+        ["mesh.obj", "mesh.ply", "mesh.glb", "params.json", "expressions.csv", "preview.png", "report.json"]
+    )
     # the retargeted params.json is itself a fit: it animates, and retargets again to the same head
     again = tmp_path / "again"
     assert main(["retarget", str(out), str(out), "--out", str(again)]) == 0
-    np.testing.assert_allclose(np.asarray(trimesh.load(again / "mesh.ply", process=False).vertices), expected, atol=1e-3)
+    np.testing.assert_allclose(
+        np.asarray(trimesh.load(again / "mesh.ply", process=False).vertices), expected, atol=1e-3
+    )

@@ -41,8 +41,11 @@ def run(capsys, *argv):
 
 def tree_digest(root: Path) -> dict:
     """``{relative path: sha256}`` of every file below ``root`` (hidden ones included)."""
-    return {str(p.relative_to(root)): hashlib.sha256(p.read_bytes()).hexdigest()
-            for p in sorted(root.rglob("*")) if p.is_file()}
+    return {
+        str(p.relative_to(root)): hashlib.sha256(p.read_bytes()).hexdigest()
+        for p in sorted(root.rglob("*"))
+        if p.is_file()
+    }
 
 
 def leftovers(root: Path) -> list[str]:
@@ -73,13 +76,16 @@ def sb(tmp_path, photo_dir):
 # ------------------------------------------------------------------------------------------ data loss
 
 
-@pytest.mark.parametrize("case, fragment", [
-    ("out_is_the_photos_folder", "contains the input"),
-    ("out_is_the_working_directory", "is the working directory"),
-    ("out_is_the_photo", "is the input"),
-    ("out_contains_the_working_directory", "contains the working directory"),
-    ("out_is_a_users_folder", "jnr did not write"),
-])
+@pytest.mark.parametrize(
+    "case, fragment",
+    [
+        ("out_is_the_photos_folder", "contains the input"),
+        ("out_is_the_working_directory", "is the working directory"),
+        ("out_is_the_photo", "is the input"),
+        ("out_contains_the_working_directory", "contains the working directory"),
+        ("out_is_a_users_folder", "jnr did not write"),
+    ],
+)
 def test_force_never_deletes_inputs_or_other_files(capsys, tmp_path, sb, monkeypatch, case, fragment):
     photo, out = sb / "obama.png", sb
     if case == "out_is_the_working_directory":
@@ -119,14 +125,36 @@ def test_force_replaces_a_jnr_output_and_keeps_it_when_the_fit_fails(capsys, tmp
     assert oct(out.stat().st_mode & 0o777) == oct(0o777 & ~_umask())  # the user's umask, not mkdtemp's 0700
     first = tree_digest(out)
     # --force with a bad focal: refused before the fit, the old output untouched
-    code, _, err = run(capsys, "fit", sb / "obama.png", "--landmarks", sb / "obama.pts", "--out", out, "--force",
-                       "--focal", "1", *fast_fit_args())
+    code, _, err = run(
+        capsys,
+        "fit",
+        sb / "obama.png",
+        "--landmarks",
+        sb / "obama.pts",
+        "--out",
+        out,
+        "--force",
+        "--focal",
+        "1",
+        *fast_fit_args(),
+    )
     assert code == 2
     one_line_error(err, "--focal 1 px is outside")
     assert tree_digest(out) == first
     # --force with good input: replaced
-    code, _, err = run(capsys, "fit", sb / "obama.png", "--landmarks", sb / "obama.pts", "--out", out, "--force",
-                       "--focal", "200", *fast_fit_args())
+    code, _, err = run(
+        capsys,
+        "fit",
+        sb / "obama.png",
+        "--landmarks",
+        sb / "obama.pts",
+        "--out",
+        out,
+        "--force",
+        "--focal",
+        "200",
+        *fast_fit_args(),
+    )
     assert code == 0, err
     assert json.loads((out / "params.json").read_text())["camera"]["focal_px"] == pytest.approx(200.0)
     assert not leftovers(tmp_path)
@@ -159,16 +187,16 @@ def test_a_target_that_appears_while_writing_is_not_replaced(tmp_path):
     with pytest.raises(OutputExistsError), staged_file(target) as tmp:
         tmp.write_text("new")
         target.write_text("theirs")
-    assert target.read_text() == "theirs" and sorted(p.name for p in tmp_path.iterdir()) == ["empty", "fit",
-                                                                                             "head.obj"]
+    assert target.read_text() == "theirs" and sorted(p.name for p in tmp_path.iterdir()) == ["empty", "fit", "head.obj"]
 
 
 def test_two_processes_with_the_same_out_one_wins_one_fails(tmp_path):
     """Real concurrency: two ``jnr data synth`` started together; exactly one writes, nothing is mixed."""
     out = tmp_path / "pop"
     cmd = [*JNR, "data", "synth", "--out", str(out), "--splits", "val", "--quiet"]
-    procs = [subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-             for _ in range(2)]
+    procs = [
+        subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for _ in range(2)
+    ]
     results = [(p.wait(120), p.stderr.read()) for p in procs]
     codes = sorted(code for code, _ in results)
     assert codes == [0, 2], results
@@ -209,12 +237,14 @@ def test_unwritable_or_full_destinations_are_refused_before_the_work(tmp_path, m
 
 def _png_header_only(path: Path, width: int, height: int) -> None:
     """A PNG whose header claims ``width x height`` (its pixel data is garbage): cheap to make."""
+
     def chunk(kind: bytes, data: bytes) -> bytes:
         return len(data).to_bytes(4, "big") + kind + data + zlib.crc32(kind + data).to_bytes(4, "big")
 
     ihdr = width.to_bytes(4, "big") + height.to_bytes(4, "big") + bytes([8, 2, 0, 0, 0])
-    path.write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", zlib.compress(b"\0" * 64))
-                     + chunk(b"IEND", b""))
+    path.write_bytes(
+        b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", zlib.compress(b"\0" * 64)) + chunk(b"IEND", b"")
+    )
 
 
 def test_a_decompression_bomb_is_one_line(capsys, tmp_path):
@@ -239,8 +269,18 @@ def test_a_large_photo_is_fitted_reduced_with_outputs_in_its_own_pixels(capsys, 
     write_landmarks(tmp_path / "big.pts", lm)
     out = tmp_path / "fit"
     focal = 1.5 * 128 * k_up
-    code, _, err = run(capsys, "fit", tmp_path / "big.png", "--landmarks", tmp_path / "big.pts", "--focal", focal,
-                       "--out", out, *fast_fit_args())
+    code, _, err = run(
+        capsys,
+        "fit",
+        tmp_path / "big.png",
+        "--landmarks",
+        tmp_path / "big.pts",
+        "--focal",
+        focal,
+        "--out",
+        out,
+        *fast_fit_args(),
+    )
     assert code == 0, err
     params = json.loads((out / "params.json").read_text())
     cam = params["camera"]
@@ -252,15 +292,27 @@ def test_a_large_photo_is_fitted_reduced_with_outputs_in_its_own_pixels(capsys, 
     report = json.loads((out / "report.json").read_text())
     assert report["input"]["reduction"] == 2 and report["input"]["width"] == 2560
     # the same face fitted in the small photo: the same landmark error relative to the face size
-    code, _, err = run(capsys, "fit", photo_dir / "face0.png", "--landmarks", photo_dir / "face0.pts", "--focal",
-                       focal / k_up, "--out", tmp_path / "small", *fast_fit_args())
+    code, _, err = run(
+        capsys,
+        "fit",
+        photo_dir / "face0.png",
+        "--landmarks",
+        photo_dir / "face0.pts",
+        "--focal",
+        focal / k_up,
+        "--out",
+        tmp_path / "small",
+        *fast_fit_args(),
+    )
     assert code == 0, err
     small_report = json.loads((tmp_path / "small" / "report.json").read_text())
     # (not exactly equal: the landmark loss's Huber threshold is in pixels; measured 0.043 vs 0.048)
-    assert report["landmarks"]["nme_inter_ocular"] == pytest.approx(small_report["landmarks"]["nme_inter_ocular"],
-                                                                    rel=0.2)
+    assert report["landmarks"]["nme_inter_ocular"] == pytest.approx(
+        small_report["landmarks"]["nme_inter_ocular"], rel=0.2
+    )
     assert report["landmarks"]["mean_error_px"] == pytest.approx(
-        k_up * small_report["landmarks"]["mean_error_px"], rel=0.2)
+        k_up * small_report["landmarks"]["mean_error_px"], rel=0.2
+    )
 
 
 @pytest.mark.parametrize("suffix", [".jpg", ".png"])
@@ -269,7 +321,7 @@ def test_working_image_maps_pixels_back_exactly(tmp_path, suffix):
     reduction (k = 4 here: JPEG by the decoder's DCT scaling, PNG by Image.reduce)."""
     from PIL import Image
 
-    from landmarks.detect import load_working_image
+    from landmarks.images import load_working_image
 
     image = np.zeros((3000, 4100, 3), np.uint8)
     image[1000:1200, 2400:2640] = 255  # centre (2519.5, 1099.5)
@@ -286,7 +338,7 @@ def test_working_image_maps_pixels_back_exactly(tmp_path, suffix):
 def test_exif_rotated_photo_reports_its_upright_size(tmp_path):
     from PIL import Image
 
-    from landmarks.detect import load_working_image
+    from landmarks.images import load_working_image
 
     exif = Image.Exif()
     exif[0x0112] = 6  # rotate 90 degrees on display
@@ -310,29 +362,35 @@ def _wait_for(predicate, timeout: float = 60.0) -> None:
 SLOW_WRITER = """
 import sys, time
 from pathlib import Path
-import rig.io.mesh, pipeline.synthetic.population
+import pipeline.edit, pipeline.synthetic.population
 def slow_mesh(path, *a, **k):
     Path(path).write_text("partial")
     print("WRITING", flush=True)
     time.sleep(120)
-original = pipeline.synthetic.population._mesh_bytes
+original = pipeline.synthetic.population.files._mesh_bytes
 def slow_bytes(*a, **k):
     print("WRITING", flush=True)
     time.sleep(120)
-rig.io.mesh.export_mesh = slow_mesh
-pipeline.synthetic.population._mesh_bytes = slow_bytes
+pipeline.edit.export_mesh = slow_mesh
+pipeline.synthetic.population.files._mesh_bytes = slow_bytes
 from pipeline.cli import main
 sys.exit(main(sys.argv[1:]))
 """
 
 
-@pytest.mark.parametrize("command", [["rig", "export", "--format", "obj", "--out", "{out}.obj"],
-                                     ["data", "synth", "--splits", "val", "--quiet", "--out", "{out}"]])
+@pytest.mark.parametrize(
+    "command",
+    [
+        ["rig", "export", "--format", "obj", "--out", "{out}.obj"],
+        ["data", "synth", "--splits", "val", "--quiet", "--out", "{out}"],
+    ],
+)
 @pytest.mark.parametrize("sig, code, word", [(signal.SIGTERM, 143, "terminated"), (signal.SIGINT, 130, "interrupted")])
 def test_a_signal_while_writing_leaves_nothing_behind(tmp_path, command, sig, code, word):
     argv = [a.format(out=tmp_path / "out") for a in command]
-    proc = subprocess.Popen([sys.executable, "-c", SLOW_WRITER, *argv], cwd=REPO, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        [sys.executable, "-c", SLOW_WRITER, *argv], cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
     assert proc.stdout.readline().strip() == "WRITING"
     assert leftovers(tmp_path)  # the staging file/folder exists now
     proc.send_signal(sig)
@@ -373,11 +431,32 @@ def test_workers_die_with_their_parent(tmp_path, photo_dir, sig):
     folder = tmp_path / "photos"
     shutil.copytree(photo_dir, folder)
     out = tmp_path / "fits"
-    slow = ["--set", "landmarks.solver=adam",  # Adam: a schedule that runs until the signal
-            "--set", "landmarks.stages=[{name: a, free: [pose, joints], iterations: 100000}]"]
-    proc = subprocess.Popen([*JNR, "fit", str(folder), "--landmarks", "auto", "--jobs", "2", "--out", str(out),
-                             "--landmarks-only", "--quiet", *slow], cwd=REPO, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
+    slow = [
+        "--set",
+        "landmarks.solver=adam",  # Adam: a schedule that runs until the signal
+        "--set",
+        "landmarks.stages=[{name: a, free: [pose, joints], iterations: 100000}]",
+    ]
+    proc = subprocess.Popen(
+        [
+            *JNR,
+            "fit",
+            str(folder),
+            "--landmarks",
+            "auto",
+            "--jobs",
+            "2",
+            "--out",
+            str(out),
+            "--landmarks-only",
+            "--quiet",
+            *slow,
+        ],
+        cwd=REPO,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     _wait_for(lambda: len(_children(proc.pid)) >= 2, 60)
     workers = _children(proc.pid)
     time.sleep(4.0)  # the workers are fitting now
@@ -403,15 +482,18 @@ def _points_file(path: Path, points: np.ndarray) -> Path:
     return path
 
 
-@pytest.mark.parametrize("case, fragment", [
-    ("far_outside", "outside the 128x128 image"),
-    ("mirrored", "mirrored"),
-    ("coincident", "degenerate"),
-    ("shuffled", "do not look like a face"),
-])
+@pytest.mark.parametrize(
+    "case, fragment",
+    [
+        ("far_outside", "outside the 128x128 image"),
+        ("mirrored", "mirrored"),
+        ("coincident", "degenerate"),
+        ("shuffled", "do not look like a face"),
+    ],
+)
 def test_implausible_landmarks_are_refused_naming_the_file(capsys, tmp_path, sb, case, fragment):
     from landmarks.formats import read_landmarks
-    from landmarks.ibug68 import IBUG68_MIRROR
+    from landmarks.ibug68.names import IBUG68_MIRROR
 
     lm = read_landmarks(sb / "obama.pts")
     if case == "far_outside":
@@ -431,11 +513,20 @@ def test_implausible_landmarks_are_refused_naming_the_file(capsys, tmp_path, sb,
     assert tree_digest(tmp_path) == before and not leftovers(tmp_path)
 
 
-@pytest.mark.parametrize("focal, fragment", [("1", "outside 32-3200 px"), ("1e9", "3200 px"),
-                                             ("nan", "--focal")])
+@pytest.mark.parametrize("focal, fragment", [("1", "outside 32-3200 px"), ("1e9", "3200 px"), ("nan", "--focal")])
 def test_focal_outside_the_stated_range(capsys, tmp_path, sb, focal, fragment):
-    code, _, err = run(capsys, "fit", sb / "obama.png", "--landmarks", sb / "obama.pts", "--focal", focal,
-                       "--out", tmp_path / "o", *fast_fit_args())
+    code, _, err = run(
+        capsys,
+        "fit",
+        sb / "obama.png",
+        "--landmarks",
+        sb / "obama.pts",
+        "--focal",
+        focal,
+        "--out",
+        tmp_path / "o",
+        *fast_fit_args(),
+    )
     assert code == 2
     one_line_error(err, fragment)
     assert not (tmp_path / "o").exists()
@@ -445,10 +536,24 @@ def test_rig_edit_of_a_fits_params_gives_the_fits_mesh(capsys, tmp_path, sb):
     """The params.json of a fit holds Z and expressions too: rig edit uses all of it (or refuses)."""
     out = tmp_path / "fit"
     # the Adam schedule, whose stage frees the latent too (the LM solver leaves Z at 0)
-    expressive = ["--set", "landmarks.solver=adam",
-                  "--set", "landmarks.stages=[{name: a, free: [pose, joints, latent, expressions], iterations: 8}]"]
-    code, _, err = run(capsys, "fit", sb / "obama.png", "--landmarks", sb / "obama.pts", "--out", out,
-                       "--landmarks-only", "--quiet", *expressive)
+    expressive = [
+        "--set",
+        "landmarks.solver=adam",
+        "--set",
+        "landmarks.stages=[{name: a, free: [pose, joints, latent, expressions], iterations: 8}]",
+    ]
+    code, _, err = run(
+        capsys,
+        "fit",
+        sb / "obama.png",
+        "--landmarks",
+        sb / "obama.pts",
+        "--out",
+        out,
+        "--landmarks-only",
+        "--quiet",
+        *expressive,
+    )
     assert code == 0, err
     params = json.loads((out / "params.json").read_text())
     assert any(abs(v) > 1e-4 for v in params["expressions"].values()) and any(abs(v) > 1e-4 for v in params["latent_z"])
@@ -493,8 +598,9 @@ def test_options_and_settings_that_are_bad_input_exit_2(capsys, tmp_path, sb):
 
 def test_a_yaml_syntax_error_is_one_line_with_the_file(capsys, tmp_path, sb):
     (tmp_path / "bad.yaml").write_text("landmarks:\n  lambda_m: [1, 2\n")
-    code, _, err = run(capsys, "fit", sb / "obama.png", "--config", tmp_path / "bad.yaml", "--out", tmp_path / "o",
-                       *fast_fit_args())
+    code, _, err = run(
+        capsys, "fit", sb / "obama.png", "--config", tmp_path / "bad.yaml", "--out", tmp_path / "o", *fast_fit_args()
+    )
     assert code == 2
     one_line_error(err, str(tmp_path / "bad.yaml"))
     assert "line" in err
@@ -503,7 +609,7 @@ def test_a_yaml_syntax_error_is_one_line_with_the_file(capsys, tmp_path, sb):
 def test_gif_files_are_photos_alone_and_in_folders(tmp_path):
     from PIL import Image
 
-    from pipeline.photo.files import photo_inputs
+    from pipeline.photo.inputs import photo_inputs
     from rig.errors import InputError
 
     Image.fromarray(np.zeros((8, 8, 3), np.uint8)).save(tmp_path / "a.gif")
@@ -516,8 +622,13 @@ def test_gif_files_are_photos_alone_and_in_folders(tmp_path):
 
 def test_warnings_are_one_line_without_python_source(tmp_path):
     (tmp_path / "p.json").write_text('{"crown.translate_y": 400}')
-    proc = subprocess.run([*JNR, "rig", "edit", str(tmp_path / "p.json"), "--out", str(tmp_path / "e.ply"),
-                           "--clamp"], cwd=REPO, capture_output=True, text=True, timeout=120)
+    proc = subprocess.run(
+        [*JNR, "rig", "edit", str(tmp_path / "p.json"), "--out", str(tmp_path / "e.ply"), "--clamp"],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert proc.returncode == 0, proc.stderr
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("jnr: warning: ") and "clamped" in lines[0], proc.stderr
@@ -528,14 +639,15 @@ def test_fit_scan_refuses_coincident_3d_landmarks_naming_the_file(capsys, tmp_pa
     """Three coincident 3D landmarks (median 10.35 mm instead of 0.70 when they were accepted)."""
     code, _, err = run(capsys, "data", "scan", "--out", tmp_path / "scan.ply", "--head", "3")
     assert code == 0, err
-    from pipeline.scan.pointcloud import read_point_cloud
+    from pipeline.scan.pointcloud.read import read_point_cloud
 
     nose = read_point_cloud(tmp_path / "scan.ply").points.mean(0).tolist()
     bad = tmp_path / "landmarks.json"
     bad.write_text(json.dumps({"nose_tip": nose, "chin": nose, "left_eye_outer": nose}))
     before = tree_digest(tmp_path)
-    code, _, err = run(capsys, "fit-scan", tmp_path / "scan.ply", "--landmarks", bad, "--out", tmp_path / "o",
-                       "--quiet")
+    code, _, err = run(
+        capsys, "fit-scan", tmp_path / "scan.ply", "--landmarks", bad, "--out", tmp_path / "o", "--quiet"
+    )
     assert code == 2
     one_line_error(err, f"{bad}: ")
     assert "apart" in err or "size" in err

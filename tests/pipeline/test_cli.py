@@ -8,9 +8,9 @@ import torch
 import trimesh
 
 from pipeline.cli import main
-from rig.io.gltf import read_skinned_gltf
 from rig.parameters import params_to_theta
 from tests.pipeline.conftest import fast_fit_args
+from tests.support.gltf_reader import read_skinned_gltf
 
 
 def run(capsys, *argv):
@@ -44,7 +44,9 @@ def test_gltf_export_reimports_with_same_vertices_and_52_joints(capsys, tmp_path
     params = {"nose_tip.translate_z": 8.0, "left_ear_rotate_scale.rotate_z": -20.0}
     (tmp_path / "p.json").write_text(json.dumps(params))
     out = tmp_path / "rig.glb"
-    code, _, err = run(capsys, "rig", "export", "--format", "gltf", "--out", str(out), "--params", str(tmp_path / "p.json"))
+    code, _, err = run(
+        capsys, "rig", "export", "--format", "gltf", "--out", str(out), "--params", str(tmp_path / "p.json")
+    )
     assert code == 0, err
     back = read_skinned_gltf(out)
     assert np.abs(back["vertices"] - asset.vertices).max() < 1e-3  # float32 in metres
@@ -64,11 +66,14 @@ def test_gltf_export_reimports_with_same_vertices_and_52_joints(capsys, tmp_path
     assert np.abs(posed - expected).max() < 1e-2
 
 
-@pytest.mark.parametrize("content, message", [
-    ('{"joints": {"nose_tip.translate_q": 1}}', "unknown rig parameter"),
-    ('{"joints": {"crown.translate_y": 400}}', "outside its limits"),
-    ("{oops", "not valid JSON"),
-])
+@pytest.mark.parametrize(
+    "content, message",
+    [
+        ('{"joints": {"nose_tip.translate_q": 1}}', "unknown rig parameter"),
+        ('{"joints": {"crown.translate_y": 400}}', "outside its limits"),
+        ("{oops", "not valid JSON"),
+    ],
+)
 def test_bad_parameter_file_is_a_clear_error(capsys, tmp_path, content, message):
     (tmp_path / "p.json").write_text(content)
     out = tmp_path / "e.ply"
@@ -110,8 +115,16 @@ def test_demo_writes_everything(capsys, tmp_path, monkeypatch):
     out = tmp_path / "demo"
     code, stdout, err = run(capsys, "demo", "--out", "demo", "--spp", "2", "--quiet", *_fast()[:-1])
     assert code == 0, err
-    for name in ("template.obj", "template.ply", "template.glb", "edited.obj", "edited.glb", "edited.png",
-                 "edited_params.json", "summary.json"):
+    for name in (
+        "template.obj",
+        "template.ply",
+        "template.glb",
+        "edited.obj",
+        "edited.glb",
+        "edited.png",
+        "edited_params.json",
+        "summary.json",
+    ):
         assert (out / name).stat().st_size > 0, name
     summary = json.loads((out / "summary.json").read_text())
     assert summary["rebuild_max_difference_mm"] <= 1e-6
@@ -148,6 +161,7 @@ def test_demo_writes_everything(capsys, tmp_path, monkeypatch):
 # jnr fit PHOTO
 # ----------------------------------------------------------------------------------------------------
 
+
 def _fast(*extra):
     return fast_fit_args(*extra)
 
@@ -156,8 +170,16 @@ def test_fit_one_photo_with_a_landmarks_file(capsys, tmp_path, photo_dir):
     from pipeline.photo.outputs import mesh_from_photo_params
 
     out = tmp_path / "one"
-    code, stdout, err = run(capsys, "fit", str(photo_dir / "face0.png"), "--landmarks", str(photo_dir / "face0.pts"),
-                            "--out", str(out), *_fast())
+    code, stdout, err = run(
+        capsys,
+        "fit",
+        str(photo_dir / "face0.png"),
+        "--landmarks",
+        str(photo_dir / "face0.pts"),
+        "--out",
+        str(out),
+        *_fast(),
+    )
     assert code == 0, err
     assert "landmark error" in stdout
     report = json.loads((out / "report.json").read_text())
@@ -167,19 +189,30 @@ def test_fit_one_photo_with_a_landmarks_file(capsys, tmp_path, photo_dir):
     assert np.abs(np.asarray(obj.vertices)[: len(rebuilt)] - rebuilt).max() < 1e-3
     # existing output: an error, the folder untouched
     before = (out / "report.json").read_bytes()
-    code, _, err = run(capsys, "fit", str(photo_dir / "face0.png"), "--landmarks", str(photo_dir / "face0.pts"),
-                       "--out", str(out), *_fast())
+    code, _, err = run(
+        capsys,
+        "fit",
+        str(photo_dir / "face0.png"),
+        "--landmarks",
+        str(photo_dir / "face0.pts"),
+        "--out",
+        str(out),
+        *_fast(),
+    )
     assert code == 2 and "exists" in err and (out / "report.json").read_bytes() == before
 
 
-@pytest.mark.parametrize("case, message", [
-    ("missing", "image file not found"),
-    ("corrupt", "cannot read image"),
-    ("blank", "no face found"),
-    ("bad_landmarks", "n_points"),
-    ("few_landmarks", "68"),
-    ("bad_focal", "--focal"),
-])
+@pytest.mark.parametrize(
+    "case, message",
+    [
+        ("missing", "image file not found"),
+        ("corrupt", "cannot read image"),
+        ("blank", "no face found"),
+        ("bad_landmarks", "n_points"),
+        ("few_landmarks", "68"),
+        ("bad_focal", "--focal"),
+    ],
+)
 def test_fit_bad_inputs_exit_2_and_write_nothing(capsys, tmp_path, photo_dir, case, message):
     from PIL import Image
 
@@ -212,8 +245,9 @@ def test_fit_face_index_out_of_range(capsys, tmp_path):
     from skimage import data
 
     Image.fromarray(data.astronaut()).save(tmp_path / "astronaut.png")
-    code, _, err = run(capsys, "fit", str(tmp_path / "astronaut.png"), "--face", "4", "--out", str(tmp_path / "o"),
-                       *_fast())
+    code, _, err = run(
+        capsys, "fit", str(tmp_path / "astronaut.png"), "--face", "4", "--out", str(tmp_path / "o"), *_fast()
+    )
     assert code == 2 and "--face must be 0..0" in err
 
 
@@ -224,8 +258,9 @@ def test_fit_a_folder_in_parallel_with_sidecar_landmarks(capsys, tmp_path, photo
     shutil.copytree(photo_dir, folder)
     (folder / "broken.png").write_bytes(b"\x89PNG broken")
     out = tmp_path / "fits"
-    code, stdout, err = run(capsys, "fit", str(folder), "--landmarks", "auto", "--jobs", "2", "--out", str(out),
-                            *_fast())
+    code, stdout, err = run(
+        capsys, "fit", str(folder), "--landmarks", "auto", "--jobs", "2", "--out", str(out), *_fast()
+    )
     # the two good photos are fitted, the broken one is reported and makes the exit status 2
     assert code == 2 and "broken.png" in err
     assert sorted(p.name for p in out.iterdir()) == ["face0", "face1", "summary.csv"]
@@ -236,7 +271,10 @@ def test_fit_a_folder_in_parallel_with_sidecar_landmarks(capsys, tmp_path, photo
     # summary.csv: a row per photo, the broken one with its error
     rows = _summary_rows(out / "summary.csv")
     assert [(Path(r["photo"]).name, r["status"]) for r in rows] == [
-        ("broken.png", "error"), ("face0.png", "ok"), ("face1.png", "ok")]
+        ("broken.png", "error"),
+        ("face0.png", "ok"),
+        ("face1.png", "ok"),
+    ]
     assert "broken.png" in rows[0]["error"] and rows[0]["output"] == "" and rows[0]["nme"] == ""
     for row in rows[1:]:
         report = json.loads((Path(row["output"]) / "report.json").read_text())
@@ -262,7 +300,9 @@ def test_fit_face_all_writes_every_face(capsys, tmp_path, two_faces_photo):
     assert sorted(p.name for p in out.iterdir()) == [".jnr-output", "face_0", "face_1", "summary.csv"]
     rows = _summary_rows(out / "summary.csv")
     assert [(r["face"], r["status"], r["faces_found"], r["output"]) for r in rows] == [
-        ("0", "ok", "2", str(out / "face_0")), ("1", "ok", "2", str(out / "face_1"))]
+        ("0", "ok", "2", str(out / "face_0")),
+        ("1", "ok", "2", str(out / "face_1")),
+    ]
     boxes = []
     for k, row in enumerate(rows):
         folder = out / f"face_{k}"
@@ -275,7 +315,7 @@ def test_fit_face_all_writes_every_face(capsys, tmp_path, two_faces_photo):
         assert float(row["nme"]) == pytest.approx(report["landmarks"]["nme_inter_ocular"], abs=1e-5)
         # the outputs re-load: the parameters rebuild the mesh that mesh.obj holds
         params = json.loads((folder / "params.json").read_text())
-        assert params["format"].startswith("jnr-photo-params")
+        assert params["format"] == "jnr-params/2" and params["fit"] == "photo" and params["model"] == "jnr"
         obj = trimesh.load(folder / "mesh.obj", process=False)
         rebuilt = mesh_from_photo_params(folder / "params.json")
         assert np.abs(np.asarray(obj.vertices)[: len(rebuilt)] - rebuilt).max() < 1e-3
@@ -288,12 +328,15 @@ def test_fit_face_all_writes_every_face(capsys, tmp_path, two_faces_photo):
     assert code == 2 and "exists" in err and (out / "summary.csv").read_bytes() == before
 
 
-@pytest.mark.parametrize("case, message", [
-    ("landmarks", "cannot be used with --landmarks"),
-    ("landmarks_auto", "cannot be used with --landmarks"),
-    ("not_a_number", "--face must be a face number"),
-    ("no_face", "no face found"),
-])
+@pytest.mark.parametrize(
+    "case, message",
+    [
+        ("landmarks", "cannot be used with --landmarks"),
+        ("landmarks_auto", "cannot be used with --landmarks"),
+        ("not_a_number", "--face must be a face number"),
+        ("no_face", "no face found"),
+    ],
+)
 def test_fit_face_all_errors_are_one_line(capsys, tmp_path, photo_dir, case, message):
     from PIL import Image
 
@@ -316,8 +359,18 @@ def test_fit_face_all_errors_are_one_line(capsys, tmp_path, photo_dir, case, mes
 
 def test_fit_photometric_and_landmarks_only_contradict(capsys, tmp_path, photo_dir):
     out = tmp_path / "out"
-    code, _, err = run(capsys, "fit", str(photo_dir / "face0.png"), "--landmarks", str(photo_dir / "face0.pts"),
-                       "--out", str(out), "--landmarks-only", "--photometric", "--quiet")
+    code, _, err = run(
+        capsys,
+        "fit",
+        str(photo_dir / "face0.png"),
+        "--landmarks",
+        str(photo_dir / "face0.pts"),
+        "--out",
+        str(out),
+        "--landmarks-only",
+        "--photometric",
+        "--quiet",
+    )
     assert code == 2 and "--landmarks-only and --photometric contradict" in err
     assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
     assert not out.exists()
@@ -359,8 +412,12 @@ def test_verbose_after_the_subcommand_and_stage_log_lines(caplog):
     assert parser.parse_args(["eval", "capacity", "--verbose"]).verbose
     assert not parser.parse_args(["rig", "info"]).verbose
     # --quiet likewise, before or after any sub-command, also those that draw no bars
-    for argv in (["--quiet", "fit", "a.png", "--out", "o"], ["fit", "a.png", "--out", "o", "--quiet"],
-                 ["--quiet", "rig", "info"], ["retarget", "a", "b", "--out", "c", "--quiet"]):
+    for argv in (
+        ["--quiet", "fit", "a.png", "--out", "o"],
+        ["fit", "a.png", "--out", "o", "--quiet"],
+        ["--quiet", "rig", "info"],
+        ["retarget", "a", "b", "--out", "c", "--quiet"],
+    ):
         assert parser.parse_args(argv).quiet, argv
     assert not parser.parse_args(["fit", "a.png", "--out", "o"]).quiet
     bars = StageBars(disable=True)

@@ -2,14 +2,15 @@
 
 import pytest
 
-from landmarks.detect import DetectionError
+from landmarks.detector import DetectionError
 from landmarks.formats import LandmarkFileError
+from landmarks.images import ImageError
 from landmarks.plausibility import LandmarkPlausibilityError
 from landmarks.points3d import LandmarkError
 from pipeline.cli import CliError
 from pipeline.config import ConfigError
 from pipeline.files import OutputError, OutputExistsError
-from pipeline.scan.pointcloud import CloudError
+from pipeline.scan.pointcloud.cloud import CloudError
 from rig.asset import AssetError
 from rig.errors import InputError, JnrError, SetupError, ShapeError
 from rig.expressions import ExpressionError
@@ -17,9 +18,23 @@ from rig.lbs import ShapeError as LbsShapeError
 from rig.parameters import ParameterError
 
 
-@pytest.mark.parametrize("cls", [DetectionError, LandmarkFileError, LandmarkPlausibilityError, LandmarkError,
-                                 ConfigError, OutputError, OutputExistsError, CloudError, ExpressionError,
-                                 ParameterError, ShapeError])
+@pytest.mark.parametrize(
+    "cls",
+    [
+        DetectionError,
+        ImageError,
+        LandmarkFileError,
+        LandmarkPlausibilityError,
+        LandmarkError,
+        ConfigError,
+        OutputError,
+        OutputExistsError,
+        CloudError,
+        ExpressionError,
+        ParameterError,
+        ShapeError,
+    ],
+)
 def test_input_errors_are_value_errors_under_one_base(cls):
     assert issubclass(cls, InputError) and issubclass(cls, JnrError) and issubclass(cls, ValueError)
 
@@ -37,6 +52,7 @@ def test_the_command_line_maps_errors_by_base_class(monkeypatch, capsys):
     from pipeline.cli import rig as rig_commands
 
     for error, code in ((DetectionError("a.jpg: no face"), 2), (AssetError("asset missing"), 1)):
+
         def broken(args, error=error):
             raise error
 

@@ -43,21 +43,26 @@ MISSING = "Node.js or node_modules/gltf-validator missing (make venv runs npm ci
 def test_our_gltf_files_pass_the_khronos_validator(tmp_path):
     assert NODE is not None and VALIDATOR.is_dir(), MISSING
     node = NODE
+    import torch
+
     from pipeline.animation import curve_keyframes, example_curves, load_fit_head
-    from pipeline.edit import write_skinned_head
+    from pipeline.head.skinned import write_skinned_head
     from rig.asset import load_asset
     from rig.io.gltf import GltfAttachment
     from rig.parameters import random_theta, theta_to_params
-    import torch
 
     generator = torch.Generator().manual_seed(2)
-    params = {"joints": theta_to_params(random_theta(generator, 1)[0].double()), "latent_z": [0.1] * 50,
-              "expressions": {"jawOpen": 0.3}}
+    params = {
+        "joints": theta_to_params(random_theta(generator, 1)[0].double()),
+        "latent_z": [0.1] * 50,
+        "expressions": {"jawOpen": 0.3},
+    }
     fit = tmp_path / "fit"
     fit.mkdir()
     (fit / "params.json").write_text(json.dumps(params))
-    from PIL import Image
     import io
+
+    from PIL import Image
 
     png = io.BytesIO()
     Image.fromarray(np.full((16, 16, 3), 180, np.uint8)).save(png, format="PNG")
@@ -67,15 +72,29 @@ def test_our_gltf_files_pass_the_khronos_validator(tmp_path):
     box = trimesh.creation.box(extents=(60.0, 20.0, 20.0))
     weights = np.zeros((len(box.vertices), len(asset.joint_names)))
     weights[:, list(asset.joint_names).index("crown")] = 1.0
-    hat = GltfAttachment("hat", np.asarray(box.vertices) + [0.0, 110.0, 0.0], np.asarray(box.faces), weights,
-                         np.zeros((52, len(box.vertices), 3)), (0.1, 0.2, 0.6))
-    files = {"head.glb": {}, "head.gltf": {}, "animated_with_hat.glb": {
-        "attachments": [hat], "animation": curve_keyframes(head, example_curves())}}
+    hat = GltfAttachment(
+        "hat",
+        np.asarray(box.vertices) + [0.0, 110.0, 0.0],
+        np.asarray(box.faces),
+        weights,
+        np.zeros((52, len(box.vertices), 3)),
+        (0.1, 0.2, 0.6),
+    )
+    files = {
+        "head.glb": {},
+        "head.gltf": {},
+        "animated_with_hat.glb": {"attachments": [hat], "animation": curve_keyframes(head, example_curves())},
+    }
     for name, extra in files.items():
-        write_skinned_head(tmp_path / name, asset, head.weights, head.tau, head.coefficients,
-                           base_color_texture=head.texture, **extra)
-    run = subprocess.run([node, "-e", SCRIPT, str(VALIDATOR), *(str(tmp_path / n) for n in files)],
-                         capture_output=True, text=True, timeout=120)
+        write_skinned_head(
+            tmp_path / name, asset, head.weights, head.tau, head.expressions, base_color_texture=head.texture, **extra
+        )
+    run = subprocess.run(
+        [node, "-e", SCRIPT, str(VALIDATOR), *(str(tmp_path / n) for n in files)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert run.returncode == 0, run.stderr
     reports = json.loads(run.stdout)
     for name in files:

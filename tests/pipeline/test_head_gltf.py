@@ -4,7 +4,7 @@ jnr's posed, expressive head (morph targets, then skinning, as glTF viewers do).
 import numpy as np
 import torch
 
-from pipeline.edit import write_skinned_head
+from pipeline.head.skinned import write_skinned_head
 from rig.expressions import (
     EXPRESSION_NAMES,
     JAW_INDEX,
@@ -12,9 +12,9 @@ from rig.expressions import (
     coefficients_from_dict,
     jaw_chord_error_mm,
 )
-from rig.io.gltf import read_skinned_gltf
 from rig.model import JointRig
 from rig.parameters import params_to_theta
+from tests.support.gltf_reader import read_skinned_gltf
 
 
 def _skin(out, joint_world):
@@ -34,12 +34,15 @@ def _world(out):
 
 def test_head_gltf_has_52_joints_and_arkit_morph_targets_and_poses_like_jnr(asset, tmp_path):
     rig = JointRig(asset, dtype=torch.float64)
-    theta = params_to_theta({"nose_tip.translate_y": 4.0, "left_cheek.scale": 1.3, "jaw_front.scale": 1.2},
-                            dtype=torch.float64)
+    theta = params_to_theta(
+        {"nose_tip.translate_y": 4.0, "left_cheek.scale": 1.3, "jaw_front.scale": 1.2}, dtype=torch.float64
+    )
     c = coefficients_from_dict({"mouthSmileLeft": 0.8, "eyeBlinkRight": 1.0, "jawOpen": 1.0}, dtype=torch.float64)
     with torch.no_grad():
         tau = rig.channel_transforms(theta[None])[0].numpy()
-        expected = rig(theta[None], vertices=ExpressionModel(asset, torch.float64).vertices(c[None])).vertices[0].numpy()
+        expected = (
+            rig(theta[None], vertices=ExpressionModel(asset, torch.float64).vertices(c[None])).vertices[0].numpy()
+        )
     path = tmp_path / "head.glb"
     write_skinned_head(path, asset, asset.weights, tau, c.numpy())
     out = read_skinned_gltf(path)

@@ -1,4 +1,4 @@
-"""pipeline/notebook.py (the notebook's 3D view, sliders and loss curves) and the engine's per-step loss
+"""pipeline/notebook/ (the notebook's 3D view, sliders and loss curves) and the engine's per-step loss
 history it plots: sliders checked against the rig's forward pass, curves against the recorded values, and
 the history checked not to change a fit by one bit."""
 
@@ -10,29 +10,26 @@ import numpy as np
 import pytest
 import torch
 
-from landmarks.ibug68 import contour_landmarks, ibug68_embedding, landmark_positions
+from landmarks.ibug68.contour import contour_landmarks
+from landmarks.ibug68.embedding import ibug68_embedding
+from landmarks.ibug68.positions import landmark_positions
 from landmarks.loss import project_points
+from pipeline.camera import camera_center_in_rig, default_focal, make_camera
 from pipeline.fitting.engine import LearningRates, Loss, Stage, StageLog, run_schedule
 from pipeline.fitting.priors import PriorWeights, rig_prior_terms
 from pipeline.fitting.state import FitState
-from pipeline.notebook import (
-    LM_COST,
-    head_view,
-    loss_curves,
-    posable_head,
-    rig_sliders,
-    stage_curves,
-    update_head_view,
-)
-from pipeline.photo.camera import camera_center_in_rig, default_focal, make_camera
+from pipeline.notebook.curves import LM_COST, loss_curves, stage_curves
+from pipeline.notebook.head import posable_head
+from pipeline.notebook.sliders import rig_sliders
+from pipeline.notebook.view import head_view, update_head_view
 from pipeline.photo.landmark_fit import LandmarkFitConfig, fit_landmarks
-from pipeline.scan.outputs import rig_vertices_from_params
 from rig.errors import InputError, ShapeError
 from rig.expressions import EXPRESSION_NAMES, ExpressionModel, coefficients_from_dict
 from rig.model import JointRig
 from rig.optim import frozen
 from rig.parameters import CHANNEL_INDEX, CHANNELS, params_to_theta, random_theta, theta_to_params
 from rig.skinning.neural import LATENT, load_neural
+from tests.pipeline.conftest import rig_head_vertices
 
 W, H = 320, 240
 
@@ -47,8 +44,11 @@ def fit_params():
     """A fitted head's params.json content: random joints, an open jaw and a smile, a random latent Z."""
     theta = random_theta(torch.Generator().manual_seed(7), spread=0.3)[0].double()
     z = np.random.default_rng(3).normal(0.0, 0.3, LATENT)
-    return {"joints": theta_to_params(theta), "expressions": {"jawOpen": 0.25, "mouthSmileLeft": 0.4},
-            "latent_z": [float(x) for x in z]}
+    return {
+        "joints": theta_to_params(theta),
+        "expressions": {"jawOpen": 0.25, "mouthSmileLeft": 0.4},
+        "latent_z": [float(x) for x in z],
+    }
 
 
 @pytest.fixture(scope="module")
@@ -74,8 +74,11 @@ def _view_vertices(view) -> np.ndarray:
 
 
 def _edited(params, joints=None, expressions=None):
-    return {"joints": {**params["joints"], **(joints or {})},
-            "expressions": {**params["expressions"], **(expressions or {})}, "latent_z": params["latent_z"]}
+    return {
+        "joints": {**params["joints"], **(joints or {})},
+        "expressions": {**params["expressions"], **(expressions or {})},
+        "latent_z": params["latent_z"],
+    }
 
 
 class TestHeadViewAndSliders:
@@ -99,8 +102,10 @@ class TestHeadViewAndSliders:
         assert sliders.expression_sliders["jawOpen"].value == pytest.approx(0.25)
         np.testing.assert_allclose(sliders.theta(), head.theta, rtol=0, atol=1e-12)
 
-    @pytest.mark.parametrize("name, value", [("nose_tip.translate_z", "high"), ("left_upper_eyelid.rotate_x", "low"),
-                                             ("left_cheek.scale", "high")])
+    @pytest.mark.parametrize(
+        "name, value",
+        [("nose_tip.translate_z", "high"), ("left_upper_eyelid.rotate_x", "low"), ("left_cheek.scale", "high")],
+    )
     def test_a_joint_slider_reposes_the_view_as_the_rig_does(self, head, fit_params, rig64, name, value):
         view = head_view(head)
         sliders = rig_sliders(head, view)
@@ -130,7 +135,7 @@ class TestHeadViewAndSliders:
         joints = {k: v for k, v in edit.items() if k in CHANNEL_INDEX}
         expressions = {k: v for k, v in edit.items() if k not in CHANNEL_INDEX}
         # the jnr rig export / params.json reader: another code path to the same head
-        expected = rig_vertices_from_params(_edited(fit_params, joints, expressions), rig=rig64)
+        expected = rig_head_vertices(_edited(fit_params, joints, expressions), rig=rig64)
         np.testing.assert_allclose(_view_vertices(view), expected, rtol=0, atol=1e-6)
         np.testing.assert_allclose(sliders.vertices, expected, rtol=0, atol=1e-6)
         sliders.reset()
@@ -163,19 +168,22 @@ class TestHeadViewAndSliders:
         with pytest.raises(InputError, match="no slider named 'jawOpen'"):
             sliders.set_values({"jawOpen": 0.5})
         with pytest.raises(InputError, match="ASM"):
-            posable_head(SimpleNamespace(theta=head.theta, z=np.zeros(LATENT), expressions=head.expressions,
-                                         asm={"bones": {}}), rig=rig64)
+            posable_head(
+                SimpleNamespace(theta=head.theta, z=np.zeros(LATENT), expressions=head.expressions, asm={"bones": {}}),
+                rig=rig64,
+            )
         with pytest.raises(InputError, match="without"):
             posable_head(object(), rig=rig64)
         with pytest.raises(ShapeError, match="update_head_view: vertices"):
             update_head_view(head_view(head), np.zeros((10, 3)))
-        with pytest.raises(ShapeError, match="PosableHead.pose: theta"):
+        with pytest.raises(ShapeError, match="FittedHead.pose: theta"):
             head.pose(np.zeros(3), head.expressions)
 
 
 # ----------------------------------------------------------------------------------------------------
 # The per-step history and the loss curves
 # ----------------------------------------------------------------------------------------------------
+
 
 @pytest.fixture(scope="module")
 def models():
@@ -211,7 +219,11 @@ def _deformation_fit(models, schedule):
         data = (state.rig_vertices(free) - target).square().sum(-1).mean()
         return Loss({"data_mm2": data, **rig_prior_terms(state, PriorWeights(lambda_z=0.01))})
 
-    stages = (Stage("joints", ("joints",), 4), Stage("latent", ("latent",), 2), Stage("expressions", ("expressions",), 3))
+    stages = (
+        Stage("joints", ("joints",), 4),
+        Stage("latent", ("latent",), 2),
+        Stage("expressions", ("expressions",), 3),
+    )
     return state, schedule(state, stages, objective, LearningRates())
 
 
@@ -239,8 +251,14 @@ class TestStageHistory:
     def test_a_real_fit_is_bit_identical_with_and_without_the_history(self, models, monkeypatch):
         rig, neural, _ = models
         landmarks2d = _synthetic_landmarks(rig, neural)
-        config = LandmarkFitConfig(solver="adam", stages=(Stage("pose", ("pose",), 3), Stage("joints", ("pose", "joints"), 4),
-                                                          Stage("expr", ("pose", "expressions"), 3)))
+        config = LandmarkFitConfig(
+            solver="adam",
+            stages=(
+                Stage("pose", ("pose",), 3),
+                Stage("joints", ("pose", "joints"), 4),
+                Stage("expr", ("pose", "expressions"), 3),
+            ),
+        )
         logged = fit_landmarks(landmarks2d, W, H, config=config, rig=rig, neural=neural)
         monkeypatch.setattr("pipeline.photo.landmark_fit.run_schedule", _plain_schedule)
         plain = fit_landmarks(landmarks2d, W, H, config=config, rig=rig, neural=neural)
@@ -255,8 +273,11 @@ def _synthetic_landmarks(rig, neural) -> np.ndarray:
     expr = ExpressionModel(rig.asset)
     with torch.no_grad():
         weights = neural(torch.zeros(1, LATENT))[0]
-        v = rig(torch.zeros(1, rig.num_parameters), weights=weights,
-                vertices=expr.vertices(coefficients_from_dict({"jawOpen": 0.2})[None])[0]).vertices[0]
+        v = rig(
+            torch.zeros(1, rig.num_parameters),
+            weights=weights,
+            vertices=expr.vertices(coefficients_from_dict({"jawOpen": 0.2})[None])[0],
+        ).vertices[0]
         contour = contour_landmarks(v, rig.asset.faces, camera_center_in_rig(rotation, translation), rig.asset)
         points = torch.cat([contour, landmark_positions(v, ibug68_embedding(rig.asset), rig.asset.faces)[0, 17:]])
         camera = make_camera(W, H, default_focal(W, H), rotation=rotation, translation=translation)
@@ -272,8 +293,12 @@ class TestLossCurves:
         assert [c.name for c in stage_curves(fit)] == ["landmarks lm", "joints", "latent", "expressions"]
         fig = loss_curves(fit, title="test")
         axes = [ax for ax in fig.axes if ax.get_visible()]
-        assert [ax.get_title() for ax in axes] == ["landmarks lm (Levenberg-Marquardt)", "joints (Adam)",
-                                                   "latent (Adam)", "expressions (Adam)"]
+        assert [ax.get_title() for ax in axes] == [
+            "landmarks lm (Levenberg-Marquardt)",
+            "joints (Adam)",
+            "latent (Adam)",
+            "expressions (Adam)",
+        ]
         assert all(ax.get_yscale() == "log" for ax in axes)
         lines = axes[0].get_lines()
         assert [line.get_label() for line in lines] == [LM_COST]
@@ -288,9 +313,12 @@ class TestLossCurves:
         assert legend[:2] == [LM_COST, "data_mm2"]
 
     def test_terms_at_zero_throughout_are_named_in_the_legend(self):
-        logs = [StageLog("a", ("joints",), 2, 1.0, 0.5, history={"data": (1.0, 0.5), "off": (0.0, 0.0)}),
-                StageLog("b", ("joints",), 2, 0.5, 0.2, history={"data": (0.5, 0.2), "off": (0.0, 0.0),
-                                                                   "late": (0.0, 0.1)})]
+        logs = [
+            StageLog("a", ("joints",), 2, 1.0, 0.5, history={"data": (1.0, 0.5), "off": (0.0, 0.0)}),
+            StageLog(
+                "b", ("joints",), 2, 0.5, 0.2, history={"data": (0.5, 0.2), "off": (0.0, 0.0), "late": (0.0, 0.1)}
+            ),
+        ]
         fig = loss_curves(logs)
         assert [t.get_text() for t in fig.legends[0].get_texts()] == ["data", "off (0 throughout)", "late"]
         colours = {(ax.get_title(), line.get_label()): line.get_color() for ax in fig.axes for line in ax.get_lines()}

@@ -44,7 +44,7 @@ def check_paths(report: Path, skip: tuple[str, ...] = ()) -> set[str]:
 
 
 def test_photo_and_scan_reports_point_at_files_that_exist(capsys, tmp_path, photo_dir, monkeypatch, asset):
-    from pipeline.scan.pointcloud import write_point_cloud_ply
+    from pipeline.scan.pointcloud.write import write_point_cloud_ply
     from pipeline.synthetic.scans import simulate_scan
 
     work, elsewhere = tmp_path / "work", tmp_path / "elsewhere"
@@ -54,14 +54,25 @@ def test_photo_and_scan_reports_point_at_files_that_exist(capsys, tmp_path, phot
     (tmp_path / "short.yaml").write_text("stages:\n  - {name: coarse, free: [pose, expressions], iterations: 3}\n")
     monkeypatch.chdir(work)  # the inputs given relative to the working directory
     relative_photo = os.path.relpath(photo_dir / "face0.png")
-    assert main(["fit", relative_photo, "--landmarks", os.path.relpath(photo_dir / "face0.pts"), "--out", "photo",
-                 *fast_fit_args()]) == 0
+    assert (
+        main(
+            [
+                "fit",
+                relative_photo,
+                "--landmarks",
+                os.path.relpath(photo_dir / "face0.pts"),
+                "--out",
+                "photo",
+                *fast_fit_args(),
+            ]
+        )
+        == 0
+    )
     assert main(["fit-scan", "../scan.ply", "--out", "scan", "--config", "../short.yaml", "--quiet"]) == 0
     capsys.readouterr()
     monkeypatch.chdir(elsewhere)  # and read from another one
     assert {".input.photo", ".input.landmarks", ".texture.file"} <= check_paths(work / "photo" / "report.json")
     assert ".input.path" in check_paths(work / "scan" / "report.json")
-
 
 
 # The demo's summary.json and its fits' reports are checked with check_paths in

@@ -32,9 +32,20 @@ from tests.conftest import needs_tool
 from tests.pipeline.conftest import fast_fit_args
 
 WIDTH, HEIGHT = 400, 360
-FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-         "--disable-background-networking", "--disable-component-update", "--disable-sync", "--hide-scrollbars",
-         "--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--virtual-time-budget=15000"]
+FLAGS = [
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+    "--hide-scrollbars",
+    "--use-angle=swiftshader",
+    "--enable-unsafe-swiftshader",
+    "--virtual-time-budget=15000",
+]
 
 
 THREE_MISSING = "three.js is not vendored (make venv)"
@@ -57,8 +68,12 @@ def chromium(three):
 
 def _browse(exe: str, page, hash_: str, *args: str) -> subprocess.CompletedProcess:
     with tempfile.TemporaryDirectory(prefix="jnr-chromium-") as profile:
-        return subprocess.run([exe, *FLAGS, f"--user-data-dir={profile}", *args, page.as_uri() + "#" + hash_],
-                              capture_output=True, timeout=120, check=True)
+        return subprocess.run(
+            [exe, *FLAGS, f"--user-data-dir={profile}", *args, page.as_uri() + "#" + hash_],
+            capture_output=True,
+            timeout=120,
+            check=True,
+        )
 
 
 def screenshot(exe: str, page, hash_: str, tmp_path) -> np.ndarray:
@@ -76,12 +91,14 @@ def page_state(exe: str, page, hash_: str) -> dict:
 
 # ------------------------------------------------------------------------------------------ a known head
 
+
 @pytest.fixture(scope="module")
 def head(rig64):
     """Known parameters (random, inside the limits; no jawOpen), weights of a random latent Z, a camera
     with an off-centre principal point and a turned head, and a saturated photo (so grey differs)."""
-    from pipeline.photo.camera import camera_from_head_pose
     from scipy.spatial.transform import Rotation
+
+    from pipeline.camera import camera_from_head_pose
 
     g = torch.Generator().manual_seed(7)
     theta = random_theta(g, spread=0.3, dtype=torch.float64)[0]
@@ -91,8 +108,13 @@ def head(rig64):
     with torch.no_grad():
         weights = load_neural(rig64)[0](z[None])[0].numpy()
     rotation = Rotation.from_euler("YX", [18, -6], degrees=True).as_matrix()
-    camera = {"width": WIDTH, "height": HEIGHT, "focal_px": 1.4 * WIDTH, "principal_point_px": [190.0, 187.5],
-              "extrinsics_rig_to_camera": camera_from_head_pose(rotation, np.array([8.0, 14.0, 640.0])).tolist()}
+    camera = {
+        "width": WIDTH,
+        "height": HEIGHT,
+        "focal_px": 1.4 * WIDTH,
+        "principal_point_px": [190.0, 187.5],
+        "extrinsics_rig_to_camera": camera_from_head_pose(rotation, np.array([8.0, 14.0, 640.0])).tolist(),
+    }
     yy, xx = np.mgrid[0:HEIGHT, 0:WIDTH]
     photo = np.stack([200 + 55 * xx / WIDTH, 40 + 80 * yy / HEIGHT, 30 + 0 * xx], -1).astype(np.uint8)
     return {"theta": theta.numpy(), "c": c.numpy(), "weights": weights, "camera": camera, "photo": photo}
@@ -124,8 +146,15 @@ def silhouette(vertices: np.ndarray, faces: np.ndarray, camera: dict) -> np.ndar
 @pytest.fixture(scope="module")
 def page(head, asset, three, tmp_path_factory):
     path = tmp_path_factory.mktemp("viewer") / "viewer.html"
-    info = write_viewer(path, asset, theta=head["theta"], expressions=head["c"], weights=head["weights"],
-                        views=[ViewerView("known head", head["camera"], head["photo"])], title="known head")
+    info = write_viewer(
+        path,
+        asset,
+        theta=head["theta"],
+        expressions=head["c"],
+        weights=head["weights"],
+        views=[ViewerView("known head", head["camera"], head["photo"])],
+        title="known head",
+    )
     assert info.bytes == path.stat().st_size and info.dropped_weight == 0.0
     return path
 
@@ -138,11 +167,12 @@ def grey_shot(chromium, page, tmp_path_factory):
 
 # ------------------------------------------------------------------------------------------ Python side
 
+
 @needs_three
 def test_page_holds_the_head_and_decodes_back_to_the_arrays(page, head, asset):
     data = read_viewer_data(page)
     assert data["format"] == "jnr-viewer/1" and data["mode"] == "rig" and page.stat().st_size < 8e6
-    assert np.abs(data["template"] - asset.vertices).max() < 1e-4                        # float32 mm
+    assert np.abs(data["template"] - asset.vertices).max() < 1e-4  # float32 mm
     # triangles over UV-split vertices: the same triangles and per-corner UVs as the asset
     assert np.array_equal(data["render_vertex"][data["faces"]], asset.faces)
     assert np.abs(data["uv"][data["faces"]] - asset.face_uvs).max() < 1e-6
@@ -156,12 +186,15 @@ def test_page_holds_the_head_and_decodes_back_to_the_arrays(page, head, asset):
         rows = slice(start[e], start[e + 1])
         sparse[e, data["morph"]["index"][rows]] = data["morph"]["offsets"][rows]
     assert np.abs(sparse - basis).max() < 1e-5 and len(data["morph"]["index"]) < basis.shape[0] * basis.shape[1] / 4
-    assert [c["value"] for c in data["channels"]] == pytest.approx(list(theta_to_params(
-        torch.as_tensor(head["theta"])).values()), abs=1e-12)
+    assert [c["value"] for c in data["channels"]] == pytest.approx(
+        list(theta_to_params(torch.as_tensor(head["theta"])).values()), abs=1e-12
+    )
     assert [c["name"] for c in data["channels"]] == [c.name for c in CHANNELS]
     assert data["expressions"]["values"] == pytest.approx(head["c"].tolist(), abs=1e-12)
     view = data["views"][0]
-    assert np.allclose(view["camera"]["extrinsics_rig_to_camera"], head["camera"]["extrinsics_rig_to_camera"], atol=1e-12)
+    assert np.allclose(
+        view["camera"]["extrinsics_rig_to_camera"], head["camera"]["extrinsics_rig_to_camera"], atol=1e-12
+    )
     from base64 import b64decode
     from io import BytesIO
 
@@ -169,7 +202,7 @@ def test_page_holds_the_head_and_decodes_back_to_the_arrays(page, head, asset):
 
     jpeg = b64decode(data["images"][view["photo"]].split(",", 1)[1])
     photo = np.asarray(Image.open(BytesIO(jpeg)).convert("RGB"), float)
-    assert photo.shape == head["photo"].shape and np.abs(photo - head["photo"]).mean() < 2.0   # JPEG
+    assert photo.shape == head["photo"].shape and np.abs(photo - head["photo"]).mean() < 2.0  # JPEG
 
 
 def test_top4_keeps_the_largest_weights_and_renormalises():
@@ -207,6 +240,7 @@ def test_payload_rejects_wrong_shapes(asset):
 
 # ------------------------------------------------------------------------------------------ the browser
 
+
 @needs_browser
 def test_browser_draws_the_head_where_the_camera_projects_it(grey_shot, head, rig64, asset):
     import cv2
@@ -221,8 +255,8 @@ def test_browser_draws_the_head_where_the_camera_projects_it(grey_shot, head, ri
     inside = cv2.erode(mask.astype(np.uint8), kernel).astype(bool)
     outside = ~cv2.dilate(mask.astype(np.uint8), kernel).astype(bool)
     assert mask.sum() > 0.1 * mask.size and outside.sum() > 0.2 * mask.size
-    assert differs[inside].mean() > 0.98      # the grey head covers its silhouette
-    assert differs[outside].mean() < 0.002    # and nothing else: the photo is drawn unchanged
+    assert differs[inside].mean() > 0.98  # the grey head covers its silhouette
+    assert differs[outside].mean() < 0.002  # and nothing else: the photo is drawn unchanged
     iou = (differs & mask).sum() / (differs | mask).sum()
     assert iou > 0.95
 
@@ -245,29 +279,39 @@ def test_browser_slider_from_the_hash_changes_the_mouth_only(chromium, page, gre
     assert changed.sum() > 300
     assert changed[mouth].sum() / changed.sum() > 0.97
     # the forehead and the photo around the head did not change
-    still = ~silhouette(moved_vertices[1], faces, head["camera"]) & ~silhouette(moved_vertices[0], faces, head["camera"])
+    still = ~silhouette(moved_vertices[1], faces, head["camera"]) & ~silhouette(
+        moved_vertices[0], faces, head["camera"]
+    )
     assert changed[still].mean() < 0.001
 
 
 @needs_browser
 def test_browser_deformation_matches_the_python_rig(chromium, page, head, rig64):
-    hash_ = ("state=all&jawOpen=0.7&mouthSmileLeft=0.6&nose_tip.translate_z=5&left_cheek.scale=1.2"
-             "&skull_root.rotate_x=20&neck.rotate_z=-12&crown.translate_y=1000&notAName=1")
+    hash_ = (
+        "state=all&jawOpen=0.7&mouthSmileLeft=0.6&nose_tip.translate_z=5&left_cheek.scale=1.2"
+        "&skull_root.rotate_x=20&neck.rotate_z=-12&crown.translate_y=1000&notAName=1"
+    )
     state = page_state(chromium, page, hash_)
     assert state["ready"] and state["three_revision"] == "170" and state["camera"] == "photo"
     assert state["hash_unknown"] == ["notAName"] and state["hash_clamped"] == ["crown.translate_y"]
     crown = CHANNELS[CHANNEL_INDEX["crown.translate_y"]]
     assert state["joints"]["crown.translate_y"] == crown.high
     fitted = dict(zip([c.name for c in CHANNELS], theta_to_params(torch.as_tensor(head["theta"])).values()))
-    joints = {**fitted, "nose_tip.translate_z": 5.0, "left_cheek.scale": 1.2, "skull_root.rotate_x": 20.0, "neck.rotate_z": -12.0,
-              "crown.translate_y": crown.high}
+    joints = {
+        **fitted,
+        "nose_tip.translate_z": 5.0,
+        "left_cheek.scale": 1.2,
+        "skull_root.rotate_x": 20.0,
+        "neck.rotate_z": -12.0,
+        "crown.translate_y": crown.high,
+    }
     expressions = {**dict(zip(EXPRESSION_NAMES, head["c"])), "jawOpen": 0.7, "mouthSmileLeft": 0.6}
     assert state["joints"] == pytest.approx(joints, abs=1e-12)
     assert state["expressions"] == pytest.approx(expressions, abs=1e-12)
     truth = posed(rig64, head["weights"], joints, expressions)
     js = np.asarray(state["vertices"])
     assert state["vertex_ids"] == list(range(len(truth)))
-    assert np.abs(js - truth).max() < 1e-3                                   # mm
+    assert np.abs(js - truth).max() < 1e-3  # mm
     assert np.abs(truth - posed(rig64, head["weights"], fitted, dict(zip(EXPRESSION_NAMES, head["c"])))).max() > 5
 
 
@@ -292,7 +336,7 @@ def test_browser_orbit_view_and_static_mesh_without_a_photo(chromium, asset, rig
     shot = screenshot(chromium, page, "", tmp_path).astype(int)
     background = shot[2, 2]
     drawn = np.abs(shot - background).max(-1) > 20
-    assert drawn[HEIGHT // 2 - 20:HEIGHT // 2 + 20, WIDTH // 2 - 20:WIDTH // 2 + 20].all()
+    assert drawn[HEIGHT // 2 - 20 : HEIGHT // 2 + 20, WIDTH // 2 - 20 : WIDTH // 2 + 20].all()
     assert 0.05 < drawn.mean() < 0.6 and not drawn[:, :20].any()
 
 
@@ -303,7 +347,8 @@ def test_jnr_fit_writes_a_viewer_that_poses_the_fitted_head(chromium, head, rig6
     from PIL import Image
 
     from landmarks.formats import write_landmarks
-    from landmarks.ibug68 import ibug68_embedding, landmark_positions
+    from landmarks.ibug68.embedding import ibug68_embedding
+    from landmarks.ibug68.positions import landmark_positions
     from pipeline.cli import main
     from pipeline.photo.outputs import mesh_from_photo_params
 
@@ -316,16 +361,29 @@ def test_jnr_fit_writes_a_viewer_that_poses_the_fitted_head(chromium, head, rig6
     Image.fromarray(head["photo"]).save(tmp_path / "photo.png")
     write_landmarks(tmp_path / "photo.pts", px)
     out = tmp_path / "fit"
-    short = "landmarks.lm_stages=[{name: pose, free: [pose], iterations: 2}, {name: all, free: [pose, joints, expressions], iterations: 2}]"
-    code = main(["fit", str(tmp_path / "photo.png"), "--landmarks", str(tmp_path / "photo.pts"), "--out", str(out),
-                 *fast_fit_args("--set", short)])
+    short = (
+        "landmarks.lm_stages=[{name: pose, free: [pose], iterations: 2}, "
+        "{name: all, free: [pose, joints, expressions], iterations: 2}]"
+    )
+    code = main(
+        [
+            "fit",
+            str(tmp_path / "photo.png"),
+            "--landmarks",
+            str(tmp_path / "photo.pts"),
+            "--out",
+            str(out),
+            *fast_fit_args("--set", short),
+        ]
+    )
     assert code == 0, capsys.readouterr().err
     params = json.loads((out / "params.json").read_text())
     data = read_viewer_data(out / "viewer.html")
     camera = data["views"][0]["camera"]
     assert np.allclose(camera["extrinsics_rig_to_camera"], params["camera"]["extrinsics_rig_to_camera"], atol=1e-12)
     assert [camera[k] for k in ("width", "height", "focal_px")] == pytest.approx(
-        [params["camera"][k] for k in ("width", "height", "focal_px")])
+        [params["camera"][k] for k in ("width", "height", "focal_px")]
+    )
     state = page_state(chromium, out / "viewer.html", "")
     rebuilt = mesh_from_photo_params(params)
     assert np.abs(np.asarray(state["vertices"]) - rebuilt[state["vertex_ids"]]).max() < 1e-3

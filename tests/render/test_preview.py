@@ -24,8 +24,9 @@ def _project(points, yaw, distance, fov, target, size):
 @pytest.mark.parametrize("yaw", [0.0, 90.0])
 def test_silhouette_lands_where_the_camera_projects_the_mesh(asset, yaw, tmp_path):
     size, distance, fov, target = (160, 200), 900.0, 22.0, (0.0, -30.0, 0.0)
-    image = render_preview(asset.vertices, asset.faces, yaw=yaw, pitch=0.0, size=size, spp=4, distance=distance,
-                           fov=fov, target=target)
+    image = render_preview(
+        asset.vertices, asset.faces, yaw=yaw, pitch=0.0, size=size, spp=4, distance=distance, fov=fov, target=target
+    )
     assert image.shape == (200, 160, 3) and image.dtype == np.uint8
     background = image[0, 0].astype(int)
     mask = np.abs(image.astype(int) - background).sum(-1) > 12

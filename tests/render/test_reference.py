@@ -22,13 +22,18 @@ DISTANCE = 500.0
 
 def _camera(f=150.0, width=W, height=H, distance=DISTANCE):
     """OpenCV camera at world (0, 0, distance) looking at the origin along -Z, principal point at the centre."""
-    K = torch.tensor([[f, 0, (width - 1) / 2, 0], [0, f, (height - 1) / 2, 0], [0, 0, 1, 0], [0, 0, 0, 1]],
-                     dtype=torch.float64)[None]
+    K = torch.tensor(
+        [[f, 0, (width - 1) / 2, 0], [0, f, (height - 1) / 2, 0], [0, 0, 1, 0], [0, 0, 0, 1]], dtype=torch.float64
+    )[None]
     E = torch.eye(4, dtype=torch.float64)
     E[:3, :3] = torch.diag(torch.tensor([1.0, -1.0, -1.0], dtype=torch.float64))
     E[2, 3] = distance
-    return PinholeCamera(K, E[None], torch.tensor([float(height)], dtype=torch.float64),
-                         torch.tensor([float(width)], dtype=torch.float64))
+    return PinholeCamera(
+        K,
+        E[None],
+        torch.tensor([float(height)], dtype=torch.float64),
+        torch.tensor([float(width)], dtype=torch.float64),
+    )
 
 
 def _sphere(radius=60.0):
@@ -76,8 +81,9 @@ def test_shapes_and_ranges(sphere):
 
 def test_torch_inputs_and_non_square_image(sphere):
     v, f, albedo = sphere
-    out = render_reference(torch.as_tensor(v), torch.as_tensor(f), torch.as_tensor(albedo),
-                           _camera(width=80, height=64), _light(), spp=2)
+    out = render_reference(
+        torch.as_tensor(v), torch.as_tensor(f), torch.as_tensor(albedo), _camera(width=80, height=64), _light(), spp=2
+    )
     assert out.image.shape == (64, 80, 3) and out.mask.shape == (64, 80)
 
 
@@ -108,12 +114,12 @@ def test_mask_covers_the_projected_centre_not_the_corner(sphere):
     v, f, albedo = sphere
     out = render_reference(v, f, albedo, _camera(), _light(), spp=4)
     c = (W - 1) / 2.0  # the sphere's centre projects to the principal point: the 2x2 pixels around it
-    centre = out.mask[math.floor(c):math.ceil(c) + 1, math.floor(c):math.ceil(c) + 1]
+    centre = out.mask[math.floor(c) : math.ceil(c) + 1, math.floor(c) : math.ceil(c) + 1]
     assert (centre == 1.0).all()
     assert out.mask[0, 0] == 0.0 and out.mask[-1, -1] == 0.0
     # projected radius: f r / sqrt(d^2 - r^2) = 150 * 60 / sqrt(500^2 - 60^2) ~ 18.1 px
-    radius = 150.0 * 60.0 / math.sqrt(DISTANCE ** 2 - 60.0 ** 2)
-    assert abs(out.mask.sum() - math.pi * radius ** 2) < 0.03 * math.pi * radius ** 2
+    radius = 150.0 * 60.0 / math.sqrt(DISTANCE**2 - 60.0**2)
+    assert abs(out.mask.sum() - math.pi * radius**2) < 0.03 * math.pi * radius**2
 
 
 def test_background_is_composited_by_coverage(sphere):
@@ -132,14 +138,15 @@ def test_point_light_and_environment_levels():
     albedo = np.full(v.shape, 0.5)
     cam = _camera(f=60.0)
     distance = 1000.0
-    key = render_reference(v, f, albedo, cam, _light((0.0, 0.0, distance), intensity=math.pi * distance ** 2,
-                                                     environment=0.0), spp=128)
+    key = render_reference(
+        v, f, albedo, cam, _light((0.0, 0.0, distance), intensity=math.pi * distance**2, environment=0.0), spp=128
+    )
     # Mitsuba picks one of the two emitters per sample (weight 2), so average over pixels; the 8x8 pixels
     # span +-2.7 degrees seen from the light: cos^3 falloff >= 0.997
-    centre = key.image[H // 2 - 4:H // 2 + 4, W // 2 - 4:W // 2 + 4]
+    centre = key.image[H // 2 - 4 : H // 2 + 4, W // 2 - 4 : W // 2 + 4]
     np.testing.assert_allclose(centre.mean(), 0.5, rtol=0.02)  # E = pi at the centre -> radiance a
     env = render_reference(v, f, albedo, cam, _light(intensity=0.0, environment=0.4), spp=8)
-    np.testing.assert_allclose(env.image[H // 4:3 * H // 4, W // 4:3 * W // 4].mean(), 0.5 * 0.4, rtol=0.03)
+    np.testing.assert_allclose(env.image[H // 4 : 3 * H // 4, W // 4 : 3 * W // 4].mean(), 0.5 * 0.4, rtol=0.03)
 
 
 def test_seam_split_vertices_shade_like_the_welded_mesh(sphere):

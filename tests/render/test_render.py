@@ -39,8 +39,12 @@ def _camera(f=80.0, cx=36.3, cy=20.6, distance=500.0, R=None, width=W, height=H)
     E = np.eye(4)
     E[:3, :3] = Rwc
     E[:3, 3] = -Rwc @ eye
-    return PinholeCamera(K, torch.tensor(E)[None], torch.tensor([float(height)], dtype=torch.float64),
-                         torch.tensor([float(width)], dtype=torch.float64))
+    return PinholeCamera(
+        K,
+        torch.tensor(E)[None],
+        torch.tensor([float(height)], dtype=torch.float64),
+        torch.tensor([float(width)], dtype=torch.float64),
+    )
 
 
 def _icosphere(radius=60.0, subdivisions=2):
@@ -125,8 +129,9 @@ def test_camera_conversion_errors():
     with pytest.raises(ValueError, match="square pixels"):
         sensor_from_pinhole(cam)
     cam = _camera()
-    two = PinholeCamera(cam.intrinsics.repeat(2, 1, 1), cam.extrinsics.repeat(2, 1, 1), cam.height.repeat(2),
-                        cam.width.repeat(2))
+    two = PinholeCamera(
+        cam.intrinsics.repeat(2, 1, 1), cam.extrinsics.repeat(2, 1, 1), cam.height.repeat(2), cam.width.repeat(2)
+    )
     with pytest.raises(ValueError, match="single camera"):
         sensor_from_pinhole(two)
 
@@ -163,8 +168,12 @@ def test_gradients_match_finite_differences(sphere_scene):
     irr = light0.irradiance.clone().requires_grad_(True)
     _loss(r, v, albedo, Lighting(amb, irr, light0.direction), weights).backward()
     k = int(np.argmax(facing))  # a vertex facing the camera
-    ad = {"silhouette": float((v.grad * n)[band].sum()), "albedo": float(albedo.grad[k, 0]),
-          "ambient": float(amb.grad[1]), "irradiance": float(irr.grad[2])}
+    ad = {
+        "silhouette": float((v.grad * n)[band].sum()),
+        "albedo": float(albedo.grad[k, 0]),
+        "ambient": float(amb.grad[1]),
+        "irradiance": float(irr.grad[2]),
+    }
 
     def loss_at(name, t):
         vv = torch.tensor(v0, dtype=torch.float32)
@@ -259,8 +268,11 @@ def test_bad_inputs_raise(sphere_scene):
     with pytest.raises(ValueError, match="expected vertices and albedo"):
         r.render(torch.zeros(5, 3), torch.zeros(5, 3))
     with pytest.raises(ValueError, match="ambient"):
-        r.render(torch.tensor(v0, dtype=torch.float32), torch.tensor(albedo0, dtype=torch.float32),
-                 Lighting(torch.ones(2), torch.ones(3), torch.ones(3)))
+        r.render(
+            torch.tensor(v0, dtype=torch.float32),
+            torch.tensor(albedo0, dtype=torch.float32),
+            Lighting(torch.ones(2), torch.ones(3), torch.ones(3)),
+        )
     with pytest.raises(ValueError, match="expected faces"):
         _renderer(v0, np.array([[0, 1, 10**6]]), albedo0, _camera(), light)
 
@@ -281,8 +293,16 @@ def test_preview_and_renderer_coexist(sphere_scene):
 
 
 # -- LLVM check --------------------------------------------------------------------------------------
-@pytest.mark.parametrize("name, major", [("libLLVM-15.so", 15), ("libLLVM-14.so.1", 14), ("libLLVM.so.19.1", 19),
-                                         ("libLLVM-14.0.6.so.1", 14), ("libLLVM-19.so", 19)])
+@pytest.mark.parametrize(
+    "name, major",
+    [
+        ("libLLVM-15.so", 15),
+        ("libLLVM-14.so.1", 14),
+        ("libLLVM.so.19.1", 19),
+        ("libLLVM-14.0.6.so.1", 14),
+        ("libLLVM-19.so", 19),
+    ],
+)
 def test_llvm_major_from_name(name, major):
     assert backend.llvm_major_from_name(f"/usr/lib/x86_64-linux-gnu/{name}") == major
 
@@ -300,8 +320,11 @@ def test_old_llvm_from_search_raises(monkeypatch):
     monkeypatch.setattr(backend, "_loaded_libllvm", lambda: None)
     monkeypatch.delenv("DRJIT_LIBLLVM_PATH", raising=False)
     monkeypatch.setattr(backend, "_ldconfig_libllvm", lambda: None)
-    monkeypatch.setattr(backend.glob, "glob", lambda pattern: ["/usr/lib/x86_64-linux-gnu/libLLVM-15.so.1"]
-                        if "x86_64" in pattern else [])
+    monkeypatch.setattr(
+        backend.glob,
+        "glob",
+        lambda pattern: ["/usr/lib/x86_64-linux-gnu/libLLVM-15.so.1"] if "x86_64" in pattern else [],
+    )
     monkeypatch.setattr(backend, "_checked", {})
     with pytest.raises(backend.LLVMError, match="libllvm19"):
         backend.resolve_variant("cpu")
@@ -324,13 +347,15 @@ def test_old_llvm_is_an_error_not_an_abort(tmp_path):
         fake = tmp_path / "libLLVM-15.so"
         fake.write_bytes(b"")
         old = str(fake)
-    code = ("import torch, numpy as np\n"
-            "from render.renderer import DifferentiableRenderer\n"
-            "from render.backend import LLVMError\n"
-            "try:\n"
-            "    DifferentiableRenderer(np.zeros((3, 3)), np.array([[0, 1, 2]]), np.ones((3, 3)), None)\n"
-            "except LLVMError as e:\n"
-            "    print('LLVMError:', e)\n")
+    code = (
+        "import torch, numpy as np\n"
+        "from render.renderer import DifferentiableRenderer\n"
+        "from render.backend import LLVMError\n"
+        "try:\n"
+        "    DifferentiableRenderer(np.zeros((3, 3)), np.array([[0, 1, 2]]), np.ones((3, 3)), None)\n"
+        "except LLVMError as e:\n"
+        "    print('LLVMError:', e)\n"
+    )
     env = dict(os.environ, DRJIT_LIBLLVM_PATH=old)
     root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
     out = subprocess.run([sys.executable, "-c", code], env=env, cwd=root, capture_output=True, text=True, timeout=120)

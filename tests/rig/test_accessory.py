@@ -9,23 +9,21 @@ import torch
 
 from rig.accessory import (
     AccessoryError,
-    closest_surface_points,
-    contact_attenuation,
     channel_reach,
+    contact_attenuation,
     joint_motion_distance,
     keep_largest,
-    reduce_influences,
     outer_skin_face_ids,
     outer_skin_faces,
     pose_accessory,
+    reduce_influences,
     rigid_attachment,
     signed_distance,
     smooth_over_points,
-    surface_values,
     transfer_skinning,
 )
 from rig.errors import ShapeError
-from rig.geometry import closest_points_on_triangles
+from rig.geometry import closest_points_on_triangles, closest_surface_points, surface_values
 from rig.lbs import skin_vertices
 from rig.parameters import params_to_theta
 
@@ -56,8 +54,12 @@ def test_outer_skin_excludes_eyes_and_mouth(asset, skin):
 
 def test_closest_points_equal_brute_force(asset, skin, rng):
     v = asset.vertices
-    points = np.concatenate([rng.uniform(-120, 120, (40, 3)) + [0, 0, 20],     # around and inside the head
-                             _points_on_faces(asset, skin, rng, 20)[0] + rng.normal(0, 3, (20, 3))])
+    points = np.concatenate(
+        [
+            rng.uniform(-120, 120, (40, 3)) + [0, 0, 20],  # around and inside the head
+            _points_on_faces(asset, skin, rng, 20)[0] + rng.normal(0, 3, (20, 3)),
+        ]
+    )
     found = closest_surface_points(points, v, skin, k=2)  # k = 2: most points need the widening passes
     for p, d, q in zip(points, found.distance, found.closest):
         all_q = closest_points_on_triangles(p[None], v[skin[:, 0]], v[skin[:, 1]], v[skin[:, 2]])
@@ -109,8 +111,10 @@ def test_contact_attenuation_of_the_expression_offsets(asset, skin, rng):
     targets = np.tile([[0.0, 3.0, 0.0]], (2, len(asset.vertices), 1))
     out = transfer_skinning(asset.vertices, skin, asset.weights, targets, points, falloff_mm=10.0, smoothing_mm=0.0)
     np.testing.assert_allclose(out.morph_targets[:, :, 1], np.tile([3.0, 3.0, 1.5, 0.0], (2, 1)), atol=1e-9)
-    np.testing.assert_allclose(contact_attenuation(np.array([0.0, 5.0, 6.0, 9.0, 10.0]), 10.0),
-                               [1.0, 1.0, 1 - (0.2 ** 2 * (3 - 0.4)), 1 - (0.8 ** 2 * (3 - 1.6)), 0.0])
+    np.testing.assert_allclose(
+        contact_attenuation(np.array([0.0, 5.0, 6.0, 9.0, 10.0]), 10.0),
+        [1.0, 1.0, 1 - (0.2**2 * (3 - 0.4)), 1 - (0.8**2 * (3 - 1.6)), 0.0],
+    )
     assert (contact_attenuation(np.array([0.0, 3.0]), 0.0) == 0).all()
 
 
@@ -162,8 +166,10 @@ def test_reduce_influences_moves_weight_to_the_joint_that_moves_alike(asset, rig
     row[0, [n("skull_root"), n("crown"), n("left_eye_socket"), n("nose_tip"), n("ears")]] = [0.3, 0.25, 0.2, 0.15, 0.1]
     cut = reduce_influences(row, 4, d)
     assert cut[0, n("ears")] == 0.0 and (cut > 0).sum() == 4 and cut.sum() == pytest.approx(1.0)
-    theta = params_to_theta({"crown.translate_y": 30.0, "skull_root.rotate_x": 20.0, "nose_tip.scale": 1.2,
-                             "left_eye_socket.scale": 1.4}, dtype=torch.float64)[None]
+    theta = params_to_theta(
+        {"crown.translate_y": 30.0, "skull_root.rotate_x": 20.0, "nose_tip.scale": 1.2, "left_eye_socket.scale": 1.4},
+        dtype=torch.float64,
+    )[None]
     _, transforms = rig64.joint_transforms(theta)
     point = torch.tensor([[20.0, 40.0, 60.0]], dtype=torch.float64)
     full = skin_vertices(point, torch.as_tensor(row), transforms)
@@ -189,8 +195,9 @@ def test_reduce_influences_is_continuous(asset, rng):
 def test_transfer_keeps_at_most_four_influences_summing_to_one(asset, skin, rng):
     points = _points_on_faces(asset, skin, rng, 200)[0] + rng.normal(0, 4, (200, 3))
     for distance in (None, joint_motion_distance(asset.parents, channel_reach(52))):
-        out = transfer_skinning(asset.vertices, skin, asset.weights, None, points, smoothing_mm=10.0,
-                                joint_distance=distance)
+        out = transfer_skinning(
+            asset.vertices, skin, asset.weights, None, points, smoothing_mm=10.0, joint_distance=distance
+        )
         assert ((out.weights > 0).sum(1) <= 4).all()
         np.testing.assert_allclose(out.weights.sum(1), 1.0, atol=1e-12)
         assert (out.weights >= 0).all()
@@ -200,8 +207,9 @@ def test_pose_accessory_against_a_naive_loop(asset, skin, rig64, rng):
     points = _points_on_faces(asset, skin, rng, 40)[0] + rng.normal(0, 2, (40, 3))
     targets = rng.normal(0, 1, (52, len(asset.vertices), 3))
     out = transfer_skinning(asset.vertices, skin, asset.weights, targets, points)
-    theta = params_to_theta({"crown.translate_y": 20.0, "skull_root.rotate_x": 10.0, "nose_tip.scale": 1.2},
-                            dtype=torch.float64)[None]
+    theta = params_to_theta(
+        {"crown.translate_y": 20.0, "skull_root.rotate_x": 10.0, "nose_tip.scale": 1.2}, dtype=torch.float64
+    )[None]
     c = torch.as_tensor(rng.uniform(0, 1, (1, 52)))
     _, transforms = rig64.joint_transforms(theta)
     posed = pose_accessory(points, out, transforms, c)[0].numpy()
@@ -220,9 +228,16 @@ def test_points_on_the_skin_move_with_it(asset, skin, rig64, rng):
     head_faces = skin[~asset.region_mask("neck")[skin].any(1)]
     points = _points_on_faces(asset, head_faces, rng, 300)[0]
     out = transfer_skinning(asset.vertices, skin, asset.weights, None, points, smoothing_mm=0.0, max_influences=None)
-    theta = torch.stack([params_to_theta(p, dtype=torch.float64) for p in (
-        {}, {"skull_root.rotate_x": 20.0, "skull_root.rotate_y": -10.0},
-        {"crown.translate_y": 30.0, "cranium.scale_x": 1.1, "nose_root_a.translate_z": 8.0})])
+    theta = torch.stack(
+        [
+            params_to_theta(p, dtype=torch.float64)
+            for p in (
+                {},
+                {"skull_root.rotate_x": 20.0, "skull_root.rotate_y": -10.0},
+                {"crown.translate_y": 30.0, "cranium.scale_x": 1.1, "nose_root_a.translate_z": 8.0},
+            )
+        ]
+    )
     with torch.no_grad():
         head = rig64(theta)
         posed = pose_accessory(points, out, head.skinning).numpy()

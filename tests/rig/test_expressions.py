@@ -20,7 +20,7 @@ from rig.expressions import (
     mirror_coefficients,
     peak_displacements,
 )
-from rig.makehuman import ARKIT_NAMES, arkit_offsets
+from rig.makehuman.face_units import ARKIT_NAMES, arkit_offsets
 from rig.model import JointRig
 from rig.template import rim_halves
 
@@ -37,10 +37,14 @@ cheekSquintLeft cheekSquintRight noseSneerLeft noseSneerRight tongueOut""".split
 
 # Where each shape's largest displacement lies (by name prefix).
 OWN_REGIONS = {
-    "eyeLook": ("eyeballs",), "eye": ("eyelids", "cheeks"), "jaw": ("chin", "jaw", "lips", "teeth", "tongue", "neck",
-                                                                 "mouth_interior", "cheeks"),
-    "mouth": ("lips", "cheeks", "mouth_interior", "chin"), "brow": ("brows", "forehead"),
-    "cheek": ("cheeks", "jaw"), "nose": ("nose", "brows"), "tongue": ("tongue",),
+    "eyeLook": ("eyeballs",),
+    "eye": ("eyelids", "cheeks"),
+    "jaw": ("chin", "jaw", "lips", "teeth", "tongue", "neck", "mouth_interior", "cheeks"),
+    "mouth": ("lips", "cheeks", "mouth_interior", "chin"),
+    "brow": ("brows", "forehead"),
+    "cheek": ("cheeks", "jaw"),
+    "nose": ("nose", "brows"),
+    "tongue": ("tongue",),
 }
 
 
@@ -70,8 +74,9 @@ def test_names_are_arkits():
     assert EXPRESSION_NAMES == tuple(APPLE_NAMES) == ARKIT_NAMES and len(EXPRESSIONS) == 52
     for spec in EXPRESSIONS:
         assert (spec.low, spec.high) == (0.0, 1.0)
-        assert spec.side == ("left" if spec.name.endswith("Left") else "right" if spec.name.endswith("Right")
-                             else "center")
+        assert spec.side == (
+            "left" if spec.name.endswith("Left") else "right" if spec.name.endswith("Right") else "center"
+        )
 
 
 def test_model_is_the_artists_shapes_symmetrised(asset, shapes):

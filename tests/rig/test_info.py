@@ -7,10 +7,25 @@ from rig.parameters import NUM_PARAMETERS
 
 def test_rig_info_counts_the_asset(asset):
     info = rig_info(asset)
-    assert list(info) == ["vertices", "faces", "joints", "free_parameters", "free_parameters_symmetric",
-                          "skinning_floats", "skinning_nonzeros", "max_influences", "model_floats", "expressions",
-                          "expression_names", "regions", "units", "asset_version",
-                          "asm_parameters_per_bone", "asm_parameters", "asm_gmm_vertices"]
+    assert list(info) == [
+        "vertices",
+        "faces",
+        "joints",
+        "free_parameters",
+        "free_parameters_symmetric",
+        "skinning_floats",
+        "skinning_nonzeros",
+        "max_influences",
+        "model_floats",
+        "expressions",
+        "expression_names",
+        "regions",
+        "units",
+        "asset_version",
+        "asm_parameters_per_bone",
+        "asm_parameters",
+        "asm_gmm_vertices",
+    ]
     assert (info["vertices"], info["faces"], info["joints"]) == (len(asset.vertices), len(asset.faces), 52)
     assert info["free_parameters"] == NUM_PARAMETERS and 0 < info["free_parameters_symmetric"] < NUM_PARAMETERS
     assert info["skinning_floats"] == len(asset.weight_free) and info["skinning_nonzeros"] == len(asset.weight_rows)
@@ -27,8 +42,10 @@ def test_rig_info_counts_the_asset(asset):
 
 
 def test_rig_info_imports_nothing_outside_rig():
-    code = ("import sys, rig.info; bad = sorted(m for m in sys.modules if m.split('.')[0] in "
-            "('pipeline', 'landmarks', 'render')); print(bad); sys.exit(bool(bad))")
+    code = (
+        "import sys, rig.info; bad = sorted(m for m in sys.modules if m.split('.')[0] in "
+        "('pipeline', 'landmarks', 'render')); print(bad); sys.exit(bool(bad))"
+    )
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=False)
     assert proc.returncode == 0, proc.stdout + proc.stderr
 
@@ -40,7 +57,12 @@ def test_a_reader_that_goes_away_is_not_an_error():
 
     read, write = os.pipe()
     os.close(read)  # the reader is gone before jnr writes
-    proc = subprocess.run([sys.executable, "-m", "pipeline.cli", "rig", "info", "--json"], stdout=write,
-                          stderr=subprocess.PIPE, text=True, timeout=120)
+    proc = subprocess.run(
+        [sys.executable, "-m", "pipeline.cli", "rig", "info", "--json"],
+        stdout=write,
+        stderr=subprocess.PIPE,
+        text=True,
+        timeout=120,
+    )
     os.close(write)
     assert proc.returncode == 141 and proc.stderr == "", (proc.returncode, proc.stderr)

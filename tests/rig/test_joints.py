@@ -23,16 +23,64 @@ def test_joint_table_golden_order():
     assert digest == GOLDEN_DIGEST, digest
 
 
-GOLDEN_DIGEST = hashlib.sha256(",".join([
-    "root", "neck", "skull_root", "cranium", "crown", "skull_center", "brow_center", "left_orbital",
-    "left_brow_outer", "left_eye_socket", "left_upper_eyelid", "left_lower_eyelid", "left_cheek_bone",
-    "right_orbital", "right_brow_outer", "right_eye_socket", "right_upper_eyelid", "right_lower_eyelid",
-    "right_cheek_bone", "nose_root_a", "nose_root_b", "nose_bridge", "nose_ridge_a", "nose_ridge_b", "ears",
-    "left_ear_position", "left_ear_rotate_scale", "right_ear_position", "right_ear_rotate_scale",
-    "lower_face_root", "jaw_root", "maxilla", "nose_base_position", "nose_base_rotate", "nose_tip",
-    "nose_nostril", "mouth_center_top", "mouth_left_corner", "mouth_right_corner", "jaw_front", "chin",
-    "top_lip", "mouth_center_bottom", "bottom_lip", "left_cheek", "right_cheek", "left_chin", "right_chin",
-    "left_jaw_root", "right_jaw_root", "left_crown_outer", "right_crown_outer"]).encode()).hexdigest()[:16]
+GOLDEN_DIGEST = hashlib.sha256(
+    ",".join(
+        [
+            "root",
+            "neck",
+            "skull_root",
+            "cranium",
+            "crown",
+            "skull_center",
+            "brow_center",
+            "left_orbital",
+            "left_brow_outer",
+            "left_eye_socket",
+            "left_upper_eyelid",
+            "left_lower_eyelid",
+            "left_cheek_bone",
+            "right_orbital",
+            "right_brow_outer",
+            "right_eye_socket",
+            "right_upper_eyelid",
+            "right_lower_eyelid",
+            "right_cheek_bone",
+            "nose_root_a",
+            "nose_root_b",
+            "nose_bridge",
+            "nose_ridge_a",
+            "nose_ridge_b",
+            "ears",
+            "left_ear_position",
+            "left_ear_rotate_scale",
+            "right_ear_position",
+            "right_ear_rotate_scale",
+            "lower_face_root",
+            "jaw_root",
+            "maxilla",
+            "nose_base_position",
+            "nose_base_rotate",
+            "nose_tip",
+            "nose_nostril",
+            "mouth_center_top",
+            "mouth_left_corner",
+            "mouth_right_corner",
+            "jaw_front",
+            "chin",
+            "top_lip",
+            "mouth_center_bottom",
+            "bottom_lip",
+            "left_cheek",
+            "right_cheek",
+            "left_chin",
+            "right_chin",
+            "left_jaw_root",
+            "right_jaw_root",
+            "left_crown_outer",
+            "right_crown_outer",
+        ]
+    ).encode()
+).hexdigest()[:16]
 
 
 def test_parents_match_table_1():

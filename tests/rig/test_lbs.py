@@ -92,8 +92,9 @@ def test_shared_weights_skinning_equals_naive_loop(rig64, asset):
             expected = sum(Wn[i, k] * (An[b, k, :3, :3] @ Rn[b, i] + An[b, k, :3, 3]) for k in np.flatnonzero(Wn[i]))
             assert np.abs(out[b, i] - expected).max() < 1e-9
     # one rest shape for the whole batch, and the same result as skin_vertices
-    np.testing.assert_allclose(skin_vertices_shared_weights(rest[0], W, A).numpy(),
-                               skin_vertices(rest[0], W, A).numpy(), atol=1e-9)
+    np.testing.assert_allclose(
+        skin_vertices_shared_weights(rest[0], W, A).numpy(), skin_vertices(rest[0], W, A).numpy(), atol=1e-9
+    )
     with pytest.raises(ShapeError, match="weights"):
         skin_vertices_shared_weights(rest[0], W[:, :5], A)
 
@@ -162,5 +163,5 @@ def test_blended_skinning_equals_basis_skinning_and_batched_bind_positions_equal
     bind = torch.randn(B, K, 3, generator=g, dtype=torch.float64)
     world, skin = joint_world_transforms(tau, bind, parents)
     for b in range(B):
-        w1, s1 = joint_world_transforms(tau[b:b + 1], bind[b], parents)
+        w1, s1 = joint_world_transforms(tau[b : b + 1], bind[b], parents)
         assert torch.allclose(world[b], w1[0]) and torch.allclose(skin[b], s1[0])

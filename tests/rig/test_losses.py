@@ -30,22 +30,33 @@ def test_laplacian_of_rigid_translation_is_zero_and_detects_bumps(asset):
 
 
 def test_regularizer_and_total_follow_eqs_4_and_7(asset):
-    theta = params_to_theta({"neck.scale": 1.2, "crown.translate_y": -5.0, "neck.rotate_x": 3.0},
-                            dtype=torch.float64)[None]
+    theta = params_to_theta({"neck.scale": 1.2, "crown.translate_y": -5.0, "neck.rotate_x": 3.0}, dtype=torch.float64)[
+        None
+    ]
     assert torch.allclose(regularizer(theta), torch.tensor([(0.2 + 5.0 + 3.0) / 52], dtype=torch.float64))
     lap = uniform_laplacian(asset.faces, len(asset.vertices))
     low, high = theta_limits(torch.float64)
     v = torch.as_tensor(asset.vertices)[None]
     terms = rig_loss(v + 0.5, v, theta, low, high, lap)
-    expected = terms["vertex"] + LAMBDA_M * terms["regularizer"] + LAMBDA_X * terms["limits"] + LAMBDA_P * terms["laplacian"]
+    expected = (
+        terms["vertex"] + LAMBDA_M * terms["regularizer"] + LAMBDA_X * terms["limits"] + LAMBDA_P * terms["laplacian"]
+    )
     assert torch.allclose(terms["total"], expected)
     assert torch.allclose(terms["vertex"], torch.tensor([np.sqrt(3 * 0.25)], dtype=torch.float64))
 
 
 def test_known_pose_is_recovered_by_minimising_eq_7(rig32, asset):
     """Fit all 105 parameters to a mesh made by known parameters (known correspondence)."""
-    truth = params_to_theta({"nose_tip.translate_z": 6.0, "crown.translate_y": 12.0, "left_cheek.scale": 1.2,
-                             "right_cheek.scale": 1.2, "jaw_root.scale_x": 1.05, "skull_root.rotate_y": 5.0})[None]
+    truth = params_to_theta(
+        {
+            "nose_tip.translate_z": 6.0,
+            "crown.translate_y": 12.0,
+            "left_cheek.scale": 1.2,
+            "right_cheek.scale": 1.2,
+            "jaw_root.scale_x": 1.05,
+            "skull_root.rotate_y": 5.0,
+        }
+    )[None]
     with torch.no_grad():
         target = rig32(truth).vertices
     lap = uniform_laplacian(asset.faces, len(asset.vertices))

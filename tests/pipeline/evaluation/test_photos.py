@@ -19,18 +19,21 @@ def test_a_known_extra_rotation_is_the_pose_error(yaw, pitch, roll):
     correction = head_rotation(yaw, pitch, roll)
     fitted_rotation = correction.T @ true_rotation
     fitted_translation = translation + np.array([3.0, -2.0, 15.0])
-    angle, y, p, r = pose_error_angles(head, fitted_rotation, fitted_translation, head, true_rotation, translation,
-                                       asset)
+    angle, y, p, r = pose_error_angles(
+        head, fitted_rotation, fitted_translation, head, true_rotation, translation, asset
+    )
     expected = np.degrees(np.arccos((np.trace(correction) - 1) / 2))
     assert angle == pytest.approx(expected, abs=1e-6)
-    assert pose_error_deg(head, fitted_rotation, fitted_translation, head, true_rotation, translation, asset) == \
-        pytest.approx(angle)
+    assert pose_error_deg(
+        head, fitted_rotation, fitted_translation, head, true_rotation, translation, asset
+    ) == pytest.approx(angle)
     np.testing.assert_allclose((y, p, r), (yaw, pitch, roll), atol=1e-6)
 
 
 def test_no_error_for_the_true_pose():
     asset = load_asset()
     rotation = head_rotation(-15.0, 3.0, 0.0)
-    angle = pose_error_deg(asset.vertices, rotation, np.array([0, 0, 700.0]), asset.vertices, rotation,
-                           np.array([0, 0, 700.0]), asset)
+    angle = pose_error_deg(
+        asset.vertices, rotation, np.array([0, 0, 700.0]), asset.vertices, rotation, np.array([0, 0, 700.0]), asset
+    )
     assert angle == pytest.approx(0.0, abs=1e-5)

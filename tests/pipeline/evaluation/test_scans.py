@@ -24,8 +24,9 @@ def test_records_and_metrics(evaluation):
     recs = evaluation.records
     assert len(recs) == 4
     assert all(isinstance(r, ScanRecord) for r in recs)
-    assert {(r.kind, r.method) for r in recs} == {(k, m) for k in ("neutral", "expressive")
-                                                  for m in ("jnr", "nricp_amberg")}
+    assert {(r.kind, r.method) for r in recs} == {
+        (k, m) for k in ("neutral", "expressive") for m in ("jnr", "nricp_amberg")
+    }
     for r in recs:
         assert r.points > 500 and 0.0 <= r.hole_fraction < 1.0
         for m in METRICS:
@@ -33,10 +34,13 @@ def test_records_and_metrics(evaluation):
         assert r.s2m_median_mm <= r.s2m_mean_mm  # outliers are included: the mean is pulled up
 
 
-@pytest.mark.parametrize("kind", [
-    "neutral",
-    "expressive",
-])
+@pytest.mark.parametrize(
+    "kind",
+    [
+        "neutral",
+        "expressive",
+    ],
+)
 def test_jnr_beats_prealigned_template(evaluation, kind):
     """The rig fit improves on the unregistered template after the shared rigid pre-alignment."""
     (r,) = [r for r in evaluation.records if r.method == "jnr" and r.kind == kind]
@@ -53,9 +57,18 @@ def test_summary_and_table(evaluation):
     assert evaluation.settings["n_neutral"] == 1 and evaluation.settings["baseline"]
 
 
-@pytest.mark.parametrize("kwargs", [{"n_neutral": -1}, {"n_expressive": -2}, {"n_neutral": 0, "n_expressive": 0},
-                                    {"n_neutral": 1.5}, {"seed": -1}, {"split": "nope"},
-                                    {"n_neutral": 10_000}])
+@pytest.mark.parametrize(
+    "kwargs",
+    [
+        {"n_neutral": -1},
+        {"n_expressive": -2},
+        {"n_neutral": 0, "n_expressive": 0},
+        {"n_neutral": 1.5},
+        {"seed": -1},
+        {"split": "nope"},
+        {"n_neutral": 10_000},
+    ],
+)
 def test_bad_arguments(kwargs):
     with pytest.raises(ValueError):
         evaluate_scans(**{"n_neutral": 1, "n_expressive": 0, **kwargs})

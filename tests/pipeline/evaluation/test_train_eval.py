@@ -10,7 +10,7 @@ from pipeline.train import TrainConfig, load_config
 from rig.parameters import random_theta
 from rig.skinning.joint_fit import fit_joints
 
-DOCS = Path(__file__).resolve().parents[3] / "docs"
+RESULTS = Path(__file__).resolve().parents[3] / "benchmarks" / "results"
 
 
 def test_population_is_not_the_rigs_own_span(rig32):
@@ -36,9 +36,26 @@ def test_config_rejects_unknown_keys(tmp_path):
 
 def test_tiny_training_run_through_the_cli(tmp_path, capsys):
     out = tmp_path / "skinning.npz"
-    code = main(["train", "--out", str(out), "--quiet", "--set", "joint_iterations=40", "--set", "weight_iterations=30",
-                 "--set", "cycles=1", "--set", "autoencoder_epochs=2", "--set", "wgan_iterations=3",
-                 "--set", "max_training_sets=200"])
+    code = main(
+        [
+            "train",
+            "--out",
+            str(out),
+            "--quiet",
+            "--set",
+            "joint_iterations=40",
+            "--set",
+            "weight_iterations=30",
+            "--set",
+            "cycles=1",
+            "--set",
+            "autoencoder_epochs=2",
+            "--set",
+            "wgan_iterations=3",
+            "--set",
+            "max_training_sets=200",
+        ]
+    )
     assert code == 0, capsys.readouterr().err
     log = json.loads(out.with_suffix(".log.json").read_text())
     rmse = log["rmse_train_mm"]["per_joint_fit"]
@@ -58,11 +75,11 @@ def test_data_synth_writes_meshes_and_manifest(tmp_path, capsys):
     assert "--force" in capsys.readouterr().err
 
 
-@pytest.mark.skipif(not (DOCS / "capacity.json").exists(), reason="no committed capacity table yet")
+@pytest.mark.skipif(not (RESULTS / "capacity.json").exists(), reason="no committed capacity table yet")
 def test_committed_artifacts_reproduce_the_committed_table():
     from pipeline.evaluation.capacity import CapacitySettings, evaluate_capacity
 
-    table = json.loads((DOCS / "capacity.json").read_text())
+    table = json.loads((RESULTS / "capacity.json").read_text())
     settings = CapacitySettings(**table["settings"])
     result = evaluate_capacity(("test",), settings, models=("jnr",))
     for name in ("initial", "learned_linear", "neural"):

@@ -38,8 +38,14 @@ def test_a_stage_reaches_a_known_optimum_and_is_projected_into_the_limits(models
     def objective(free):
         return Loss({"pull": (state.c - target).square().sum()}, {"c0": state.c[0]})
 
-    log = run_stage(state, Stage("expr", ("expressions",), 200), objective, LearningRates(expressions=0.05),
-                    progress=lambda *a: calls.append(a), before_stage=lambda s: {"hook": s.name})
+    log = run_stage(
+        state,
+        Stage("expr", ("expressions",), 200),
+        objective,
+        LearningRates(expressions=0.05),
+        progress=lambda *a: calls.append(a),
+        before_stage=lambda s: {"hook": s.name},
+    )
     expected = torch.minimum(torch.maximum(target, state.c_low), state.c_high)
     torch.testing.assert_close(state.c.detach(), expected, atol=2e-3, rtol=0)
     assert calls == [("expr", i, 200) for i in range(1, 201)]
@@ -57,8 +63,7 @@ def test_the_decoder_is_frozen_during_a_schedule_and_released_after(models):
         seen.append(all(not p.requires_grad for p in neural.decoder.parameters()))
         return Loss({"z": (state.rig_vertices(free)[:10] ** 2).mean() * 1e-3 + state.z.square().sum()})
 
-    logs = run_schedule(state, (Stage("z", ("latent",), 3), Stage("none", ("joints",), 0)), objective,
-                        LearningRates())
+    logs = run_schedule(state, (Stage("z", ("latent",), 3), Stage("none", ("joints",), 0)), objective, LearningRates())
     assert [log.name for log in logs] == ["z"] and seen == [True] * 3
     assert all(p.requires_grad for p in neural.decoder.parameters())
     assert all(p.grad is None for p in neural.decoder.parameters())
@@ -67,15 +72,22 @@ def test_the_decoder_is_frozen_during_a_schedule_and_released_after(models):
 def test_latent_stages_are_skipped_without_neural_skinning(models):
     rig, _, expr = models
     state = FitState(rig, None, expr, np.eye(3))
-    assert run_stage(state, Stage("z", ("latent",), 5), lambda free: Loss({"x": state.z.sum()}), LearningRates()) is None
+    assert (
+        run_stage(state, Stage("z", ("latent",), 5), lambda free: Loss({"x": state.z.sum()}), LearningRates()) is None
+    )
 
 
 def test_divergence_is_an_error_and_releases_the_decoder(models):
     rig, neural, expr = models
     state = FitState(rig, neural, expr, np.eye(3))
     with pytest.raises(FloatingPointError, match="my fit diverged in stage 'bad'"):
-        run_schedule(state, (Stage("bad", ("joints",), 3),),
-                     lambda free: Loss({"nan": state.theta_n.sum() * float("nan")}), LearningRates(), label="my fit")
+        run_schedule(
+            state,
+            (Stage("bad", ("joints",), 3),),
+            lambda free: Loss({"nan": state.theta_n.sum() * float("nan")}),
+            LearningRates(),
+            label="my fit",
+        )
     assert all(p.requires_grad for p in neural.decoder.parameters())
 
 
@@ -106,8 +118,9 @@ def test_prior_terms_match_the_rig_losses(models):
     assert set(terms) == {"L_m", "L_x", "latent", "expressions"}
     terms = {k: v.detach() for k, v in terms.items()}
     assert float(terms["L_m"]) == pytest.approx(2.0 * float(regularizer(theta[None])[0]), rel=1e-6)
-    assert float(terms["L_x"]) == pytest.approx(3.0 * float(limit_loss(theta[None], state.low, state.high)[0]),
-                                               rel=1e-6)
+    assert float(terms["L_x"]) == pytest.approx(
+        3.0 * float(limit_loss(theta[None], state.low, state.high)[0]), rel=1e-6
+    )
     assert float(terms["latent"]) == pytest.approx(0.5 * 50 * 0.25, rel=1e-6)
     assert "symmetry" in rig_prior_terms(state, PriorWeights(lambda_symmetry=1.0))
     assert float(rig_prior_terms(state, w, lambda_m=0.0)["L_m"].detach()) == 0.0

@@ -35,7 +35,7 @@ def test_whitening_is_the_ppca_precision():
     np.testing.assert_allclose(prior.log_likelihood(x), expected, rtol=1e-10)
     # the torch residuals: half their squared norm is the negative log-density up to one constant
     r = prior.whiten(torch.as_tensor(u[:5]))
-    constant = 0.5 * (r ** 2).sum(-1).numpy() + expected
+    constant = 0.5 * (r**2).sum(-1).numpy() + expected
     np.testing.assert_allclose(constant, constant[0], rtol=1e-9)
 
 

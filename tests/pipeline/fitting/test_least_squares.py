@@ -39,10 +39,16 @@ def test_lm_respects_bounds_like_scipy_trf():
     batched, numpy_residuals = _exp_fit_problem()
     x0 = np.array([1.0, 0.3, 0.0])
     low, high = np.array([0.0, 0.0, 0.7]), np.array([10.0, 10.0, 10.0])  # the offset's optimum (0.5) is cut off
-    ref = least_squares(numpy_residuals, np.clip(x0, low, high), bounds=(low, high), method="trf",
-                        xtol=1e-12, ftol=1e-12)
-    out = levenberg_marquardt(batched, torch.tensor(x0), lower=torch.tensor(low), upper=torch.tensor(high),
-                              settings=LMSettings(max_iterations=60, tolerance=1e-12))
+    ref = least_squares(
+        numpy_residuals, np.clip(x0, low, high), bounds=(low, high), method="trf", xtol=1e-12, ftol=1e-12
+    )
+    out = levenberg_marquardt(
+        batched,
+        torch.tensor(x0),
+        lower=torch.tensor(low),
+        upper=torch.tensor(high),
+        settings=LMSettings(max_iterations=60, tolerance=1e-12),
+    )
     assert out.x[2] == pytest.approx(0.7)
     np.testing.assert_allclose(out.x.numpy(), ref.x, atol=1e-4)
     assert out.cost == pytest.approx(ref.cost, rel=1e-5)

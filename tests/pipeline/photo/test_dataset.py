@@ -14,15 +14,13 @@ import pytest
 from pipeline.cli import main
 from pipeline.config import load_config
 from pipeline.files import OUTPUT_MARKER, OutputError
-from pipeline.photo.files import (
-    SUMMARY_COLUMNS,
-    PhotoTask,
-    earlier_output,
-    fit_photo_files,
-    remove_leftovers,
-)
+from pipeline.photo.batch import fit_photo_files
+from pipeline.photo.batch_folder import remove_leftovers
 from pipeline.photo.fit import FitPhotoConfig
 from pipeline.photo.outputs import OUTPUT_FILES
+from pipeline.photo.resume import earlier_output
+from pipeline.photo.summary import SUMMARY_COLUMNS
+from pipeline.photo.task import PhotoTask
 from tests.pipeline.conftest import fast_fit_args
 
 NUMBERS = ("mean_error_px", "nme", "faces_found", "box_left", "box_top", "box_right", "box_bottom", "face_score")
@@ -69,7 +67,10 @@ def test_a_second_run_fits_only_what_is_missing(capsys, tmp_path, batch):
     assert code == 2 and "broken.png" in err and "Traceback" not in err  # a corrupt image: exit status as before
     first = rows(out / "summary.csv")
     assert [(os.path.basename(r["photo"]), r["status"], r["kept"]) for r in first] == [
-        ("broken.png", "error", "no"), ("face0.png", "ok", "no"), ("face1.png", "ok", "no")]
+        ("broken.png", "error", "no"),
+        ("face0.png", "ok", "no"),
+        ("face1.png", "ok", "no"),
+    ]
     assert "fitted 2 of 3 photos with 1 process(es); kept 0 (fitted earlier), 1 failed" in stdout
     face0 = mtimes(out / "face0")
 
@@ -110,12 +111,26 @@ def test_a_second_run_fits_only_what_is_missing(capsys, tmp_path, batch):
     assert without(third[1], "kept", "seconds") == without(first[1], "kept", "seconds")
 
     # --force fits again what it is given (here one photo), complete or not
-    code, stdout, _ = run(capsys, "fit", batch / "face1.png", batch / "broken.png", "--landmarks", "auto", "--jobs",
-                          "1", "--out", out, "--force", *fast_fit_args())
+    code, stdout, _ = run(
+        capsys,
+        "fit",
+        batch / "face1.png",
+        batch / "broken.png",
+        "--landmarks",
+        "auto",
+        "--jobs",
+        "1",
+        "--out",
+        out,
+        "--force",
+        *fast_fit_args(),
+    )
     assert code == 2 and "fitted 1 of 2 photos with 1 process(es); kept 0 (fitted earlier)" in stdout
     assert all(mtimes(out / "face1")[n] > face1[n] for n in OUTPUT_FILES)
     assert [(os.path.basename(r["photo"]), r["kept"]) for r in rows(out / "summary.csv")] == [
-        ("face1.png", "no"), ("broken.png", "no")]
+        ("face1.png", "no"),
+        ("broken.png", "no"),
+    ]
 
     # the output of another photo of the same name is refused before any fit, everything kept as it is
     other = tmp_path / "other"
@@ -123,8 +138,19 @@ def test_a_second_run_fits_only_what_is_missing(capsys, tmp_path, batch):
     shutil.copy(batch / "face0.png", other / "face1.png")
     shutil.copy(batch / "face0.pts", other / "face1.pts")
     before = {p: p.stat().st_mtime_ns for p in out.rglob("*")}
-    code, _, err = run(capsys, "fit", other / "face1.png", batch / "face0.png", "--landmarks", "auto", "--jobs", "1",
-                       "--out", out, *fast_fit_args())
+    code, _, err = run(
+        capsys,
+        "fit",
+        other / "face1.png",
+        batch / "face0.png",
+        "--landmarks",
+        "auto",
+        "--jobs",
+        "1",
+        "--out",
+        out,
+        *fast_fit_args(),
+    )
     assert code == 2 and "holds an earlier fit of another photo" in err and "--force" in err
     assert {p: p.stat().st_mtime_ns for p in out.rglob("*")} == before
 
@@ -166,13 +192,25 @@ def test_remove_leftovers_takes_only_the_staged_temporaries(tmp_path):
     removed = remove_leftovers(tmp_path, ["a"])
     assert sorted(p.name for p in removed) == [".a.abcdefgh.tmp", ".a.old.abcdefgh", ".summary.abcdefgh.tmp.csv"]
     assert sorted(p.name for p in tmp_path.iterdir()) == [
-        ".a.abcdefg.tmp", ".a.abcdefgh.tmp.csv", ".a.tmp", ".a.zzzzzzzz.tmp", ".b.abcdefgh.tmp",
-        ".summary.abcdefgh.tmp", "a"]
+        ".a.abcdefg.tmp",
+        ".a.abcdefgh.tmp.csv",
+        ".a.tmp",
+        ".a.zzzzzzzz.tmp",
+        ".b.abcdefgh.tmp",
+        ".summary.abcdefgh.tmp",
+        "a",
+    ]
 
 
 def test_every_face_resumes_per_photo(tmp_path, two_faces_photo):
-    config = load_config(FitPhotoConfig, None, {"photometric": {"enabled": False}, "landmarks": {
-        "stages": [{"name": "a", "free": ["pose", "joints"], "iterations": 5}]}})
+    config = load_config(
+        FitPhotoConfig,
+        None,
+        {
+            "photometric": {"enabled": False},
+            "landmarks": {"stages": [{"name": "a", "free": ["pose", "joints"], "iterations": 5}]},
+        },
+    )
     folder = tmp_path / "photos"
     folder.mkdir()
     shutil.copy(two_faces_photo, folder / "two.png")
@@ -205,17 +243,36 @@ def test_a_dask_cluster_fits_what_the_local_run_fits(capsys, tmp_path, batch):
 
     photos = [batch / "face0.png", batch / "face1.png"]
     local, remote = tmp_path / "local", tmp_path / "dask"
-    code, _, err = run(capsys, "fit", *photos, "--landmarks", "auto", "--jobs", "1", "--out", local,
-                       *fast_fit_args())
+    code, _, err = run(capsys, "fit", *photos, "--landmarks", "auto", "--jobs", "1", "--out", local, *fast_fit_args())
     assert code == 0, err
     # workers as threads of this process (processes=True costs ~10 s more here: spawn, imports, shutdown)
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=False, dashboard_address=None) as cluster:
-        code, stdout, err = run(capsys, "fit", *photos, "--landmarks", "auto", "--out", remote, "--scheduler",
-                                cluster.scheduler_address, *fast_fit_args())
+        code, stdout, err = run(
+            capsys,
+            "fit",
+            *photos,
+            "--landmarks",
+            "auto",
+            "--out",
+            remote,
+            "--scheduler",
+            cluster.scheduler_address,
+            *fast_fit_args(),
+        )
         assert code == 0, err
         assert "fitted 2 of 2 photos on the Dask cluster at inproc://" in stdout and "(2 worker(s))" in stdout
-        code, stdout, err = run(capsys, "fit", *photos, "--landmarks", "auto", "--out", remote, "--scheduler",
-                                cluster.scheduler_address, *fast_fit_args())
+        code, stdout, err = run(
+            capsys,
+            "fit",
+            *photos,
+            "--landmarks",
+            "auto",
+            "--out",
+            remote,
+            "--scheduler",
+            cluster.scheduler_address,
+            *fast_fit_args(),
+        )
         assert code == 0 and "fitted 0 of 2 photos" in stdout and "kept 2 (fitted earlier)" in stdout  # resumed
     for a, b in zip(rows(local / "summary.csv"), rows(remote / "summary.csv")):
         assert a["photo"] == b["photo"] and b["output"] == str(remote / os.path.basename(a["output"]))
@@ -229,14 +286,17 @@ def test_a_dask_cluster_fits_what_the_local_run_fits(capsys, tmp_path, batch):
         assert report["input"]["photo"] == str(batch / f"{name}.png")
 
 
-@pytest.mark.parametrize("case, code, message", [
-    ("bad_address", 2, "is not a Dask scheduler address"),
-    ("unreachable", 1, "cannot reach the Dask scheduler at tcp://127.0.0.1:"),
-    ("with_jobs", 2, "give one or the other"),
-    ("one_photo", 2, "one photo, or --views, is fitted here"),
-    ("not_installed", 1, "needs Dask's 'distributed' package"),
-    ("no_workers", 1, "has no workers (waited 0.5 s); start some with `dask worker"),
-])
+@pytest.mark.parametrize(
+    "case, code, message",
+    [
+        ("bad_address", 2, "is not a Dask scheduler address"),
+        ("unreachable", 1, "cannot reach the Dask scheduler at tcp://127.0.0.1:"),
+        ("with_jobs", 2, "give one or the other"),
+        ("one_photo", 2, "one photo, or --views, is fitted here"),
+        ("not_installed", 1, "needs Dask's 'distributed' package"),
+        ("no_workers", 1, "has no workers (waited 0.5 s); start some with `dask worker"),
+    ],
+)
 def test_scheduler_errors_are_one_line_and_write_nothing(capsys, tmp_path, batch, monkeypatch, case, code, message):
     import socket
     from contextlib import ExitStack
@@ -267,7 +327,9 @@ def test_scheduler_errors_are_one_line_and_write_nothing(capsys, tmp_path, batch
 
 
 def test_jnr_starts_without_dask():
-    probe = ("import sys, pipeline.cli, pipeline.photo.files, pipeline.photo.dask_runner; "
-             "print(sorted(m for m in ('dask', 'distributed') if m in sys.modules))")
+    probe = (
+        "import sys, pipeline.cli, pipeline.photo.batch, pipeline.photo.dask_runner; "
+        "print(sorted(m for m in ('dask', 'distributed') if m in sys.modules))"
+    )
     result = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True)
     assert result.stdout.strip() == "[]"

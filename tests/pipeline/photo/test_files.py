@@ -5,20 +5,19 @@ import shutil
 import pytest
 
 from pipeline.config import load_config
-from pipeline.photo.files import (
-    SUMMARY_COLUMNS,
-    fit_photo_faces,
-    fit_photo_file,
-    fit_photo_files,
-    output_names,
-    sidecar_landmarks,
-)
+from pipeline.photo.batch import fit_photo_files, output_names
 from pipeline.photo.fit import FitPhotoConfig
+from pipeline.photo.inputs import sidecar_landmarks
 from pipeline.photo.outputs import OUTPUT_FILES
+from pipeline.photo.photo_file import fit_photo_faces, fit_photo_file
+from pipeline.photo.summary import SUMMARY_COLUMNS
 from rig.errors import InputError
 
 # A few landmark steps and no photometric stages: a fit of a second or two.
-FAST = {"photometric": {"enabled": False}, "landmarks": {"stages": [{"name": "a", "free": ["pose", "joints"], "iterations": 5}]}}
+FAST = {
+    "photometric": {"enabled": False},
+    "landmarks": {"stages": [{"name": "a", "free": ["pose", "joints"], "iterations": 5}]},
+}
 
 
 @pytest.fixture(scope="module")
@@ -26,14 +25,14 @@ def fast_config():
     return load_config(FitPhotoConfig, None, FAST)
 
 
-def test_fit_photo_file_writes_the_outputs_and_uses_the_callers_models(tmp_path, photo_dir, fast_config,
-                                                                        monkeypatch):
+def test_fit_photo_file_writes_the_outputs_and_uses_the_callers_models(tmp_path, photo_dir, fast_config, monkeypatch):
     from rig.model import JointRig
     from rig.skinning.neural import load_neural
 
     out = tmp_path / "fit"
-    summary = fit_photo_file(photo_dir / "face0.png", out, config=fast_config, landmarks=photo_dir / "face0.pts",
-                             command="test")
+    summary = fit_photo_file(
+        photo_dir / "face0.png", out, config=fast_config, landmarks=photo_dir / "face0.pts", command="test"
+    )
     assert summary["output"] == str(out) and summary["photo"] == str(photo_dir / "face0.png")
     assert 0 < summary["mean_error_px"] < 10 and 0 < summary["nme"] < 0.3
     assert summary["seconds"] >= summary["fit_seconds"] > 0
@@ -47,10 +46,18 @@ def test_fit_photo_file_writes_the_outputs_and_uses_the_callers_models(tmp_path,
     # the caller's (float32) models: used for the fit and the files, nothing reloaded, the same bytes
     rig = JointRig()
     neural = load_neural(rig)[0]
-    monkeypatch.setattr("pipeline.photo.outputs.load_neural", lambda *a, **k: pytest.fail("reloaded"))
+    for where in ("rig.head_model.load_neural", "pipeline.photo.fit.load_neural"):  # the outputs' and the fit's
+        monkeypatch.setattr(where, lambda *a, **k: pytest.fail("reloaded"))
     again = tmp_path / "again"
-    fit_photo_file(photo_dir / "face0.png", again, config=fast_config, landmarks=photo_dir / "face0.pts",
-                   rig=rig, neural=neural, command="test")
+    fit_photo_file(
+        photo_dir / "face0.png",
+        again,
+        config=fast_config,
+        landmarks=photo_dir / "face0.pts",
+        rig=rig,
+        neural=neural,
+        command="test",
+    )
     for name in ("mesh.obj", "mesh.ply", "mesh.glb", "params.json", "overlay.png", "render.png", "landmarks.pts"):
         assert (again / name).read_bytes() == (out / name).read_bytes(), name
 
@@ -75,8 +82,14 @@ def test_fit_photo_files_reports_each_photo(tmp_path, photo_dir, fast_config):
     (folder / "a.pts").write_text("")
     photos = [folder / "b.png", folder / "a.png"]
     seen = []
-    results = fit_photo_files(photos, tmp_path / "out", folders=[folder], config=fast_config, landmarks="auto",
-                              progress=lambda stage, done, total: seen.append((stage, done, total)))
+    results = fit_photo_files(
+        photos,
+        tmp_path / "out",
+        folders=[folder],
+        config=fast_config,
+        landmarks="auto",
+        progress=lambda stage, done, total: seen.append((stage, done, total)),
+    )
     assert [r.photo for r in results] == [str(p) for p in photos]
     good, bad = results
     assert good.error is None and good.summary["output"] == str(tmp_path / "out" / "b")
@@ -86,7 +99,9 @@ def test_fit_photo_files_reports_each_photo(tmp_path, photo_dir, fast_config):
     # summary.csv: one row per photo in the order given, the failure with its message
     rows = _rows(tmp_path / "out" / "summary.csv")
     assert [(r["photo"], r["status"], r["output"]) for r in rows] == [
-        (str(folder / "b.png"), "ok", str(tmp_path / "out" / "b")), (str(folder / "a.png"), "error", "")]
+        (str(folder / "b.png"), "ok", str(tmp_path / "out" / "b")),
+        (str(folder / "a.png"), "error", ""),
+    ]
     assert rows[1]["error"] == bad.error and float(rows[1]["seconds"]) >= 0
     assert float(rows[0]["mean_error_px"]) == pytest.approx(good.summary["mean_error_px"], abs=1e-3)
     assert output_names(["x/face.png", "y/face.jpg", "z/other.png"]) == ["face_0", "face_1", "other"]
@@ -109,16 +124,26 @@ def test_fit_photo_files_with_every_face(tmp_path, two_faces_photo, fast_config)
     shutil.copy(two_faces_photo, folder / "two.png")
     Image.new("RGB", (120, 90), (128, 128, 128)).save(folder / "blank.png")
     out = tmp_path / "out"
-    results = fit_photo_files([folder / "two.png", folder / "blank.png"], out, folders=[folder],
-                              config=fast_config, face="all", detector="hog", command="test")
+    results = fit_photo_files(
+        [folder / "two.png", folder / "blank.png"],
+        out,
+        folders=[folder],
+        config=fast_config,
+        face="all",
+        detector="hog",
+        command="test",
+    )
     # a row per face of two.png, then the blank photo's failure (no face: 0 found)
     assert [(r.face, r.faces_found, r.error is None) for r in results] == [(0, 2, True), (1, 2, True), (None, 0, False)]
     assert "no face found" in results[2].error and results[2].bad_input
     assert [r.output for r in results] == [str(out / "two" / "face_0"), str(out / "two" / "face_1"), None]
     assert results[0].face_box != results[1].face_box and results[0].face_score > 0
     rows = _rows(out / "summary.csv")
-    assert [(r["face"], r["status"], r["faces_found"]) for r in rows] == [("0", "ok", "2"), ("1", "ok", "2"),
-                                                                        ("", "error", "0")]
+    assert [(r["face"], r["status"], r["faces_found"]) for r in rows] == [
+        ("0", "ok", "2"),
+        ("1", "ok", "2"),
+        ("", "error", "0"),
+    ]
     assert _rows(out / "two" / "summary.csv") == rows[:2]  # the photo's own folder lists its faces too
     for k in (0, 1):
         report = json.loads((out / "two" / f"face_{k}" / "report.json").read_text())
@@ -137,7 +162,7 @@ def test_fit_photo_files_with_every_face(tmp_path, two_faces_photo, fast_config)
 def test_fit_photo_faces_refuses_before_writing(tmp_path, fast_config):
     from PIL import Image
 
-    from landmarks.detect import NoFaceError
+    from landmarks.detector import NoFaceError
 
     blank = tmp_path / "blank.png"
     Image.new("RGB", (120, 90), (128, 128, 128)).save(blank)

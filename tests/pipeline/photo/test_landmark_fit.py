@@ -1,4 +1,4 @@
-"""Tests of pipeline/photo/camera.py and pipeline/photo/landmark_fit.py (single-photo landmark fitting)."""
+"""Tests of pipeline/camera.py and pipeline/photo/landmark_fit.py (single-photo landmark fitting)."""
 
 from __future__ import annotations
 
@@ -7,9 +7,11 @@ import pytest
 import torch
 from scipy.spatial.transform import Rotation
 
-from landmarks.ibug68 import contour_landmarks, ibug68_embedding, landmark_positions
+from landmarks.ibug68.contour import contour_landmarks
+from landmarks.ibug68.embedding import ibug68_embedding
+from landmarks.ibug68.positions import landmark_positions
 from landmarks.loss import project_points
-from pipeline.photo.camera import (
+from pipeline.camera import (
     RIG_TO_OPENCV,
     camera_center_in_rig,
     default_focal,
@@ -85,8 +87,9 @@ class TestCamera:
 
     def test_solve_pose_recovers_known_pose(self, models):
         rig, _ = models
-        model_points = landmark_positions(rig.template.double().numpy(), ibug68_embedding(rig.asset),
-                                          rig.asset.faces)[0]
+        model_points = landmark_positions(rig.template.double().numpy(), ibug68_embedding(rig.asset), rig.asset.faces)[
+            0
+        ]
         rot, t = _head_pose(20.0, -10.0), np.array([0.0, 0.0, 600.0])
         f = default_focal(W, H)
         cam = make_camera(W, H, f, rotation=rot, translation=t, dtype=torch.float64)
@@ -126,9 +129,14 @@ def synthetic_head(models):
         lm3 = torch.cat([contour, landmark_positions(v, emb, faces)[0, 17:]])
         lm2 = project_points(lm3[None], make_camera(W, H, f, rotation=rot, translation=t))[0].double().numpy()
     noisy = lm2 + np.random.default_rng(0).normal(0.0, 0.5, lm2.shape)
-    return {"landmarks2d": noisy, "truth3d": landmark_positions(v, emb, faces)[0].double().numpy(),
-            "template3d": landmark_positions(template, emb, faces)[0].double().numpy(),
-            "rotation": rot, "translation": t, "expressions": c.numpy()}
+    return {
+        "landmarks2d": noisy,
+        "truth3d": landmark_positions(v, emb, faces)[0].double().numpy(),
+        "template3d": landmark_positions(template, emb, faces)[0].double().numpy(),
+        "rotation": rot,
+        "translation": t,
+        "expressions": c.numpy(),
+    }
 
 
 @pytest.fixture(scope="module")
@@ -149,8 +157,9 @@ class TestFitLandmarks:
         assert "data_px2" in fitted.losses
 
     def test_recovers_synthetic_head(self, fitted, synthetic_head):
-        print(f"\nfit_landmarks: {fitted.seconds:.2f} s, mean error {fitted.error_px.mean():.2f} px, "
-              f"NME {fitted.nme:.4f}")
+        print(
+            f"\nfit_landmarks: {fitted.seconds:.2f} s, mean error {fitted.error_px.mean():.2f} px, NME {fitted.nme:.4f}"
+        )
         assert fitted.error_px.mean() < 2.0
         assert fitted.nme < 0.02
         # the fitted camera reproduces the reported projection (for the static landmarks 17-67)

@@ -7,11 +7,11 @@ import numpy as np
 import pytest
 import torch
 
+from pipeline.camera import make_camera
+from pipeline.evaluation.photos import pose_error_deg
 from pipeline.fitting.engine import Stage
 from pipeline.fitting.identity import load_identity_prior
-from pipeline.evaluation.photos import pose_error_deg
 from pipeline.fitting.state import PhotoState, head_vertices
-from pipeline.photo.camera import make_camera
 from pipeline.photo.fit import FitPhotoConfig
 from pipeline.photo.landmark_fit import LandmarkTerm, fit_landmarks
 from rig.expressions import EXPRESSION_NAMES, ExpressionModel, coefficients_from_dict
@@ -60,10 +60,13 @@ def _face_error(a: np.ndarray, b: np.ndarray, asset) -> float:
     return float(np.linalg.norm(a[face] - b[face], axis=1).mean())
 
 
-@pytest.mark.parametrize("seed,yaw,pitch,roll,expression", [
-    (1, 20.0, -6.0, 3.0, {"jawOpen": 0.45, "mouthSmileLeft": 0.3, "mouthSmileRight": 0.3}),
-    (2, -25.0, 8.0, -2.0, {"jawOpen": 0.1, "browInnerUp": 0.5}),
-])
+@pytest.mark.parametrize(
+    "seed,yaw,pitch,roll,expression",
+    [
+        (1, 20.0, -6.0, 3.0, {"jawOpen": 0.45, "mouthSmileLeft": 0.3, "mouthSmileRight": 0.3}),
+        (2, -25.0, 8.0, -2.0, {"jawOpen": 0.1, "browInnerUp": 0.5}),
+    ],
+)
 def test_known_head_pose_and_expression_are_recovered(models, seed, yaw, pitch, roll, expression):
     rig, neural = models
     landmarks, truth, rotation, translation, c = _known_head(models, seed, yaw, pitch, roll, expression)
@@ -87,11 +90,24 @@ def test_lm_reaches_the_minimum_of_a_long_adam_run(models):
     landmarks, truth, _, _, _ = _known_head(models, 3, 15.0, 4.0, 0.0, {"jawOpen": 0.3})
     base = FitPhotoConfig().landmarks
     free = ("pose", "joints", "expressions")
-    lm = fit_landmarks(landmarks, W, H, focal=FOCAL, rig=rig, neural=neural,
-                       config=type(base)(**{**base.__dict__, "lm_stages": (Stage("all", free, 30),)}))
-    adam = fit_landmarks(landmarks, W, H, focal=FOCAL, rig=rig, neural=neural,
-                         config=type(base)(**{**base.__dict__, "solver": "adam",
-                                              "stages": (Stage("all", free, 1500),)}))
+    lm = fit_landmarks(
+        landmarks,
+        W,
+        H,
+        focal=FOCAL,
+        rig=rig,
+        neural=neural,
+        config=type(base)(**{**base.__dict__, "lm_stages": (Stage("all", free, 30),)}),
+    )
+    adam = fit_landmarks(
+        landmarks,
+        W,
+        H,
+        focal=FOCAL,
+        rig=rig,
+        neural=neural,
+        config=type(base)(**{**base.__dict__, "solver": "adam", "stages": (Stage("all", free, 1500),)}),
+    )
     assert lm.stages[0].iterations <= 15
     lm_loss, adam_loss = lm.stages[-1].loss_end, adam.stages[-1].loss_end
     assert lm_loss <= adam_loss * 1.02 + 1e-3, (lm_loss, adam_loss)

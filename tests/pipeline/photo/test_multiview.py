@@ -1,4 +1,4 @@
-"""Multi-view uncalibrated reconstruction (pipeline/photo/multiview.py, issue 15)."""
+"""Multi-view uncalibrated reconstruction (pipeline/photo/multiview.py and its modules, issue 15)."""
 
 import json
 
@@ -6,19 +6,12 @@ import numpy as np
 import pytest
 import torch
 
-from pipeline.photo.multiview import (
-    MultiViewConfig,
-    PhotoConsistencyConfig,
-    fit_multiview,
-    lncc,
-    ncc,
-    one_ring_patches,
-    sample_image,
-)
+from pipeline.photo.consistency import lncc, ncc, one_ring_patches, sample_image
+from pipeline.photo.multiview import MultiViewConfig, PhotoConsistencyConfig, fit_multiview
 from rig.errors import InputError
 
-
 # -- NCC / LNCC ------------------------------------------------------------------------------------
+
 
 def test_ncc_of_a_patch_with_itself_and_an_affine_change_is_one():
     gen = torch.Generator().manual_seed(0)
@@ -41,8 +34,11 @@ def _naive_lncc(a, b, patches, patch_mask, va, vb, eps=1e-6):
     for x in range(patches.shape[0]):
         if not (va[patches[x, 0]] and vb[patches[x, 0]]):
             continue
-        entries = [int(patches[x, p]) for p in range(patches.shape[1])
-                   if patch_mask[x, p] and va[patches[x, p]] and vb[patches[x, p]]]
+        entries = [
+            int(patches[x, p])
+            for p in range(patches.shape[1])
+            if patch_mask[x, p] and va[patches[x, p]] and vb[patches[x, p]]
+        ]
         if len(entries) < 3:
             continue
         pa = np.array([float(a[i]) for i in entries])
@@ -87,10 +83,11 @@ def test_sample_image_is_bilinear_at_pixel_centres():
 
 # -- the fit ---------------------------------------------------------------------------------------
 
+
 @pytest.fixture(scope="module")
 def three_views():
     from pipeline.synthetic.multiview import MultiViewSettings, synthetic_views
-    from pipeline.synthetic.photos import PhotoSettings
+    from pipeline.synthetic.photos.settings import PhotoSettings
 
     settings = MultiViewSettings(photo=PhotoSettings(landmark_noise_px=0.3), expression_scale=0.1)
     return synthetic_views(22, 3, render=False, settings=settings)
@@ -114,8 +111,10 @@ def test_multiview_fit_beats_the_mean_single_view_and_matches_the_best(three_vie
     rig = JointRig()
     neural, _ = load_neural(rig)
     truth = three_views.neutral_vertices
-    singles = [face_error(head_vertices(rig, neural, s.theta, np.zeros(50), np.zeros(52)), truth)["s2m_median_mm"]
-               for s in three_view_fit.single_view_fits]
+    singles = [
+        face_error(head_vertices(rig, neural, s.theta, np.zeros(50), np.zeros(52)), truth)["s2m_median_mm"]
+        for s in three_view_fit.single_view_fits
+    ]
     multi = face_error(three_view_fit.identity_vertices, truth)["s2m_median_mm"]
     assert multi < np.mean(singles) - 0.01, (multi, singles)
     assert multi < min(singles) + 0.02, (multi, singles)
@@ -150,6 +149,7 @@ def test_multiview_needs_two_views():
 
 # -- the command line ------------------------------------------------------------------------------
 
+
 @pytest.fixture(scope="module")
 def view_photos(tmp_path_factory):
     """Three small rendered views of one head with their landmarks beside them (v<k>.png + v<k>.pts)."""
@@ -157,7 +157,7 @@ def view_photos(tmp_path_factory):
 
     from landmarks.formats import write_landmarks
     from pipeline.synthetic.multiview import MultiViewSettings, synthetic_views
-    from pipeline.synthetic.photos import PhotoSettings
+    from pipeline.synthetic.photos.settings import PhotoSettings
 
     root = tmp_path_factory.mktemp("views")
     settings = MultiViewSettings(photo=PhotoSettings(width=128, height=128, spp=2, offset_px=4))
@@ -182,13 +182,38 @@ def test_cli_views_writes_per_view_overlays_and_poses(capsys, tmp_path, view_pho
     root, views = view_photos
     out = tmp_path / "fit"
     photos = [str(root / f"v{k}.png") for k in range(3)]
-    code, stdout, err = run(capsys, "fit", *photos, "--views", "--landmarks", "auto", "--out", str(out), "--quiet",
-                            "--photometric", "--set", "photometric.iterations=3", "--set", "refine_iterations=5",
-                            "--set", "landmarks.lm_stages=[{name: pose, free: [pose], iterations: 3}, "
-                            "{name: joints, free: [pose, joints, expressions], iterations: 5}]")
+    code, stdout, err = run(
+        capsys,
+        "fit",
+        *photos,
+        "--views",
+        "--landmarks",
+        "auto",
+        "--out",
+        str(out),
+        "--quiet",
+        "--photometric",
+        "--set",
+        "photometric.iterations=3",
+        "--set",
+        "refine_iterations=5",
+        "--set",
+        "landmarks.lm_stages=[{name: pose, free: [pose], iterations: 3}, "
+        "{name: joints, free: [pose, joints, expressions], iterations: 5}]",
+    )
     assert code == 0, err
-    for name in ("mesh.obj", "mesh.ply", "mesh.glb", "params.json", "report.json", "overlay.png", "config.yaml",
-                 "overlay_0.png", "overlay_1.png", "overlay_2.png"):
+    for name in (
+        "mesh.obj",
+        "mesh.ply",
+        "mesh.glb",
+        "params.json",
+        "report.json",
+        "overlay.png",
+        "config.yaml",
+        "overlay_0.png",
+        "overlay_1.png",
+        "overlay_2.png",
+    ):
         assert (out / name).is_file(), name
     params = json.loads((out / "params.json").read_text())
     assert len(params["views"]) == 3 and "joints" in params
@@ -202,15 +227,16 @@ def test_cli_views_writes_per_view_overlays_and_poses(capsys, tmp_path, view_pho
 
 def test_cli_views_with_one_photo_is_a_one_line_error(capsys, tmp_path, view_photos):
     root, _ = view_photos
-    code, _, err = run(capsys, "fit", str(root / "v0.png"), "--views", "--landmarks", "auto", "--out",
-                       str(tmp_path / "x"))
+    code, _, err = run(
+        capsys, "fit", str(root / "v0.png"), "--views", "--landmarks", "auto", "--out", str(tmp_path / "x")
+    )
     assert code == 2
     assert err.strip().count("\n") == 0 and "at least 2 photos" in err
     assert not (tmp_path / "x").exists()
 
 
 def test_vertex_visibility_sees_the_face_not_the_back_of_the_head(asset):
-    from pipeline.photo.multiview import vertex_visibility
+    from pipeline.photo.consistency import vertex_visibility
     from rig.geometry import RIG_TO_OPENCV
 
     v = np.asarray(asset.vertices, np.float64)
@@ -220,7 +246,7 @@ def test_vertex_visibility_sees_the_face_not_the_back_of_the_head(asset):
     back = np.flatnonzero(asset.region_mask("scalp") & (v[:, 2] < np.percentile(v[:, 2], 5)))
     ids = np.concatenate([nose, back])
     seen = vertex_visibility(cam, asset.faces, 256, 256, pixels, ids, 0.3, 2.0)
-    assert seen[:len(nose)].mean() > 0.6 and not seen[len(nose):].any()  # nostrils and the nose sides: grazing
+    assert seen[: len(nose)].mean() > 0.6 and not seen[len(nose) :].any()  # nostrils and the nose sides: grazing
 
 
 def test_asm_identity_model_runs_on_the_views(three_views, three_view_fit):
@@ -244,8 +270,9 @@ def test_cli_views_with_a_photo_without_a_face_is_a_one_line_error(capsys, tmp_p
     root, _ = view_photos
     blank = tmp_path / "wall.png"
     Image.fromarray(np.full((64, 64, 3), 128, np.uint8)).save(blank)
-    code, _, err = run(capsys, "fit", str(root / "v0.png"), str(blank), "--views", "--detector", "hog", "--out",
-                       str(tmp_path / "x"))
+    code, _, err = run(
+        capsys, "fit", str(root / "v0.png"), str(blank), "--views", "--detector", "hog", "--out", str(tmp_path / "x")
+    )
     assert code == 2, err
     assert err.strip().count("\n") == 0 and "no face" in err
     assert not (tmp_path / "x").exists()
@@ -253,6 +280,7 @@ def test_cli_views_with_a_photo_without_a_face_is_a_one_line_error(capsys, tmp_p
 
 def test_cli_skinning_without_views_is_a_one_line_error(capsys, tmp_path, view_photos):
     root, _ = view_photos
-    code, _, err = run(capsys, "fit", str(root / "v0.png"), "--skinning", "asm", "--landmarks", "auto", "--out",
-                       str(tmp_path / "x"))
+    code, _, err = run(
+        capsys, "fit", str(root / "v0.png"), "--skinning", "asm", "--landmarks", "auto", "--out", str(tmp_path / "x")
+    )
     assert code == 2 and "--skinning applies to --views" in err and err.strip().count("\n") == 0

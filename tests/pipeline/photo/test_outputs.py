@@ -38,8 +38,9 @@ def asset():
 @pytest.fixture(scope="module")
 def hand_fit(asset):
     """A PhotoFit of the template turned 20 degrees (yaw), 600 mm away, without photometric stages."""
-    from landmarks.ibug68 import ibug68_embedding, landmark_positions
-    from pipeline.photo.camera import make_camera
+    from landmarks.ibug68.embedding import ibug68_embedding
+    from landmarks.ibug68.positions import landmark_positions
+    from pipeline.camera import make_camera
     from pipeline.photo.fit import PhotoFit
     from pipeline.photo.landmark_fit import LandmarkFit
     from rig.expressions import EXPRESSION_NAMES
@@ -53,23 +54,56 @@ def hand_fit(asset):
     cam = points @ (np.diag([1.0, -1, -1]) @ rotation).T + translation
     px = cam[:, :2] / cam[:, 2:] * FOCAL + (WIDTH - 1) / 2
     theta, z, expressions = np.zeros(NUM_PARAMETERS), np.zeros(50), np.zeros(len(EXPRESSION_NAMES))
-    lfit = LandmarkFit(theta=theta, z=z, expressions=expressions, rotation=rotation, translation=translation,
-                       camera=camera, landmarks_px=px, error_px=np.zeros(68), nme=0.0, landmarks3d=points, losses={},
-                       stages=(), seconds=0.0)
-    return PhotoFit(theta=theta, z=z, expressions=expressions, rotation=rotation, translation=translation,
-                    focal=FOCAL, width=WIDTH, height=HEIGHT, camera=camera, rig_vertices=v,
-                    albedo=np.full((len(v), 3), 0.5), ambient=np.full(3, 0.6), irradiance=np.zeros(3),
-                    light_direction_rig=np.array([0.0, 0.0, -1.0]), light_direction_camera=np.array([0.0, 0.0, 1.0]),
-                    landmarks2d=px, landmarks_px=px, error_px=np.zeros(68), nme=0.0, landmark_fit=lfit, stages=(),
-                    crop=None, timings={}, landmarks3d_camera=cam)
+    lfit = LandmarkFit(
+        theta=theta,
+        z=z,
+        expressions=expressions,
+        rotation=rotation,
+        translation=translation,
+        camera=camera,
+        landmarks_px=px,
+        error_px=np.zeros(68),
+        nme=0.0,
+        landmarks3d=points,
+        losses={},
+        stages=(),
+        seconds=0.0,
+    )
+    return PhotoFit(
+        theta=theta,
+        z=z,
+        expressions=expressions,
+        rotation=rotation,
+        translation=translation,
+        focal=FOCAL,
+        width=WIDTH,
+        height=HEIGHT,
+        camera=camera,
+        rig_vertices=v,
+        albedo=np.full((len(v), 3), 0.5),
+        ambient=np.full(3, 0.6),
+        irradiance=np.zeros(3),
+        light_direction_rig=np.array([0.0, 0.0, -1.0]),
+        light_direction_camera=np.array([0.0, 0.0, 1.0]),
+        landmarks2d=px,
+        landmarks_px=px,
+        error_px=np.zeros(68),
+        nme=0.0,
+        landmark_fit=lfit,
+        stages=(),
+        crop=None,
+        timings={},
+        landmarks3d_camera=cam,
+    )
 
 
 @pytest.fixture(scope="module")
 def out_dir(hand_fit, tmp_path_factory):
     from pipeline.photo.outputs import write_photo_outputs
 
-    return write_photo_outputs(tmp_path_factory.mktemp("fit") / "out", coordinate_photo(), hand_fit, spp=1,
-                               texture_size=TEXTURE)
+    return write_photo_outputs(
+        tmp_path_factory.mktemp("fit") / "out", coordinate_photo(), hand_fit, spp=1, texture_size=TEXTURE
+    )
 
 
 @pytest.fixture(scope="module")
@@ -98,8 +132,15 @@ class TestTextureFiles:
         image = np.asarray(Image.open(out_dir / "texture.png"))
         assert image.shape == (TEXTURE, TEXTURE, 3) and image.dtype == np.uint8
         skin = [asset.region_names.index(r) for r in FACE_REGIONS]  # the median fill's texels
-        again = texture_from_fit(coordinate_photo(), hand_fit, asset.faces, asset.face_uvs, regions=asset.regions,
-                                 skin_region_ids=skin, size=TEXTURE)
+        again = texture_from_fit(
+            coordinate_photo(),
+            hand_fit,
+            asset.faces,
+            asset.face_uvs,
+            regions=asset.regions,
+            skin_region_ids=skin,
+            size=TEXTURE,
+        )
         np.testing.assert_array_equal(image, again.image)
         # without photometric stages the fill is the median seen colour, recorded in the report
         report = json.loads((out_dir / "report.json").read_text())["texture"]
@@ -116,14 +157,15 @@ class TestTextureFiles:
         obj = trimesh.load(out_dir / "mesh.obj", process=False)
         assert isinstance(obj.visual, trimesh.visual.TextureVisuals)
         np.testing.assert_allclose(obj.visual.uv[obj.faces], asset.face_uvs, atol=1e-8)
-        np.testing.assert_array_equal(np.asarray(obj.visual.material.image.convert("RGB")),
-                                      np.asarray(Image.open(out_dir / "texture.png")))
+        np.testing.assert_array_equal(
+            np.asarray(obj.visual.material.image.convert("RGB")), np.asarray(Image.open(out_dir / "texture.png"))
+        )
 
     def test_glb_carries_the_same_texture_and_flipped_uvs(self, out_dir, asset):
         import pygltflib
         import trimesh
 
-        from rig.io.gltf import read_skinned_gltf
+        from tests.support.gltf_reader import read_skinned_gltf
 
         glb = read_skinned_gltf(out_dir / "mesh.glb")
         assert glb["base_color_texture"] == (out_dir / "texture.png").read_bytes()
@@ -167,7 +209,7 @@ def test_a_photometric_fit_fills_with_its_albedo(hand_fit, asset):
     """With photometric stages the unseen texels take the fitted albedo, sRGB-encoded."""
     from dataclasses import replace
 
-    from pipeline.photo.colour import linear_to_srgb
+    from pipeline.colour import linear_to_srgb
     from pipeline.photo.texture import texture_from_fit
 
     fit = replace(hand_fit, stages=("a stage",), albedo=np.tile([0.2, 0.1, 0.05], (len(asset.vertices), 1)))
@@ -223,9 +265,15 @@ class TestOverlay:
 
 
 def test_a_textured_head_takes_no_vertex_colours(asset, tmp_path):
-    from pipeline.edit import write_skinned_head
+    from pipeline.head.skinned import write_skinned_head
 
     with pytest.raises(ValueError, match="no vertex colours"):
-        write_skinned_head(tmp_path / "a.glb", asset, asset.weights, torch.eye(4).repeat(52, 1, 1).numpy(),
-                           vertex_colors=np.zeros((len(asset.vertices), 3)), base_color_texture=b"\x89PNG")
+        write_skinned_head(
+            tmp_path / "a.glb",
+            asset,
+            asset.weights,
+            torch.eye(4).repeat(52, 1, 1).numpy(),
+            vertex_colors=np.zeros((len(asset.vertices), 3)),
+            base_color_texture=b"\x89PNG",
+        )
     assert list(tmp_path.iterdir()) == []

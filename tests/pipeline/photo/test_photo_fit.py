@@ -11,9 +11,9 @@ import torch
 from kornia.geometry.camera import PinholeCamera
 
 from landmarks.loss import project_points
+from pipeline.camera import camera_direction_to_rig, make_camera
+from pipeline.colour import linear_to_srgb, srgb_to_linear
 from pipeline.config import ConfigError, load_config
-from pipeline.photo.camera import camera_direction_to_rig, make_camera
-from pipeline.photo.colour import linear_to_srgb, srgb_to_linear
 from pipeline.photo.fit import (
     Crop,
     FitPhotoConfig,
@@ -115,8 +115,9 @@ class TestConfig:
             PhotometricConfig(face_regions=("forehead", "moustache"))
 
     def test_nested_override(self):
-        c = load_config(FitPhotoConfig, None, {"landmarks.prior.lambda_m": 0.7, "photometric.spp": 3,
-                                               "photometric.lr.albedo": 0.5})
+        c = load_config(
+            FitPhotoConfig, None, {"landmarks.prior.lambda_m": 0.7, "photometric.spp": 3, "photometric.lr.albedo": 0.5}
+        )
         assert c.landmarks.prior.lambda_m == 0.7 and c.photometric.spp == 3 and c.photometric.lr.albedo == 0.5
         assert c.landmarks.prior.lambda_x == FitPhotoConfig().landmarks.prior.lambda_x  # the rest keep their defaults
         assert PhotoStage("a", ("albedo",), 2).iterations == 2
@@ -133,7 +134,8 @@ JAW_OPEN = 0.7
 def known_photo():
     """A held-out head with the rig's jawOpen blendshape at 0.7, path-traced at 192x192 (a different
     renderer and light model than the fit's), true landmarks + 0.5 px noise."""
-    from pipeline.synthetic.photos import PhotoSettings, simulate_photo
+    from pipeline.synthetic.photos.settings import PhotoSettings
+    from pipeline.synthetic.photos.simulate import simulate_photo
     from pipeline.synthetic.population import population_split
     from rig.asset import load_asset
     from rig.expressions import ExpressionModel, coefficients_from_dict
@@ -144,17 +146,19 @@ def known_photo():
     offsets = (expr.vertices(c)[0] - torch.as_tensor(asset.vertices)).numpy()
     head = population_split("heldout", 0).vertices[7] + offsets
     settings = PhotoSettings(width=192, height=192, spp=16, landmark_noise_px=0.5, offset_px=5)
-    return simulate_photo(head, np.random.default_rng(3), settings, yaw_deg=15.0, pitch_deg=0.0, roll_deg=0.0,
-                          name="known")
+    return simulate_photo(
+        head, np.random.default_rng(3), settings, yaw_deg=15.0, pitch_deg=0.0, roll_deg=0.0, name="known"
+    )
 
 
 def _short_config(**kw):
     from pipeline.photo.fit import photo_schedule
 
     base = FitPhotoConfig()  # the default landmark fit (LM, ~0.3 s), short photometric stages
-    return FitPhotoConfig(landmarks=base.landmarks,
-                          photometric=replace(base.photometric, enabled=True, stages=photo_schedule(8, 8, 0, 8, 0),
-                                              render_size=64, **kw))
+    return FitPhotoConfig(
+        landmarks=base.landmarks,
+        photometric=replace(base.photometric, enabled=True, stages=photo_schedule(8, 8, 0, 8, 0), render_size=64, **kw),
+    )
 
 
 @pytest.fixture(scope="module")
@@ -196,7 +200,7 @@ def test_outputs_reload_to_the_same_mesh(known_photo, known_fit, tmp_path):
         mesh_from_photo_params,
         write_photo_outputs,
     )
-    from rig.io.gltf import read_skinned_gltf
+    from tests.support.gltf_reader import read_skinned_gltf
 
     out = write_photo_outputs(tmp_path / "fit", known_photo.image, known_fit, config=_short_config(), spp=2)
     from pipeline.files import OUTPUT_MARKER
@@ -212,7 +216,7 @@ def test_outputs_reload_to_the_same_mesh(known_photo, known_fit, tmp_path):
     assert uv.min() > -50 and uv.max() < known_photo.width + 50 and (cam_points[:, 2] > 0).all()
     # the fitted landmarks: 2D (.pts, 1-based) = the 3D ones (camera frame) projected with the params' camera
     from landmarks.formats import read_landmarks
-    from landmarks.ibug68 import IBUG68_NAMES
+    from landmarks.ibug68.names import IBUG68_NAMES
 
     fitted = read_landmarks(out / "landmarks_fitted.pts")
     np.testing.assert_allclose(fitted, known_fit.landmarks_px, atol=1e-3)
@@ -224,8 +228,9 @@ def test_outputs_reload_to_the_same_mesh(known_photo, known_fit, tmp_path):
     assert np.linalg.norm(cam_points - nose_tip, axis=1).min() < 4.0  # on the fitted surface (edges ~5 mm)
     header, row = (out / "expressions.csv").read_text().splitlines()
     assert header.split(",")[:2] == ["eyeBlinkLeft", "eyeLookDownLeft"] and len(row.split(",")) == 52
-    np.testing.assert_allclose([float(x) for x in row.split(",")],
-                               [params["expressions"][n] for n in header.split(",")], atol=1e-6)
+    np.testing.assert_allclose(
+        [float(x) for x in row.split(",")], [params["expressions"][n] for n in header.split(",")], atol=1e-6
+    )
     ply = trimesh.load(out / "mesh.ply", process=False)
     assert np.abs(np.asarray(ply.vertices)[: len(known_fit.rig_vertices)] - known_fit.rig_vertices).max() < 1e-3
     assert np.asarray(ply.visual.vertex_colors).shape[0] >= len(known_fit.rig_vertices)

@@ -1,15 +1,13 @@
 """Spherical-harmonic lighting (pipeline.photo.sh): the irradiance basis against the clamped cosine it
-approximates, least squares recovering known coefficients, differentiable normals against numpy's."""
+approximates, least squares recovering known coefficients (the differentiable normals it shades with are
+rig.geometry.vertex_normals, tested in tests/rig/test_geometry.py)."""
 
 import math
 
 import numpy as np
 import pytest
-import torch
 
-from pipeline.photo.sh import fit_sh, sh_basis, vertex_normals_torch
-from rig.asset import load_asset
-from rig.geometry import vertex_normals
+from pipeline.photo.sh import fit_sh, sh_basis
 
 KERNEL = np.array([math.pi] + [2 * math.pi / 3] * 3 + [math.pi / 4] * 5)  # Lambertian band factors
 
@@ -49,12 +47,3 @@ def test_fit_sh_recovers_known_coefficients():
 def test_fit_sh_rejects_mismatched_shapes():
     with pytest.raises(ValueError, match="fit_sh"):
         fit_sh(np.ones((5, 3)), np.ones((4, 3)), np.ones((5, 3)))
-
-
-def test_torch_normals_match_numpy_and_have_gradients():
-    asset = load_asset()
-    v = torch.as_tensor(asset.vertices, dtype=torch.float64).requires_grad_(True)
-    n = vertex_normals_torch(v, torch.as_tensor(np.asarray(asset.faces, np.int64)))
-    np.testing.assert_allclose(n.detach().numpy(), vertex_normals(asset.vertices, asset.faces), atol=1e-10)
-    (n[:, 2].sum()).backward()
-    assert torch.isfinite(v.grad).all() and v.grad.abs().sum() > 0

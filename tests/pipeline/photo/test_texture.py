@@ -109,7 +109,7 @@ class TestRasterize:
         face, bary = uv_raster(top_left, 8)
         assert (face[:4, :4][np.triu(np.ones((4, 4), bool))[:, ::-1]] == 0).all()  # the upper-left triangle
         assert (face[4:] == -1).all() and (face[:, 4:] == -1).all()
-        u = (bary[face >= 0] @ top_left[0])
+        u = bary[face >= 0] @ top_left[0]
         rows, cols = np.nonzero(face >= 0)
         np.testing.assert_allclose(u, np.column_stack([(cols + 0.5) / 8, 1 - (rows + 0.5) / 8]), atol=1e-12)
 
@@ -119,13 +119,20 @@ def turned_head(asset):
     """The template turned by 35 degrees of yaw, unwrapped from a coordinate photo, blue fill."""
     k, e = camera(yaw_deg=35.0)
     fill = np.tile(np.array([0, 0, 255], np.uint8), (len(asset.vertices), 1))
-    tex = unwrap_texture(coordinate_photo(256, 256), asset.vertices, asset.faces, asset.face_uvs,
-                         intrinsics=k, extrinsics=e, fill_colours=fill, size=SIZE)
+    tex = unwrap_texture(
+        coordinate_photo(256, 256),
+        asset.vertices,
+        asset.faces,
+        asset.face_uvs,
+        intrinsics=k,
+        extrinsics=e,
+        fill_colours=fill,
+        size=SIZE,
+    )
     return tex, k, e
 
 
 class TestUnwrap:
-
     def test_cardinality(self, turned_head, asset):
         tex, _, _ = turned_head
         assert tex.image.shape == (SIZE, SIZE, 3) and tex.image.dtype == np.uint8
@@ -170,8 +177,10 @@ class TestUnwrap:
         normal = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
         to_camera = -e[:3, :3].T @ e[:3, 3] - points
         cos = (normal * to_camera).sum(1) / np.linalg.norm(normal, axis=1) / np.linalg.norm(to_camera, axis=1)
-        inside = np.isin(asset.regions[asset.faces[face[covered], 0]],
-                         [asset.region_names.index(r) for r in ("mouth_interior", "teeth", "tongue")])
+        inside = np.isin(
+            asset.regions[asset.faces[face[covered], 0]],
+            [asset.region_names.index(r) for r in ("mouth_interior", "teeth", "tongue")],
+        )
         facing = inside & (cos > 0.4)
         assert facing.sum() > 100  # measured 363
         assert (tex.photo_weight[covered][facing] == 0).all()
@@ -190,8 +199,9 @@ class TestUnwrap:
         e = np.diag([1.0, -1, -1, 1])
         e[2, 3] = 400.0
         fill = np.tile([0.0, 0.0, 1.0], (8, 1))
-        tex = unwrap_texture(coordinate_photo(128, 128), v, faces, uvs, intrinsics=k, extrinsics=e,
-                             fill_colours=fill, size=64)
+        tex = unwrap_texture(
+            coordinate_photo(128, 128), v, faces, uvs, intrinsics=k, extrinsics=e, fill_colours=fill, size=64
+        )
         # back quad: texel (row, col) -> x = -60 + 120 (col + 0.5) / 32, y = 60 - 120 (row + 0.5) / 64
         rows, cols = np.mgrid[0:64, 0:32]
         x, y = -60 + 120 * (cols + 0.5) / 32, 60 - 120 * (rows + 0.5) / 64
@@ -213,8 +223,16 @@ class TestUnwrap:
         k = np.array([[200.0, 0, 0.0], [0, 200, 63.5], [0, 0, 1]])  # the quad's centre on the left border
         e = np.diag([1.0, -1, -1, 1])
         e[2, 3] = 400.0
-        tex = unwrap_texture(coordinate_photo(128, 128), quad, faces, uvs, intrinsics=k, extrinsics=e,
-                             fill_colours=np.tile([0.0, 0.0, 1.0], (4, 1)), size=32)
+        tex = unwrap_texture(
+            coordinate_photo(128, 128),
+            quad,
+            faces,
+            uvs,
+            intrinsics=k,
+            extrinsics=e,
+            fill_colours=np.tile([0.0, 0.0, 1.0], (4, 1)),
+            size=32,
+        )
         assert (tex.image[:, :15, 2] == 255).all() and (tex.image[:, 17:, 2] == 0).all()
 
     def test_without_fill_colours_the_median_seen_colour_fills(self, asset):
@@ -222,8 +240,9 @@ class TestUnwrap:
         photo = np.full((256, 256, 3), (180, 120, 90), np.uint8)
         photo[:40] = (20, 20, 20)  # dark hair above the face: not the median skin colour
         skin = np.isin(asset.regions[asset.faces[:, 0]], [asset.region_names.index("cheeks")])
-        tex = unwrap_texture(photo, asset.vertices, asset.faces, asset.face_uvs, intrinsics=k, extrinsics=e,
-                             skin_faces=skin, size=128)
+        tex = unwrap_texture(
+            photo, asset.vertices, asset.faces, asset.face_uvs, intrinsics=k, extrinsics=e, skin_faces=skin, size=128
+        )
         assert tex.fill == "median of visible texels"
         unseen = (tex.face >= 0) & (tex.photo_weight == 0)
         assert unseen.sum() > 100 and (tex.image[unseen] == (180, 120, 90)).all()
@@ -247,23 +266,31 @@ class TestUnwrap:
         assert partial.any()
         assert (tex.image[tex.photo_weight == 1, 2] == 0).all()
 
-    @pytest.mark.parametrize("change, error, match", [
-        ({"photo": np.zeros((8, 8), np.uint8)}, ShapeError, r"photo must have shape \(H, W, 3\)"),
-        ({"photo": np.zeros((8, 8, 3), np.float32)}, InputError, "uint8 sRGB"),
-        ({"vertices": np.zeros((4, 2))}, ShapeError, "vertices"),
-        ({"faces": np.array([[0, 1, 9]])}, InputError, "faces must index the 4 vertices"),
-        ({"face_uvs": np.zeros((2, 3, 2))}, ShapeError, "face_uvs"),
-        ({"size": 8}, InputError, "size must be an integer in 16-8192"),
-        ({"intrinsics": np.zeros((2, 2))}, ShapeError, "intrinsics"),
-        ({"extrinsics": np.full((4, 4), np.nan)}, InputError, "finite"),
-        ({"fill_colours": np.full((4, 3), 2.0)}, InputError, r"fill_colours must lie in \[0, 1\]"),
-        ({"fill_colours": np.zeros((3, 3))}, ShapeError, "fill_colours"),
-    ])
+    @pytest.mark.parametrize(
+        "change, error, match",
+        [
+            ({"photo": np.zeros((8, 8), np.uint8)}, ShapeError, r"photo must have shape \(H, W, 3\)"),
+            ({"photo": np.zeros((8, 8, 3), np.float32)}, InputError, "uint8 sRGB"),
+            ({"vertices": np.zeros((4, 2))}, ShapeError, "vertices"),
+            ({"faces": np.array([[0, 1, 9]])}, InputError, "faces must index the 4 vertices"),
+            ({"face_uvs": np.zeros((2, 3, 2))}, ShapeError, "face_uvs"),
+            ({"size": 8}, InputError, "size must be an integer in 16-8192"),
+            ({"intrinsics": np.zeros((2, 2))}, ShapeError, "intrinsics"),
+            ({"extrinsics": np.full((4, 4), np.nan)}, InputError, "finite"),
+            ({"fill_colours": np.full((4, 3), 2.0)}, InputError, r"fill_colours must lie in \[0, 1\]"),
+            ({"fill_colours": np.zeros((3, 3))}, ShapeError, "fill_colours"),
+        ],
+    )
     def test_bad_input(self, change, error, match):
-        args = {"photo": np.zeros((8, 8, 3), np.uint8),
-                "vertices": np.array([[0.0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]]),
-                "faces": np.array([[0, 1, 2]]), "face_uvs": np.array([[[0.0, 0], [1, 0], [1, 1]]]),
-                "intrinsics": np.eye(3), "extrinsics": np.eye(4), "size": 16}
+        args = {
+            "photo": np.zeros((8, 8, 3), np.uint8),
+            "vertices": np.array([[0.0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]]),
+            "faces": np.array([[0, 1, 2]]),
+            "face_uvs": np.array([[[0.0, 0], [1, 0], [1, 1]]]),
+            "intrinsics": np.eye(3),
+            "extrinsics": np.eye(4),
+            "size": 16,
+        }
         args.update(change)
         with pytest.raises(error, match=match):
             unwrap_texture(args.pop("photo"), args.pop("vertices"), args.pop("faces"), args.pop("face_uvs"), **args)
@@ -273,5 +300,12 @@ class TestUnwrap:
         e = np.diag([1.0, -1, -1, 1])
         e[2, 3] = -400.0  # the camera behind the triangle's plane, looking away
         with pytest.raises(InputError, match="no texel is seen"):
-            unwrap_texture(np.zeros((32, 32, 3), np.uint8), quad, np.array([[0, 1, 2]]),
-                           np.array([[[0.0, 0], [1, 0], [1, 1]]]), intrinsics=np.eye(3) * 10, extrinsics=e, size=16)
+            unwrap_texture(
+                np.zeros((32, 32, 3), np.uint8),
+                quad,
+                np.array([[0, 1, 2]]),
+                np.array([[[0.0, 0], [1, 0], [1, 1]]]),
+                intrinsics=np.eye(3) * 10,
+                extrinsics=e,
+                size=16,
+            )

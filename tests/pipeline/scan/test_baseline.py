@@ -22,18 +22,21 @@ def scan(asset):
     d = np.linalg.norm(V - V[tip], axis=1)
     truth_rig = V + 5.0 * np.exp(-0.5 * (d / 60.0) ** 2)[:, None] * normals
     front_faces = (normals[:, 2] > 0.2)[F].all(axis=1)
-    points, _ = trimesh.sample.sample_surface(trimesh.Trimesh(truth_rig, F[front_faces], process=False),
-                                              6000, seed=1)
+    points, _ = trimesh.sample.sample_surface(trimesh.Trimesh(truth_rig, F[front_faces], process=False), 6000, seed=1)
     points = points + np.random.default_rng(2).normal(0.0, 0.2, points.shape)
-    to_cloud = lambda x: x @ ROTATION.T + TRANSLATION
+
+    def to_cloud(x):
+        return x @ ROTATION.T + TRANSLATION
+
     return to_cloud(points), to_cloud(truth_rig), to_cloud(V)
 
 
 @pytest.fixture(scope="module")
 def result(asset, scan):
     cloud, _, _ = scan
-    res = nricp_baseline(asset.vertices, asset.faces, cloud, rotation=ROTATION, translation=TRANSLATION,
-                         max_points=5000)
+    res = nricp_baseline(
+        asset.vertices, asset.faces, cloud, rotation=ROTATION, translation=TRANSLATION, max_points=5000
+    )
     print(f"\nnricp_baseline: {res.seconds:.2f} s for a 5,000-point cloud, steps {res.steps}")
     return res
 
@@ -63,9 +66,16 @@ class TestNricpBaseline:
     def test_unit_free(self, asset, scan, result):
         # nricp_amberg normalises by the template's size: the same problem in metres gives the same fit.
         cloud, _, _ = scan
-        res_m = nricp_baseline(asset.vertices, asset.faces, cloud / 1000.0, rotation=ROTATION,
-                               translation=TRANSLATION / 1000.0, scale=1e-3, distance_threshold_mm=0.01,
-                               max_points=5000)
+        res_m = nricp_baseline(
+            asset.vertices,
+            asset.faces,
+            cloud / 1000.0,
+            rotation=ROTATION,
+            translation=TRANSLATION / 1000.0,
+            scale=1e-3,
+            distance_threshold_mm=0.01,
+            max_points=5000,
+        )
         assert np.abs(res_m.vertices * 1000.0 - result.vertices).max() < 1e-3
 
     def test_exceptions(self, asset, scan):

@@ -7,21 +7,14 @@ import pytest
 import trimesh
 from trimesh.exchange.ply import export_ply, load_ply
 
-from pipeline.scan.pointcloud import (
-    LARGE_CLOUD_POINTS,
-    SUBSAMPLE_POINTS,
-    CloudError,
-    PointCloud,
-    boundary_mask,
-    count_distinct,
-    error_colors,
-    estimate_normals,
-    read_landmarks3d,
-    read_point_cloud,
-    to_rig_frame,
-    validate_points,
-    write_point_cloud_ply,
-)
+from pipeline.scan.pointcloud.cloud import CloudError, PointCloud
+from pipeline.scan.pointcloud.error_colors import error_colors
+from pipeline.scan.pointcloud.landmarks3d import read_landmarks3d
+from pipeline.scan.pointcloud.normals import boundary_mask, estimate_normals
+from pipeline.scan.pointcloud.read import read_point_cloud
+from pipeline.scan.pointcloud.units import to_rig_frame
+from pipeline.scan.pointcloud.validate import LARGE_CLOUD_POINTS, SUBSAMPLE_POINTS, count_distinct, validate_points
+from pipeline.scan.pointcloud.write import write_point_cloud_ply
 from rig.io import atomic
 
 SEMI_AXES_MM = np.array([75.0, 110.0, 90.0])  # a head-sized ellipsoid, 150 x 220 x 180 mm
@@ -79,8 +72,15 @@ def write_table(path, points, normals=None, sep=" ", header=None):
 def test_round_trip_every_format(tmp_path, ellipsoid, kind, with_normals):
     points, normals = ellipsoid
     n = normals if with_normals else None
-    ext = {"ply_ascii": ".ply", "ply_binary": ".ply", "obj": ".obj", "xyz": ".xyz", "txt_header": ".TXT",
-           "csv_header": ".csv", "npy": ".npy"}[kind]
+    ext = {
+        "ply_ascii": ".ply",
+        "ply_binary": ".ply",
+        "obj": ".obj",
+        "xyz": ".xyz",
+        "txt_header": ".TXT",
+        "csv_header": ".csv",
+        "npy": ".npy",
+    }[kind]
     path = tmp_path / f"cloud{ext}"
     if kind == "ply_ascii":
         write_ascii_ply(path, points, n)
@@ -287,8 +287,15 @@ def test_truncated_binary_files_are_cloud_errors(tmp_path, ellipsoid):
         read_point_cloud(tmp_path / "cut.npy")
 
 
-@pytest.mark.parametrize("name, text", [("ragged.xyz", "1 2 3\n4 5\n"), ("words.csv", "x,y,z\n1,2,3\na,b,c\n"),
-                                        ("bad.obj", "v 1 2 three\n"), ("short.obj", "v 1 2\n")])
+@pytest.mark.parametrize(
+    "name, text",
+    [
+        ("ragged.xyz", "1 2 3\n4 5\n"),
+        ("words.csv", "x,y,z\n1,2,3\na,b,c\n"),
+        ("bad.obj", "v 1 2 three\n"),
+        ("short.obj", "v 1 2\n"),
+    ],
+)
 def test_unparseable_text_files_are_cloud_errors(tmp_path, name, text):
     (tmp_path / name).write_text(text)
     with pytest.raises(CloudError, match=name):
@@ -454,14 +461,17 @@ def test_read_landmarks3d_both_layouts(tmp_path):
         np.testing.assert_array_equal(landmarks["nose_tip"], [1.0, 2.5, 110.0])
 
 
-@pytest.mark.parametrize("text, message", [
-    ("{not json", "not valid JSON"),
-    ('{"landmarks": {"nose_tip": [1, 2]}}', "'nose_tip' must be a list of 3 numbers"),
-    ('{"chin": [1, "2", 3]}', "'chin' must be a list of 3 numbers"),
-    ('{"chin": [1, 2, NaN]}', "'chin' has a non-finite"),
-    ('{"landmarks": {}}', "no landmarks"),
-    ("[[1, 2, 3]]", "expected"),
-])
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        ("{not json", "not valid JSON"),
+        ('{"landmarks": {"nose_tip": [1, 2]}}', "'nose_tip' must be a list of 3 numbers"),
+        ('{"chin": [1, "2", 3]}', "'chin' must be a list of 3 numbers"),
+        ('{"chin": [1, 2, NaN]}', "'chin' has a non-finite"),
+        ('{"landmarks": {}}', "no landmarks"),
+        ("[[1, 2, 3]]", "expected"),
+    ],
+)
 def test_read_landmarks3d_bad_files(tmp_path, text, message):
     path = tmp_path / "lm.json"
     path.write_text(text)
@@ -494,8 +504,9 @@ def test_clouds_up_to_the_threshold_are_kept_as_given(ellipsoid):
     assert kept.input_points == len(points)
     assert PointCloud(points, None, "", "mm", 1.0).input_points == len(points)  # old constructors still work
     with pytest.warns(UserWarning, match=f"{len(points)} points: kept a random 1000 of them"):
-        reduced = validate_points(points, normals, large_cloud_points=len(points) - 1, subsample_points=1000,
-                                  min_points=100)
+        reduced = validate_points(
+            points, normals, large_cloud_points=len(points) - 1, subsample_points=1000, min_points=100
+        )
     assert reduced.input_points == len(points) and len(reduced.points) == 1000
     with pytest.raises(CloudError, match="subsample_points"):
         validate_points(points, large_cloud_points=10, subsample_points=0)

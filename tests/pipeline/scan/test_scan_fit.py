@@ -9,24 +9,23 @@ import torch
 
 from pipeline.cli import main
 from pipeline.config import ConfigError, load_config
-from pipeline.evaluation.metrics import scan_to_mesh_distances
 from pipeline.fitting.engine import Stage
+from pipeline.metrics import scan_to_mesh_distances
 from pipeline.scan.fit import FitScanConfig, fit_scan, jnr_schedule
 from pipeline.scan.outputs import OUTPUT_FILES, mesh_from_params, write_scan_outputs
-from pipeline.scan.pointcloud import (
-    read_point_cloud,
-    validate_points,
-    write_point_cloud_ply,
-)
-from pipeline.scan.registration import brute_force_distance
+from pipeline.scan.pointcloud.read import read_point_cloud
+from pipeline.scan.pointcloud.validate import validate_points
+from pipeline.scan.pointcloud.write import write_point_cloud_ply
 from pipeline.synthetic.scans import ScanSettings, simulate_scan
 from rig.expressions import EXPRESSION_NAMES, ExpressionModel, coefficients_from_dict
 from rig.parameters import random_theta
 from rig.skinning.neural import load_neural
 from rig.template import FACE_REGIONS
+from tests.support.geometry import brute_force_distance
 
-CLEAN = ScanSettings(noise_mm_at_1m=0.0, noise_floor_mm=0.0, lateral_jitter_px=0.0, hole_fraction=(0.0, 0.0),
-                     outlier_fraction=0.0)
+CLEAN = ScanSettings(
+    noise_mm_at_1m=0.0, noise_floor_mm=0.0, lateral_jitter_px=0.0, hole_fraction=(0.0, 0.0), outlier_fraction=0.0
+)
 TRUE_EXPRESSION = {"jawOpen": 0.4, "mouthSmileLeft": 0.7, "browOuterUpRight": 0.6, "eyeBlinkLeft": 0.5}
 SHORT_YAML = """
 stages:
@@ -121,8 +120,20 @@ def scan_file(tmp_path_factory, asset):
 
 def test_cli_fit_scan_writes_outputs_that_reload(scan_file, asset, capsys):
     out = scan_file / "fit"
-    assert main(["fit-scan", str(scan_file / "scan.ply"), "--out", str(out), "--config",
-                 str(scan_file / "short.yaml"), "--quiet"]) == 0
+    assert (
+        main(
+            [
+                "fit-scan",
+                str(scan_file / "scan.ply"),
+                "--out",
+                str(out),
+                "--config",
+                str(scan_file / "short.yaml"),
+                "--quiet",
+            ]
+        )
+        == 0
+    )
     from pipeline.files import OUTPUT_MARKER
 
     assert sorted(p.name for p in out.iterdir()) == sorted((*OUTPUT_FILES, OUTPUT_MARKER))
@@ -199,8 +210,9 @@ def test_metres_are_detected_and_converted(tmp_path, asset, recwarn):
     assert any("metres" in str(w.message) for w in recwarn.list)
     cfg = load_config(FitScanConfig, None, {"stages": [{"name": "j", "free": ["pose", "joints"], "iterations": 5}]})
     fit = fit_scan(cloud, cfg)
-    out = write_scan_outputs(tmp_path / "o", cloud, fit, scan_to_mesh_distances(cloud.points, fit.vertices, asset.faces),
-                             config=cfg)
+    out = write_scan_outputs(
+        tmp_path / "o", cloud, fit, scan_to_mesh_distances(cloud.points, fit.vertices, asset.faces), config=cfg
+    )
     import trimesh
 
     mesh = trimesh.load(out / "mesh.ply", process=False)  # written back in the input's units (m)
@@ -229,21 +241,59 @@ def test_cli_data_scan_then_fit_with_landmarks_in_opencv_frame(tmp_path, asset):
     (tmp_path / "marks.json").write_text(json.dumps({"landmarks": marks}))
     (tmp_path / "short.yaml").write_text(SHORT_YAML)
     out = tmp_path / "fit"
-    assert main(["fit-scan", str(tmp_path / "cam.npy"), "--out", str(out), "--frame", "opencv", "--units", "m",
-                 "--landmarks", str(tmp_path / "marks.json"), "--config", str(tmp_path / "short.yaml"),
-                 "--quiet"]) == 0
+    assert (
+        main(
+            [
+                "fit-scan",
+                str(tmp_path / "cam.npy"),
+                "--out",
+                str(out),
+                "--frame",
+                "opencv",
+                "--units",
+                "m",
+                "--landmarks",
+                str(tmp_path / "marks.json"),
+                "--config",
+                str(tmp_path / "short.yaml"),
+                "--quiet",
+            ]
+        )
+        == 0
+    )
     fitted = trimesh.load(out / "mesh.ply", process=False).vertices * flip * 1000.0  # back to mm, y-up
     face = asset.region_mask(*FACE_REGIONS)
     assert np.linalg.norm(fitted - truth, axis=1)[face].mean() < 3.0
-    assert json.loads((out / "params.json").read_text())["input"] == {"units": "m", "scale_to_mm": 1000.0,
-                                                                      "frame": "opencv"}
+    assert json.loads((out / "params.json").read_text())["input"] == {
+        "units": "m",
+        "scale_to_mm": 1000.0,
+        "frame": "opencv",
+    }
     assert main(["data", "scan", "--out", str(scan)]) == 2  # exists
 
 
 def test_cli_eval_scans(tmp_path, capsys):
     (tmp_path / "short.yaml").write_text(SHORT_YAML)
-    assert main(["eval", "scans", "--neutral", "1", "--expressive", "0", "--no-baseline", "--config",
-                 str(tmp_path / "short.yaml"), "--json", "--quiet", "--out", str(tmp_path / "e.json")]) == 0
+    assert (
+        main(
+            [
+                "eval",
+                "scans",
+                "--neutral",
+                "1",
+                "--expressive",
+                "0",
+                "--no-baseline",
+                "--config",
+                str(tmp_path / "short.yaml"),
+                "--json",
+                "--quiet",
+                "--out",
+                str(tmp_path / "e.json"),
+            ]
+        )
+        == 0
+    )
     data = json.loads(capsys.readouterr().out)
     (rec,) = data["records"]
     assert rec["method"] == "jnr" and rec["kind"] == "neutral" and 0 < rec["vertex_mean_mm"] < 5
@@ -260,7 +310,7 @@ def test_cli_fit_scan_subsamples_a_dense_scan_and_fits_it(scan_file, asset):
     error map and the report all see the same 50 000 points."""
     import trimesh
 
-    from pipeline.scan.pointcloud import SUBSAMPLE_POINTS
+    from pipeline.scan.pointcloud.validate import SUBSAMPLE_POINTS
 
     raw = trimesh.load(scan_file / "scan.ply", process=False)
     base = np.asarray(raw.vertices, float)
@@ -284,8 +334,11 @@ def test_cli_fit_scan_subsamples_a_dense_scan_and_fits_it(scan_file, asset):
 def test_cli_rejects_two_million_random_points_as_not_a_head_from_a_subsample(tmp_path, capsys):
     points = np.random.default_rng(0).uniform(-125.0, 125.0, (2_000_000, 3))  # head-sized in mm
     code, err = _cli_error(tmp_path, capsys, "noise.npy", points)
-    assert code == 2 and re.search(r"does not look like a head: .* only \d+ % of its points \(a random 50000 of "
-                                   r"its 2000000\) lie within 8 mm", err), err
+    assert code == 2 and re.search(
+        r"does not look like a head: .* only \d+ % of its points \(a random 50000 of "
+        r"its 2000000\) lie within 8 mm",
+        err,
+    ), err
 
 
 # ------------------------------------------------------------------------------- implausible landmarks
@@ -302,12 +355,15 @@ def landmark_scan(asset):
     return scan, {name: scan.gt_vertices[i] for name, i in ids.items()}
 
 
-@pytest.mark.parametrize("case, message", [
-    ("coincident", "'left_eye_outer' and 'left_eye_inner' are 0 mm apart"),
-    ("mirrored", "look mirrored"),
-    ("metres", r"0\.001\d* x the size of the template's"),
-    ("far", "mm from the nearest cloud point"),
-])
+@pytest.mark.parametrize(
+    "case, message",
+    [
+        ("coincident", "'left_eye_outer' and 'left_eye_inner' are 0 mm apart"),
+        ("mirrored", "look mirrored"),
+        ("metres", r"0\.001\d* x the size of the template's"),
+        ("far", "mm from the nearest cloud point"),
+    ],
+)
 def test_fit_scan_rejects_implausible_landmarks_before_fitting(landmark_scan, rig32, case, message):
     from landmarks.points3d import LandmarkError
 
@@ -329,22 +385,38 @@ def test_fit_scan_rejects_implausible_landmarks_before_fitting(landmark_scan, ri
 def test_cli_rejects_coincident_landmarks_with_one_line(landmark_scan, tmp_path, capsys):
     scan, marks = landmark_scan
     np.save(tmp_path / "scan.npy", np.c_[scan.points, scan.normals])
-    (tmp_path / "marks.json").write_text(json.dumps({"landmarks": {n: marks["chin"].tolist() for n in
-                                                                   ("nose_tip", "mouth_left", "chin")}}))
-    code, err = _cli_error(tmp_path, capsys, "scan.npy", np.c_[scan.points, scan.normals],
-                           ("--landmarks", str(tmp_path / "marks.json")))
+    (tmp_path / "marks.json").write_text(
+        json.dumps({"landmarks": {n: marks["chin"].tolist() for n in ("nose_tip", "mouth_left", "chin")}})
+    )
+    code, err = _cli_error(
+        tmp_path, capsys, "scan.npy", np.c_[scan.points, scan.normals], ("--landmarks", str(tmp_path / "marks.json"))
+    )
     assert code == 2 and "are 0 mm apart" in err and len(err.strip().splitlines()) == 1
 
 
 def test_cli_fit_scan_with_asm_skinning_writes_asm_parameters_that_reload(scan_file, asset):
     out = scan_file / "fit_asm"
     (scan_file / "shorter.yaml").write_text(SHORT_YAML.replace("10}", "6}").replace("5}", "3}"))
-    assert main(["fit-scan", str(scan_file / "scan.ply"), "--out", str(out), "--config",
-                 str(scan_file / "shorter.yaml"), "--set", "skinning=asm", "--quiet"]) == 0
+    assert (
+        main(
+            [
+                "fit-scan",
+                str(scan_file / "scan.ply"),
+                "--out",
+                str(out),
+                "--config",
+                str(scan_file / "shorter.yaml"),
+                "--set",
+                "skinning=asm",
+                "--quiet",
+            ]
+        )
+        == 0
+    )
     import trimesh
 
     params = json.loads((out / "params.json").read_text())
-    assert params["skinning"] == "asm" and "joints" not in params
+    assert params["model"] == "asm" and "joints" not in params
     assert params["asm"]["components"] == 2 and len(params["asm"]["bones"]) == 52
     assert set(params["asm"]["bones"]["nose_tip"]) == {"tau", "zeta", "log_pi", "mu", "chol"}
     mesh = trimesh.load(out / "mesh.ply", process=False)
@@ -355,8 +427,9 @@ def test_cli_fit_scan_with_asm_skinning_writes_asm_parameters_that_reload(scan_f
     assert "asm" in last["terms"] and "L_m" not in last["terms"]
     assert 0 < report["scan_to_mesh"]["median_mm"] < 3.0
     # an ASM fit's parameters are not joint parameters: rig export says so in one line
-    code = main(["rig", "export", "--format", "obj", "--params", str(out / "params.json"), "--out",
-                 str(scan_file / "x.obj")])
+    code = main(
+        ["rig", "export", "--format", "obj", "--params", str(out / "params.json"), "--out", str(scan_file / "x.obj")]
+    )
     assert code == 2
     with pytest.raises(ConfigError, match="skinning"):
         load_config(FitScanConfig, None, {"skinning": "blender"})

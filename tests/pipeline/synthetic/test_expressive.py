@@ -37,8 +37,9 @@ def units(asset):
 @pytest.fixture(scope="module")
 def heldout_coefficients():
     """The expression coefficients of the 100 held-out heads (no identity heads needed)."""
-    return np.stack([sample_expression_coefficients(np.random.default_rng(int(s)), 1)[0]
-                     for s in expressive_seeds("heldout", 0)])
+    return np.stack(
+        [sample_expression_coefficients(np.random.default_rng(int(s)), 1)[0] for s in expressive_seeds("heldout", 0)]
+    )
 
 
 def _mirror(asset, f):
@@ -60,7 +61,7 @@ def _flipped_area(asset, rest, deformed):
 
 
 def test_names_limits_and_units(asset, units):
-    from rig.makehuman import expression_unit_offsets
+    from rig.makehuman.face_units import expression_unit_offsets
 
     names, raw = expression_unit_offsets(EXPRESSION_VARIANT)
     assert names == EXPRESSIVE_FEATURE_NAMES and len(set(names)) == F == 34
@@ -68,15 +69,21 @@ def test_names_limits_and_units(asset, units):
     assert not units.flags.writeable and expressive_units(asset) is units  # built once per asset
     assert set(EXPRESSIVE_LIMITS) == set(EXPRESSIVE_FEATURE_NAMES)
     assert set(EXPRESSIVE_LIMITS.values()) == {(0.0, 1.0)}
-    assert set(EXPRESSIVE_GROUPS.values()) == {"eye-left", "eye-right", "eyebrows-left", "eyebrows-right",
-                                                "nose", "mouth"}
+    assert set(EXPRESSIVE_GROUPS.values()) == {
+        "eye-left",
+        "eye-right",
+        "eyebrows-left",
+        "eyebrows-right",
+        "nose",
+        "mouth",
+    }
     # The mirror rule changes the data by its small asymmetries only.
     assert np.abs(units - raw).max() < 0.5
     assert np.linalg.norm(units - raw) < 0.01 * np.linalg.norm(raw)
 
 
 def test_mirror_rule(asset, units):
-    from rig.makehuman import expression_unit_offsets
+    from rig.makehuman.face_units import expression_unit_offsets
 
     raw = expression_unit_offsets(EXPRESSION_VARIANT)[1]
     assert len(EXPRESSIVE_PAIRS) == 9
@@ -108,8 +115,9 @@ def test_offsets_zero_and_linear(asset, units):
     np.testing.assert_allclose(expressive_offsets(np.eye(F), asset), units, atol=0)
     rng = np.random.default_rng(3)
     a, b = rng.uniform(0, 0.5, (2, F))
-    np.testing.assert_allclose(expressive_offsets(a + b, asset),
-                               expressive_offsets(a, asset) + expressive_offsets(b, asset), atol=1e-10)
+    np.testing.assert_allclose(
+        expressive_offsets(a + b, asset), expressive_offsets(a, asset) + expressive_offsets(b, asset), atol=1e-10
+    )
     assert expressive_offsets(a).shape == (len(asset.vertices), 3)  # default asset
 
 
@@ -185,7 +193,9 @@ def test_span_residuals(asset, units, heldout_coefficients):
     mix = np.einsum("e,evk->vk", np.random.default_rng(0).uniform(-1, 1, len(arkit)), arkit)
     assert span_residuals(mix, asset) < 1e-9  # a combination of the rig's shapes
     assert span_residuals(np.zeros_like(asset.vertices), asset) == 0.0
-    assert span_residuals(units[INDEX["mouth-open"]]) == pytest.approx(span_residuals(units, asset)[INDEX["mouth-open"]])
+    assert span_residuals(units[INDEX["mouth-open"]]) == pytest.approx(
+        span_residuals(units, asset)[INDEX["mouth-open"]]
+    )
 
     res = unit_span_residuals(asset)
     assert list(res) == list(EXPRESSIVE_FEATURE_NAMES)
@@ -238,17 +248,20 @@ def test_split(asset):
     assert heads.names == tuple(identity.names[:12])
     np.testing.assert_array_equal(heads.seeds, expressive_seeds("heldout", 0)[:12])
     for i, s in enumerate(heads.seeds):
-        np.testing.assert_array_equal(sample_expression_coefficients(np.random.default_rng(int(s)), 1)[0],
-                                      heads.expression_coefficients[i])
-    np.testing.assert_allclose(heads.vertices - heads.neutral,
-                               expressive_offsets(heads.expression_coefficients, asset), atol=1e-9)
+        np.testing.assert_array_equal(
+            sample_expression_coefficients(np.random.default_rng(int(s)), 1)[0], heads.expression_coefficients[i]
+        )
+    np.testing.assert_allclose(
+        heads.vertices - heads.neutral, expressive_offsets(heads.expression_coefficients, asset), atol=1e-9
+    )
     fewer = expressive_split("heldout", 0, n=3, asset=asset)  # deterministic; head i does not depend on n
     np.testing.assert_array_equal(fewer.vertices, heads.vertices[:3])
     np.testing.assert_array_equal(fewer.expression_coefficients, heads.expression_coefficients[:3])
     other = expressive_split("heldout", 1, n=12, asset=asset)
     assert not np.array_equal(other.expression_coefficients, heads.expression_coefficients)
-    np.testing.assert_allclose(heads.span_residuals(asset),
-                               span_residuals(expressive_offsets(heads.expression_coefficients, asset), asset))
+    np.testing.assert_allclose(
+        heads.span_residuals(asset), span_residuals(expressive_offsets(heads.expression_coefficients, asset), asset)
+    )
     for neutral, v in zip(heads.neutral, heads.vertices):  # on the identity heads too
         assert _flipped_area(asset, neutral, v) < 80.0
     assert len(expressive_split("val", 0, n=0, asset=asset)) == 0

@@ -29,13 +29,10 @@ from pipeline.synthetic.population import (
     synthesize_heads,
     write_population,
 )
-from rig.makehuman import (
-    Phenotype,
-    data_dir,
-    head_mesh,
-    phenotype_offsets,
-    target_on_head,
-)
+from rig.makehuman.base_mesh import data_dir
+from rig.makehuman.head import head_mesh
+from rig.makehuman.phenotype import Phenotype, phenotype_offsets
+from rig.makehuman.targets import target_on_head
 from rig.template import HIDDEN_REGIONS
 
 MIRROR_X = np.array([-1.0, 1.0, 1.0])
@@ -87,14 +84,24 @@ def _skin_normal_dots(heads, asset):
 # The feature table and basis
 # ----------------------------------------------------------------------------------------------------
 
+
 def test_feature_table():
     assert FEATURE_NAMES == tuple(f.name for f in FEATURES) and len(set(FEATURE_NAMES)) == len(FEATURES) == 170
     kinds = {k: int(feature_mask(k).sum()) for k in pop.KINDS}
     assert kinds == {"local": 134, "asym": 29, "head_shape": 7}
     local = [f for f in FEATURES if f.kind == "local"]
     assert {g: sum(f.group == g for f in local) for g in pop.LOCAL_GROUPS} == {
-        "cheek": 8, "chin": 7, "ears": 22, "eyebrows": 3, "eyes": 32, "forehead": 4, "head": 7, "mouth": 22,
-        "neck": 8, "nose": 21}  # as counted in the MakeHuman note
+        "cheek": 8,
+        "chin": 7,
+        "ears": 22,
+        "eyebrows": 3,
+        "eyes": 32,
+        "forehead": 4,
+        "head": 7,
+        "mouth": 22,
+        "neck": 8,
+        "nose": 21,
+    }  # as counted in the MakeHuman note
     assert not {f.name.removeprefix("l-").removeprefix("r-") for f in FEATURES} & set(pop.TRANSLATING_TARGETS)
     assert {f.name for f in FEATURES if f.symmetry == "antisymmetric"} == set(pop.ANTISYMMETRIC_TARGETS)
     assert {f.name for f in FEATURES if f.kind == "head_shape"} == set(pop.HEAD_SHAPES)
@@ -170,6 +177,7 @@ def test_symmetrisation_of_makehuman_pairs(asset, basis):
 # Phenotypes
 # ----------------------------------------------------------------------------------------------------
 
+
 def test_sample_phenotypes():
     p = sample_phenotypes(np.random.default_rng(3), 3000)
     assert p.shape == (3000, len(PHENOTYPE_NAMES)) and PHENOTYPE_NAMES[:2] == ("gender", "age")
@@ -217,6 +225,7 @@ def test_phenotype_part(asset):
 # Feature coefficients and synthesis
 # ----------------------------------------------------------------------------------------------------
 
+
 def test_sample_coefficients():
     c = sample_coefficients(np.random.default_rng(5), 4000)
     assert c.shape == (4000, len(FEATURES))
@@ -251,8 +260,11 @@ def test_synthesis_is_piecewise_linear_in_the_coefficients(asset, basis):
     c = sample_coefficients(np.random.default_rng(1), 3, shifted=True)
     heads = synthesize_heads(c, asset=asset)
     assert heads.shape == (3, len(asset.vertices), 3) and heads.dtype == np.float64
-    expected = asset.vertices + np.tensordot(np.maximum(c, 0), basis.positive, 1) \
+    expected = (
+        asset.vertices
+        + np.tensordot(np.maximum(c, 0), basis.positive, 1)
         + np.tensordot(np.maximum(-c, 0), basis.negative, 1)
+    )
     assert np.abs(heads - expected).max() < 1e-9
     assert np.abs(synthesize_heads(c[1], asset=asset) - heads[1]).max() < 1e-12
     i = FEATURE_NAMES.index("chin-height-decr-incr")  # MakeHuman's two files differ: not an odd function
@@ -294,6 +306,7 @@ def test_flipped_skin_faces_counts_turned_triangles(asset):
 # ----------------------------------------------------------------------------------------------------
 # The splits
 # ----------------------------------------------------------------------------------------------------
+
 
 def test_split_sizes_and_names(splits):
     assert {k: len(v) for k, v in splits.items()} == {"train": 85, "val": 2, "test": 7, "heldout": 100}
@@ -387,11 +400,13 @@ def test_no_flipped_faces_on_the_skin(asset, splits):
 # Files
 # ----------------------------------------------------------------------------------------------------
 
+
 def test_write_and_read_round_trip(tmp_path, asset, splits):
     out = tmp_path / "population"
     calls = []
-    manifest_path = write_population(out, seed=0, splits=("val", "test"),
-                                     progress=lambda stage, done, total: calls.append((done, total)))
+    manifest_path = write_population(
+        out, seed=0, splits=("val", "test"), progress=lambda stage, done, total: calls.append((done, total))
+    )
     assert manifest_path == out / "manifest.json"
     assert calls[0] == (0, 9) and calls[-1] == (9, 9) and len(calls) == 10
     assert sorted(p.name for p in out.iterdir()) == ["manifest.json", "test", "val"]

@@ -15,24 +15,19 @@ pytest.importorskip("mitsuba")
 pytest.importorskip("kornia")
 
 from landmarks.formats import read_landmarks
-from landmarks.ibug68 import ibug68_embedding, landmark_positions
-from pipeline.photo.camera import RIG_TO_OPENCV, camera_center_in_rig, make_camera
-from pipeline.synthetic.photos import (
-    PhotoSettings,
-    SyntheticPhoto,
-    head_rotation,
-    linear_to_srgb,
-    simulate_photo,
-    srgb_to_linear,
-    synthesize_albedo,
-    synthetic_background,
-    synthetic_photo,
-    write_synthetic_photo,
-)
+from landmarks.ibug68.embedding import ibug68_embedding
+from landmarks.ibug68.positions import landmark_positions
+from pipeline.camera import RIG_TO_OPENCV, camera_center_in_rig, make_camera
+from pipeline.colour import linear_to_srgb, srgb_to_linear
+from pipeline.synthetic.photos.albedo import synthesize_albedo
+from pipeline.synthetic.photos.background import synthetic_background
+from pipeline.synthetic.photos.settings import PhotoSettings, SyntheticPhoto
+from pipeline.synthetic.photos.simulate import simulate_photo, synthetic_photo
+from pipeline.synthetic.photos.write import write_synthetic_photo
 from pipeline.synthetic.population import population_split
 from pipeline.synthetic.scans import DepthCamera, render_depth
 from render.reference import ReferenceLight
-from rig.geometry import vertex_normals
+from rig.geometry import head_rotation, vertex_normals
 
 SMALL = PhotoSettings(width=96, height=96, offset_px=5.0, spp=4)
 NOSE_TIP, RIGHT_EYE_OUTER, LEFT_EYE_OUTER = 30, 36, 45
@@ -93,8 +88,9 @@ def test_deterministic_given_the_seed(photo):
 
 
 def test_true_landmarks_are_the_projected_mesh_landmarks(photo, asset):
-    camera = make_camera(photo.width, photo.height, photo.focal, None, photo.rotation, photo.translation,
-                         dtype=torch.float64)
+    camera = make_camera(
+        photo.width, photo.height, photo.focal, None, photo.rotation, photo.translation, dtype=torch.float64
+    )
     points = landmark_positions(photo.gt_vertices, ibug68_embedding(asset), asset.faces)[0]
     uv = camera.project(torch.as_tensor(points)[None])[0].numpy()
     np.testing.assert_allclose(photo.landmarks2d_true[17:], uv[17:], atol=1e-6)  # contour 0-16: dynamic
@@ -112,12 +108,14 @@ def test_true_landmarks_land_on_the_head(photo):
 
 def test_landmark_noise_level():
     for sigma in (1.0, 2.5):
-        p = synthetic_photo(5, seed=0, settings=PhotoSettings(width=96, height=96, offset_px=5.0, spp=1,
-                                                             landmark_noise_px=sigma))
+        p = synthetic_photo(
+            5, seed=0, settings=PhotoSettings(width=96, height=96, offset_px=5.0, spp=1, landmark_noise_px=sigma)
+        )
         std = float((p.landmarks2d - p.landmarks2d_true).std())
         assert 0.6 * sigma <= std <= 1.4 * sigma
-    p = synthetic_photo(5, seed=0, settings=PhotoSettings(width=96, height=96, offset_px=5.0, spp=1,
-                                                         landmark_noise_px=0.0))
+    p = synthetic_photo(
+        5, seed=0, settings=PhotoSettings(width=96, height=96, offset_px=5.0, spp=1, landmark_noise_px=0.0)
+    )
     np.testing.assert_array_equal(p.landmarks2d, p.landmarks2d_true)
 
 
@@ -232,18 +230,21 @@ def test_write_synthetic_photo(photo, tmp_path, asset):
 
 
 # -- exceptions ------------------------------------------------------------------------------------------
-@pytest.mark.parametrize("kwargs, message", [
-    ({"width": 0}, "width"),
-    ({"height": 2.5}, "height"),
-    ({"yaw_deg_range": (10.0, -10.0)}, "yaw_deg_range"),
-    ({"distance_mm_range": (-5.0, 100.0)}, "distance_mm_range"),
-    ({"focal_factor_range": (0.0, 1.0)}, "focal_factor_range"),
-    ({"spp": 0}, "spp"),
-    ({"landmark_noise_px": -1.0}, "landmark_noise_px"),
-    ({"offset_px": float("nan")}, "offset_px"),
-    ({"skin_tone_range": (0.0, 1.5)}, "skin_tone_range"),
-    ({"light_irradiance_range": "bright"}, "light_irradiance_range"),
-])
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [
+        ({"width": 0}, "width"),
+        ({"height": 2.5}, "height"),
+        ({"yaw_deg_range": (10.0, -10.0)}, "yaw_deg_range"),
+        ({"distance_mm_range": (-5.0, 100.0)}, "distance_mm_range"),
+        ({"focal_factor_range": (0.0, 1.0)}, "focal_factor_range"),
+        ({"spp": 0}, "spp"),
+        ({"landmark_noise_px": -1.0}, "landmark_noise_px"),
+        ({"offset_px": float("nan")}, "offset_px"),
+        ({"skin_tone_range": (0.0, 1.5)}, "skin_tone_range"),
+        ({"light_irradiance_range": "bright"}, "light_irradiance_range"),
+    ],
+)
 def test_bad_settings_raise(kwargs, message):
     with pytest.raises(ValueError, match=message):
         PhotoSettings(**kwargs)

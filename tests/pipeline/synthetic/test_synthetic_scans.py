@@ -17,8 +17,9 @@ from pipeline.synthetic.scans import (
     simulate_scan,
 )
 
-CLEAN = ScanSettings(noise_mm_at_1m=0.0, noise_floor_mm=0.0, lateral_jitter_px=0.0, hole_fraction=(0.0, 0.0),
-                     outlier_fraction=0.0)
+CLEAN = ScanSettings(
+    noise_mm_at_1m=0.0, noise_floor_mm=0.0, lateral_jitter_px=0.0, hole_fraction=(0.0, 0.0), outlier_fraction=0.0
+)
 HIRES = DepthCamera(width=640, height=576, fx=504.0, fy=504.0, cx=320.0, cy=288.0)
 
 
@@ -42,8 +43,11 @@ def _point_triangle_distance(p, tri):
     n = n / np.linalg.norm(n, axis=-1, keepdims=True)
     dist_plane = ((p - a) * n).sum(-1)
     q = p - dist_plane[..., None] * n
-    inside = ((np.cross(b - a, q - a) * n).sum(-1) >= 0) & ((np.cross(c - b, q - b) * n).sum(-1) >= 0) & \
-             ((np.cross(a - c, q - c) * n).sum(-1) >= 0)
+    inside = (
+        ((np.cross(b - a, q - a) * n).sum(-1) >= 0)
+        & ((np.cross(c - b, q - b) * n).sum(-1) >= 0)
+        & ((np.cross(a - c, q - c) * n).sum(-1) >= 0)
+    )
     d = np.where(inside, np.abs(dist_plane), np.minimum(np.minimum(seg(a, b), seg(b, c)), seg(c, a)))
     return d.min(axis=1)
 
@@ -53,7 +57,7 @@ def _mesh_distance(points, vertices, faces, k=96):
     _, idx = cKDTree(centroids).query(points, k=k)
     d = _point_triangle_distance(points, vertices[faces[idx]])
     for i in np.flatnonzero(d > 1e-3)[:200]:  # large faces may be missed by the centroid search: exact
-        d[i] = _point_triangle_distance(points[i:i + 1], vertices[faces][None])[0]
+        d[i] = _point_triangle_distance(points[i : i + 1], vertices[faces][None])[0]
     return d
 
 
@@ -99,8 +103,10 @@ def test_template_pixels_on_their_faces(asset):
     v = (asset.vertices - [0, 0, 700.0]) @ WORLD_TO_CAMERA.T
     t0 = time.perf_counter()
     depth, fid = render_depth(v, asset.faces, cam)
-    print(f"render_depth: template (4,978 vertices) at 320x288 in {1e3 * (time.perf_counter() - t0):.1f} ms, "
-          f"{np.isfinite(depth).sum()} pixels")
+    print(
+        f"render_depth: template (4,978 vertices) at 320x288 in {1e3 * (time.perf_counter() - t0):.1f} ms, "
+        f"{np.isfinite(depth).sum()} pixels"
+    )
     vv, uu = np.nonzero(fid >= 0)
     p = np.stack([(uu - cam.cx) / cam.fx, (vv - cam.cy) / cam.fy, np.ones_like(uu, float)], 1) * depth[vv, uu, None]
     d = _point_triangle_distance(p, v[asset.faces[fid[vv, uu]]][:, None])
@@ -125,8 +131,9 @@ def test_clean_scan_on_mesh(asset):
 
 def test_noise_level(asset):
     settings = ScanSettings(hole_fraction=(0.0, 0.0), outlier_fraction=0.0, lateral_jitter_px=0.0)
-    scan = simulate_scan(asset.vertices, asset.faces, rng=4, settings=settings, yaw_deg=0.0, pitch_deg=0.0,
-                         roll_deg=0.0)
+    scan = simulate_scan(
+        asset.vertices, asset.faces, rng=4, settings=settings, yaw_deg=0.0, pitch_deg=0.0, roll_deg=0.0
+    )
     z = np.abs(scan.points[:, 2] - scan.camera_position[2])
     sigma = np.maximum(settings.noise_mm_at_1m * (z / 1000.0) ** 2, settings.noise_floor_mm)
     d = _mesh_distance(scan.points, scan.gt_vertices, asset.faces)
@@ -170,8 +177,14 @@ def test_yaw_changes_side(asset):
     assert left.visible[ears & (x < 0)].sum() > left.visible[ears & (x > 0)].sum()
     assert right.visible[ears & (x > 0)].sum() > right.visible[ears & (x < 0)].sum()
     for seed in range(3):
-        s = simulate_scan(asset.vertices, asset.faces, rng=seed, pitch_deg=0.0, roll_deg=0.0,
-                          settings=ScanSettings(yaw_deg_range=(10.0, 20.0)))
+        s = simulate_scan(
+            asset.vertices,
+            asset.faces,
+            rng=seed,
+            pitch_deg=0.0,
+            roll_deg=0.0,
+            settings=ScanSettings(yaw_deg_range=(10.0, 20.0)),
+        )
         yaw = np.degrees(np.arctan2(s.rotation[0, 2], s.rotation[2, 2]))
         assert 10.0 <= yaw <= 20.0
 

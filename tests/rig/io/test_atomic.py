@@ -35,6 +35,7 @@ def _umask() -> int:
 def rename(request, monkeypatch):
     """Run a test with the kernel's renameat2 and with the portable fallback (as if it were missing)."""
     if request.param == "fallback":
+
         def missing(src, dst):
             raise OSError(errno.ENOSYS, "renameat2 is not available")
 
@@ -149,7 +150,10 @@ def test_check_replace_can_refuse_and_nothing_changes(tmp_path, rename):
     def refuse(path: Path) -> None:
         raise PermissionError(f"{path} is not ours")
 
-    with pytest.raises(PermissionError, match="not ours"), staged_folder(out, replace=True, check_replace=refuse) as tmp:
+    with (
+        pytest.raises(PermissionError, match="not ours"),
+        staged_folder(out, replace=True, check_replace=refuse) as tmp,
+    ):
         (tmp / "a.txt").write_text("1")
     assert [p.name for p in out.iterdir()] == ["user.txt"] and _hidden(tmp_path) == []
 

@@ -11,8 +11,9 @@ import pygltflib
 import pytest
 import trimesh
 
-from rig.io.gltf import export_skinned_gltf, read_skinned_gltf
+from rig.io.gltf import export_skinned_gltf
 from tests.rig.io.conftest import JOINT_NAMES, JOINT_POSITIONS, PARENTS
+from tests.support.gltf_reader import read_skinned_gltf
 
 
 def _hidden_files(directory: Path) -> list[str]:
@@ -248,7 +249,12 @@ def test_gltf_without_uvs_or_colors(sphere, tmp_path):
     path = tmp_path / "plain.glb"
     v, f = sphere["vertices"], sphere["faces"]
     export_skinned_gltf(
-        path, v, f, joint_names=JOINT_NAMES, parents=PARENTS, joint_positions=JOINT_POSITIONS,
+        path,
+        v,
+        f,
+        joint_names=JOINT_NAMES,
+        parents=PARENTS,
+        joint_positions=JOINT_POSITIONS,
         weights=sphere["weights"],
     )
     out = read_skinned_gltf(path)
@@ -275,9 +281,17 @@ def test_gltf_base_color_texture_round_trip(sphere, tmp_path, suffix):
     image[4:] = (0, 0, 255)
     png = _png(image)
     path = tmp_path / f"textured{suffix}"
-    export_skinned_gltf(path, sphere["vertices"], sphere["faces"], joint_names=JOINT_NAMES, parents=PARENTS,
-                        joint_positions=JOINT_POSITIONS, weights=sphere["weights"], face_uvs=sphere["face_uvs"],
-                        base_color_texture=png)
+    export_skinned_gltf(
+        path,
+        sphere["vertices"],
+        sphere["faces"],
+        joint_names=JOINT_NAMES,
+        parents=PARENTS,
+        joint_positions=JOINT_POSITIONS,
+        weights=sphere["weights"],
+        face_uvs=sphere["face_uvs"],
+        base_color_texture=png,
+    )
     out = read_skinned_gltf(path)
     assert out["base_color_texture"] == png and out["colors"] is None
     np.testing.assert_allclose(out["texcoords"][out["gltf_faces"]], sphere["face_uvs"], atol=1e-6)
@@ -310,11 +324,22 @@ def _raw_accessor(gltf, path, index):
 def test_gltf_texture_is_checked(sphere, tmp_path):
     args = dict(joint_names=JOINT_NAMES, parents=PARENTS, joint_positions=JOINT_POSITIONS, weights=sphere["weights"])
     with pytest.raises(ValueError, match="bytes of a PNG"):
-        export_skinned_gltf(tmp_path / "a.glb", sphere["vertices"], sphere["faces"], face_uvs=sphere["face_uvs"],
-                            base_color_texture=b"GIF89a", **args)
+        export_skinned_gltf(
+            tmp_path / "a.glb",
+            sphere["vertices"],
+            sphere["faces"],
+            face_uvs=sphere["face_uvs"],
+            base_color_texture=b"GIF89a",
+            **args,
+        )
     with pytest.raises(ValueError, match="needs face_uvs"):
-        export_skinned_gltf(tmp_path / "a.glb", sphere["vertices"], sphere["faces"],
-                            base_color_texture=_png(np.zeros((2, 2, 3), np.uint8)), **args)
+        export_skinned_gltf(
+            tmp_path / "a.glb",
+            sphere["vertices"],
+            sphere["faces"],
+            base_color_texture=_png(np.zeros((2, 2, 3), np.uint8)),
+            **args,
+        )
     assert list(tmp_path.iterdir()) == []
 
 
@@ -327,16 +352,14 @@ def test_gltf_too_many_influences(sphere, tmp_path):
     path = tmp_path / "lossy.glb"
     uniform = np.full((len(v), k), 1.0 / k)
     with pytest.raises(ValueError, match="more than 4 influences"):
-        export_skinned_gltf(path, v, f, joint_names=names, parents=parents,
-                            joint_positions=positions, weights=uniform)
+        export_skinned_gltf(path, v, f, joint_names=names, parents=parents, joint_positions=positions, weights=uniform)
     assert not path.exists()
 
     # a 5th influence below the tolerance is dropped and the rest renormalised
     almost = np.zeros((len(v), k))
     almost[:, :4] = (1.0 - 5e-4) / 4
     almost[:, 4] = 5e-4
-    export_skinned_gltf(path, v, f, joint_names=names, parents=parents,
-                        joint_positions=positions, weights=almost)
+    export_skinned_gltf(path, v, f, joint_names=names, parents=parents, joint_positions=positions, weights=almost)
     out = read_skinned_gltf(path)
     np.testing.assert_allclose(out["weights"], 0.25, atol=1e-6)
     assert set(np.unique(out["joints"])) == {0, 1, 2, 3}
@@ -414,7 +437,9 @@ def test_gltf_morph_targets_round_trip_sparse(sphere, tmp_path, suffix):
 def test_gltf_morph_targets_are_checked(sphere, tmp_path):
     v = sphere["vertices"]
     with pytest.raises(ValueError, match="morph_targets"):
-        _export_sphere_gltf(sphere, tmp_path / "x.glb", morph_targets=np.zeros((2, len(v) + 1, 3)), morph_names=["a", "b"])
+        _export_sphere_gltf(
+            sphere, tmp_path / "x.glb", morph_targets=np.zeros((2, len(v) + 1, 3)), morph_names=["a", "b"]
+        )
     with pytest.raises(ValueError, match="unique names"):
         _export_sphere_gltf(sphere, tmp_path / "x.glb", morph_targets=np.zeros((2, len(v), 3)), morph_names=["a", "a"])
     with pytest.raises(ValueError, match="without morph_targets"):
@@ -432,8 +457,11 @@ def _animated_local(channels, node_names, t_index, out):
     for j, name in enumerate(node_names):
         m = local[j]
         scale = np.linalg.norm(m[:3, :3], axis=0)
-        trs[name] = {"translation": m[:3, 3].copy(), "rotation": Rotation.from_matrix(m[:3, :3] / scale).as_quat(),
-                     "scale": scale}
+        trs[name] = {
+            "translation": m[:3, 3].copy(),
+            "rotation": Rotation.from_matrix(m[:3, :3] / scale).as_quat(),
+            "scale": scale,
+        }
     for ch in channels:
         if ch["node"] in trs:
             trs[ch["node"]][ch["path"]] = ch["values"][t_index]
@@ -464,14 +492,20 @@ def test_gltf_animation_and_attachment_round_trip(sphere, tmp_path, suffix):
     acc_t = np.zeros((2, len(acc_v), 3))
     acc_t[0] = [0.0, 5.0, 0.0]
     rest = np.tile(np.eye(4), (3, 1, 1))
-    third = np.stack([_affine(_rotation([1, 1, 0], 0.4 * (k + 1)) @ np.diag([1.0, 1.1, 0.95]), (k, -2.0, 1.0))
-                      for k in range(3)])
+    third = np.stack(
+        [_affine(_rotation([1, 1, 0], 0.4 * (k + 1)) @ np.diag([1.0, 1.1, 0.95]), (k, -2.0, 1.0)) for k in range(3)]
+    )
     taus = np.stack([rest, _pose("rigid_scaled"), third])
     weights = np.array([[0.0, 0.0], [1.0, 0.25], [0.5, 1.0]])
     path = tmp_path / f"anim{suffix}"
-    _export_sphere_gltf(sphere, path, morph_targets=targets, morph_names=["up", "few"],
-                        attachments=[GltfAttachment("hat", acc_v, np.asarray(box.faces), acc_w, acc_t, (0.1, 0.2, 0.3))],
-                        animation=GltfAnimation(np.array([0.0, 0.5, 1.0]), weights, taus, name="test"))
+    _export_sphere_gltf(
+        sphere,
+        path,
+        morph_targets=targets,
+        morph_names=["up", "few"],
+        attachments=[GltfAttachment("hat", acc_v, np.asarray(box.faces), acc_w, acc_t, (0.1, 0.2, 0.3))],
+        animation=GltfAnimation(np.array([0.0, 0.5, 1.0]), weights, taus, name="test"),
+    )
     out = read_skinned_gltf(path)
     (hat,) = out["attachments"]
     assert hat["name"] == "hat"
@@ -495,8 +529,9 @@ def test_gltf_animation_and_attachment_round_trip(sphere, tmp_path, suffix):
         local = _animated_local(joint_channels, JOINT_NAMES, t, out)
         for k in range(3):
             parent = JOINT_POSITIONS[PARENTS[k]] if PARENTS[k] >= 0 else np.zeros(3)
-            np.testing.assert_allclose(local[k], _affine(translation=JOINT_POSITIONS[k] - parent) @ taus[t, k],
-                                       atol=1e-4)
+            np.testing.assert_allclose(
+                local[k], _affine(translation=JOINT_POSITIONS[k] - parent) @ taus[t, k], atol=1e-4
+            )
 
 
 def test_gltf_animation_quaternions_take_the_short_way(sphere, tmp_path):
@@ -519,11 +554,17 @@ def test_gltf_animation_is_checked(sphere, tmp_path):
     from rig.io.gltf import GltfAnimation
 
     with pytest.raises(ValueError, match="strictly increasing"):
-        _export_sphere_gltf(sphere, tmp_path / "x.glb",
-                            animation=GltfAnimation(np.array([0.0, 0.0]), None, np.tile(np.eye(4), (2, 3, 1, 1))))
+        _export_sphere_gltf(
+            sphere,
+            tmp_path / "x.glb",
+            animation=GltfAnimation(np.array([0.0, 0.0]), None, np.tile(np.eye(4), (2, 3, 1, 1))),
+        )
     with pytest.raises(ValueError, match="morph_weights"):
         _export_sphere_gltf(sphere, tmp_path / "x.glb", animation=GltfAnimation(np.array([0.0]), np.zeros((1, 2))))
     with pytest.raises(ValueError, match="animates nothing"):
-        _export_sphere_gltf(sphere, tmp_path / "x.glb",
-                            animation=GltfAnimation(np.array([0.0, 1.0]), None, np.tile(np.eye(4), (2, 3, 1, 1))))
+        _export_sphere_gltf(
+            sphere,
+            tmp_path / "x.glb",
+            animation=GltfAnimation(np.array([0.0, 1.0]), None, np.tile(np.eye(4), (2, 3, 1, 1))),
+        )
     assert not (tmp_path / "x.glb").exists()

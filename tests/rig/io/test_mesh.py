@@ -74,8 +74,9 @@ def test_obj_with_a_textured_material_reloads_with_its_image(sphere, tmp_path):
     image = np.random.default_rng(0).integers(0, 256, (16, 32, 3), dtype=np.uint8)
     Image.fromarray(image).save(tmp_path / "texture.png")
     write_mtl(tmp_path / "head.mtl", "skin", "texture.png")
-    export_mesh(tmp_path / "head.obj", v, f, face_uvs=uv, vertex_colors=sphere["colors"], mtllib="head.mtl",
-                material="skin")
+    export_mesh(
+        tmp_path / "head.obj", v, f, face_uvs=uv, vertex_colors=sphere["colors"], mtllib="head.mtl", material="skin"
+    )
     lines = (tmp_path / "head.obj").read_text().splitlines()
     assert lines[0].startswith("# jnr: millimetres") and lines[1] == "mtllib head.mtl"
     assert lines.index("usemtl skin") == next(i for i, ln in enumerate(lines) if ln.startswith("f ")) - 1
@@ -92,12 +93,15 @@ def test_obj_with_a_textured_material_reloads_with_its_image(sphere, tmp_path):
     assert trimesh.load(tmp_path / "plain.obj", process=False).visual.material.image.size == (32, 16)
 
 
-@pytest.mark.parametrize("kwargs, match", [
-    ({"mtllib": "a.mtl"}, "go together"),
-    ({"mtllib": "a.mtl", "material": "skin", "file_format": "ply"}, "OBJ files only"),
-    ({"mtllib": "a.mtl", "material": "skin", "face_uvs": None}, "needs face_uvs"),
-    ({"mtllib": "my head.mtl", "material": "skin"}, "without whitespace"),
-])
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        ({"mtllib": "a.mtl"}, "go together"),
+        ({"mtllib": "a.mtl", "material": "skin", "file_format": "ply"}, "OBJ files only"),
+        ({"mtllib": "a.mtl", "material": "skin", "face_uvs": None}, "needs face_uvs"),
+        ({"mtllib": "my head.mtl", "material": "skin"}, "without whitespace"),
+    ],
+)
 def test_bad_materials(sphere, tmp_path, kwargs, match):
     args = {"face_uvs": sphere["face_uvs"], **kwargs}
     with pytest.raises(ValueError, match=match):
@@ -226,6 +230,8 @@ def test_units_are_stated_in_the_header(tmp_path, sphere):
     assert "comment jnr: metres, camera frame" in (tmp_path / "b.ply").read_bytes()[:300].decode("latin-1")
     for name in ("a.obj", "a.ply", "b.ply"):
         loaded = trimesh.load(tmp_path / name, process=False)
-        np.testing.assert_allclose(np.asarray(loaded.vertices)[: len(sphere["vertices"])], sphere["vertices"], atol=1e-4)
+        np.testing.assert_allclose(
+            np.asarray(loaded.vertices)[: len(sphere["vertices"])], sphere["vertices"], atol=1e-4
+        )
     with pytest.raises(ValueError, match="one line"):
         export_mesh(tmp_path / "c.obj", sphere["vertices"], sphere["faces"], comment="two\nlines")

@@ -1,4 +1,4 @@
-"""ASM (rig/skinning/asm.py): GMM skinning weights, dynamic bone binding, registration."""
+"""ASM (rig/skinning/asm/): GMM skinning weights, dynamic bone binding, registration."""
 
 import math
 
@@ -39,10 +39,14 @@ def _random_params(model: AdaptiveSkinning, batch: int, seed: int, scale: float 
     def noise(t, s):
         return t + s * scale * torch.randn(t.shape, generator=g, dtype=dt)
 
-    tau = torch.randn(p.tau.shape, generator=g, dtype=dt) * scale * torch.tensor(
-        [2.0, 2.0, 2.0, 0.8, 0.8, 0.8, 0.03, 0.03, 0.03], dtype=dt)
-    return AsmParameters(tau=tau, zeta=noise(p.zeta, 0.004), log_pi=noise(p.log_pi, 0.3), mu=noise(p.mu, 0.004),
-                         chol=noise(p.chol, 0.1))
+    tau = (
+        torch.randn(p.tau.shape, generator=g, dtype=dt)
+        * scale
+        * torch.tensor([2.0, 2.0, 2.0, 0.8, 0.8, 0.8, 0.03, 0.03, 0.03], dtype=dt)
+    )
+    return AsmParameters(
+        tau=tau, zeta=noise(p.zeta, 0.004), log_pi=noise(p.log_pi, 0.3), mu=noise(p.mu, 0.004), chol=noise(p.chol, 0.1)
+    )
 
 
 def test_parameter_count_is_asm_table_1(rig32):
@@ -112,10 +116,16 @@ def test_weights_are_mirror_symmetric_when_the_parameters_are(asm64, asset):
 
 
 def test_barycentric_interpolation_against_a_hand_computed_triangle():
-    face_uv = torch.tensor([[[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]],
-                            [[1.0, 0.0], [1.0, 1.0], [0.0, 1.0]]], dtype=torch.float64)
-    face_xyz = torch.tensor([[[0.0, 0.0, 0.0], [10.0, 0.0, 0.0], [0.0, 20.0, 0.0]],
-                             [[10.0, 0.0, 0.0], [10.0, 20.0, 5.0], [0.0, 20.0, 0.0]]], dtype=torch.float64)
+    face_uv = torch.tensor(
+        [[[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]], [[1.0, 0.0], [1.0, 1.0], [0.0, 1.0]]], dtype=torch.float64
+    )
+    face_xyz = torch.tensor(
+        [
+            [[0.0, 0.0, 0.0], [10.0, 0.0, 0.0], [0.0, 20.0, 0.0]],
+            [[10.0, 0.0, 0.0], [10.0, 20.0, 5.0], [0.0, 20.0, 0.0]],
+        ],
+        dtype=torch.float64,
+    )
     anchor = torch.tensor([[1.0, 1.0, 1.0]], dtype=torch.float64)
     psi0 = torch.tensor([[0.0, 0.0, 30.0]], dtype=torch.float64)
     zeta = torch.tensor([[[0.25, 0.5]]], dtype=torch.float64)
@@ -165,7 +175,7 @@ def test_gradients_of_zeta_pi_mu_sigma_match_finite_differences(asm64):
         direction = torch.randn(base.shape, generator=g, dtype=torch.float64)
         eps = 1e-7 if name in ("zeta", "mu") else 1e-6  # zeta moves vertices by ~1e4 mm per UV unit
 
-        def at(step: float) -> torch.Tensor:
+        def at(step: float, name=name, base=base, direction=direction) -> torch.Tensor:
             return objective(AsmParameters(**{**p.as_dict(), name: base.detach() + step * direction}))
 
         # fourth-order central difference (the sharp initial Gaussians make the second-order one too coarse)
@@ -182,8 +192,9 @@ def test_gmm_gradcheck_in_float64_including_sigma():
     sigma = (L @ L.transpose(-1, -2) + 0.05 * torch.eye(2, dtype=torch.float64)).requires_grad_(True)
     seam_rows = torch.tensor([1, 4])
     seam_uv = torch.rand(2, 2, generator=g, dtype=torch.float64)
-    assert torch.autograd.gradcheck(lambda a, b, c: gmm_skinning_weights(uv, a, b, c, seam_rows, seam_uv),
-                                    (log_pi, centres, sigma))
+    assert torch.autograd.gradcheck(
+        lambda a, b, c: gmm_skinning_weights(uv, a, b, c, seam_rows, seam_uv), (log_pi, centres, sigma)
+    )
     chol = cholesky_from_sigma(sigma.detach())
     assert torch.allclose(sigma_from_cholesky(chol), sigma.detach(), atol=1e-12)
 

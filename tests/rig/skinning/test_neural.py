@@ -23,7 +23,7 @@ def test_group_linear_equals_its_convolution_form_and_counts_weights():
     assert torch.allclose(layer(x), layer.as_convolution(x), atol=1e-5)
     assert sum(p.numel() for p in layer.parameters()) == 1100 * 7400 // 100
     # naive: each group of 110 inputs through the same 740 x 110 block
-    naive = torch.cat([x[:, g * 110:(g + 1) * 110] @ layer.weight.t() for g in range(10)], 1)
+    naive = torch.cat([x[:, g * 110 : (g + 1) * 110] @ layer.weight.t() for g in range(10)], 1)
     assert torch.allclose(layer(x), naive, atol=1e-5)
     with pytest.raises(ValueError, match="divisible"):
         GroupLinear(100, 75, 10)
@@ -58,14 +58,15 @@ def test_decoded_weights_are_valid_and_zero_code_is_symmetric(rig32, asset):
 def test_solve_weights_recovers_weights_that_made_the_mesh(rig64):
     g = torch.Generator().manual_seed(0)
     theta = random_theta(g, 4, spread=0.3, dtype=torch.float64)
-    truth = valid_weights(rig64, rig64.weights_free * (1 + torch.rand(rig64.num_skinning_floats, generator=g,
-                                                                      dtype=torch.float64)))
+    truth = valid_weights(
+        rig64, rig64.weights_free * (1 + torch.rand(rig64.num_skinning_floats, generator=g, dtype=torch.float64))
+    )
     with torch.no_grad():
         targets = rig64(theta, weights=truth).vertices
     free = solve_weights(rig64, theta, targets, rig64.weights_free, reg=1e-8)
     w = valid_weights(rig64, free)
     assert torch.allclose(w.sum(-1), torch.ones_like(w[..., 0])) and (w >= 0).all()
-    rec = torch.stack([rig64(theta[i:i + 1], weights=w[i]).vertices[0] for i in range(4)])
+    rec = torch.stack([rig64(theta[i : i + 1], weights=w[i]).vertices[0] for i in range(4)])
     before = (rig64(theta).vertices - targets).norm(dim=-1).mean()
     after = (rec - targets).norm(dim=-1).mean()
     assert before > 0.05 and after < 0.05 * before

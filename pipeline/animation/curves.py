@@ -1,0 +1,260 @@
+"""ARKit expression curves: reading and writing Live Link Face and plain CSV files, the shipped example,
+the head angles' rotations."""
+
+from __future__ import annotations
+
+import csv
+import io
+import logging
+import math
+import re
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from rig.errors import InputError
+from rig.expressions import EXPRESSION_NAMES, expression_limits
+from rig.io.atomic import write_bytes_atomic
+
+log = logging.getLogger("jnr")
+
+HEAD_COLUMNS = ("head_yaw", "head_pitch", "head_roll")
+"""The plain layout's head angle columns (degrees), in :attr:`Curves.head_rotation` order."""
+LIVE_LINK_HEAD = ("HeadYaw", "HeadPitch", "HeadRoll")
+LIVE_LINK_EYES = ("LeftEyeYaw", "LeftEyePitch", "LeftEyeRoll", "RightEyeYaw", "RightEyePitch", "RightEyeRoll")
+LIVE_LINK_FPS = 60.0
+"""Live Link Face's recording rate, the default frame rate of its timecodes."""
+PLAIN_FPS = 30.0
+"""The default frame rate of a plain CSV without a ``time`` column."""
+HEAD_JOINT = "skull_root"
+"""The joint the head angles turn."""
+EXAMPLE_CURVES = Path(__file__).resolve().parents[1] / "assets" / "animation" / "blink_smile.csv"
+"""The shipped example curves (:func:`example_curves`, written by :func:`write_curves`)."""
+
+
+class CurvesError(InputError):
+    """A curves file that cannot be read: its layout, names, times or values."""
+
+
+@dataclass(frozen=True)
+class Curves:
+    """ARKit expression curves over time.
+
+    Attributes:
+        times: ``(T,)`` seconds from the first row, strictly increasing.
+        coefficients: ``(T, 52)`` ARKit coefficients in :data:`rig.expressions.EXPRESSION_NAMES` order, in
+            each shape's limits.
+        head_rotation: ``(T, 3)`` head yaw, pitch, roll in degrees, or None.
+        layout: ``"live-link-face"`` or ``"plain"``.
+    """
+
+    times: np.ndarray
+    coefficients: np.ndarray
+    head_rotation: np.ndarray | None = None
+    layout: str = "plain"
+
+
+def _expression_index() -> dict[str, int]:
+    return {n.lower(): i for i, n in enumerate(EXPRESSION_NAMES)}
+
+
+_TIMECODE = re.compile(r"^(\d+):(\d+):(\d+):(\d+(?:\.\d+)?)$")
+
+
+def _timecode_seconds(text: str, fps: float, path: Path, row: int) -> float:
+    match = _TIMECODE.match(text.strip())
+    if match is None:
+        raise CurvesError(f"{path}: row {row}: timecode {text!r} is not HH:MM:SS:FF[.sub]")
+    h, m, s, f = (float(g) for g in match.groups())
+    if f >= fps:
+        raise CurvesError(
+            f"{path}: row {row}: timecode {text!r} has frame {f:g}, not below {fps:g} fps; "
+            "pass the take's frame rate with --fps"
+        )
+    return 3600.0 * h + 60.0 * m + s + f / fps
+
+
+def _number(text: str, path: Path, row: int, column: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise CurvesError(f"{path}: row {row}, column {column!r}: {text!r} is not a number") from None
+    if not math.isfinite(value):
+        raise CurvesError(f"{path}: row {row}, column {column!r}: value must be finite, got {text!r}")
+    return value
+
+
+def read_curves(path: str | Path, *, fps: float | None = None, head_units: str | None = None) -> Curves:
+    """Read a Live Link Face or plain curves CSV (module docstring).
+
+    Args:
+        fps: frames per second of the timecodes (Live Link Face, default :data:`LIVE_LINK_FPS`) or of the
+            rows of a plain file without a ``time`` column (default :data:`PLAIN_FPS`).
+        head_units: ``"rad"`` or ``"deg"``: the head angles' unit (default: radians for Live Link Face,
+            degrees for the plain layout).
+
+    Returns:
+        :class:`Curves`; coefficients outside a shape's limits are clamped with a warning.
+
+    Raises:
+        CurvesError: unreadable file, unknown column, bad number, times not increasing, no rows.
+        FileNotFoundError: no such file.
+    """
+    path = Path(path)
+    if fps is not None and not (math.isfinite(fps) and fps > 0):
+        raise CurvesError(f"fps must be a positive number, got {fps}")
+    if head_units not in (None, "rad", "deg"):
+        raise CurvesError(f"head units must be 'rad' or 'deg', got {head_units!r}")
+    try:
+        text = path.read_text(encoding="utf-8-sig")
+    except UnicodeDecodeError:
+        raise CurvesError(f"{path}: not a text CSV file") from None
+    rows = [r for r in csv.reader(io.StringIO(text)) if any(cell.strip() for cell in r)]
+    if not rows:
+        raise CurvesError(f"{path}: empty curves file")
+    header = [h.strip() for h in rows[0]]
+    body = rows[1:]
+    if not body:
+        raise CurvesError(f"{path}: no rows under the header")
+    live_link = len(header) >= 2 and header[0].lower() == "timecode" and header[1].lower() == "blendshapecount"
+    index = _expression_index()
+    head_names = [h.lower() for h in (LIVE_LINK_HEAD if live_link else HEAD_COLUMNS)]
+    ignored = {h.lower() for h in LIVE_LINK_EYES} if live_link else set()
+    time_column = None
+    columns: list[tuple[int, str, int | None]] = []  # (csv column, kind, target index)
+    unknown = []
+    for i, name in enumerate(header):
+        key = name.lower()
+        if live_link and i < 2:
+            continue
+        if key in index:
+            columns.append((i, "shape", index[key]))
+        elif key in head_names:
+            columns.append((i, "head", head_names.index(key)))
+        elif not live_link and key in ("time", "time_s", "seconds"):
+            time_column = i
+        elif key in ignored:
+            continue
+        else:
+            unknown.append(name)
+    if unknown:
+        head_columns = "HeadYaw/HeadPitch/HeadRoll" if live_link else "time, head_yaw, head_pitch, head_roll"
+        raise CurvesError(
+            f"{path}: unknown column(s) {unknown}; a curves file has the 52 ARKit names "
+            f"(e.g. eyeBlinkLeft, jawOpen), {head_columns}"
+        )
+    if not any(kind == "shape" for _, kind, _ in columns):
+        raise CurvesError(f"{path}: no ARKit expression column (e.g. eyeBlinkLeft, jawOpen)")
+    shapes = [n for _, kind, n in columns if kind == "shape"]
+    if len(set(shapes)) != len(shapes):
+        raise CurvesError(f"{path}: an ARKit name appears twice in the header")
+
+    n = len(body)
+    coefficients = np.zeros((n, len(EXPRESSION_NAMES)))
+    head = np.zeros((n, 3)) if any(kind == "head" for _, kind, _ in columns) else None
+    times = np.zeros(n)
+    rate = fps or (LIVE_LINK_FPS if live_link else PLAIN_FPS)
+    for r, row in enumerate(body):
+        line = r + 2
+        if len(row) != len(header):
+            raise CurvesError(f"{path}: row {line} has {len(row)} cells, the header {len(header)}")
+        for i, kind, target in columns:
+            value = _number(row[i], path, line, header[i])
+            if kind == "shape":
+                coefficients[r, target] = value
+            else:
+                head[r, target] = value
+        if live_link:
+            times[r] = _timecode_seconds(row[0], rate, path, line)
+        elif time_column is not None:
+            times[r] = _number(row[time_column], path, line, header[time_column])
+        else:
+            times[r] = r / rate
+    times = times - times[0]
+    if np.any(np.diff(times) <= 0.0):
+        bad = int(np.flatnonzero(np.diff(times) <= 0.0)[0]) + 3
+        raise CurvesError(f"{path}: times must increase from row to row; row {bad} does not")
+    low, high = (t.numpy().astype(np.float64) for t in expression_limits())
+    clamped = np.clip(coefficients, low, high)
+    if np.any(np.abs(clamped - coefficients) > 1e-9):
+        worst = float(np.max(np.abs(clamped - coefficients)))
+        warnings.warn(f"{path}: coefficients outside their limits were clamped (by up to {worst:.3g})", stacklevel=2)
+    if head is not None and (head_units or ("rad" if live_link else "deg")) == "rad":
+        head = np.degrees(head)
+    return Curves(times, clamped, head, "live-link-face" if live_link else "plain")
+
+
+def write_curves(path: str | Path, curves: Curves, *, layout: str = "plain", fps: float = LIVE_LINK_FPS) -> None:
+    """Write ``curves`` as CSV: ``layout="plain"`` (``time`` in seconds, the 52 ARKit names, head angles in
+    degrees when present) or ``"live-link-face"`` (timecodes at ``fps``, capitalised names, radians, zero
+    eye angles), atomically."""
+    text = io.StringIO()
+    writer = csv.writer(text, lineterminator="\n")
+    head = curves.head_rotation
+    if layout == "plain":
+        writer.writerow(["time", *EXPRESSION_NAMES, *(HEAD_COLUMNS if head is not None else ())])
+        for t in range(len(curves.times)):
+            writer.writerow(
+                [
+                    f"{curves.times[t]:.4f}",
+                    *(f"{c:.4f}" for c in curves.coefficients[t]),
+                    *((f"{a:.3f}" for a in head[t]) if head is not None else ()),
+                ]
+            )
+    elif layout == "live-link-face":
+        names = [n[0].upper() + n[1:] for n in EXPRESSION_NAMES]
+        writer.writerow(["Timecode", "BlendShapeCount", *names, *LIVE_LINK_HEAD, *LIVE_LINK_EYES])
+        for t in range(len(curves.times)):
+            frames = curves.times[t] * fps
+            seconds = int(frames // fps)
+            code = f"00:{seconds // 60:02d}:{seconds % 60:02d}:{frames - seconds * fps:06.3f}"
+            angles = np.radians(head[t]) if head is not None else np.zeros(3)
+            writer.writerow(
+                [
+                    code,
+                    len(EXPRESSION_NAMES),
+                    *(f"{c:.6f}" for c in curves.coefficients[t]),
+                    *(f"{a:.6f}" for a in angles),
+                    *("0",) * len(LIVE_LINK_EYES),
+                ]
+            )
+    else:
+        raise ValueError(f"write_curves: layout must be 'plain' or 'live-link-face', got {layout!r}")
+    write_bytes_atomic(Path(path), text.getvalue().encode("utf-8"))
+
+
+def example_curves(fps: float = 30.0) -> Curves:
+    """The shipped example (:data:`EXAMPLE_CURVES`), 2.4 s: a blink (both eyes, 0.3-0.6 s), then a smile
+    that builds and fades (0.8-2.2 s) with a slight turn of the head towards the subject's left and back."""
+    times = np.arange(int(round(2.4 * fps)) + 1) / fps
+    index = {n: i for i, n in enumerate(EXPRESSION_NAMES)}
+
+    def bump(t, start, end):
+        """0 outside ``[start, end]``, a raised-cosine bump to 1 at the middle."""
+        x = np.clip((t - start) / (end - start), 0.0, 1.0)
+        return 0.5 - 0.5 * np.cos(2.0 * np.pi * x)
+
+    c = np.zeros((len(times), len(EXPRESSION_NAMES)))
+    blink = bump(times, 0.3, 0.6)
+    smile = np.clip(1.6 * bump(times, 0.8, 2.2), 0.0, 1.0)
+    for side in ("Left", "Right"):
+        c[:, index[f"eyeBlink{side}"]] = blink
+        c[:, index[f"mouthSmile{side}"]] = 0.9 * smile
+        c[:, index[f"cheekSquint{side}"]] = 0.5 * smile
+        c[:, index[f"eyeSquint{side}"]] = 0.3 * smile
+    c[:, index["jawOpen"]] = 0.15 * smile
+    head = np.zeros((len(times), 3))
+    head[:, 0] = 12.0 * bump(times, 0.8, 2.2)
+    head[:, 1] = -4.0 * bump(times, 0.8, 2.2)
+    return Curves(np.round(times, 4), np.round(c, 4), np.round(head, 3), "plain")
+
+
+def head_rotation_matrices(angles_deg: np.ndarray) -> np.ndarray:
+    """``(T, 3)`` yaw, pitch, roll in degrees -> ``(T, 3, 3)`` rotations ``Ry(yaw) @ Rx(pitch) @ Rz(roll)`` in
+    rig space (right-handed, +Y up, +Z out of the face)."""
+    from scipy.spatial.transform import Rotation
+
+    a = np.asarray(angles_deg, dtype=np.float64).reshape(-1, 3)
+    return Rotation.from_euler("YXZ", a, degrees=True).as_matrix()

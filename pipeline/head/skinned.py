@@ -1,0 +1,52 @@
+"""The skinned glTF of a head: the one writer of ``mesh.glb`` and every other skinned file jnr makes."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from rig.expressions import EXPRESSION_NAMES, morph_targets
+from rig.io.gltf import export_skinned_gltf
+
+
+def write_skinned_head(
+    path: str | Path,
+    asset,
+    weights: np.ndarray,
+    tau: np.ndarray,
+    coefficients: np.ndarray | None = None,
+    vertex_colors: np.ndarray | None = None,
+    base_color_texture: bytes | None = None,
+    attachments=(),
+    animation=None,
+) -> None:
+    """The skinned glTF of a head: the template as the bind mesh, the 52 ARKit shapes as morph targets named
+    by ARKit (:func:`rig.expressions.morph_targets`) with ``coefficients (E,)`` as their weights (zeros when
+    None), ``weights (V, J)``, the joint channel transforms ``tau (J, 4, 4)`` as the joints' pose,
+    ``vertex_colors (V, 3)`` linear RGB in [0, 1] (glTF's ``COLOR_0`` is linear) and ``base_color_texture``
+    the bytes of a PNG in the asset's UVs as the material's base colour (glTF multiplies it with
+    ``COLOR_0``, so a textured head takes no vertex colours: ValueError); ``attachments``
+    (:class:`rig.io.gltf.GltfAttachment`: accessories skinned to the same joints, their morph targets under the
+    52 ARKit names) and ``animation`` (:class:`rig.io.gltf.GltfAnimation`) as
+    :func:`rig.io.gltf.export_skinned_gltf`."""
+    if base_color_texture is not None and vertex_colors is not None:
+        raise ValueError("write_skinned_head: a textured head takes no vertex colours (glTF would multiply them)")
+    export_skinned_gltf(
+        path,
+        asset.vertices,
+        asset.faces,
+        joint_names=list(asset.joint_names),
+        parents=asset.parents,
+        joint_positions=asset.joint_positions,
+        weights=weights,
+        face_uvs=asset.face_uvs,
+        vertex_colors=vertex_colors,
+        joint_transforms=tau,
+        morph_targets=morph_targets(asset),
+        morph_names=EXPRESSION_NAMES,
+        morph_weights=coefficients,
+        base_color_texture=base_color_texture,
+        attachments=attachments,
+        animation=animation,
+    )

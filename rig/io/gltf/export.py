@@ -1,0 +1,389 @@
+"""Writing the skinned head as glTF 2.0: :func:`export_skinned_gltf`, with :class:`GltfAttachment` meshes
+skinned to the same joints. See :mod:`rig.io.gltf`.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pygltflib
+
+from rig.geometry import vertex_normals
+from rig.io.atomic import write_bytes_atomic
+from rig.io.gltf.animation import GltfAnimation, _add_animation
+from rig.io.gltf.encoding import (
+    _ARRAY_BUFFER,
+    _ELEMENT_ARRAY_BUFFER,
+    _FLOAT,
+    _PNG_SIGNATURE,
+    _UNSIGNED_INT,
+    _UNSIGNED_SHORT,
+    EXTRAS_SOURCE_COUNT,
+    EXTRAS_SPLIT_SOURCE,
+    GLTF_UNITS_NOTE,
+    MM_TO_M,
+    _BufferBuilder,
+    _document_bytes,
+    _translation,
+)
+from rig.io.gltf.skin import _check_morphs, _check_rig, _joint_nodes, _top_influences
+from rig.io.mesh import check_mesh_arrays, resolve_format, split_uv_seams
+
+__all__ = ["GltfAttachment", "export_skinned_gltf"]
+
+
+@dataclass(frozen=True)
+class GltfAttachment:
+    """A further mesh skinned to the head's joints (an accessory), written as its own mesh node and material.
+
+    Attributes:
+        name: the node, mesh and material name (unique, not a joint name).
+        vertices: ``(N, 3)`` bind-pose positions, millimetres (the head's rig space).
+        faces: ``(F, 3)`` triangles into ``vertices``.
+        weights: ``(N, K)`` skinning weights on the head's ``K`` joints (non-negative, rows sum to 1;
+            at most 4 influences kept, as for the head).
+        morph_targets: ``(M, N, 3)`` offsets in millimetres under the head's ``M`` morph-target names, so
+            that one set of weights moves both; None: the attachment has no targets.
+        color: linear RGB base colour in [0, 1] of its (non-metallic) material; None: light grey.
+    """
+
+    name: str
+    vertices: np.ndarray
+    faces: np.ndarray
+    weights: np.ndarray
+    morph_targets: np.ndarray | None = None
+    color: tuple[float, float, float] | None = None
+
+
+def _unit_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """:func:`rig.geometry.vertex_normals` ``(V, 3)``, with ``(0, 0, 1)`` where a vertex has none (glTF
+    requires unit normals)."""
+    normals = vertex_normals(vertices, faces)
+    normals[np.linalg.norm(normals, axis=1) < 0.5] = (0.0, 0.0, 1.0)
+    return normals
+
+
+def export_skinned_gltf(
+    path: str | os.PathLike,
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    *,
+    joint_names: Sequence[str],
+    parents: np.ndarray,
+    joint_positions: np.ndarray,
+    weights: np.ndarray,
+    face_uvs: np.ndarray | None = None,
+    vertex_colors: np.ndarray | None = None,
+    joint_transforms: np.ndarray | None = None,
+    morph_targets: np.ndarray | None = None,
+    morph_names: Sequence[str] | None = None,
+    morph_weights: np.ndarray | None = None,
+    base_color_texture: bytes | None = None,
+    attachments: Sequence[GltfAttachment] = (),
+    animation: GltfAnimation | None = None,
+) -> None:
+    """Write a skinned mesh with its joint hierarchy as glTF 2.0 (``.glb`` or ``.gltf``).
+
+    The file holds one node per joint (nodes ``0 .. K-1``, in joint order, named by
+    ``joint_names``, nested by ``parents``), one mesh node (node ``K``) with the mesh and the skin,
+    and a scene with the mesh node and the root joint node(s). Lengths are converted from
+    millimetres to metres; the axes are unchanged (glTF, like rig space, is right-handed, +Y up,
+    +Z forward).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Destination; the suffix picks the container: ``.glb`` (binary) or ``.gltf`` (JSON with the
+        buffer embedded as a base64 data URI). Written atomically.
+    vertices : (V, 3) float
+        Bind-pose vertex positions in millimetres.
+    faces : (F, 3) int
+        Triangles into ``vertices``.
+    joint_names : sequence of K str
+        Unique joint (node) names.
+    parents : (K,) int
+        Parent joint of each joint, ``-1`` for a root; parents come before their children.
+    joint_positions : (K, 3) float
+        Bind-pose joint positions in millimetres. Joint frames are axis-aligned in the bind pose,
+        so the world bind matrix of joint ``k`` is the translation ``T(p_k)`` and its inverse bind
+        matrix is ``T(-p_k)`` (stored in metres).
+    weights : (V, K) float
+        Dense skinning weights, non-negative, rows summing to 1. The 4 largest per vertex are kept
+        (``JOINTS_0`` / ``WEIGHTS_0``) and renormalised.
+    face_uvs : (F, 3, 2) float, optional
+        Texture coordinates per face corner (v up). Stored as ``TEXCOORD_0`` = ``(u, 1 - v)``
+        (glTF's v points down) on split vertices (see the module docstring).
+    vertex_colors : (V, 3) float in [0, 1] or uint8, optional
+        Stored unchanged as float ``COLOR_0`` (glTF reads it as linear RGB).
+    joint_transforms : (K, 4, 4) float, optional
+        Local pose transform ``tau_k`` of each joint relative to its bind pose (column vectors,
+        translations in millimetres). Joint ``k``'s node then has the local matrix
+        ``T(p_k - p_parent) @ tau_k`` (``p_parent = 0`` for a root), stored as node
+        ``translation`` / ``rotation`` / ``scale`` so that the joints stay posable in DCC tools.
+        glTF requires node transforms to decompose this way, so each ``tau_k`` must be
+        ``T @ R @ S`` with a rotation ``R`` and positive axis scales ``S`` (as the rig's channel
+        transforms are); a shear or reflection raises ValueError. The mesh is still stored in
+        the bind pose; a glTF viewer shows it posed. None means identity (bind pose).
+    morph_targets : (M, V, 3) float, optional
+        Morph targets (blend shapes): per-vertex offsets in millimetres, stored as ``POSITION``
+        targets in metres, applied before skinning as glTF specifies. Needs ``morph_names``
+        (``M`` unique names, written to the mesh's ``extras.targetNames``, which Blender, three.js
+        and Babylon read as the shape-key names) and takes ``morph_weights`` ``(M,)`` as the mesh's
+        default weights (zeros when omitted).
+    base_color_texture : bytes, optional
+        A PNG file's bytes, stored as it is (``image/png``) and used as the material's
+        ``baseColorTexture`` (``texCoord`` 0: needs ``face_uvs``; the image's top row is ``v = 1`` in
+        ``face_uvs``, i.e. ``TEXCOORD_0`` ``v = 0``; linear filtering with mipmaps, clamped at the edges). glTF
+        multiplies the texture with ``COLOR_0``: pass no ``vertex_colors`` to show the texture as it is.
+    attachments : sequence of GltfAttachment, optional
+        Further meshes skinned to the same joints (nodes ``K + 1 ...``, in order), each with its own
+        non-metallic material; their morph targets (if any) take the head's target names.
+    animation : GltfAnimation, optional
+        Keyframed morph weights and joint transforms, stored as one animation (``LINEAR`` samplers;
+        rotations as unit quaternions with consecutive keys in the same hemisphere). The node TRS and mesh
+        weights stay those of ``joint_transforms`` / ``morph_weights`` (what a viewer shows without
+        playing the animation).
+
+    Raises
+    ------
+    ValueError
+        Unsupported suffix; an argument with the wrong shape, dtype or range; weight rows not
+        summing to 1; a vertex whose weights beyond its 4 largest sum to more than
+        ``MAX_DROPPED_WEIGHT`` (1e-3); or a joint transform that is not translation @ rotation
+        @ positive scale.
+
+    Notes
+    -----
+    Mesh attributes: ``POSITION`` (float32, with min/max), ``NORMAL`` (area-weighted, unit; computed
+    before the seam split, so seams stay smooth), ``TEXCOORD_0``, ``COLOR_0``, ``JOINTS_0``
+    (unsigned short), ``WEIGHTS_0`` (float), indices unsigned int. The mesh node's ``extras``
+    record the units, ``V`` and the source vertex of each seam duplicate, with which a reader undoes the
+    split (:data:`EXTRAS_SOURCE_COUNT`, :data:`EXTRAS_SPLIT_SOURCE`).
+    """
+    func = "export_skinned_gltf"
+    path = Path(path)
+    fmt = resolve_format(func, path, None, ("glb", "gltf"))
+    v, f, uv, colors = check_mesh_arrays(func, vertices, faces, face_uvs, vertex_colors)
+    n_vertices = v.shape[0]
+    names, par, pos, w, taus = _check_rig(
+        func, n_vertices, joint_names, parents, joint_positions, weights, joint_transforms
+    )
+    k = len(names)
+    if k > np.iinfo(np.uint16).max + 1:
+        raise ValueError(f"{func}: at most 65536 joints fit JOINTS_0 (unsigned short), got {k}")
+
+    joints4, weights4 = _top_influences(func, w)
+    normals = _unit_normals(v, f)
+    targets, target_names, target_weights = _check_morphs(func, n_vertices, morph_targets, morph_names, morph_weights)
+    if base_color_texture is not None:
+        png = base_color_texture if isinstance(base_color_texture, (bytes, bytearray)) else b""
+        if not bytes(png).startswith(_PNG_SIGNATURE):
+            raise ValueError(f"{func}: base_color_texture must be the bytes of a PNG file")
+        if uv is None:
+            raise ValueError(f"{func}: base_color_texture needs face_uvs (TEXCOORD_0)")
+
+    if uv is not None:
+        f, uvs, source = split_uv_seams(f, uv, n_vertices)
+    else:
+        uvs, source = None, np.arange(n_vertices)
+
+    builder = _BufferBuilder()
+    attributes, indices = _add_mesh_arrays(builder, v, f, source, normals, uvs, colors, joints4, weights4)
+    morphs = [
+        pygltflib.Attributes(POSITION=builder.add_sparse(t[source] * MM_TO_M, name=f"target_{name}"))
+        for t, name in zip(targets, target_names)
+    ]
+    inverse_bind = np.stack([_translation(-p * MM_TO_M) for p in pos])
+    # glTF matrices are column-major: store the transpose of each row-major numpy matrix
+    ibm_accessor = builder.add(
+        np.transpose(inverse_bind, (0, 2, 1)).reshape(k, 16), _FLOAT, "MAT4", name="inverseBindMatrices"
+    )
+    joint_nodes, roots = _joint_nodes(func, names, par, pos, taus)
+    mesh_node = pygltflib.Node(
+        name="mesh",
+        mesh=0,
+        skin=0,
+        extras={
+            "units": GLTF_UNITS_NOTE,
+            EXTRAS_SOURCE_COUNT: int(n_vertices),
+            EXTRAS_SPLIT_SOURCE: [int(s) for s in source[n_vertices:]],
+        },
+    )
+    morph = (morphs, target_names, target_weights)
+    extra = [_add_attachment(func, builder, a, names, target_names, target_weights) for a in attachments]
+    if len({m.name for m, _, _ in extra} | {"mesh"}) != len(extra) + 1:
+        raise ValueError(f"{func}: attachment names must be unique and not 'mesh'")
+    texture_view = None if base_color_texture is None else builder._view(bytes(base_color_texture))
+    gltf = _encode(
+        builder, joint_nodes, roots, mesh_node, attributes, indices, ibm_accessor, morph, texture_view, extra
+    )
+    if animation is not None:
+        _add_animation(
+            func,
+            gltf,
+            builder,
+            animation,
+            names,
+            par,
+            pos,
+            len(target_names),
+            [k] + [k + 1 + i for i, (_, _, has_targets) in enumerate(extra) if has_targets],
+        )
+    write_bytes_atomic(path, _document_bytes(fmt, gltf, builder))
+
+
+def _add_attachment(
+    func: str,
+    builder: _BufferBuilder,
+    attachment: GltfAttachment,
+    joint_names: list[str],
+    target_names: list[str],
+    target_weights: list[float],
+) -> tuple[pygltflib.Mesh, pygltflib.Material, bool]:
+    """An attachment's arrays in the buffer: ``(mesh, material, has morph targets)``."""
+    if not isinstance(attachment, GltfAttachment):
+        raise ValueError(f"{func}: attachments must be GltfAttachment, got {type(attachment).__name__}")
+    name = str(attachment.name)
+    if not name or name in joint_names:
+        raise ValueError(f"{func}: attachment name {name!r} must be non-empty and not a joint name")
+    v, f, _, _ = check_mesh_arrays(f"{func}: attachment {name!r}", attachment.vertices, attachment.faces, None, None)
+    _, _, _, w, _ = _check_rig(
+        f"{func}: attachment {name!r}",
+        v.shape[0],
+        joint_names,
+        np.arange(len(joint_names)) - 1,
+        np.zeros((len(joint_names), 3)),
+        attachment.weights,
+        None,
+    )
+    joints4, weights4 = _top_influences(f"{func}: attachment {name!r}", w)
+    source = np.arange(v.shape[0])
+    attributes, indices = _add_mesh_arrays(builder, v, f, source, _unit_normals(v, f), None, None, joints4, weights4)
+    targets = []
+    if attachment.morph_targets is not None:
+        t, _, _ = _check_morphs(
+            f"{func}: attachment {name!r}", v.shape[0], attachment.morph_targets, target_names, None
+        )
+        targets = [
+            pygltflib.Attributes(POSITION=builder.add_sparse(x * MM_TO_M, name=f"{name}_target_{n}"))
+            for x, n in zip(t, target_names)
+        ]
+    color = (0.8, 0.8, 0.8) if attachment.color is None else tuple(float(c) for c in attachment.color)
+    if len(color) != 3 or not all(0.0 <= c <= 1.0 for c in color):
+        raise ValueError(f"{func}: attachment {name!r} color must be 3 linear RGB values in [0, 1], got {color}")
+    mesh = pygltflib.Mesh(
+        name=name,
+        primitives=[
+            pygltflib.Primitive(attributes=attributes, indices=indices, mode=pygltflib.TRIANGLES, targets=targets)
+        ],
+        weights=list(target_weights) if targets else None,
+        extras={"targetNames": list(target_names)} if targets else {},
+    )
+    material = pygltflib.Material(
+        name=name,
+        doubleSided=True,
+        pbrMetallicRoughness=pygltflib.PbrMetallicRoughness(
+            baseColorFactor=[*color, 1.0], metallicFactor=0.0, roughnessFactor=0.5
+        ),
+    )
+    return mesh, material, bool(targets)
+
+
+def _add_mesh_arrays(builder: _BufferBuilder, v, f, source, normals, uvs, colors, joints4, weights4):
+    """The mesh primitive's accessors, in file order: ``(pygltflib.Attributes, indices accessor)``."""
+    attributes = pygltflib.Attributes()
+    attributes.POSITION = builder.add(
+        v[source] * MM_TO_M, _FLOAT, "VEC3", target=_ARRAY_BUFFER, min_max=True, name="POSITION"
+    )
+    attributes.NORMAL = builder.add(normals[source], _FLOAT, "VEC3", target=_ARRAY_BUFFER, name="NORMAL")
+    if uvs is not None:
+        gltf_uv = np.column_stack([uvs[:, 0], 1.0 - uvs[:, 1]])
+        attributes.TEXCOORD_0 = builder.add(gltf_uv, _FLOAT, "VEC2", target=_ARRAY_BUFFER, name="TEXCOORD_0")
+    if colors is not None:
+        attributes.COLOR_0 = builder.add(colors[source], _FLOAT, "VEC3", target=_ARRAY_BUFFER, name="COLOR_0")
+    attributes.JOINTS_0 = builder.add(joints4[source], _UNSIGNED_SHORT, "VEC4", target=_ARRAY_BUFFER, name="JOINTS_0")
+    attributes.WEIGHTS_0 = builder.add(weights4[source], _FLOAT, "VEC4", target=_ARRAY_BUFFER, name="WEIGHTS_0")
+    indices = builder.add(f.reshape(-1), _UNSIGNED_INT, "SCALAR", target=_ELEMENT_ARRAY_BUFFER, name="indices")
+    return attributes, indices
+
+
+def _encode(
+    builder: _BufferBuilder,
+    joint_nodes: list[pygltflib.Node],
+    roots: list[int],
+    mesh_node: pygltflib.Node,
+    attributes: pygltflib.Attributes,
+    indices: int,
+    ibm_accessor: int,
+    morph: tuple[list[dict], list[str], list[float]] = ([], [], []),
+    texture_view: int | None = None,
+    attachments: Sequence[tuple[pygltflib.Mesh, pygltflib.Material, bool]] = (),
+) -> pygltflib.GLTF2:
+    """The glTF document (joint nodes ``0 .. K-1``, the mesh node ``K``, attachment nodes ``K + 1 ...``); with
+    ``texture_view`` (the buffer view of a PNG image) the head material's base colour is that texture. The
+    buffer is set by :func:`_document_bytes`."""
+    targets, target_names, target_weights = morph
+    k = len(joint_nodes)
+    mesh_node_index = k
+    attachment_nodes = [
+        pygltflib.Node(name=m.name, mesh=1 + i, skin=0, extras={"units": GLTF_UNITS_NOTE})
+        for i, (m, _, _) in enumerate(attachments)
+    ]
+
+    material_pbr = pygltflib.PbrMetallicRoughness(
+        baseColorFactor=[1.0, 1.0, 1.0, 1.0],
+        metallicFactor=0.0,
+        roughnessFactor=0.6,
+        baseColorTexture=None if texture_view is None else pygltflib.TextureInfo(index=0, texCoord=0),
+    )
+    gltf = pygltflib.GLTF2(
+        asset=pygltflib.Asset(version="2.0", generator="jnr"),
+        scene=0,
+        scenes=[pygltflib.Scene(name="jnr", nodes=[mesh_node_index, *range(k + 1, k + 1 + len(attachments)), *roots])],
+        nodes=[*joint_nodes, mesh_node, *attachment_nodes],
+        meshes=[
+            pygltflib.Mesh(
+                name="mesh",
+                primitives=[
+                    pygltflib.Primitive(
+                        attributes=attributes, indices=indices, mode=pygltflib.TRIANGLES, material=0, targets=targets
+                    )
+                ],
+                weights=target_weights,
+                extras={"targetNames": target_names} if target_names else {},
+            ),
+            *(m for m, _, _ in attachments),
+        ],
+        skins=[
+            pygltflib.Skin(
+                name="skin",
+                joints=list(range(k)),
+                inverseBindMatrices=ibm_accessor,
+                skeleton=roots[0] if len(roots) == 1 else None,
+            )
+        ],
+        materials=[
+            pygltflib.Material(name="skin", doubleSided=False, pbrMetallicRoughness=material_pbr),
+            *(material for _, material, _ in attachments),
+        ],
+        accessors=builder.accessors,
+        bufferViews=builder.buffer_views,
+    )
+    for i, _ in enumerate(attachments):
+        gltf.meshes[1 + i].primitives[0].material = 1 + i
+    if texture_view is not None:
+        gltf.images = [pygltflib.Image(bufferView=texture_view, mimeType="image/png", name="baseColor")]
+        gltf.samplers = [
+            pygltflib.Sampler(
+                magFilter=pygltflib.LINEAR,
+                minFilter=pygltflib.LINEAR_MIPMAP_LINEAR,
+                wrapS=pygltflib.CLAMP_TO_EDGE,
+                wrapT=pygltflib.CLAMP_TO_EDGE,
+            )
+        ]
+        gltf.textures = [pygltflib.Texture(sampler=0, source=0, name="baseColor")]
+    return gltf

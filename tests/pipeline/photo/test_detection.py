@@ -1,0 +1,92 @@
+"""``jnr fit`` with a registered detector (:mod:`landmarks.detector`): a fake one that returns known landmarks
+is what the fit uses, end to end through the command line; unknown names are refused before any work."""
+
+import json
+
+import numpy as np
+import pytest
+
+from landmarks.detector import DetectionError, FaceDetection, register_detector, unregister_detector
+from landmarks.formats import read_landmarks
+from pipeline.cli import main
+from pipeline.photo.photo_file import fit_photo_file
+from tests.pipeline.conftest import fast_fit_args
+
+
+class KnownLandmarks:
+    """A detector that finds one face with the landmarks it was given (and a smaller decoy face)."""
+
+    name = "known"
+    description = "known landmarks (a test's detector)"
+
+    def __init__(self, points: np.ndarray):
+        self.points = points
+        self.images = []
+
+    def detect(self, image):
+        self.images.append(image.shape)
+        box = np.array([*self.points.min(0), *self.points.max(0)])
+        decoy = FaceDetection(np.array([0.0, 0.0, 4.0, 4.0]), 5.0, np.zeros((68, 2)), self.name)
+        return [decoy, FaceDetection(box, 0.75, self.points, self.name)]
+
+
+@pytest.fixture
+def known(photo_dir):
+    """``--detector known``: face0's landmarks (from its .pts file), registered for one test."""
+    detector = KnownLandmarks(read_landmarks(photo_dir / "face0.pts"))
+    register_detector("known", lambda: detector, summary="face0's landmarks")
+    yield detector
+    unregister_detector("known")
+
+
+def test_jnr_fit_uses_the_registered_detectors_landmarks(capsys, tmp_path, photo_dir, known):
+    out, reference = tmp_path / "detected", tmp_path / "from_file"
+    code = main(
+        [str(a) for a in ("fit", photo_dir / "face0.png", "--detector", "known", "--out", out, *fast_fit_args())]
+    )
+    _, err = capsys.readouterr()
+    assert code == 0, err
+    assert known.images == [(128, 128, 3)]  # the photo, once
+    source = json.loads((out / "report.json").read_text())["input"]
+    assert source["detector"] == source["detector_option"] == "known"
+    assert source["landmarks"] == "known landmarks (a test's detector)"
+    assert source["face_index"] == 0 and source["face_score"] == 0.75  # the larger face, not the decoy
+    assert [f["score"] for f in source["faces"]] == [0.75, 5.0]
+    assert source["face_box"] == pytest.approx([*known.points.min(0), *known.points.max(0)])
+    # the input landmarks written are the detector's, and the fit is the one from the same landmarks in a file
+    np.testing.assert_allclose(read_landmarks(out / "landmarks.pts"), known.points, atol=1e-9)
+    code = main(
+        [str(a) for a in ("fit", photo_dir / "face0.png", "--landmarks", photo_dir / "face0.pts", "--out", reference)]
+        + fast_fit_args()
+    )
+    assert code == 0
+    for name in ("landmarks_fitted.pts", "params.json", "mesh.obj"):
+        assert (out / name).read_bytes() == (reference / name).read_bytes(), name
+
+
+def test_a_detector_that_finds_nothing_is_one_line(capsys, tmp_path, photo_dir):
+    class Nothing:
+        name, description = "nothing", "a detector that never finds a face"
+
+        def detect(self, image):
+            return []
+
+    register_detector("nothing", Nothing)
+    try:
+        out = tmp_path / "o"
+        code = main([str(a) for a in ("fit", photo_dir / "face0.png", "--detector", "nothing", "--out", out)])
+    finally:
+        unregister_detector("nothing")
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1
+    assert "face0.png: no face found in the image (a detector that never finds a face)" in err
+    assert not out.exists()
+
+
+def test_unknown_detectors_are_refused_before_any_work(capsys, tmp_path, photo_dir):
+    with pytest.raises(SystemExit) as exit_info:  # argparse: the choices are the registered names
+        main([str(a) for a in ("fit", photo_dir / "face0.png", "--detector", "yolo", "--out", tmp_path / "o")])
+    assert exit_info.value.code == 2 and "invalid choice: 'yolo'" in capsys.readouterr().err
+    with pytest.raises(DetectionError, match="fit_photo_file: unknown face detector 'yolo'; the detectors are hog"):
+        fit_photo_file(photo_dir / "face0.png", tmp_path / "o", detector="yolo")
+    assert not (tmp_path / "o").exists()
