@@ -33,7 +33,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from pipeline.evaluation.photos import evaluate_photos
 from pipeline.metrics import summarize
-from pipeline.photo.fit import FitPhotoConfig
+from pipeline.photo.fit_config import FitPhotoConfig
 
 
 def main() -> None:

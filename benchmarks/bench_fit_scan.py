@@ -29,7 +29,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from pipeline.evaluation.scans import evaluate_scans
 from pipeline.metrics import STD_DDOF
-from pipeline.scan.fit import FitScanConfig
+from pipeline.scan.fit_config import FitScanConfig
 from pipeline.synthetic.scans import DepthCamera
 
 HIRES = DepthCamera(640, 576, 504.0, 504.0, 320.0, 288.0)

@@ -34,7 +34,7 @@ from landmarks.ibug68.embedding import ibug68_embedding
 from landmarks.ibug68.names import CHIN
 from landmarks.ibug68.positions import landmark_positions
 from pipeline.camera import camera_center_in_rig
-from pipeline.photo.fit import FitPhotoConfig
+from pipeline.photo.fit_config import FitPhotoConfig
 from pipeline.photo.landmark_fit import fit_landmarks
 from pipeline.synthetic.population import population_split
 from rig.geometry import RIG_TO_OPENCV, head_rotation

@@ -29,7 +29,8 @@ from common import finish, load_models
 from pipeline.evaluation.photos import face_error
 from pipeline.evaluation.scans import scan_seed
 from pipeline.fitting.state import head_vertices
-from pipeline.photo.fit import FitPhotoConfig, fit_photo
+from pipeline.photo.fit import fit_photo
+from pipeline.photo.fit_config import FitPhotoConfig
 from pipeline.synthetic.photos.simulate import synthetic_photo
 
 

@@ -35,7 +35,7 @@ from pipeline.evaluation.photos import face_error, pose_error_deg
 from pipeline.evaluation.scans import scan_seed
 from pipeline.fitting.priors import PriorWeights
 from pipeline.fitting.state import head_vertices
-from pipeline.photo.fit import FitPhotoConfig
+from pipeline.photo.fit_config import FitPhotoConfig
 from pipeline.photo.landmark_fit import fit_landmarks
 from pipeline.synthetic.photos.simulate import synthetic_photo
 

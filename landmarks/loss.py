@@ -9,7 +9,7 @@ from __future__ import annotations
 import torch
 from kornia.geometry.camera import PinholeCamera
 
-from landmarks.ibug68.names import JAW_CONTOUR
+from landmarks.ibug68.names import CHIN, IBUG68_MIRROR, JAW_CONTOUR
 from rig.lbs import ShapeError
 
 ROBUST_KINDS = ("huber", "l2")
@@ -100,8 +100,6 @@ def detector_landmark_weights(dtype: torch.dtype = torch.float32, device=None) -
     """``(68,)`` inverse-variance weights of dlib's landmarks: ``min(1, (DETECTOR_REFERENCE_PX / e_i)^2)`` with
     ``e_i`` :data:`DETECTOR_ERROR_PX` averaged with its mirror landmark's (so the weights are symmetric),
     at least 0.05. A landmark dlib places twice as badly counts a quarter as much."""
-    from landmarks.ibug68.names import IBUG68_MIRROR
-
     e = torch.tensor(DETECTOR_ERROR_PX, dtype=torch.float64)
     e = 0.5 * (e + e[list(IBUG68_MIRROR)])
     w = (DETECTOR_REFERENCE_PX / e).square().clamp(0.05, 1.0)
@@ -121,8 +119,6 @@ def landmark_weights(
     ``contour_weight`` (a static landmark, not a silhouette). ``detector``: :func:`detector_landmark_weights`,
     the contour's (but the chin's) times ``contour_weight / CONTOUR_WEIGHT``.
     """
-    from landmarks.ibug68.names import CHIN
-
     if weighting not in WEIGHTINGS:
         raise ValueError(f"landmark_weights: weighting must be one of {list(WEIGHTINGS)}, got {weighting!r}")
     if not contour_weight >= 0:

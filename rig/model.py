@@ -21,6 +21,7 @@ from rig.lbs import (
     skin_with_basis,
     skinning_basis,
 )
+from rig.losses import uniform_laplacian
 from rig.parameters import CHANNELS, NUM_PARAMETERS
 
 
@@ -81,8 +82,6 @@ class JointRig(nn.Module):
     def laplacian(self) -> torch.Tensor:
         """Sparse ``(V, V)`` uniform Laplacian of the template (for L_p), built on first use."""
         if self._laplacian is None:
-            from rig.losses import uniform_laplacian
-
             self._laplacian = uniform_laplacian(self.asset.faces, self.num_vertices).to(self.template.dtype)
         return self._laplacian
 

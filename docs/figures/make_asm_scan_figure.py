@@ -13,7 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.scan.fit import FitScanConfig, fit_scan
+from pipeline.scan.fit import fit_scan
+from pipeline.scan.fit_config import FitScanConfig
 from pipeline.scan.pointcloud.validate import validate_points
 from pipeline.synthetic.expressive import expressive_split
 from pipeline.synthetic.scans import simulate_scan

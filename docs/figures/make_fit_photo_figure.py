@@ -27,7 +27,8 @@ def _crop_box(report: dict, size: tuple[int, int], folder: Path) -> tuple[int, i
     crop = report.get("crop")
     if crop is None:
         from landmarks.formats import read_landmarks
-        from pipeline.photo.fit import PhotometricConfig, face_crop
+        from pipeline.photo.crop import face_crop
+        from pipeline.photo.fit_config import PhotometricConfig
 
         settings = PhotometricConfig()
         box = face_crop(read_landmarks(folder / "landmarks.pts"), settings.render_size, settings.crop_margin)

@@ -139,7 +139,7 @@ def fit_scan_overrides(args: argparse.Namespace, seed_is_fit_seed: bool = True) 
 def load_fit_photo_config(args: argparse.Namespace):
     """:class:`pipeline.photo.fit.FitPhotoConfig` from ``--config``, ``--set`` and ``--landmarks-only``."""
     from pipeline.config import ConfigError, load_config
-    from pipeline.photo.fit import FitPhotoConfig
+    from pipeline.photo.fit_config import FitPhotoConfig
 
     overrides = fit_photo_overrides(args)
     try:
@@ -151,7 +151,7 @@ def load_fit_photo_config(args: argparse.Namespace):
 def load_fit_scan_config(args: argparse.Namespace, seed_is_fit_seed: bool = True):
     """:class:`pipeline.scan.fit.FitScanConfig` from ``--config``, ``--set`` and ``--seed``."""
     from pipeline.config import ConfigError, load_config
-    from pipeline.scan.fit import FitScanConfig
+    from pipeline.scan.fit_config import FitScanConfig
 
     overrides = fit_scan_overrides(args, seed_is_fit_seed)
     try:

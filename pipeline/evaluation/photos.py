@@ -53,7 +53,8 @@ from pipeline.metrics import (
     mean_vertex_error,
     scan_to_mesh_distances,
 )
-from pipeline.photo.fit import FitPhotoConfig, fit_photo
+from pipeline.photo.fit import fit_photo
+from pipeline.photo.fit_config import FitPhotoConfig
 from pipeline.synthetic.photos.settings import PhotoSettings
 from pipeline.synthetic.photos.simulate import synthetic_photo
 from rig.asset import load_asset

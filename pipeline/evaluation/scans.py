@@ -51,7 +51,8 @@ from pipeline.metrics import (
     vertex_errors,
 )
 from pipeline.scan.baseline import DEFAULT_STEPS, nricp_baseline
-from pipeline.scan.fit import FitScanConfig, fit_scan
+from pipeline.scan.fit import fit_scan
+from pipeline.scan.fit_config import FitScanConfig
 from pipeline.scan.pointcloud.validate import validate_points
 from pipeline.synthetic.expressive import expressive_split
 from pipeline.synthetic.population import SPLIT_SIZES

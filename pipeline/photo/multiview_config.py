@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from pipeline.fitting.least_squares import LMSettings
-from pipeline.photo.fit import PHOTO_PRIOR
+from pipeline.photo.fit_config import PHOTO_PRIOR
 from pipeline.photo.landmark_fit import LandmarkFitConfig
 from rig.asset import REGION_NAMES
 from rig.template import FACE_REGIONS

@@ -35,7 +35,8 @@ from pipeline.head.folders import PHOTO_FOLDER
 from pipeline.head.params import UNITS, ParamsFileError, load_params_file, read_params
 from pipeline.head.params import params_payload as head_params_payload
 from pipeline.head.skinned import write_skinned_head
-from pipeline.photo.fit import FitPhotoConfig, PhotoFit
+from pipeline.photo.fit import PhotoFit
+from pipeline.photo.fit_config import FitPhotoConfig
 from pipeline.photo.texture import TEXTURE_SIZE, UVTexture, texture_from_fit
 from pipeline.viewer import VIEWER_FILE, ViewerView, write_fit_viewer
 from render.lighting import Lighting

@@ -36,7 +36,8 @@ from pipeline.photo.detection import (
     name_photo,
     photo_landmarks,
 )
-from pipeline.photo.fit import FitPhotoConfig, fit_photo
+from pipeline.photo.fit import fit_photo
+from pipeline.photo.fit_config import FitPhotoConfig
 from pipeline.photo.inputs import sidecar_landmarks
 from pipeline.photo.outputs import write_photo_outputs
 from pipeline.photo.summary import SUMMARY_FILE, PhotoFileResult, summary_csv

@@ -23,7 +23,7 @@ from pipeline.config import config_to_dict
 from pipeline.files import OutputError, check_output, is_jnr_output, json_safe
 from pipeline.head.folders import PHOTO_FOLDER
 from pipeline.photo.detection import FACE_ALL
-from pipeline.photo.fit import FitPhotoConfig
+from pipeline.photo.fit_config import FitPhotoConfig
 from pipeline.photo.summary import SUMMARY_FILE, PhotoFileResult, read_summary
 from pipeline.photo.task import PhotoTask
 

@@ -23,7 +23,8 @@ from pipeline.head.folders import SCAN_FOLDER
 from pipeline.head.params import ParamsFileError, load_params_file, read_params
 from pipeline.head.params import params_payload as head_params_payload
 from pipeline.metrics import distance_stats
-from pipeline.scan.fit import FitScanConfig, ScanFit
+from pipeline.scan.fit import ScanFit
+from pipeline.scan.fit_config import FitScanConfig
 from pipeline.scan.pointcloud.cloud import PointCloud
 from pipeline.scan.pointcloud.error_colors import error_colors
 from pipeline.scan.pointcloud.units import to_rig_frame

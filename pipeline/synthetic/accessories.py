@@ -28,7 +28,9 @@ from pathlib import Path
 import numpy as np
 
 from rig.accessory import outer_skin_faces, signed_distance
+from rig.asset import load_asset
 from rig.geometry import closest_surface_points, surface_values, vertex_normals
+from rig.io.atomic import write_bytes_atomic
 from rig.io.mesh import RIG_SPACE_COMMENT
 
 __all__ = [
@@ -135,8 +137,6 @@ def _mirror(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.nda
 
 
 def _skin():
-    from rig.asset import load_asset
-
     asset = load_asset()
     return asset.vertices, outer_skin_faces(asset)
 
@@ -471,8 +471,6 @@ def example_obj_text(name: str) -> str:
 
 def write_example_accessories(folder: str | Path) -> list[Path]:
     """Write ``glasses.obj`` and ``cap.obj`` into ``folder`` (created if missing), each atomically."""
-    from rig.io.atomic import write_bytes_atomic
-
     folder = Path(folder)
     paths = []
     for name in EXAMPLES:

@@ -81,6 +81,8 @@ import numpy as np
 from pipeline.synthetic.population import SPLIT_SIZES, population_split
 from rig.asset import RigAsset, cached_per_asset, load_asset
 from rig.errors import SetupError
+from rig.expressions import EXPRESSION_NAMES, ExpressionModel
+from rig.makehuman.face_units import expression_unit_offsets
 
 __all__ = [
     "EXPRESSION_VARIANT",
@@ -198,8 +200,6 @@ def _mirror(asset: RigAsset, f: np.ndarray) -> np.ndarray:
 
 
 def _build_units(asset: RigAsset) -> np.ndarray:
-    from rig.makehuman.face_units import expression_unit_offsets
-
     names, raw = expression_unit_offsets(EXPRESSION_VARIANT)
     if tuple(names) != EXPRESSIVE_FEATURE_NAMES:
         raise SetupError(
@@ -298,8 +298,6 @@ def _arkit_span(asset: RigAsset) -> tuple[np.ndarray, np.ndarray]:
     """``(kept (V,) bool, Q (3 K, r))``: an orthonormal basis of the span of the rig's 52 shapes on the kept
     vertices (an SVD, rank ``r``: ``tongueOut`` moves only the tongue, so it is 0 there and ``r = 51``)."""
     import torch
-
-    from rig.expressions import EXPRESSION_NAMES, ExpressionModel
 
     eye = torch.eye(len(EXPRESSION_NAMES), dtype=torch.float64)
     with torch.no_grad():

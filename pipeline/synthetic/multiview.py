@@ -25,9 +25,11 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from pipeline.synthetic.expressive import expressive_offsets, sample_expression_coefficients
 from pipeline.synthetic.photos.albedo import synthesize_albedo
 from pipeline.synthetic.photos.settings import PhotoSettings, SyntheticPhoto
 from pipeline.synthetic.photos.simulate import simulate_photo
+from pipeline.synthetic.population import SPLIT_SIZES, population_split
 from rig.asset import RigAsset, load_asset
 
 __all__ = ["MultiViewSettings", "SyntheticViews", "simulate_views", "synthetic_views"]
@@ -124,8 +126,6 @@ def simulate_views(
     Raises:
         ValueError: bad ``n_views`` or vertices, or :func:`~pipeline.synthetic.photos.simulate.simulate_photo`'s errors.
     """
-    from pipeline.synthetic.expressive import expressive_offsets, sample_expression_coefficients
-
     if isinstance(n_views, bool) or not isinstance(n_views, (int, np.integer)) or n_views < 1:
         raise ValueError(f"simulate_views: n_views must be an integer >= 1, got {n_views!r}")
     asset = load_asset() if asset is None else asset
@@ -168,8 +168,6 @@ def synthetic_views(
         >>> len(views.photos), views.photos[0].landmarks2d.shape
         (3, (68, 2))
     """
-    from pipeline.synthetic.population import SPLIT_SIZES, population_split
-
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise ValueError(f"synthetic_views: seed must be a non-negative integer, got {seed!r}")
     n_heads = SPLIT_SIZES["heldout"]

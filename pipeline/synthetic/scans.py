@@ -19,6 +19,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pipeline.files import staged_file
+from pipeline.scan.pointcloud.write import write_point_cloud_ply
+from pipeline.synthetic.expressive import expressive_split
+from rig.asset import load_asset
 from rig.geometry import RIG_TO_OPENCV, face_normals, head_rotation
 
 __all__ = [
@@ -462,11 +466,6 @@ def write_heldout_scan(
         pipeline.files.OutputError: an output is refused (exists without ``force``) or cannot be written.
     """
     import trimesh
-
-    from pipeline.files import staged_file
-    from pipeline.scan.pointcloud.write import write_point_cloud_ply
-    from pipeline.synthetic.expressive import expressive_split
-    from rig.asset import load_asset
 
     heads = expressive_split("heldout", seed=population_seed, n=head + 1)
     vertices = heads.vertices[head] if expressive else heads.neutral[head]

@@ -22,10 +22,12 @@ from dataclasses import dataclass
 import torch
 from torch import nn
 
+from rig.asset import AssetError, default_skinning_path, write_npz_atomic
 from rig.lbs import ShapeError, skin_vertices
 from rig.losses import LAMBDA_P, laplacian_loss, vertex_rmse
 from rig.optim import Progress, frozen
 from rig.skinning.joint_fit import fit_joints
+from rig.skinning.linear import valid_weights
 
 LATENT = 50
 LAMBDA_SPARSE = 0.05
@@ -267,14 +269,10 @@ class NeuralSkinning(nn.Module):
         return self.linear_free + self.decoder(z)
 
     def forward(self, z: torch.Tensor) -> torch.Tensor:
-        from rig.skinning.linear import valid_weights
-
         return valid_weights(self.rig, self.free(z))
 
     def linear_weights(self) -> torch.Tensor:
         """``(V, K)`` the learned linear weights (``Z = 0``)."""
-        from rig.skinning.linear import valid_weights
-
         return valid_weights(self.rig, self.linear_free)
 
 
@@ -362,8 +360,6 @@ def save_neural(neural: NeuralSkinning, path, meta: dict | None = None) -> None:
 
     import numpy as np
 
-    from rig.asset import write_npz_atomic
-
     arrays = {"linear_free": neural.linear_free.detach().cpu().numpy().astype(np.float64)}
     for name, value in neural.decoder.state_dict().items():
         arrays[f"decoder.{name}"] = value.detach().cpu().numpy().astype(np.float32)
@@ -377,8 +373,6 @@ def load_neural(rig, path=None) -> tuple[NeuralSkinning, dict]:
     from pathlib import Path
 
     import numpy as np
-
-    from rig.asset import AssetError, default_skinning_path
 
     path = Path(path) if path else default_skinning_path()
     if not path.is_file():

@@ -10,7 +10,7 @@ from pipeline.evaluation.scans import (
     ScanRecord,
     evaluate_scans,
 )
-from pipeline.scan.fit import FitScanConfig, jnr_schedule
+from pipeline.scan.fit_config import FitScanConfig, jnr_schedule
 
 
 @pytest.fixture(scope="module")

@@ -10,7 +10,7 @@ import pipeline
 from pipeline.fitting.engine import LearningRates, Loss, Stage, run_schedule, run_stage
 from pipeline.fitting.priors import PriorWeights, rig_prior_terms
 from pipeline.fitting.state import FitState, PhotoState, ScanState
-from pipeline.scan.fit import ScanLearningRates
+from pipeline.scan.fit_config import ScanLearningRates
 from rig.expressions import ExpressionModel
 from rig.losses import limit_loss, regularizer
 from rig.model import JointRig
@@ -128,7 +128,7 @@ def test_prior_terms_match_the_rig_losses(models):
 
 def test_the_public_facade():
     from pipeline.photo.fit import fit_photo
-    from pipeline.scan.fit import FitScanConfig
+    from pipeline.scan.fit_config import FitScanConfig
 
     assert pipeline.fit_photo is fit_photo and pipeline.FitScanConfig is FitScanConfig
     assert set(pipeline.__all__) <= set(dir(pipeline))

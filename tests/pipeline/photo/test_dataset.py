@@ -16,7 +16,7 @@ from pipeline.config import load_config
 from pipeline.files import OUTPUT_MARKER, OutputError
 from pipeline.photo.batch import fit_photo_files
 from pipeline.photo.batch_folder import remove_leftovers
-from pipeline.photo.fit import FitPhotoConfig
+from pipeline.photo.fit_config import FitPhotoConfig
 from pipeline.photo.outputs import OUTPUT_FILES
 from pipeline.photo.resume import earlier_output
 from pipeline.photo.summary import SUMMARY_COLUMNS

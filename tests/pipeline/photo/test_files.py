@@ -6,7 +6,7 @@ import pytest
 
 from pipeline.config import load_config
 from pipeline.photo.batch import fit_photo_files, output_names
-from pipeline.photo.fit import FitPhotoConfig
+from pipeline.photo.fit_config import FitPhotoConfig
 from pipeline.photo.inputs import sidecar_landmarks
 from pipeline.photo.outputs import OUTPUT_FILES
 from pipeline.photo.photo_file import fit_photo_faces, fit_photo_file

@@ -12,7 +12,7 @@ from pipeline.evaluation.photos import pose_error_deg
 from pipeline.fitting.engine import Stage
 from pipeline.fitting.identity import load_identity_prior
 from pipeline.fitting.state import PhotoState, head_vertices
-from pipeline.photo.fit import FitPhotoConfig
+from pipeline.photo.fit_config import FitPhotoConfig
 from pipeline.photo.landmark_fit import LandmarkTerm, fit_landmarks
 from rig.expressions import EXPRESSION_NAMES, ExpressionModel, coefficients_from_dict
 from rig.geometry import head_rotation

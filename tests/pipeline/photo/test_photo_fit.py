@@ -14,15 +14,9 @@ from landmarks.loss import project_points
 from pipeline.camera import camera_direction_to_rig, make_camera
 from pipeline.colour import linear_to_srgb, srgb_to_linear
 from pipeline.config import ConfigError, load_config
-from pipeline.photo.fit import (
-    Crop,
-    FitPhotoConfig,
-    PhotometricConfig,
-    PhotoStage,
-    face_crop,
-    fit_light,
-    hemisphere_directions,
-)
+from pipeline.photo.crop import Crop, face_crop
+from pipeline.photo.fit_config import FitPhotoConfig, PhotometricConfig, PhotoStage
+from pipeline.photo.photometric import fit_light, hemisphere_directions
 
 ROOT = Path(__file__).resolve().parents[3]
 
@@ -152,7 +146,7 @@ def known_photo():
 
 
 def _short_config(**kw):
-    from pipeline.photo.fit import photo_schedule
+    from pipeline.photo.fit_config import photo_schedule
 
     base = FitPhotoConfig()  # the default landmark fit (LM, ~0.3 s), short photometric stages
     return FitPhotoConfig(

@@ -11,7 +11,8 @@ from pipeline.cli import main
 from pipeline.config import ConfigError, load_config
 from pipeline.fitting.engine import Stage
 from pipeline.metrics import scan_to_mesh_distances
-from pipeline.scan.fit import FitScanConfig, fit_scan, jnr_schedule
+from pipeline.scan.fit import fit_scan
+from pipeline.scan.fit_config import FitScanConfig, jnr_schedule
 from pipeline.scan.outputs import OUTPUT_FILES, mesh_from_params, write_scan_outputs
 from pipeline.scan.pointcloud.read import read_point_cloud
 from pipeline.scan.pointcloud.validate import validate_points

@@ -1,0 +1,160 @@
+"""The settings of a photo fit (``jnr fit``): the photometric schedule, learning rates, the albedo prior,
+:class:`PhotometricConfig` and :class:`FitPhotoConfig` (``configs/fit_photo.yaml`` overrides them)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import ClassVar
+
+from pipeline.fitting.engine import LearningRates, Stage
+from pipeline.fitting.priors import PriorWeights
+from pipeline.fitting.state import FREE_GROUPS
+from pipeline.photo.landmark_fit import (
+    LandmarkFitConfig,
+)
+from rig.asset import REGION_NAMES
+from rig.template import FACE_REGIONS
+
+PHOTO_GROUPS = FREE_GROUPS + ("albedo", "light")
+LIGHT_MODELS = ("directional", "sh")
+
+
+PHOTO_LAMBDA_IDENTITY = 0.03
+"""Weight of the learned identity prior (:mod:`pipeline.fitting.identity`) in the photo fit, against the
+landmark term (mean over the 68 landmarks of half the squared pixel error, Huber); L_m is off.
+
+Chosen on synthetic validation photos (held-out heads 0-5, neutral and expressive, 1 px landmark noise,
+true focal; ``benchmarks/bench_fit_photo.py`` scores heads 20 on): NoW-style scan-to-mesh median,
+mean over the 12 photos, LM landmark fit: see ``docs/fit_photo.md`` for the table. The previous
+prior, L_m = 100 towards the template, scored 0.83 mm (Adam: 0.84) against the template's 0.94 mm."""
+
+PHOTO_PRIOR = PriorWeights(lambda_m=0.0, lambda_identity=PHOTO_LAMBDA_IDENTITY)
+"""The rig priors of the photo fit: the identity prior instead of L_m, the other weights as
+:class:`~pipeline.fitting.priors.PriorWeights`."""
+
+
+@dataclass(frozen=True)
+class PhotoStage(Stage):
+    """One stage of the photometric schedule: ``free`` is a subset of ``pose``, ``joints``, ``latent``,
+    ``expressions``, ``albedo``, ``light``."""
+
+    groups: ClassVar[tuple[str, ...]] = PHOTO_GROUPS
+
+
+def photo_schedule(
+    appearance_iterations: int = 25,
+    joint_iterations: int = 30,
+    latent_iterations: int = 15,
+    expression_iterations: int = 25,
+    final_joint_iterations: int = 25,
+) -> tuple[PhotoStage, ...]:
+    """The default photometric schedule (120 steps): albedo + light; then JNR 4.3's alternation
+    (pose + joints, Z, pose + expressions, pose + joints), each with albedo and light. 0 leaves a stage out."""
+    look = ("albedo", "light")
+    stages = (
+        PhotoStage("appearance", look, appearance_iterations),
+        PhotoStage("photo joints", ("pose", "joints") + look, joint_iterations),
+        PhotoStage("photo latent", ("latent",) + look, latent_iterations),
+        PhotoStage("photo expressions", ("pose", "expressions") + look, expression_iterations),
+        PhotoStage("photo joints 2", ("pose", "joints") + look, final_joint_iterations),
+    )
+    return tuple(s for s in stages if s.iterations > 0)
+
+
+@dataclass(frozen=True)
+class PhotoLearningRates(LearningRates):
+    """Adam steps of the photometric stages (``photometric.lr:`` in YAML): the geometry's groups
+    (:class:`pipeline.fitting.engine.LearningRates`) and the appearance."""
+
+    albedo: float = 0.02
+    """Per-vertex albedo, linear RGB."""
+    light: float = 0.05
+    """Ambient and irradiance of the light, linear RGB."""
+
+
+PHOTO_LEARNING_RATES = PhotoLearningRates(rotation=0.003, translation=0.5, joints=0.004, latent=0.02, expressions=0.02)
+"""The photometric stages' steps: smaller than the landmark fit's, which they refine."""
+
+
+@dataclass(frozen=True)
+class AlbedoPrior:
+    """Weights of the albedo priors (``photometric.albedo_prior:`` in YAML), each a mean squared difference."""
+
+    smooth: float = 20.0
+    """Along mesh edges."""
+    symmetry: float = 5.0
+    """To the mirror vertex's albedo."""
+    mean: float = 0.5
+    """To the start colour (the median face colour)."""
+
+
+@dataclass(frozen=True)
+class PhotometricConfig:
+    """The photometric stages of :func:`fit_photo` (``photometric:`` in YAML)."""
+
+    enabled: bool = False
+    """Run them (``jnr fit --photometric``). Off by default: on synthetic photos rendered with another light
+    model they did not improve the geometry over the landmark fit (``docs/fit_photo.md``) and cost ~20 s."""
+    stages: tuple[PhotoStage, ...] = field(default_factory=photo_schedule)
+    render_size: int = 128
+    """Side of the square face crop the photometric loss is computed on, pixels."""
+    crop_margin: float = 0.25
+    """Margin around the landmarks' bounding box (fraction of its size; the top gets twice as much, for
+    the forehead)."""
+    spp: int = 2
+    """Renderer samples per pixel (interior and silhouette)."""
+    lambda_photo: float = 200.0
+    """Weight of the photometric term (linear RGB, Charbonnier)."""
+    lambda_landmarks: float = 1.0
+    """Weight of the landmark term (px^2 of the photo) during the photometric stages."""
+    charbonnier_eps: float = 0.01
+    """``eps`` of the Charbonnier distance, linear RGB."""
+    outlier_mads: float = 3.0
+    """Residuals above ``median + outlier_mads * 1.4826 * MAD`` are outliers (re-selected every stage)."""
+    face_regions: tuple[str, ...] = FACE_REGIONS
+    """Rig regions whose pixels the photometric loss counts (default: no scalp/hair, ears, neck, eyes, mouth)."""
+    albedo_prior: AlbedoPrior = field(default_factory=AlbedoPrior)
+    lr: PhotoLearningRates = PHOTO_LEARNING_RATES
+    prior: PriorWeights = PHOTO_PRIOR
+    """The rig priors during the photometric stages (:data:`PHOTO_PRIOR`)."""
+    light_model: str = "directional"
+    """``directional``: ambient + one directional light (:mod:`render.lighting`), its direction re-picked
+    before each stage; ``sh``: second-order spherical harmonics, 9 coefficients per channel on the
+    vertex normals (:mod:`pipeline.photo.sh`), least squares before each stage, then optimised."""
+    sh_ridge: float = 1e-3
+    """Ridge weight of the SH least squares (relative to the design's mean diagonal)."""
+    light_directions: int = 64
+    """Candidate light directions re-picked before each stage."""
+    seed: int = 0
+    """Renderer sampling seed."""
+    reproducible: bool = True
+    """Bit-for-bit repeatable fits: the photometric stages run Dr.Jit (:func:`render.backend.reproducible`)
+    and torch on one thread, whose gradient scatter-adds otherwise change order from run to run (two
+    runs then differed by up to 0.12 mm); ~1.5x the photometric time here. False: faster, not repeatable."""
+
+    def __post_init__(self) -> None:
+        if self.render_size < 16:
+            raise ValueError(f"render_size must be >= 16 pixels, got {self.render_size}")
+        if self.spp < 1:
+            raise ValueError(f"spp must be >= 1, got {self.spp}")
+        if not self.crop_margin >= 0:
+            raise ValueError(f"crop_margin must be >= 0, got {self.crop_margin}")
+        if self.light_model not in LIGHT_MODELS:
+            raise ValueError(f"light_model must be one of {list(LIGHT_MODELS)}, got {self.light_model!r}")
+        if self.light_directions < 1:
+            raise ValueError(f"light_directions must be >= 1, got {self.light_directions}")
+        bad = [r for r in self.face_regions if r not in REGION_NAMES]
+        if bad or not self.face_regions:
+            raise ValueError(
+                f"face_regions must be a non-empty subset of {list(REGION_NAMES)}, got {list(self.face_regions)}"
+            )
+
+
+@dataclass(frozen=True)
+class FitPhotoConfig:
+    """Settings of :func:`fit_photo` (``configs/fit_photo.yaml`` holds the defaults)."""
+
+    landmarks: LandmarkFitConfig = field(default_factory=lambda: LandmarkFitConfig(prior=PHOTO_PRIOR))
+    """The landmark fit (Levenberg-Marquardt with the identity prior, :data:`PHOTO_PRIOR`)."""
+    photometric: PhotometricConfig = field(default_factory=PhotometricConfig)
+    """The photometric stages."""
