@@ -55,6 +55,7 @@ __all__ = [
     "JnrHead",
     "ParameterGroup",
     "create",
+    "create_for",
     "create_from_dict",
     "head_model_kinds",
     "is_posable",
@@ -189,6 +190,19 @@ def create(kind: str = "jnr", *, asset: RigAsset | None = None, **options) -> He
     if kind not in _REGISTRY:
         raise HeadModelError(f"unknown head model {kind!r}; known: {', '.join(_REGISTRY)}")
     return _REGISTRY[kind](asset=asset, **options)
+
+
+def create_for(params: HeadParams, *, asset: RigAsset | None = None, **options) -> HeadModel:
+    """The head model that ``params`` belong to (their kind; options such as ASM's components from their
+    shapes), on ``asset``.
+
+    Raises:
+        HeadModelError: an unknown kind.
+    """
+    if params.kind not in _REGISTRY:
+        raise HeadModelError(f"unknown head model {params.kind!r}; known: {', '.join(_REGISTRY)}")
+    derived = getattr(_REGISTRY[params.kind], "options_from_params", lambda _params: {})(params)
+    return create(params.kind, asset=asset, **{**derived, **options})
 
 
 def create_from_dict(
@@ -342,6 +356,10 @@ class JnrHead:
     def options_from_dict(data: Mapping) -> dict:
         return {}
 
+    @staticmethod
+    def options_from_params(params: HeadParams) -> dict:
+        return {}
+
     def _check(self, params: HeadParams) -> None:
         if params.kind != self.kind:
             raise HeadModelError(f"{self.kind} head model given {params.kind} parameters")
@@ -409,6 +427,10 @@ class AsmHead:
             raise HeadModelError(str(exc)) from None
         c = coefficients_from_dict(data["expressions"], dtype=torch.float64).numpy()
         return HeadParams(self.kind, {"asm": {k: v.detach().numpy() for k, v in p.as_dict().items()}, "expressions": c})
+
+    @staticmethod
+    def options_from_params(params: HeadParams) -> dict:
+        return {"components": int(np.asarray(params["asm"]["log_pi"]).shape[-1])}
 
     @staticmethod
     def options_from_dict(data: Mapping) -> dict:

@@ -29,6 +29,7 @@ from pipeline.fitting.priors import PriorWeights, asm_prior_terms, jnr_prior_ter
 from pipeline.fitting.terms import Inputs, Term
 from rig.expressions import EXPRESSION_NAMES, ExpressionModel, expression_limits
 from rig.geometry import RIG_TO_OPENCV
+from rig.head_model import HeadParams
 from rig.lbs import skin_vertices, skin_with_basis, skinning_basis
 from rig.model import JointRig
 from rig.parameters import NUM_PARAMETERS, theta_limits
@@ -242,6 +243,14 @@ class FitState(GroupedParameters):
         """The priors of this head model with ``weights`` (:func:`pipeline.fitting.priors.jnr_prior_terms`:
         L_m, L_x, latent, expressions, identity, symmetry); ``lambda_m`` overrides L_m's weight."""
         return jnr_prior_terms(weights, self.low, self.high, lambda_m=lambda_m, identity=identity)
+
+    def head_params(self) -> HeadParams:
+        """The fitted head as its head model's parameters (:class:`rig.head_model.HeadParams`, kind ``jnr``:
+        joints, latent, expressions; float64)."""
+        values = self.arrays()
+        return HeadParams(
+            "jnr", {"joints": values["theta"], "latent": values["z"], "expressions": values["expressions"]}
+        )
 
     def arrays(self) -> dict[str, np.ndarray]:
         """The fitted values as float64 arrays: ``theta (P,)``, ``z (50,)``, ``expressions (E,)``,
@@ -459,6 +468,13 @@ class AsmScanState(ScanState):
         """ASM's priors instead of the joints' (:func:`pipeline.fitting.priors.asm_prior_terms`: eq. 19
         following L_m's schedule, expressions, smoothness); ``identity`` does not apply."""
         return asm_prior_terms(weights, self.asm, lambda_m=lambda_m)
+
+    def head_params(self) -> HeadParams:
+        """The fitted head as ASM's parameters (:class:`rig.head_model.HeadParams`, kind ``asm``: its
+        :class:`rig.skinning.asm.AsmParameters` fields as float64 arrays of batch 1, expressions)."""
+        with torch.no_grad():
+            asm = {k: v.detach().double().numpy() for k, v in self.asm_parameters(()).as_dict().items()}
+            return HeadParams("asm", {"asm": asm, "expressions": self.c.double().numpy()})
 
     def load_asm(self, params: AsmParameters) -> None:
         """Start from fitted :class:`rig.skinning.asm.AsmParameters` (batch 1)."""

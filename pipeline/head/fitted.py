@@ -18,7 +18,16 @@ import numpy as np
 from pipeline.head.params import PARAMS_FILE, FitParams, ParamsFileError, load_params_file, read_params
 from rig.errors import InputError, check_shape
 from rig.expressions import ExpressionError
-from rig.head_model import HeadModel, HeadModelError, HeadParams, HeadPose, JnrHead, create_from_dict, is_posable
+from rig.head_model import (
+    HeadModel,
+    HeadModelError,
+    HeadParams,
+    HeadPose,
+    JnrHead,
+    create_for,
+    create_from_dict,
+    is_posable,
+)
 from rig.parameters import ParameterError
 
 TEXTURE_FILE = "texture.png"
@@ -178,6 +187,18 @@ def fitted_head_from_arrays(
     """
     model = model or JnrHead()
     params = model.params(theta, z, expressions)
+    return FittedHead(model, params, model.forward(params), colours=colours)
+
+
+def fitted_head_from_params(
+    params: HeadParams, *, model: HeadModel | None = None, colours: np.ndarray | None = None
+) -> FittedHead:
+    """The :class:`FittedHead` of a fit's :class:`rig.head_model.HeadParams` (what its fit state says it
+    fitted, :meth:`pipeline.fitting.state.FitState.head_params`), with ``model`` when it is of their kind
+    (default: :func:`rig.head_model.create_for`). Values are taken as fitted (no limit checks: a fit may
+    hold joints a little outside by a soft penalty)."""
+    if model is None or model.kind != params.kind:
+        model = create_for(params)
     return FittedHead(model, params, model.forward(params), colours=colours)
 
 

@@ -55,6 +55,7 @@ from pipeline.photo.multiview_config import AsmConfig, MultiViewConfig, PhotoCon
 from pipeline.photo.multiview_problem import MultiViewProblem, MultiViewStage, initial_state
 from rig.errors import InputError
 from rig.geometry import RIG_TO_OPENCV
+from rig.head_model import HeadParams
 from rig.lbs import skin_vertices_shared_weights
 from rig.model import JointRig
 from rig.skinning.neural import LATENT, NeuralSkinning, load_neural
@@ -134,6 +135,21 @@ class MultiViewFit:
     def mean_error_px(self) -> float:
         """Mean landmark error over all views, px."""
         return float(np.mean([v.error_px.mean() for v in self.views]))
+
+    @property
+    def rig_identity(self) -> HeadParams:
+        """The JNR rig's part of the fit without expression (joints and Z, kind ``jnr``): what the skinned
+        glTF and the viewer pose."""
+        zeros = np.zeros(len(self.views[0].expressions))
+        return HeadParams("jnr", {"joints": np.asarray(self.theta, np.float64), "latent": self.z, "expressions": zeros})
+
+    @property
+    def identity(self) -> HeadParams:
+        """The shared identity in the fit's identity model (``skinning``) without expression."""
+        if self.asm_parameters is None:
+            return self.rig_identity
+        zeros = np.zeros(len(self.views[0].expressions))
+        return HeadParams(self.skinning, {"asm": self.asm_parameters, "expressions": zeros})
 
 
 # ----------------------------------------------------------------------------------------------------

@@ -26,7 +26,7 @@ from landmarks.images import ImageError, load_working_image
 from pipeline.camera import camera_direction_to_rig, camera_from_head_pose, check_focal
 from pipeline.config import CONFIG_FILE, config_to_dict, dump_config
 from pipeline.files import check_output, json_safe, staged_folder
-from pipeline.head.fitted import FittedHead, fitted_head_from_arrays
+from pipeline.head.fitted import FittedHead, fitted_head_from_params
 from pipeline.head.folders import VIEWS_FOLDER
 from pipeline.head.params import params_payload as head_params_payload
 from pipeline.head.skinned import write_skinned_head
@@ -39,7 +39,7 @@ from pipeline.viewer import VIEWER_FILE, ViewerView, fit_viewer_ready, write_vie
 from rig.errors import InputError
 from rig.expressions import EXPRESSION_NAMES
 from rig.geometry import head_angles
-from rig.head_model import HeadParams, JnrHead, create
+from rig.head_model import JnrHead
 from rig.io.mesh import export_mesh, write_mtl
 from rig.template import FACE_REGIONS
 
@@ -77,15 +77,12 @@ def _look(view, n_vertices: int) -> _ViewLook:
 
 
 def multiview_head(fit: MultiViewFit, model: JnrHead | None = None) -> tuple[FittedHead, FittedHead]:
-    """``(identity, jnr)``: the shared identity in its own head model (``fit.skinning``) without expression,
-    and the JNR rig's part of the fit (its joints and Z: what ``mesh.glb`` and the viewer pose)."""
-    zeros = np.zeros(len(fit.views[0].expressions))
-    jnr = fitted_head_from_arrays(fit.theta, fit.z, zeros, model=model)
-    if fit.asm_parameters is None:
-        return jnr, jnr
-    asm = create(fit.skinning, components=int(np.asarray(fit.asm_parameters["log_pi"]).shape[-1]))
-    params = HeadParams(asm.kind, {"asm": fit.asm_parameters, "expressions": zeros})
-    return FittedHead(asm, params, asm.forward(params)), jnr
+    """``(identity, rig)``: the shared identity in its own head model without expression, and the JNR rig's
+    part of the fit (its joints and Z: what ``mesh.glb`` and the viewer pose); the same head when the
+    identity model is the rig's."""
+    rig = fitted_head_from_params(fit.rig_identity, model=model)
+    identity = fitted_head_from_params(fit.identity, model=rig.model)
+    return identity, rig
 
 
 def multiview_params_payload(

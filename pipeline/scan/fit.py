@@ -58,6 +58,7 @@ from pipeline.scan.registration import (
 )
 from rig.expressions import ExpressionModel
 from rig.geometry import Similarity
+from rig.head_model import HeadParams
 from rig.model import JointRig
 from rig.optim import Progress
 from rig.parameters import NUM_PARAMETERS
@@ -83,7 +84,9 @@ class ScanFit:
             ``pairs_cloud_to_model``, ``pairs_model_to_cloud``.
         timings: seconds per phase (``prealign``, ``fit``, ``total``).
         asm: with ``skinning: asm``, the fitted ASM parameters by bone
-            (:func:`rig.skinning.asm.asm_params_to_dict`); ``theta`` and ``z`` are then zeros.
+            (:func:`rig.skinning.asm.parameters.asm_params_to_dict`); ``theta`` and ``z`` are then zeros.
+        head: the fitted head as its head model's parameters (:meth:`pipeline.fitting.state.FitState.head_params`:
+            the model's kind and values), what the outputs and readers build the fitted head from.
     """
 
     theta: np.ndarray
@@ -98,6 +101,7 @@ class ScanFit:
     stages: tuple[StageLog, ...]
     timings: dict
     asm: dict | None = None
+    head: HeadParams | None = None
 
     @property
     def transform(self) -> Similarity:
@@ -195,6 +199,7 @@ def fit_scan(
         stages=stages,
         timings={"prealign": t_prealign, "fit": t_end - t_fit, "total": t_end - t_start},
         asm=None if asm_model is None else asm_params_to_dict(state.asm_parameters(()), rig.asset.joint_names),
+        head=state.head_params(),
     )
 
 

@@ -18,7 +18,7 @@ from scipy.spatial.transform import Rotation
 
 from pipeline.config import CONFIG_FILE, config_to_dict, dump_config
 from pipeline.files import json_safe, staged_folder
-from pipeline.head.fitted import FittedHead, fitted_head, fitted_head_from_arrays
+from pipeline.head.fitted import FittedHead, fitted_head, fitted_head_from_params
 from pipeline.head.folders import SCAN_FOLDER
 from pipeline.head.params import ParamsFileError, load_params_file, read_params
 from pipeline.head.params import params_payload as head_params_payload
@@ -31,7 +31,6 @@ from pipeline.scan.pointcloud.units import to_rig_frame
 from pipeline.scan.pointcloud.write import write_point_cloud_ply
 from pipeline.viewer import VIEWER_FILE, fit_viewer_ready, write_viewer
 from rig.asset import load_asset
-from rig.expressions import EXPRESSION_NAMES
 from rig.head_model import HeadModel
 from rig.io.mesh import export_mesh
 
@@ -52,13 +51,9 @@ def report_distance_stats(distances: np.ndarray) -> dict:
 
 
 def scan_head(fit: ScanFit, *, model: HeadModel | None = None) -> FittedHead:
-    """The :class:`~pipeline.head.fitted.FittedHead` of a scan fit. Its joints are taken as fitted: the scan
-    fit keeps them in their limits by a soft penalty (L_x), so they may lie slightly outside."""
-    if fit.asm is None:
-        return fitted_head_from_arrays(fit.theta, fit.z, fit.expressions, model=model)
-    # ScanFit carries ASM's bones as params.json's block
-    entries = {"model": "asm", "asm": fit.asm, "expressions": dict(zip(EXPRESSION_NAMES, map(float, fit.expressions)))}
-    return fitted_head(entries, model=model)
+    """The :class:`~pipeline.head.fitted.FittedHead` of a scan fit: its head model's parameters as fitted (the
+    scan fit keeps the joints in their limits by a soft penalty, L_x, so they may lie slightly outside)."""
+    return fitted_head_from_params(fit.head, model=model)
 
 
 def params_payload(fit: ScanFit, cloud: PointCloud, frame: str, head: FittedHead | None = None) -> dict:
