@@ -28,22 +28,7 @@ from landmarks.detector import (
     NoFaceError,
     create_detector,
 )
-
-
-def check_image(image: np.ndarray, function: str) -> np.ndarray:
-    """``image`` as a C-contiguous ``(H, W, 3)`` uint8 array.
-
-    Raises:
-        DetectionError: another shape or dtype, or no pixels (the message names ``function``).
-    """
-    image = np.asarray(image)
-    if image.ndim != 3 or image.shape[2] != 3 or image.dtype != np.uint8:
-        raise DetectionError(
-            f"{function}: image must be an (H, W, 3) uint8 RGB array; got shape {image.shape}, dtype {image.dtype}"
-        )
-    if image.shape[0] == 0 or image.shape[1] == 0:
-        raise DetectionError(f"{function}: image is empty; got shape {image.shape}")
-    return np.ascontiguousarray(image)
+from landmarks.images import check_image
 
 
 def _check_faces(faces: object, detector: FaceDetector) -> list[FaceDetection]:
@@ -119,4 +104,4 @@ def detect_landmarks(
     return faces[index]
 
 
-__all__ = ["check_image", "detect_faces", "detect_landmarks"]
+__all__ = ["detect_faces", "detect_landmarks"]

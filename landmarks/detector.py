@@ -27,6 +27,7 @@ Example::
 
 from __future__ import annotations
 
+import importlib
 import re
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -220,39 +221,44 @@ def _registration(name: str, function: str) -> _Registration:
     return registration
 
 
+def lazy_factory(target: str) -> Callable[..., FaceDetector]:
+    """A factory that imports ``"package.module:attribute"`` when it is first called and calls that with the
+    options: a detector's module (numpy, dlib, a model runtime) is loaded only when one is made, so that
+    listing the names (``jnr fit --help``) stays light."""
+    module_name, _, attribute = target.partition(":")
+    if not module_name or not attribute:
+        raise DetectionError(f"lazy_factory: expected 'package.module:attribute', got {target!r}")
+
+    def factory(**options) -> FaceDetector:
+        return getattr(importlib.import_module(module_name), attribute)(**options)
+
+    factory.__qualname__ = f"lazy_factory({target!r})"
+    return factory
+
+
 def _register_builtin() -> None:
-    """dlib's detectors. Their module (numpy, dlib) is imported only when one is made, so that reading the
-    names (``jnr fit --help``) stays light."""
-
-    def hog(**options) -> FaceDetector:
-        from landmarks.dlib_detector import HogDetector
-
-        return HogDetector(**options)
-
-    def cnn(**options) -> FaceDetector:
-        from landmarks.dlib_detector import CnnDetector
-
-        return CnnDetector(**options)
-
-    def auto(**options) -> FaceDetector:
-        from landmarks.dlib_detector import auto_detector
-
-        return auto_detector(**options)
-
-    register_detector("hog", hog, summary="dlib's HOG detector: fast, frontal faces")
+    """dlib's detectors (:mod:`landmarks.dlib_detector`, imported when one is made)."""
+    register_detector(
+        "hog", lazy_factory("landmarks.dlib_detector:HogDetector"), summary="dlib's HOG detector: fast, frontal faces"
+    )
     register_detector(
         "cnn",
-        cnn,
+        lazy_factory("landmarks.dlib_detector:CnnDetector"),
         summary="dlib's CNN detector: finds turned, tilted and low-contrast faces; about 5 s for a "
         "512 x 512 photo on 2 cores",
     )
-    register_detector("auto", auto, summary="hog, and cnn only when hog finds no face")
+    register_detector(
+        "auto",
+        lazy_factory("landmarks.dlib_detector:auto_detector"),
+        summary="hog, and cnn only when hog finds no face",
+    )
 
 
 _register_builtin()
 
 __all__ = [
     "DEFAULT_DETECTOR",
+    "lazy_factory",
     "NUM_LANDMARKS",
     "DetectionError",
     "FaceDetection",

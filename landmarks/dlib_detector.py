@@ -25,8 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
-from landmarks.detect import check_image
 from landmarks.detector import DetectionError, FaceDetection, FallbackDetector
+from landmarks.images import check_image
 
 PREDICTOR_FILE = "shape_predictor_68_face_landmarks.dat"
 CNN_DETECTOR_FILE = "mmod_human_face_detector.dat"

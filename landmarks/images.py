@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from landmarks.detector import DetectionError
 from rig.errors import InputError
 
 MAX_IMAGE_PIXELS = 120_000_000
@@ -155,4 +156,28 @@ def load_image(path: str | Path) -> np.ndarray:
     return load_working_image(path, max_side=1 << 30).image
 
 
-__all__ = ["MAX_IMAGE_PIXELS", "WORKING_MAX_SIDE", "ImageError", "LoadedImage", "load_image", "load_working_image"]
+__all__ = [
+    "MAX_IMAGE_PIXELS",
+    "WORKING_MAX_SIDE",
+    "ImageError",
+    "LoadedImage",
+    "check_image",
+    "load_image",
+    "load_working_image",
+]
+
+
+def check_image(image: np.ndarray, function: str) -> np.ndarray:
+    """``image`` as a C-contiguous ``(H, W, 3)`` uint8 array.
+
+    Raises:
+        DetectionError: another shape or dtype, or no pixels (the message names ``function``).
+    """
+    image = np.asarray(image)
+    if image.ndim != 3 or image.shape[2] != 3 or image.dtype != np.uint8:
+        raise DetectionError(
+            f"{function}: image must be an (H, W, 3) uint8 RGB array; got shape {image.shape}, dtype {image.dtype}"
+        )
+    if image.shape[0] == 0 or image.shape[1] == 0:
+        raise DetectionError(f"{function}: image is empty; got shape {image.shape}")
+    return np.ascontiguousarray(image)
