@@ -5,7 +5,8 @@ second-order steps reach its minimum in tens of iterations where first-order Ada
 residual function is *batched* (``(B, n) -> (B, m)``), so each iteration takes the Jacobian by forward
 differences in one call on ``n + 1`` parameter sets, in float64 (step ``1e-7 max(1, |x_j|)``: about 8
 significant digits, measured against ``torch.func.jacfwd`` in the tests; forward-mode autograd through
-the rig's joint hierarchy was 5x slower on 2 cores). It then solves the damped normal equations
+the rig's joint hierarchy was slower, docs/fit_photo.md "Levenberg-Marquardt"). It then solves the damped
+normal equations
 
     (J^T J + mu diag(J^T J)) delta = -J^T r                        (Marquardt's scaling)
 

@@ -51,10 +51,8 @@ class PriorWeights:
     AdaptiveSkinning.regularizer`), which replaces L_m, L_x and |Z|^2; it diminishes with L_m's schedule."""
     lambda_asm_smooth: float = 1.0
     """ASM fits only: weight of the squared uniform Laplacian of the head's offset from the template (mm^2,
-    mean over vertices), against the folds that sharp mixtures and free bone scales make (0: off). On a
-    simulated scan of held-out head 1 (expressive): without it the fit had folds at the eyes, cheeks and
-    jaw (face error 3.20 mm; with lambda_asm 0.1 instead, 3.55 mm and the same folds); with 1.0 a smooth
-    head, 2.65 mm (JNR's fit: 3.67 mm)."""
+    mean over vertices), against the folds that sharp mixtures and free bone scales make (0: off); chosen on
+    a simulated scan, docs/asm.md (the point-cloud section)."""
 
 
 # ----------------------------------------------------------------------------------------------------

@@ -25,8 +25,8 @@ landmark term (mean over the 68 landmarks of half the squared pixel error, Huber
 
 Chosen on synthetic validation photos (held-out heads 0-5, neutral and expressive, 1 px landmark noise,
 true focal; ``benchmarks/bench_fit_photo.py`` scores heads 20 on): NoW-style scan-to-mesh median,
-mean over the 12 photos, LM landmark fit: see ``docs/fit_photo.md`` for the table. The previous
-prior, L_m = 100 towards the template, scored 0.83 mm (Adam: 0.84) against the template's 0.94 mm."""
+mean over the 12 photos, LM landmark fit: see ``docs/fit_photo.md`` for the table and the previous prior
+(L_m = 100 towards the template) it replaced."""
 
 PHOTO_PRIOR = PriorWeights(lambda_m=0.0, lambda_identity=PHOTO_LAMBDA_IDENTITY)
 """The rig priors of the photo fit: the identity prior instead of L_m, the other weights as
@@ -94,7 +94,7 @@ class PhotometricConfig:
 
     enabled: bool = False
     """Run them (``jnr fit --photometric``). Off by default: on synthetic photos rendered with another light
-    model they did not improve the geometry over the landmark fit (``docs/fit_photo.md``) and cost ~20 s."""
+    model they did not improve the geometry over the landmark fit and cost far more time (``docs/fit_photo.md``)."""
     stages: tuple[PhotoStage, ...] = field(default_factory=photo_schedule)
     render_size: int = 128
     """Side of the square face crop the photometric loss is computed on, pixels."""
@@ -129,8 +129,8 @@ class PhotometricConfig:
     """Renderer sampling seed."""
     reproducible: bool = True
     """Bit-for-bit repeatable fits: the photometric stages run Dr.Jit (:func:`render.backend.reproducible`)
-    and torch on one thread, whose gradient scatter-adds otherwise change order from run to run (two
-    runs then differed by up to 0.12 mm); ~1.5x the photometric time here. False: faster, not repeatable."""
+    and torch on one thread, whose gradient scatter-adds otherwise change order from run to run; it costs
+    photometric time (``docs/fit_photo.md``). False: faster, not repeatable."""
 
     def __post_init__(self) -> None:
         if self.render_size < 16:

@@ -29,10 +29,8 @@ class PhotoConsistencyConfig:
     identity (``theta / span``) and the per-view poses; expressions and focals stay where the landmark
     refinement put them.
 
-    Off by default (docs/multiview.md, ``benchmarks/bench_multiview_photometric.py``): on rendered synthetic
-    views of held-out heads 20-22 it changed the identity's s2m median by -0.015, -0.029, +0.018 mm with 3
-    views (mean -0.009) and by +0.001, -0.033 mm with 5 views (heads 20, 21), for 1.5-3 minutes of Adam
-    on this 2-core machine: a small gain, not on every head, at many times the cost of the landmark fit.
+    Off by default: on rendered synthetic views of held-out heads its gain was small, not on every head, at
+    many times the cost of the landmark fit (docs/multiview.md, ``benchmarks/bench_multiview_photometric.py``).
     """
 
     enabled: bool = False
@@ -80,7 +78,7 @@ class AsmConfig:
     """GMM components per joint (ASM-K2, the paper's default)."""
     register_iterations: int = 100
     """``fit_asm`` steps registering ASM to the averaged single-view mesh (ASM App. D.1: 300; 100 here for CPU
-    time: vertex RMSE 0.46 mm against 0.33 mm at 300 on a test head)."""
+    time, docs/multiview.md "Settings")."""
     iterations: int = 60
     """Adam steps of the refinement on every view's landmarks + eq. 19."""
     lr: float = 0.003
@@ -91,17 +89,15 @@ class AsmConfig:
     """Adam step of the poses' translations, mm."""
     lambda_regularizer: float = 0.1
     """Weight of ASM's eq. 19 regulariser (the paper's per-term weights 1, 0.1, 0.1, 0.1, 0.1 in
-    :class:`rig.skinning.asm.AsmRegularizer`'s units) against the landmark cost summed over views (on held-out
-    head 22, 3 views: s2m median 0.515 mm at 0.01, 0.497 at 0.1; 0.620 at 0.001, which lets ASM's capacity
-    chase the landmark noise)."""
+    :class:`rig.skinning.asm.AsmRegularizer`'s units) against the landmark cost summed over views; a smaller one
+    lets ASM's capacity chase the landmark noise (docs/multiview.md "Settings")."""
     register_to: str = "averaged"
     """``averaged``: register to the averaged single-view JNR head (ASM App. D.1); ``refined``: to the JNR
     multi-view head after the joint landmark refinement."""
     lambda_smooth: float = 100.0
     """Weight of the squared uniform Laplacian of the identity's offset from the template (mm^2, mean over
-    vertices) in the refinement, against the folds that the landmarks alone let the mixtures make (0: off).
-    On held-out head 20: 0 gave 0.655 / 0.604 mm with 3 / 10 views and visible folds at the eyes, nose and
-    lips; 100 gave 0.651 / 0.600 mm and a smooth head; 1000 over-smoothed (0.709 / 0.706 mm)."""
+    vertices) in the refinement, against the folds that the landmarks alone let the mixtures make (0: off);
+    chosen on a held-out head (docs/multiview.md)."""
 
     def __post_init__(self) -> None:
         if self.register_to not in ("averaged", "refined"):
