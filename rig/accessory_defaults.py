@@ -6,6 +6,5 @@ DEFAULT_FALLOFF_MM = 10.0
 beyond it (a glasses rim sits 12-20 mm in front of the eyelids, a cap 3-6 mm off the scalp)."""
 DEFAULT_SMOOTHING_MM = 5.0
 """Width (sigma, mm) of the Gaussian kernel that smooths weights and offsets over the accessory, chosen on
-the shipped glasses and cap (docs/accessories.md): against none it halves the glasses' tearing (1.77 ->
-0.76 mm) and their deepest penetration (0.57 -> 0.34 mm); wider kernels let contact points drift from
-the skin (10 mm: glasses 0.92 mm deep, cap 3.3 mm)."""
+the shipped glasses and cap: without it rigid parts tear apart, wider kernels let contact points drift from
+the skin (the figures: docs/accessories.md)."""
