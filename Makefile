@@ -11,7 +11,7 @@ TORCH_SPEC ?= torch==2.13.0
 VIEWER_ASSETS := pipeline/viewer_assets
 THREE_JS := $(VIEWER_ASSETS)/three.module.min.js
 
-.PHONY: demo test lint venv llvm browser bench clean-venv
+.PHONY: demo test test-slow lint venv llvm browser bench clean-venv
 
 $(STAMP): pyproject.toml Makefile
 	$(PYTHON) -m venv $(VENV)
@@ -64,7 +64,11 @@ browser:
 	fi
 
 test: venv browser
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q -m "not slow"
+
+# the few slow end-to-end tests (marked @pytest.mark.slow); CI runs them after `make test`
+test-slow: venv browser
+	$(PY) -m pytest -q -m slow
 
 # ruff (lint + format check, settings in pyproject.toml) and the import contract (import-linter, [tool.importlinter])
 lint: $(STAMP)

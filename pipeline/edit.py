@@ -61,7 +61,9 @@ def load_edit_params(params: str | Path | None, clamp: bool = False) -> tuple[to
         data = None  # load_params_json reports it
     if _is_fit_params(data):
         kind = str(data.get("model", data.get("skinning", "jnr")))
-        if kind in head_model_kinds() and not is_posable(kind):
+        if kind not in head_model_kinds():
+            raise ParameterError(f"{path}: unknown head model {kind!r}; known: {', '.join(head_model_kinds())}")
+        if not is_posable(kind):
             raise ParameterError(
                 f"{path} is the parameter file of an {kind.upper()} fit; joint edits and the skinned export take "
                 f"fits posable by the rig's joints (the {kind.upper()} fit's mesh is its mesh.ply / mesh.obj)"

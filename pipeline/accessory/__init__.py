@@ -35,7 +35,6 @@ from pipeline.accessory.follow import FOLLOW_CASES, follow_figure, follow_figure
 from pipeline.accessory.inputs import (
     ACCESSORY_DIR,
     EXAMPLE_NAMES,
-    OUTPUT_FILES,
     Accessory,
     AccessoryInputError,
     accessory_path,
@@ -52,7 +51,6 @@ __all__ = [
     "AccessoryOnFit",
     "EXAMPLE_NAMES",
     "FOLLOW_CASES",
-    "OUTPUT_FILES",
     "accessory_on_fit",
     "accessory_path",
     "follow_figure",

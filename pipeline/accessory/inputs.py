@@ -8,7 +8,6 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.head.fitted import FittedHead, read_fit_folder
-from pipeline.head.folders import ACCESSORY_FOLDER
 from rig.accessory import (
     outer_skin_faces,
 )
@@ -29,7 +28,6 @@ MAX_SKIN_DISTANCE_MM = 40.0
 """An accessory whose nearest vertex is farther than this from the template's skin is not placed on it."""
 MAX_EXTENT_MM = 1000.0
 """An accessory larger than this (bounding-box diagonal) is not in millimetres."""
-OUTPUT_FILES = ACCESSORY_FOLDER.names
 
 
 class AccessoryInputError(InputError):

@@ -46,7 +46,7 @@ from pipeline.animation.keyframes import (
     render_frames,
     save_gif,
 )
-from pipeline.animation.retarget import RETARGET_FILES, retarget_fit, retarget_params
+from pipeline.animation.retarget import retarget_fit, retarget_params
 
 __all__ = [
     "Curves",
@@ -54,7 +54,6 @@ __all__ = [
     "EXAMPLE_CURVES",
     "HEAD_COLUMNS",
     "HEAD_JOINT",
-    "RETARGET_FILES",
     "animate_fit",
     "curve_keyframes",
     "example_curves",

@@ -19,8 +19,6 @@ from rig.io.mesh import export_mesh
 
 log = logging.getLogger("jnr")
 
-RETARGET_FILES = RETARGET_FOLDER.names
-
 
 def retarget_params(source: dict, target: dict) -> dict:
     """The target fit's ``params.json`` with the source's expression: its 52 ARKit coefficients (the jaw's
@@ -63,7 +61,7 @@ def retarget_fit(source_dir: str | Path, target_dir: str | Path, out: str | Path
         "target": str(Path(target_dir)),
         "expressions": dict(zip(EXPRESSION_NAMES, head.expressions.tolist())),
         "max_vertex_change_mm": float(np.linalg.norm(vertices - target.vertices, axis=1).max()),
-        "files": list(RETARGET_FILES),
+        "files": list(RETARGET_FOLDER.names),
     }
     with staged_folder(out, force, inputs=inputs) as tmp:
         export_mesh(tmp / "mesh.obj", vertices, asset.faces, face_uvs=asset.face_uvs)

@@ -186,8 +186,7 @@ def fitted_head_from_arrays(
         colours: ``(V, 3)`` sRGB in [0, 1] per vertex, or None.
     """
     model = model or JnrHead()
-    params = model.params(theta, z, expressions)
-    return FittedHead(model, params, model.forward(params), colours=colours)
+    return fitted_head_from_params(model.params(theta, z, expressions), model=model, colours=colours)
 
 
 def fitted_head_from_params(

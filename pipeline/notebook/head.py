@@ -43,9 +43,7 @@ def posable_head(fit_or_params, *, rig: JointRig | None = None) -> FittedHead:
             f"{type(fit_or_params).__name__} without {missing}"
         )
     albedo = getattr(fit_or_params, "albedo", None)
-    colours = None
-    if albedo is not None:
-        colours = np.asarray(linear_to_srgb(np.clip(np.asarray(albedo, np.float64), 0.0, 1.0)))
+    colours = None if albedo is None else linear_to_srgb(np.asarray(albedo, np.float64))  # clipped to [0, 1]
     return fitted_head_from_arrays(
         fit_or_params.theta, fit_or_params.z, fit_or_params.expressions, model=model, colours=colours
     )

@@ -27,7 +27,6 @@ from pipeline.camera import camera_direction_to_rig, camera_from_head_pose, chec
 from pipeline.config import CONFIG_FILE, config_to_dict, dump_config
 from pipeline.files import check_output, json_safe, staged_folder
 from pipeline.head.fitted import FittedHead, fitted_head_from_params
-from pipeline.head.folders import VIEWS_FOLDER
 from pipeline.head.params import params_payload as head_params_payload
 from pipeline.head.skinned import write_skinned_head
 from pipeline.photo.detection import name_photo, photo_landmarks
@@ -43,7 +42,6 @@ from rig.head_model import JnrHead
 from rig.io.mesh import export_mesh, write_mtl
 from rig.template import FACE_REGIONS
 
-MULTIVIEW_OUTPUT_FILES = VIEWS_FOLDER.names
 MIN_VIEWS = 2
 
 
@@ -81,8 +79,8 @@ def multiview_head(fit: MultiViewFit, model: JnrHead | None = None) -> tuple[Fit
     part of the fit (its joints and Z: what ``mesh.glb`` and the viewer pose); the same head when the
     identity model is the rig's."""
     rig = fitted_head_from_params(fit.rig_identity, model=model)
-    identity = fitted_head_from_params(fit.identity, model=rig.model)
-    return identity, rig
+    identity = fit.identity
+    return (rig if identity.kind == rig.params.kind else fitted_head_from_params(identity)), rig
 
 
 def multiview_params_payload(

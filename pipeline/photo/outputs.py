@@ -31,7 +31,6 @@ from pipeline.colour import linear_to_srgb
 from pipeline.config import CONFIG_FILE, config_to_dict, dump_config
 from pipeline.files import check_output, json_safe, staged_folder
 from pipeline.head.fitted import FittedHead, fitted_head, fitted_head_from_arrays
-from pipeline.head.folders import PHOTO_FOLDER
 from pipeline.head.params import UNITS, ParamsFileError, load_params_file, read_params
 from pipeline.head.params import params_payload as head_params_payload
 from pipeline.head.skinned import write_skinned_head
@@ -48,7 +47,6 @@ from rig.io.mesh import export_mesh, write_mtl
 from rig.model import JointRig
 from rig.skinning.neural import NeuralSkinning
 
-OUTPUT_FILES = PHOTO_FOLDER.names
 PHOTO_UNITS = {**UNITS, "pixels": "OpenCV, 0-based"}
 MATERIAL_NAME = "skin"
 """The material of ``mesh.obj`` (``usemtl``) in ``mesh.mtl``."""
@@ -78,8 +76,7 @@ def expressions_csv(coefficients) -> str:
 def photo_head(fit: PhotoFit, model: JnrHead | None = None) -> FittedHead:
     """The :class:`~pipeline.head.fitted.FittedHead` of a photo fit (float64, from ``model``: default the
     committed rig and learned skinning)."""
-    colours = np.asarray(linear_to_srgb(np.clip(np.asarray(fit.albedo, np.float64), 0.0, 1.0)))
-    return fitted_head_from_arrays(fit.theta, fit.z, fit.expressions, model=model, colours=colours)
+    return fitted_head_from_arrays(fit.theta, fit.z, fit.expressions, model=model)
 
 
 def params_payload(

@@ -19,7 +19,6 @@ from scipy.spatial.transform import Rotation
 from pipeline.config import CONFIG_FILE, config_to_dict, dump_config
 from pipeline.files import json_safe, staged_folder
 from pipeline.head.fitted import FittedHead, fitted_head, fitted_head_from_params
-from pipeline.head.folders import SCAN_FOLDER
 from pipeline.head.params import ParamsFileError, load_params_file, read_params
 from pipeline.head.params import params_payload as head_params_payload
 from pipeline.metrics import distance_stats
@@ -33,8 +32,6 @@ from pipeline.viewer import VIEWER_FILE, fit_viewer_ready, write_viewer
 from rig.asset import load_asset
 from rig.head_model import HeadModel
 from rig.io.mesh import export_mesh
-
-OUTPUT_FILES = SCAN_FOLDER.names
 
 
 def report_distance_stats(distances: np.ndarray) -> dict:

@@ -19,22 +19,8 @@ from landmarks.dlib_detector import (
     auto_detector,
     shape_predictor_path,
 )
+from landmarks.ibug68.names import IBUG68_MIRROR
 from landmarks.images import load_image
-
-try:
-    from landmarks.ibug68.names import IBUG68_MIRROR
-except ImportError:  # ibug68 needs torch; the permutation is standard iBUG-68
-    IBUG68_MIRROR = tuple(
-        [16 - i for i in range(17)]
-        + [26 - i for i in range(5)]
-        + [21 - i for i in range(5)]
-        + [27, 28, 29, 30]
-        + [35, 34, 33, 32, 31]
-        + [45, 44, 43, 42, 47, 46]
-        + [39, 38, 37, 36, 41, 40]
-        + [54, 53, 52, 51, 50, 49, 48, 59, 58, 57, 56, 55]
-        + [64, 63, 62, 61, 60, 67, 66, 65]
-    )
 
 RIGHT_EYE = slice(36, 42)  # the subject's right eye: image left for a face towards the camera
 LEFT_EYE = slice(42, 48)

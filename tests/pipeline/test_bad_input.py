@@ -190,6 +190,7 @@ def test_a_target_that_appears_while_writing_is_not_replaced(tmp_path):
     assert target.read_text() == "theirs" and sorted(p.name for p in tmp_path.iterdir()) == ["empty", "fit", "head.obj"]
 
 
+@pytest.mark.slow
 def test_two_processes_with_the_same_out_one_wins_one_fails(tmp_path):
     """Real concurrency: two ``jnr data synth`` started together; exactly one writes, nothing is mixed."""
     out = tmp_path / "pop"
@@ -256,6 +257,7 @@ def test_a_decompression_bomb_is_one_line(capsys, tmp_path):
     assert tree_digest(tmp_path) == before and not leftovers(tmp_path)
 
 
+@pytest.mark.slow
 def test_a_large_photo_is_fitted_reduced_with_outputs_in_its_own_pixels(capsys, tmp_path, photo_dir):
     """A 2560 px photo (k = 2): landmarks and focal are given in its pixels and come back in its pixels."""
     from PIL import Image

@@ -291,7 +291,8 @@ def _summary_rows(path):
 
 
 def test_fit_face_all_writes_every_face(capsys, tmp_path, two_faces_photo):
-    from pipeline.photo.outputs import OUTPUT_FILES, mesh_from_photo_params
+    from pipeline.head.folders import PHOTO_FOLDER
+    from pipeline.photo.outputs import mesh_from_photo_params
 
     out = tmp_path / "faces"
     code, stdout, err = run(capsys, "fit", str(two_faces_photo), "--face", "all", "--out", str(out), *_fast())
@@ -306,7 +307,7 @@ def test_fit_face_all_writes_every_face(capsys, tmp_path, two_faces_photo):
     boxes = []
     for k, row in enumerate(rows):
         folder = out / f"face_{k}"
-        assert set(OUTPUT_FILES) <= {p.name for p in folder.iterdir()}
+        assert set(PHOTO_FOLDER.names) <= {p.name for p in folder.iterdir()}
         report = json.loads((folder / "report.json").read_text())
         assert report["input"]["face_index"] == k and len(report["input"]["faces"]) == 2
         box = [float(row[f"box_{side}"]) for side in ("left", "top", "right", "bottom")]

@@ -76,6 +76,7 @@ def test_data_synth_writes_meshes_and_manifest(tmp_path, capsys):
 
 
 @pytest.mark.skipif(not (RESULTS / "capacity.json").exists(), reason="no committed capacity table yet")
+@pytest.mark.slow
 def test_committed_artifacts_reproduce_the_committed_table():
     from pipeline.evaluation.capacity import CapacitySettings, evaluate_capacity
 

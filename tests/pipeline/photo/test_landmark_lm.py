@@ -83,6 +83,7 @@ def test_known_head_pose_and_expression_are_recovered(models, seed, yaw, pitch, 
     assert fit.error_px.mean() < 1.5
 
 
+@pytest.mark.slow
 def test_lm_reaches_the_minimum_of_a_long_adam_run(models):
     """One stage over pose, joints and expressions, the same objective: LM in a few iterations ends at least as
     low as 1,500 Adam steps, at nearly the same head."""

@@ -125,10 +125,10 @@ class TestTextureFiles:
     def test_texture_png_reloads_at_its_size_and_is_the_unwrap(self, out_dir, hand_fit, asset):
         from PIL import Image
 
-        from pipeline.photo.outputs import OUTPUT_FILES
+        from pipeline.head.folders import PHOTO_FOLDER
         from pipeline.photo.texture import texture_from_fit
 
-        assert {"texture.png", "mesh.mtl"} <= set(OUTPUT_FILES) <= {p.name for p in out_dir.iterdir()}
+        assert {"texture.png", "mesh.mtl"} <= set(PHOTO_FOLDER.names) <= {p.name for p in out_dir.iterdir()}
         image = np.asarray(Image.open(out_dir / "texture.png"))
         assert image.shape == (TEXTURE, TEXTURE, 3) and image.dtype == np.uint8
         skin = [asset.region_names.index(r) for r in FACE_REGIONS]  # the median fill's texels

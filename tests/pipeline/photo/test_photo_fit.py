@@ -190,7 +190,6 @@ def test_outputs_reload_to_the_same_mesh(known_photo, known_fit, tmp_path):
     import trimesh
 
     from pipeline.photo.outputs import (
-        OUTPUT_FILES,
         mesh_from_photo_params,
         write_photo_outputs,
     )
@@ -198,8 +197,9 @@ def test_outputs_reload_to_the_same_mesh(known_photo, known_fit, tmp_path):
 
     out = write_photo_outputs(tmp_path / "fit", known_photo.image, known_fit, config=_short_config(), spp=2)
     from pipeline.files import OUTPUT_MARKER
+    from pipeline.head.folders import PHOTO_FOLDER
 
-    assert sorted(p.name for p in out.iterdir()) == sorted((*OUTPUT_FILES, OUTPUT_MARKER))
+    assert sorted(p.name for p in out.iterdir()) == sorted((*PHOTO_FOLDER.names, OUTPUT_MARKER))
     assert load_config(FitPhotoConfig, out / "config.yaml") == _short_config()  # the settings used, read back
     assert np.abs(mesh_from_photo_params(out / "params.json") - known_fit.rig_vertices).max() < 1e-3
     # the camera frame: projecting the mesh with the params' camera puts the landmarks where the fit says

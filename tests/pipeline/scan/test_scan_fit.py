@@ -10,10 +10,11 @@ import torch
 from pipeline.cli import main
 from pipeline.config import ConfigError, load_config
 from pipeline.fitting.engine import Stage
+from pipeline.head.folders import SCAN_FOLDER
 from pipeline.metrics import scan_to_mesh_distances
 from pipeline.scan.fit import fit_scan
 from pipeline.scan.fit_config import FitScanConfig, jnr_schedule
-from pipeline.scan.outputs import OUTPUT_FILES, mesh_from_params, write_scan_outputs
+from pipeline.scan.outputs import mesh_from_params, write_scan_outputs
 from pipeline.scan.pointcloud.read import read_point_cloud
 from pipeline.scan.pointcloud.validate import validate_points
 from pipeline.scan.pointcloud.write import write_point_cloud_ply
@@ -137,7 +138,7 @@ def test_cli_fit_scan_writes_outputs_that_reload(scan_file, asset, capsys):
     )
     from pipeline.files import OUTPUT_MARKER
 
-    assert sorted(p.name for p in out.iterdir()) == sorted((*OUTPUT_FILES, OUTPUT_MARKER))
+    assert sorted(p.name for p in out.iterdir()) == sorted((*SCAN_FOLDER.names, OUTPUT_MARKER))
     import trimesh
 
     mesh = trimesh.load(out / "mesh.ply", process=False)
