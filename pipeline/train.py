@@ -22,11 +22,11 @@ import torch
 from pipeline.config import load_config as load_typed
 from pipeline.fitting.identity import IdentityPrior, build_identity_prior, clip_to_limits, default_identity_prior_path
 from pipeline.synthetic.population import (
+    ict_coefficients,
+    ict_heads,
     population_split,
-    sample_head,
     similarity_normalised,
     split_seeds,
-    synthesize_heads,
 )
 from rig.io.atomic import write_bytes_atomic
 from rig.model import JointRig
@@ -266,8 +266,9 @@ def train_identity_prior(
 ) -> IdentityPrior:
     """Fit the training population's joints and write the prior (``jnr train --identity-prior``).
 
-    The heads: the 85 of the ``train`` split plus ``extra_heads`` more drawn from the same (unshifted)
-    distribution with seeds of their own stream (never the ``val``, ``test`` or ``heldout`` seeds).
+    The heads: the 85 of the ``train`` split plus ``extra_heads`` more ICT identities drawn from the same
+    (unshifted) distribution with seeds of their own stream (never the ``val``, ``test`` or ``heldout``
+    seeds).
     """
     t0 = time.perf_counter()
     train = population_split("train", seed=seed)
@@ -276,8 +277,7 @@ def train_identity_prior(
         used = set().union(*(set(split_seeds(s, seed).tolist()) for s in ("train", "val", "test", "heldout")))
         ss = np.random.SeedSequence([seed, 0x1D_E7_17])
         seeds = [int(s) for s in ss.generate_state(extra_heads + 16, dtype=np.uint32) if int(s) not in used]
-        drawn = [sample_head(s) for s in seeds[:extra_heads]]
-        vertices.append(synthesize_heads(np.stack([d[1] for d in drawn]), np.stack([d[0] for d in drawn])))
+        vertices.append(ict_heads(np.stack([ict_coefficients(s) for s in seeds[:extra_heads]])))
     vertices = np.concatenate(vertices)
     theta = fit_population_joints(vertices, iterations=iterations, progress=progress)
     prior = build_identity_prior(

@@ -8,7 +8,7 @@ inlined as an import map ``data:`` URL) and the head as JSON with base64 arrays:
 - the template bind mesh (``(V, 3)`` float32 mm), its triangles over vertices split at UV seams, the UVs;
 - the skinning weights, at most 4 per vertex (joint ``uint8``, weight float32; the fits' weights have <= 4,
   so the page skins exactly as the rig);
-- the 52 joints (names, parents, bind positions) and the 105 channels with their limits and fitted values;
+- the 52 joints (names, parents, bind positions) and the 107 channels with their limits and fitted values;
 - the 52 ARKit shapes, sparse (vertex ``uint16``, offset float32: ~50k non-zero rows, not 52 x V), and the
   ``jawOpen`` hinge (weights, pivot, angle) of :class:`rig.expressions.ExpressionModel`;
 - the fitted expression coefficients, the texture (JPEG) or vertex colours;

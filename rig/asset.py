@@ -18,9 +18,9 @@ import numpy as np
 
 from rig.errors import SetupError
 from rig.io.atomic import write_bytes_atomic
-from rig.joints import JOINT_NAMES, JOINTS, PARENTS
-from rig.skinning.initial import SkinningLayout, initial_weights
-from rig.template import REGION_NAMES, TEMPLATE_VERSION, build_template
+from rig.joints import JOINT_NAMES, PARENTS
+from rig.skinning.initial import SkinningLayout
+from rig.template import REGION_NAMES, TEMPLATE_VERSION
 
 
 def cached_per_asset(build):
@@ -68,6 +68,10 @@ class RigAsset:
         weight_free: ``(S,)`` float64 initial weights' free floats.
         eye_loops: ``(2, n)`` int64 eyelid-rim loops (left, right); ``mouth_loop``: ``(m,)`` lip rim.
         version: asset version.
+        ict_rotation: ``(3, 3)``; ict_translation: ``(3,)`` mm: the ICT Face Model's frame -> the rig frame
+            (``x_rig = ict_rotation @ x_ict + ict_translation``).
+        ict_covered: ``(C,)`` int64 vertices that lie on the ICT surface; ict_triangle: ``(C,)`` int64 their
+            ICT skin triangle, ict_barycentric: ``(C, 3)`` float64 (:mod:`rig.ict.transfer`).
     """
 
     vertices: np.ndarray
@@ -86,6 +90,11 @@ class RigAsset:
     eye_loops: np.ndarray
     mouth_loop: np.ndarray
     version: int
+    ict_rotation: np.ndarray
+    ict_translation: np.ndarray
+    ict_covered: np.ndarray
+    ict_triangle: np.ndarray
+    ict_barycentric: np.ndarray
 
     @property
     def layout(self) -> SkinningLayout:
@@ -111,9 +120,12 @@ class RigAsset:
 
 
 def build_asset() -> RigAsset:
-    """Generate the template, joints and initial weights from code (deterministic)."""
-    mesh = build_template()
-    w = initial_weights(mesh)
+    """Generate the template, joints and initial weights from code and the committed ICT copy (deterministic):
+    MakeHuman's topology with the ICT mean's shape (:func:`rig.ict.mean.ict_template`)."""
+    from rig.ict.mean import ict_template
+
+    made = ict_template()
+    mesh, w = made.mesh, made.weights
     layout = SkinningLayout.from_weights(w, mesh.mirror)
     return RigAsset(
         vertices=mesh.vertices,
@@ -124,7 +136,7 @@ def build_asset() -> RigAsset:
         mirror=mesh.mirror,
         joint_names=JOINT_NAMES,
         parents=np.asarray(PARENTS, np.int64),
-        joint_positions=np.array([j.position for j in JOINTS], float),
+        joint_positions=made.joint_positions,
         weight_rows=layout.rows,
         weight_cols=layout.cols,
         weight_free_index=layout.free_index,
@@ -132,6 +144,11 @@ def build_asset() -> RigAsset:
         eye_loops=np.stack(mesh.eye_loops),
         mouth_loop=mesh.mouth_loop,
         version=TEMPLATE_VERSION,
+        ict_rotation=made.rotation,
+        ict_translation=made.translation,
+        ict_covered=made.registration.covered,
+        ict_triangle=made.registration.triangle,
+        ict_barycentric=made.registration.barycentric,
     )
 
 

@@ -10,7 +10,7 @@ the face, +X the subject's left). Every model has:
   posable model the skinning weights and the joints' channel transforms that the skinned glTF carries);
 * :meth:`HeadModel.to_dict` / :meth:`HeadModel.from_dict`: the model's entries of ``params.json``.
 
-Two models are registered: ``jnr`` (:class:`JnrHead`: the 52-joint rig, 105 channels, neural skinning of a
+Two models are registered: ``jnr`` (:class:`JnrHead`: the 52-joint rig, 107 channels, neural skinning of a
 50-d latent Z, the 52 ARKit shapes) and ``asm`` (:class:`AsmHead`: the Adaptive Skinning Model's bones and
 UV-space Gaussian-mixture weights on the same template, the same ARKit shapes). A new model is one class
 with these methods plus ``register_head_model(kind, cls)``.
@@ -240,7 +240,7 @@ def _require(data: Mapping, keys: tuple[str, ...]) -> None:
 
 
 class JnrHead:
-    """JNR's head: 105 joint channels, the neural skinning's latent Z and the 52 ARKit shapes.
+    """JNR's head: 107 joint channels, the neural skinning's latent Z and the 52 ARKit shapes.
 
     Args:
         asset: the rig asset (default: the committed one).

@@ -21,6 +21,7 @@ Everything is deterministic: :func:`build_template` returns identical arrays on 
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -55,7 +56,7 @@ FACE_REGIONS: tuple[str, ...] = ("forehead", "brows", "eyelids", "nose", "cheeks
 neck, eyes or mouth interior)."""
 HIDDEN_REGIONS: tuple[str, ...] = ("eyeballs", "mouth_interior", "teeth", "tongue", "eye_pockets")
 """Regions a camera or a scanner sees little or none of on a closed-mouth neutral face."""
-TEMPLATE_VERSION = 2
+TEMPLATE_VERSION = 3
 
 EYE_HEIGHT_MM = 5.0
 EYE_DEPTH_MM = 58.0
@@ -190,8 +191,9 @@ def label_regions(v: np.ndarray, vertex_piece: np.ndarray, pocket: np.ndarray, m
     return label.astype(np.int64)
 
 
-def build_template() -> TemplateMesh:
-    """The template head (see the module docstring); deterministic."""
+def build_makehuman_template() -> TemplateMesh:
+    """MakeHuman's head in the rig frame, labelled (steps 1-4 of the module docstring); deterministic. Its
+    shape is MakeHuman's artist-made average; :func:`build_template` gives it the ICT mean's shape."""
     head = head_mesh()
     v = head.vertices + phenotype_offsets()
     m = head.mirror
@@ -236,3 +238,21 @@ def build_template() -> TemplateMesh:
         translation=translation,
         source=head.source,
     )
+
+
+@functools.cache
+def makehuman_vertices() -> np.ndarray:
+    """``(V, 3)`` read-only: :func:`build_makehuman_template`'s vertices (MakeHuman's average head in the rig
+    frame), computed once per process."""
+    v = build_makehuman_template().vertices
+    v.setflags(write=False)
+    return v
+
+
+def build_template() -> TemplateMesh:
+    """The template head: MakeHuman's topology, regions and rims (:func:`build_makehuman_template`) with the
+    shape of the ICT Face Model's mean (real light-stage scans; :func:`rig.ict.mean.ict_template`), placed by
+    the same rule; deterministic."""
+    from rig.ict.mean import ict_template
+
+    return ict_template().mesh

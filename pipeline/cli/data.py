@@ -7,6 +7,10 @@ from pathlib import Path
 
 from pipeline.cli.common import EXIT_OK, CliError, StageBars, check_output
 
+SPLITS = ("train", "val", "test", "heldout", "makehuman")
+"""The splits of ``jnr data synth`` (:data:`pipeline.synthetic.population.SPLIT_SIZES`, not imported here so
+that ``jnr --help`` stays fast)."""
+
 
 def cmd_data_synth(args: argparse.Namespace) -> int:
     from pipeline.files import staged_folder
@@ -59,14 +63,26 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     synth = data_sub.add_parser(
         "synth",
         help="write the synthetic head population as meshes with a manifest",
-        description="Write the 85 train / 2 validation / 7 test identities and the "
-        "100 held-out heads (template topology, mm) and manifest.json.",
+        description="Write synthetic identity heads (template topology, mm, neutral) and manifest.json. "
+        "The splits: train (85), val (2) and test (7) are ICT Face Model identities (real-scan statistics: "
+        "the model's identity modes with N(0, 1) coefficients); heldout (100) is ICT identities from a "
+        "shifted distribution (a wider spread: sd 1.25 on modes 1-30, 2 on modes 31-100); makehuman (100) "
+        "is the out-of-distribution split, MakeHuman heads drawn from MakeHuman's shifted held-out "
+        "distribution (artist-made targets, with asymmetry and head-shape sliders). The manifest records "
+        "each split's kind and each head's seed and coefficients (and, for MakeHuman heads, phenotype "
+        "and age), enough to make every head again.",
     )
     synth.add_argument("--out", required=True, help="output folder")
     synth.add_argument("--seed", type=int, default=0, help="population seed (default: 0)")
     synth.add_argument("--format", choices=("ply", "obj"), default="ply")
     synth.add_argument(
-        "--splits", nargs="+", default=["train", "val", "test", "heldout"], choices=["train", "val", "test", "heldout"]
+        "--splits",
+        nargs="+",
+        default=list(SPLITS),
+        choices=SPLITS,
+        metavar="SPLIT",
+        help="splits to write, of train, val, test, heldout (ICT identities) and makehuman (MakeHuman heads, "
+        "out of distribution) (default: all)",
     )
     synth.add_argument("--force", action="store_true", help="replace the output folder")
     synth.add_argument("--quiet", action="store_true", help="no progress bar")

@@ -181,7 +181,13 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
         "floats and fitting seconds per head.",
     )
     cap.add_argument("--json", action="store_true", help="print JSON")
-    cap.add_argument("--splits", nargs="+", default=["test", "heldout"], choices=["train", "val", "test", "heldout"])
+    cap.add_argument(
+        "--splits",
+        nargs="+",
+        default=["test", "heldout"],
+        choices=["train", "val", "test", "heldout", "makehuman"],
+        help="population splits (ICT identities; makehuman: the out-of-distribution MakeHuman heads)",
+    )
     cap.add_argument("--limit", type=int, help="only the first N heads of each split")
     cap.add_argument("--skinning", help="learned-skinning artifact (default: the packaged one)")
     cap.add_argument("--joint-iterations", type=int, default=400)

@@ -315,7 +315,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
 
 
 FIT_DESCRIPTION = (
-    "Fit the rig (head pose, 105 joint channels, the 52 ARKit expressions) to one photo: detect the 68 "
+    "Fit the rig (head pose, 107 joint channels, the 52 ARKit expressions) to one photo: detect the 68 "
     "iBUG landmarks (dlib), place a pinhole camera (--focal, default 1.4 x the image's larger side) by "
     "solvePnP, then fit the landmarks by Levenberg-Marquardt (~0.25 s) with an identity prior learned "
     "from the synthetic head population. --photometric adds stages with a robust photometric loss on the "

@@ -74,7 +74,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
         "fit-scan",
         help="fit the rig to a point cloud (depth scan) by non-rigid ICP",
         formatter_class=argparse.RawDescriptionHelpFormatter,
-        description="Fit the rig (pose, 105 joint channels, neural-skinning latent Z, the 52 ARKit expressions) "
+        description="Fit the rig (pose, 107 joint channels, neural-skinning latent Z, the 52 ARKit expressions) "
         "to a point "
         "cloud: robust rigid pre-alignment, then JNR's alternating schedule (joints, Z; expressions) "
         "with closest-point correspondences both ways (rejected by distance, normals and the scan "

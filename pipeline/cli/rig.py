@@ -53,14 +53,15 @@ def cmd_rig_build(args: argparse.Namespace) -> int:
     if args.check:
         committed = read_asset(args.out or DEFAULT_ASSET)
         diff = float(np.abs(committed.vertices - asset.vertices).max())
-        same = (
-            diff <= 1e-6
-            and np.array_equal(committed.faces, asset.faces)
-            and float(np.abs(committed.weight_free - asset.weight_free).max()) <= 1e-9
-        )
+        differing = [
+            name
+            for name in type(asset).__dataclass_fields__
+            if not np.array_equal(np.asarray(getattr(committed, name)), np.asarray(getattr(asset, name)))
+        ]
+        same = not differing
         print(
             f"rebuilt in {time.perf_counter() - t0:.1f} s; largest vertex difference {diff:.3g} mm; "
-            f"{'identical' if same else 'DIFFERENT'}"
+            + ("identical, bit for bit" if same else f"DIFFERENT: {', '.join(differing)}")
         )
         return EXIT_OK if same else EXIT_FAILURE
     save_asset(asset, out)

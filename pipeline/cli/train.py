@@ -105,25 +105,25 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
         help="learn the linear and neural skinning weights from the synthetic population",
         description="Fit joints, learn global linear weights (alternating), synthesise "
         "skinning-weight sets, train the auto-encoder and fine-tune the decoder "
-        "WGAN-style. Writes rig/assets/jnr_skinning_v2.npz unless --out is given.",
+        "WGAN-style. Writes rig/assets/jnr_skinning_v3.npz unless --out is given.",
     )
     tr.add_argument(
         "--identity-prior",
         action="store_true",
         help="instead: fit the joints of the training population (85 train heads + 215 more from the "
         "same distribution, ~3 min) and write the identity prior of the photo fit, a PPCA Gaussian "
-        "of the fitted joints (rig/assets/jnr_identity_prior_v2.npz unless --out is given)",
+        "of the fitted joints (rig/assets/jnr_identity_prior_v3.npz unless --out is given)",
     )
     tr.add_argument(
         "--asm-init",
         action="store_true",
         help="instead: fit the initial Gaussian mixtures of the ASM skinning model (K = 2, 3, 5 per "
-        "bone) to the rig's painted weights in UV space, ~10 min (rig/assets/jnr_asm_init_v2.npz "
+        "bone) to the rig's painted weights in UV space, ~10 min (rig/assets/jnr_asm_init_v3.npz "
         "unless --out is given)",
     )
     tr.add_argument("--config", help="YAML file overriding TrainConfig fields (configs/train.yaml)")
     tr.add_argument("--set", action="append", metavar="KEY=VALUE", help="override one setting (repeatable)")
-    tr.add_argument("--out", help="artifact path (default: the packaged rig/assets/jnr_skinning_v2.npz)")
+    tr.add_argument("--out", help="artifact path (default: the packaged rig/assets/jnr_skinning_v3.npz)")
     tr.add_argument("--log", help="training log JSON (default: next to the artifact)")
     tr.add_argument("--force", action="store_true", help="overwrite --out")
     tr.add_argument("--quiet", action="store_true", help="no progress bars")

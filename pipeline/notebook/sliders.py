@@ -213,7 +213,7 @@ def rig_sliders(
     Args:
         head: the :class:`FittedHead` (:func:`~pipeline.notebook.head.posable_head`).
         view: the :func:`~pipeline.notebook.view.head_view` to update (None: only :attr:`RigSliders.vertices` changes).
-        channels: joint channels to offer by name (default all 105 of :data:`rig.parameters.CHANNELS`),
+        channels: joint channels to offer by name (default all 107 of :data:`rig.parameters.CHANNELS`),
             grouped by joint; each slider is in the channel's unit (deg, mm, scale factor) within its limits.
         expressions: also a slider per ARKit shape (grouped by family: brow, eye, jaw, mouth, ...).
         continuous_update: re-pose while a slider is dragged (default: on release).

@@ -1,6 +1,6 @@
 """Multi-view uncalibrated reconstruction: several photos of one person, no calibration (issue 15, ASM 4.2, App. D).
 
-Unknowns (:class:`~pipeline.photo.multiview_problem.MultiViewState`): one shared **identity** (the rig's 105 joint
+Unknowns (:class:`~pipeline.photo.multiview_problem.MultiViewState`): one shared **identity** (the rig's 107 joint
 channels ``theta``, as the single-photo fit uses them; the neural skinning at ``Z = 0``, which the landmark fit
 does not move either), and per view ``k`` a head pose ``(R_k, t_k)`` (``x_cam = RIG_TO_OPENCV @ R_k @ x_rig +
 t_k``, :mod:`pipeline.camera`), the 52 ARKit expression coefficients ``c_k`` and the focal length

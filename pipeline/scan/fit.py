@@ -12,7 +12,7 @@ NICP, and a regulariser L_m (eq. 4) that diminishes while the correspondences co
    (:func:`pipeline.scan.pointcloud.validate.validate_points`).
 2. **Stages** (:class:`pipeline.fitting.engine.Stage`, run by :func:`pipeline.fitting.engine.run_schedule`): each
    optimises some of ``pose`` (rotation + translation in the cloud
-   frame), ``joints`` (the 105 channels), ``latent`` (Z) and ``expressions`` (the 52 ARKit coefficients) with
+   frame), ``joints`` (the 107 channels), ``latent`` (Z) and ``expressions`` (the 52 ARKit coefficients) with
    Adam, rebuilding correspondences every ``correspondence_every`` iterations:
 
    - cloud -> model: each (subsampled) cloud point and the closest point on the model's surface

