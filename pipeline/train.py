@@ -6,7 +6,7 @@
 3. Synthesise skinning-weight training sets: saved and sparsely perturbed joint parameters, each with
    the closed-form weights that best reproduce its head (:func:`rig.skinning.linear.solve_weights`).
 4. Neural skinning: auto-encoder, then WGAN-style fine-tuning of the decoder from noise.
-Artifacts: ``rig/assets/jnr_skinning_v2.npz`` (learned linear floats + decoder) and a training log.
+Artifacts: ``rig/assets/jnr_skinning_v3.npz`` (learned linear floats + decoder) and a training log.
 """
 
 from __future__ import annotations

@@ -38,7 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from rig.errors import SetupError
-from rig.expressions import EXPRESSION_NAMES, EXPRESSIONS, JAW_ANGLE_DEG, JAW_INDEX, JAW_PIVOT, ExpressionModel
+from rig.expressions import EXPRESSION_NAMES, EXPRESSIONS, JAW_ANGLE_DEG, JAW_INDEX, ExpressionModel, jaw_pivot
 from rig.joints import CHANNEL_KINDS
 from rig.parameters import CHANNELS, NUM_PARAMETERS
 
@@ -322,7 +322,7 @@ def viewer_payload(
         "jaw": {
             "expression": int(JAW_INDEX),
             "angle_deg": float(JAW_ANGLE_DEG),
-            "pivot": [float(x) for x in JAW_PIVOT],
+            "pivot": [float(x) for x in jaw_pivot(asset)],
             "index": encode_array(jaw_rows, "uint16"),
             "weight": encode_array(jaw_weight[jaw_rows], "float32"),
         },

@@ -19,9 +19,12 @@ What we change in the data (:func:`build_expression_basis`)
   teeth and tongue in the data (``eyeBlink*`` moves 81 mouth-bag vertices by up to 8.5 mm); those rows are
   set to zero.
 - **jawOpen is a rotation plus a corrective**: ``jawOpen = c`` rotates the jaw by ``c *``
-  :data:`JAW_ANGLE_DEG` about the hinge axis (+X through :data:`JAW_PIVOT`, MakeHuman's jaw-bone pivot),
-  each vertex with weight ``jaw_weight`` in [0, 1], and adds ``c`` times a corrective shape; at ``c = 1`` the
-  sum is the artist's ``jawOpen`` exactly. The weight is fitted to the artist's shape (per vertex, the
+  :data:`JAW_ANGLE_DEG` about the hinge axis (+X through the template's ``jaw_root`` joint, :func:`jaw_pivot`),
+  each vertex with weight ``jaw_weight`` in [0, 1], and adds ``c`` times a corrective shape; weight and
+  corrective are fitted on MakeHuman's head (where the shape was sculpted, hinge :data:`JAW_PIVOT`), where
+  at ``c = 1`` the sum is the artist's ``jawOpen`` exactly.
+- **Lid travel fitted to the template's eyes**: the lid shapes' +Y offsets are scaled by :func:`lid_factor`
+  (the template's lid gap over MakeHuman's, per rim vertex). The weight is fitted to the artist's shape (per vertex, the
   least-squares weight of the rotation's displacement, clipped to [0, 1], smoothed over the mesh, made
   symmetric) and the corrective is what the rotation leaves; :func:`jaw_summary` gives the figures.
 
@@ -38,12 +41,14 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 import torch
+from scipy.sparse.linalg import spsolve
 from torch import nn
 
 from rig.asset import RigAsset, cached_per_asset, load_asset
 from rig.errors import InputError
 from rig.geometry import mesh_edges
 from rig.makehuman.face_units import ARKIT_NAMES, arkit_offsets
+from rig.template import makehuman_vertices, rim_halves
 
 __all__ = [
     "EXPRESSIONS",
@@ -58,6 +63,8 @@ __all__ = [
     "coefficients_from_dict",
     "expression_limits",
     "jaw_chord_error_mm",
+    "jaw_pivot",
+    "lid_factor",
     "jaw_summary",
     "mirror_coefficients",
     "morph_targets",
@@ -67,12 +74,18 @@ __all__ = [
 _MIRROR_X = np.array([-1.0, 1.0, 1.0])
 
 JAW_PIVOT = (0.0, -36.2, 1.2)
-"""Hinge point of ``jawOpen`` (mm): MakeHuman's jaw-bone head, ``(0, 688.5, 64.1)`` mm in its frame,
-placed like the template (:data:`rig.template` translation ``(0, -724.69, -62.9)``). The axis is +X."""
+"""Hinge point of the artist's ``jawOpen`` on MakeHuman's shape (mm): MakeHuman's jaw-bone head,
+``(0, 688.5, 64.1)`` mm in its frame, placed like :func:`rig.template.makehuman_vertices` (translation
+``(0, -724.69, -62.9)``); the bind position of the ``jaw_root`` joint there. The axis is +X. On a template
+of another shape the hinge is that template's ``jaw_root`` (:func:`jaw_pivot`)."""
 JAW_ANGLE_DEG = 22.0
 """Rotation of ``jawOpen`` at coefficient 1, degrees (MakeHuman's jaw bone opens the artist's jawOpen
 best near this angle)."""
 _STRAY_REGIONS = ("mouth_interior", "teeth", "tongue")
+_LID_SHAPES = ("eyeBlink", "eyeSquint", "eyeWide")
+"""The shapes that close or open the lid aperture; their lid offsets are adapted to the template's
+aperture (:func:`lid_factor`)."""
+_LID_REGIONS = ("eyelids", "eye_pockets")
 
 
 @dataclass(frozen=True)
@@ -140,9 +153,59 @@ def _smooth(asset: RigAsset, values: np.ndarray, iterations: int) -> np.ndarray:
     return values
 
 
-def _rotation_displacement(points: np.ndarray, angle_deg: float) -> np.ndarray:
-    """``(V, 3)``: the displacement of rotating ``points`` by ``angle_deg`` about +X through the pivot."""
-    q = points - np.asarray(JAW_PIVOT)
+def _rim_gaps(vertices: np.ndarray, upper: np.ndarray, lower: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The lid gap (mm, along +Y) at every vertex of an eye's ``upper`` and ``lower`` rim (corner to corner):
+    its height above (below) the other rim at the same fraction of arc length."""
+
+    def fraction(ids):
+        s = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(vertices[ids], axis=0), axis=1))]
+        return s / s[-1]
+
+    tu, tl = fraction(upper), fraction(lower)
+    y = vertices[:, 1]
+    return y[upper] - np.interp(tu, tl, y[lower]), np.interp(tl, tu, y[upper]) - y[lower]
+
+
+def lid_factor(asset: RigAsset | None = None) -> np.ndarray:
+    """``(V,)``: the factor by which the lid shapes' (:data:`_LID_SHAPES`) +Y offsets are scaled on the template.
+
+    The face units were sculpted on MakeHuman's eyes (:func:`rig.template.makehuman_vertices`); a template
+    with another lid aperture (the ICT mean's opens ~1.5 times as wide) needs proportionally more lid travel.
+    On each eyelid rim (``asset.eye_loops``) the factor is the ratio of the template's lid gap to MakeHuman's
+    at that vertex (:func:`_rim_gaps`; the two corners, where both gaps are 0, are left free); it is 1 outside
+    the eyelids and eye pockets and harmonic inside them (so the pocket behind the lid follows it). 1
+    everywhere on MakeHuman's own shape; exactly mirror-symmetric.
+    """
+    asset = load_asset() if asset is None else asset
+    old, new = makehuman_vertices(), asset.vertices
+    n = len(new)
+    value = np.ones(n)
+    fixed = ~asset.region_mask(*_LID_REGIONS)
+    for loop in asset.eye_loops:
+        upper, lower = rim_halves(new, loop)
+        for ids, g_new, g_old in zip((upper, lower), _rim_gaps(new, upper, lower), _rim_gaps(old, upper, lower)):
+            inner = slice(1, -1)  # not the corners
+            value[ids[inner]] = g_new[inner] / g_old[inner]
+            fixed[ids[inner]] = True
+    e = mesh_edges(asset.faces)
+    a = sp.coo_matrix((np.ones(2 * len(e)), (np.r_[e[:, 0], e[:, 1]], np.r_[e[:, 1], e[:, 0]])), shape=(n, n)).tocsr()
+    lap = sp.diags(np.asarray(a.sum(1)).ravel()) - a
+    free = np.flatnonzero(~fixed)
+    rhs = -(lap[free][:, np.flatnonzero(fixed)] @ value[fixed])
+    value[free] = spsolve(lap[free][:, free].tocsc(), rhs)
+    return 0.5 * (value + value[asset.mirror])
+
+
+def jaw_pivot(asset: RigAsset | None = None) -> np.ndarray:
+    """``(3,)`` mm: the hinge of ``jawOpen`` on the template: its ``jaw_root`` joint's bind position
+    (:data:`JAW_PIVOT` on MakeHuman's shape; re-placed with the ICT mean's shape, :mod:`rig.ict.mean`)."""
+    asset = load_asset() if asset is None else asset
+    return np.array(asset.joint_positions[list(asset.joint_names).index("jaw_root")], float)
+
+
+def _rotation_displacement(points: np.ndarray, angle_deg: float, pivot=JAW_PIVOT) -> np.ndarray:
+    """``(V, 3)``: the displacement of rotating ``points`` by ``angle_deg`` about +X through ``pivot``."""
+    q = points - np.asarray(pivot)
     a = math.radians(angle_deg)
     dy = (math.cos(a) - 1.0) * q[:, 1] - math.sin(a) * q[:, 2]
     dz = math.sin(a) * q[:, 1] + (math.cos(a) - 1.0) * q[:, 2]
@@ -150,8 +213,9 @@ def _rotation_displacement(points: np.ndarray, angle_deg: float) -> np.ndarray:
 
 
 def _jaw_weight(asset: RigAsset, artist: np.ndarray) -> np.ndarray:
-    """``(V,)`` weight in [0, 1] of the jaw rotation, fitted to the artist's jawOpen ``(V, 3)``."""
-    r = _rotation_displacement(asset.vertices, JAW_ANGLE_DEG)
+    """``(V,)`` weight in [0, 1] of the jaw rotation, fitted to the artist's jawOpen ``(V, 3)`` on the shape
+    it was sculpted on (MakeHuman's, hinge :data:`JAW_PIVOT`)."""
+    r = _rotation_displacement(makehuman_vertices(), JAW_ANGLE_DEG)
     rr = (r * r).sum(1)
     w = np.where(rr > 1.0, (r * artist).sum(1) / np.maximum(rr, 1e-12), 0.0)
     w = np.clip(_smooth(asset, np.clip(w, 0.0, 1.0), 4), 0.0, 1.0)
@@ -174,15 +238,20 @@ def build_expression_basis(asset: RigAsset | None = None) -> tuple[np.ndarray, n
     if raw.shape[1] != len(asset.vertices):
         raise ExpressionError(f"the ARKit face units have {raw.shape[1]} vertices, the template {len(asset.vertices)}")
     stray = asset.region_mask(*_STRAY_REGIONS)
+    lid = lid_factor(asset)
     basis = np.zeros_like(raw)
     for i, name in enumerate(EXPRESSION_NAMES):
         j = _INDEX[_twin(name)]
         f = 0.5 * (raw[i] + _mirror(asset, raw[j]))  # a pair's symmetric average; a midline shape's own part
         if name.startswith(("eye", "brow")):
             f = np.where(stray[:, None], 0.0, f)
+        if name.startswith(_LID_SHAPES):
+            f[:, 1] *= lid
         basis[i] = f
+    # the jaw: weight and corrective from the artist's shape on MakeHuman's (where it was sculpted); the
+    # rotation then turns the template's own vertices about its own hinge
     weight = _jaw_weight(asset, basis[JAW_INDEX])
-    basis[JAW_INDEX] = basis[JAW_INDEX] - weight[:, None] * _rotation_displacement(asset.vertices, JAW_ANGLE_DEG)
+    basis[JAW_INDEX] = basis[JAW_INDEX] - weight[:, None] * _rotation_displacement(makehuman_vertices(), JAW_ANGLE_DEG)
     return basis, weight
 
 
@@ -228,7 +297,7 @@ def jaw_summary(asset: RigAsset | None = None) -> dict[str, float]:
     than 0.1 mm) of the artist's shape, of the corrective, and the corrective's largest vertex norm."""
     asset = load_asset() if asset is None else asset
     basis, weight = _cached(asset)
-    rotation = weight[:, None] * _rotation_displacement(asset.vertices, JAW_ANGLE_DEG)
+    rotation = weight[:, None] * _rotation_displacement(makehuman_vertices(), JAW_ANGLE_DEG)
     artist = basis[JAW_INDEX] + rotation
     moved = np.linalg.norm(artist, axis=1) > 0.1
 
@@ -325,7 +394,7 @@ class ExpressionModel(nn.Module):
         self.register_buffer("basis", torch.as_tensor(basis, dtype=dtype))
         self.register_buffer("jaw_weight", torch.as_tensor(jaw_w, dtype=dtype))
         self.register_buffer("template", torch.as_tensor(asset.vertices, dtype=dtype))
-        self.register_buffer("jaw_pivot", torch.as_tensor(JAW_PIVOT, dtype=dtype))
+        self.register_buffer("jaw_pivot", torch.as_tensor(jaw_pivot(asset), dtype=dtype))
         self.names = EXPRESSION_NAMES
 
     @property

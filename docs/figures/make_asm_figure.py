@@ -2,7 +2,7 @@
 
     .venv/bin/python docs/figures/make_asm_figure.py
 
-Rows: the painted initial weights, the GMM fit with K = 2, with K = 5 (rig/assets/jnr_asm_init_v2.npz);
+Rows: the painted initial weights, the GMM fit with K = 2, with K = 5 (rig/assets/jnr_asm_init_v3.npz);
 columns: three groups of joints (red = weight 1), seen three-quarter. Vertices off the skin UV island keep
 the painted weights in every row.
 """

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import math
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -141,6 +142,27 @@ def _skin():
     return asset.vertices, outer_skin_faces(asset)
 
 
+@dataclass(frozen=True)
+class _Landmarks:
+    """Where the accessories are placed, measured on the template (mm, rig space): ``eye`` the left eyeball's
+    centre (the mean of its vertices), ``ear_top`` / ``ear_back`` the left ear's highest ``y`` and rearmost
+    ``z``."""
+
+    eye: np.ndarray
+    ear_top: float
+    ear_back: float
+
+
+def _landmarks(vertices: np.ndarray | None = None) -> _Landmarks:
+    """:class:`_Landmarks` of the template (``vertices``: another shape on its topology, for comparisons)."""
+    asset = load_asset()
+    v = asset.vertices if vertices is None else np.asarray(vertices, float)
+    left = v[:, 0] > 0
+    eye = v[asset.region_mask("eyeballs") & left].mean(0)
+    ear = v[asset.region_mask("ears") & left]
+    return _Landmarks(eye=eye, ear_top=float(ear[:, 1].max()), ear_back=float(ear[:, 2].min()))
+
+
 def _first_hits(
     origins: np.ndarray, directions: np.ndarray, vertices: np.ndarray, faces: np.ndarray, chunk: int = 32
 ) -> np.ndarray:
@@ -159,7 +181,9 @@ def _first_hits(
         q = np.cross(t_vec, e1[None])
         v = (d * q).sum(-1) * inv
         t = (e2[None] * q).sum(-1) * inv
-        hit = ok & (u >= 0) & (v >= 0) & (u + v <= 1) & (t > 1e-9)
+        # A small tolerance on the barycentrics: a ray in the mirror plane through a midline edge must not
+        # pass between its two triangles by rounding.
+        hit = ok & (u >= -1e-9) & (v >= -1e-9) & (u + v <= 1 + 1e-9) & (t > 1e-9)
         out[s : s + chunk] = np.where(hit, t, np.inf).min(1)
     return out
 
@@ -212,7 +236,8 @@ def _check_clear(name: str, vertices: np.ndarray, skin_v: np.ndarray, skin_f: np
 # Glasses
 # ----------------------------------------------------------------------------------------------------
 
-_RIM_CENTRE = (33.0, 3.0)  # x, y of the left rim's centre (the subject's left, +X), mm
+_RIM_FROM_EYE = (4.2, -2.0)  # the left rim's centre (x, y) from the left eyeball's centre: outward, down, mm
+_RIM_START_DEPTH = 22.0  # the rims' first depth in front of the eyeballs' centres (then moved forward), mm
 _RIM_AXES = (21.0, 15.0)  # half width, half height, mm
 _RIM_EXPONENT = 2.6  # superellipse exponent (2: an ellipse; larger: squarer)
 _RIM_SAMPLES = 48
@@ -221,13 +246,20 @@ _GAP_MM = 1.5  # skin to tube surface where a part hugs the head
 _TILT, _WRAP = 0.15, 0.12  # dz/dy (pantoscopic tilt: the bottom nearer the cheeks), dz/d|x| (face form)
 
 
-def _rim_path(z0: float) -> np.ndarray:
-    """The left rim's centre line ``(M, 3)``: a superellipse in a tilted, wrapped plane at depth ``z0``."""
+# The temple's centre line in the (z, y) plane, as offsets from the left ear's back (z) and top (y), mm: forward
+# of the ear, 3-4 mm above it, then down 6-14 mm behind it (on the MakeHuman head, ear back z = -40.5 and top
+# y = 25.4, these were the knots (45, 22), (20, 28.5), (-10, 29.5), (-38, 28.5), (-47, 20), (-52, 6), (-54, -4)).
+_TEMPLE_FROM_EAR = ((85.5, -3.4), (60.5, 3.1), (30.5, 4.1), (2.5, 3.1), (-6.5, -5.4), (-11.5, -19.4), (-13.5, -29.4))
+
+
+def _rim_path(centre: tuple[float, float], z0: float) -> np.ndarray:
+    """The left rim's centre line ``(M, 3)``: a superellipse around ``centre`` (x, y) in a tilted, wrapped
+    plane at depth ``z0``."""
     t = 2.0 * np.pi * np.arange(_RIM_SAMPLES) / _RIM_SAMPLES
     e = 2.0 / _RIM_EXPONENT
-    x = _RIM_CENTRE[0] + _RIM_AXES[0] * np.sign(np.cos(t)) * np.abs(np.cos(t)) ** e
-    y = _RIM_CENTRE[1] + _RIM_AXES[1] * np.sign(np.sin(t)) * np.abs(np.sin(t)) ** e
-    z = z0 + _TILT * (y - _RIM_CENTRE[1]) - _WRAP * (x - (_RIM_CENTRE[0] - _RIM_AXES[0]))
+    x = centre[0] + _RIM_AXES[0] * np.sign(np.cos(t)) * np.abs(np.cos(t)) ** e
+    y = centre[1] + _RIM_AXES[1] * np.sign(np.sin(t)) * np.abs(np.sin(t)) ** e
+    z = z0 + _TILT * (y - centre[1]) - _WRAP * (x - (centre[0] - _RIM_AXES[0]))
     return np.stack([x, y, z], 1)
 
 
@@ -242,14 +274,16 @@ def glasses_mesh() -> tuple[np.ndarray, np.ndarray]:
     """The example glasses on the template: ``vertices (N, 3)`` mm and ``faces (F, 3)`` (closed tubes:
     two rims, a bridge, two temples), mirror-symmetric, clear of the skin."""
     skin_v, skin_f = _skin()
+    marks = _landmarks()
+    centre = (marks.eye[0] + _RIM_FROM_EYE[0], marks.eye[1] + _RIM_FROM_EYE[1])
     # Rims: forward until every centre-line point clears the skin by radius + gap.
-    z0 = 80.0
+    z0 = marks.eye[2] + _RIM_START_DEPTH
     for _ in range(20):
-        low = float(signed_distance(_rim_path(z0), skin_v, skin_f).min())
+        low = float(signed_distance(_rim_path(centre, z0), skin_v, skin_f).min())
         if low >= _RIM_RADIUS + _GAP_MM:
             break
         z0 += _RIM_RADIUS + _GAP_MM - low + 0.1
-    rim = _rim_path(z0)
+    rim = _rim_path(centre, z0)
     # Bridge: from the left rim's upper inner side over the nose to its mirror image, a gap above the skin.
     start = _rim_at(rim, 150.0)
     mid_y = start[1] + 1.0
@@ -263,18 +297,8 @@ def glasses_mesh() -> tuple[np.ndarray, np.ndarray]:
     bridge = 0.5 * (bridge + bridge[::-1] * np.array([-1.0, 1.0, 1.0]))  # exactly symmetric
     # Temple: from the hinge on the rim's outer side back along the head above the ear, then down behind it.
     hinge = _rim_at(rim, 20.0) + np.array([_RIM_RADIUS, 0.0, -_RIM_RADIUS])
-    knots_zy = np.array(
-        [
-            [hinge[2], hinge[1]],
-            [45.0, 22.0],
-            [20.0, 28.5],
-            [-10.0, 29.5],
-            [-38.0, 28.5],
-            [-47.0, 20.0],
-            [-52.0, 6.0],
-            [-54.0, -4.0],
-        ]
-    )
+    ear = np.array([marks.ear_back, marks.ear_top])
+    knots_zy = np.concatenate([[[hinge[2], hinge[1]]], ear + np.array(_TEMPLE_FROM_EAR)])
     z = np.linspace(knots_zy[0, 0], knots_zy[-1, 0], 80)
     y = np.interp(-z, -knots_zy[:, 0], knots_zy[:, 1])
     origins = np.stack([np.zeros_like(z), y, z], 1)
@@ -294,42 +318,73 @@ def glasses_mesh() -> tuple[np.ndarray, np.ndarray]:
 # Cap
 # ----------------------------------------------------------------------------------------------------
 
-_CAP_EDGE = (34.4, 0.194)  # the crown's edge plane y = a + b z (front edge y = 50 at z = 80, back y = 15)
-_CAP_CENTRE = (0.0, 35.0, -10.0)  # the rays' origin inside the skull, mm
+# The crown's edge plane y = a + b z: slope b (it rises 11 deg toward the front), through the midline forehead
+# skin 45 mm above the eyeballs' centres (mid-forehead). The rays' origin inside the skull: the middle of the
+# plane's front and back midline skin points, moved up and forward in the plane's frame. On the MakeHuman head
+# these rules give the plane y = 34.6 + 0.194 z (it had y = 34.4 + 0.194 z: front edge y = 50 at z = 80, back
+# y = 15 at z = -100) and the origin (0, 35.0, -10.0) mm.
+_CAP_SLOPE = 0.194
+_CAP_FRONT_ABOVE_EYES = 45.0  # mm
+_CAP_CENTRE_FROM_EDGE = (2.3, 4.0)  # along the plane's normal (up), along its front direction; mm
 _CAP_INNER, _CAP_OUTER = 3.0, 6.0  # offsets of the shell's inner and outer surfaces from the skin, mm
 _CAP_AZIMUTHS, _CAP_RINGS = 64, 14
 _BRIM_LENGTH, _BRIM_HALF_ARC, _BRIM_THICKNESS, _BRIM_DROOP = 62.0, 78.0, 2.4, 0.12
 
 
-def _cap_frame() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The edge plane's upward unit normal ``axis`` and two unit vectors spanning it (``front``: toward +Z)."""
-    a, b = _CAP_EDGE
+@dataclass(frozen=True)
+class _CapPlacement:
+    """The crown's edge plane ``y = a + b z`` and the rays' origin ``centre`` ``(3,)`` mm, on the template."""
+
+    a: float
+    b: float
+    centre: np.ndarray
+
+
+def _cap_placement(skin_v: np.ndarray, skin_f: np.ndarray, eye_height: float) -> _CapPlacement:
+    """:class:`_CapPlacement` measured on the skin (rules: the constants above)."""
+    b = _CAP_SLOPE
+    y = eye_height + _CAP_FRONT_ABOVE_EYES
+    z = _first_hits(np.array([[0.0, y, 0.0]]), np.array([[0.0, 0.0, 1.0]]), skin_v, skin_f)[0]
+    a = y - b * z
+    axis, front, _ = _cap_frame(b)
+    start = np.array([0.0, y, z]) - front  # 1 mm inside the forehead, then back along the plane
+    back = start - _first_hits(start[None], -front[None], skin_v, skin_f)[0] * front
+    if not (np.isfinite(z) and np.isfinite(back).all()):
+        raise RuntimeError("cap: the edge plane's midline does not meet the skin")
+    middle = 0.5 * (np.array([0.0, y, z]) + back)
+    centre = middle + _CAP_CENTRE_FROM_EDGE[0] * axis + _CAP_CENTRE_FROM_EDGE[1] * front
+    return _CapPlacement(a=float(a), b=b, centre=centre)
+
+
+def _cap_frame(b: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The edge plane's (slope ``b``) upward unit normal ``axis`` and two unit vectors spanning it (``front``:
+    toward +Z)."""
     axis = np.array([0.0, 1.0, -b]) / math.hypot(1.0, b)
     front = np.array([0.0, b, 1.0]) / math.hypot(1.0, b)
     return axis, front, np.cross(axis, front)
 
 
-def _scalp_points(theta: np.ndarray, phi: np.ndarray, skin_v, skin_f) -> np.ndarray:
-    """Where rays from :data:`_CAP_CENTRE` at polar angle ``theta`` (from the plane's normal) and azimuth
+def _scalp_points(theta: np.ndarray, phi: np.ndarray, place: _CapPlacement, skin_v, skin_f) -> np.ndarray:
+    """Where rays from ``place.centre`` at polar angle ``theta`` (from the plane's normal) and azimuth
     ``phi`` (0: the front) first meet the skin, ``(N, 3)``."""
-    axis, front, lateral = _cap_frame()
+    axis, front, lateral = _cap_frame(place.b)
     d = np.cos(theta)[:, None] * axis + np.sin(theta)[:, None] * (
         np.cos(phi)[:, None] * front + np.sin(phi)[:, None] * lateral
     )
-    origin = np.broadcast_to(np.asarray(_CAP_CENTRE), d.shape)
+    origin = np.broadcast_to(place.centre, d.shape)
     t = _first_hits(origin, d, skin_v, skin_f)
     if not np.isfinite(t).all():
         raise RuntimeError("cap: a ray from the skull's centre missed the skin")
     return origin + t[:, None] * d
 
 
-def _edge_angles(phi: np.ndarray, skin_v, skin_f) -> np.ndarray:
+def _edge_angles(phi: np.ndarray, place: _CapPlacement, skin_v, skin_f) -> np.ndarray:
     """Per azimuth, the polar angle at which the skin point reaches the edge plane (bisection)."""
-    a, b = _CAP_EDGE
+    a, b = place.a, place.b
     low, high = np.zeros_like(phi), np.full_like(phi, math.radians(150.0))
     for _ in range(30):
         mid = 0.5 * (low + high)
-        p = _scalp_points(mid, phi, skin_v, skin_f)
+        p = _scalp_points(mid, phi, place, skin_v, skin_f)
         above = p[:, 1] - (a + b * p[:, 2]) > 0
         low, high = np.where(above, mid, low), np.where(above, high, mid)
     return 0.5 * (low + high)
@@ -343,16 +398,16 @@ def _grid_faces(rows: int, cols: int, offset: int = 0) -> np.ndarray:
     return offset + np.concatenate([np.stack([a, b, c], -1).reshape(-1, 3), np.stack([a, c, d], -1).reshape(-1, 3)])
 
 
-def _crown(skin_v, skin_f) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _crown(place: _CapPlacement, skin_v, skin_f) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The crown shell (closed) and its outer edge ring ``(azimuths, 3)``."""
     phi = 2.0 * np.pi * np.arange(_CAP_AZIMUTHS) / _CAP_AZIMUTHS
-    edge = _edge_angles(phi, skin_v, skin_f)
+    edge = _edge_angles(phi, place, skin_v, skin_f)
     s = np.arange(1, _CAP_RINGS + 1) / _CAP_RINGS
     theta = (s[:, None] * edge[None]).ravel()
     on_skin = np.concatenate(
         [
-            _scalp_points(np.zeros(1), np.zeros(1), skin_v, skin_f),
-            _scalp_points(theta, np.tile(phi, _CAP_RINGS), skin_v, skin_f),
+            _scalp_points(np.zeros(1), np.zeros(1), place, skin_v, skin_f),
+            _scalp_points(theta, np.tile(phi, _CAP_RINGS), place, skin_v, skin_f),
         ]
     )
     normal = _skin_normals(on_skin, skin_v, skin_f)
@@ -377,9 +432,10 @@ def _crown(skin_v, skin_f) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return vertices, faces, outer[last : last + cols]
 
 
-def _brim(edge_ring: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """A closed slab in front of the crown, from the front arc of its outer edge outward."""
-    axis, front, lateral = _cap_frame()
+def _brim(edge_ring: np.ndarray, b: float) -> tuple[np.ndarray, np.ndarray]:
+    """A closed slab in front of the crown (edge plane slope ``b``), from the front arc of its outer edge
+    outward."""
+    axis, front, lateral = _cap_frame(b)
     n_arc = 33
     phi = np.radians(np.linspace(-_BRIM_HALF_ARC, _BRIM_HALF_ARC, n_arc))
     ring_phi = 2.0 * np.pi * np.arange(len(edge_ring)) / len(edge_ring)
@@ -432,9 +488,10 @@ def cap_mesh() -> tuple[np.ndarray, np.ndarray]:
     """The example cap on the template: ``vertices (N, 3)`` mm and ``faces (F, 3)`` (a closed crown shell 3-6
     mm off the scalp and a closed brim), mirror-symmetric, clear of the skin."""
     skin_v, skin_f = _skin()
-    crown_v, crown_f, edge_ring = _crown(skin_v, skin_f)
+    place = _cap_placement(skin_v, skin_f, float(_landmarks().eye[1]))
+    crown_v, crown_f, edge_ring = _crown(place, skin_v, skin_f)
     crown_f = _orient_outward(crown_v, crown_f)
-    vertices, faces = _combine([(crown_v, crown_f), _brim(edge_ring)])
+    vertices, faces = _combine([(crown_v, crown_f), _brim(edge_ring, place.b)])
     _check_clear("cap", vertices, skin_v, skin_f)
     return vertices, faces
 

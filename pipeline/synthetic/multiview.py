@@ -4,9 +4,9 @@ Several uncalibrated photos of one person: the same held-out head (never seen in
 albedo in every view (:func:`pipeline.synthetic.photos.albedo.synthesize_albedo`, drawn once), each view with its
 own random head pose (yaw within ``yaw_deg_range``, default ±60°; pitch and roll as
 :class:`~pipeline.synthetic.photos.settings.PhotoSettings`), its own focal length (``focal_factor_range``), light,
-background and landmark noise, and a small expression of its own: MakeHuman expression units
+background and landmark noise, and a small expression of its own: ICT's 53 expression shapes
 (:mod:`pipeline.synthetic.expressive`, not the rig's ARKit shapes), sampled as for the expressive heads and
-scaled by ``expression_scale`` (default 0.25: strengths 0.1-0.25 of the artist's unit). Each view is
+scaled by ``expression_scale`` (default 0.25: strengths 0.1-0.25 of ICT's full expression). Each view is
 path-traced by :func:`render.reference.render_reference` through
 :func:`~pipeline.synthetic.photos.simulate.simulate_photo`
 (a renderer and light model unlike the fitting ones).
@@ -46,7 +46,7 @@ class MultiViewSettings:
             (:class:`~pipeline.synthetic.photos.settings.PhotoSettings`); its ``yaw_deg_range`` is replaced by
             :attr:`yaw_deg_range`.
         yaw_deg_range: head yaw of each view, degrees (uniform).
-        expression_scale: factor on the sampled MakeHuman expression coefficients of each view (0: the
+        expression_scale: factor on the sampled ICT expression coefficients of each view (0: the
             neutral head in every view).
     """
 
@@ -74,7 +74,7 @@ class SyntheticViews:
         photos: ``N`` :class:`~pipeline.synthetic.photos.settings.SyntheticPhoto`, each with its pose, focal, landmarks
             and its own expressive mesh ``gt_vertices`` (rig space, mm).
         neutral_vertices: ``(V, 3)`` float64 the head without expression, rig space, mm: the identity.
-        expression_coefficients: ``(N, 34)`` the MakeHuman unit coefficients of each view
+        expression_coefficients: ``(N, 53)`` the ICT expression coefficients of each view
             (:data:`pipeline.synthetic.expressive.EXPRESSIVE_FEATURE_NAMES`).
         albedo: ``(V, 3)`` linear RGB, the same in every view.
         name: e.g. ``heldout_020``.

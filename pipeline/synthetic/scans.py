@@ -111,7 +111,8 @@ class SyntheticScan:
         normals: ``(N, 3)`` unit normals towards the camera, or ``None``.
         gt_vertices: ``(V, 3)`` the true head in the world frame, ``head @ rotation.T + translation``.
         rotation: ``(3, 3)`` head rotation; translation: ``(3,)`` mm.
-        visible: ``(V,)`` bool, vertices seen by the camera (before holes and dropout).
+        visible: ``(V,)`` bool, vertices seen by the camera (before holes and dropout): on a rendered pixel,
+            within 3 mm of its z-buffer depth.
         hole_fraction: fraction of the face's (rendered) pixels removed by the holes.
         camera_position: ``(3,)`` mm, world frame.
         depth: ``(H, W)`` the final depth image before outliers (mm, ``inf`` where empty).
@@ -365,14 +366,16 @@ def simulate_scan(
     depth, face_id = render_depth(cam, f, camera)
     rendered = np.isfinite(depth)
 
-    # Visibility of the vertices (before dropout): in the image and not behind the z-buffer.
+    # Visibility of the vertices (before dropout): on a rendered pixel and not behind its z-buffer depth.
+    # A vertex whose pixel is empty lies on the silhouette between pixel centres (a grazing or slightly
+    # back-facing vertex): the camera samples no surface there, so it is not seen.
     with np.errstate(divide="ignore", invalid="ignore"):
         pu = np.rint(camera.fx * cam[:, 0] / cam[:, 2] + camera.cx).astype(np.int64)
         pv = np.rint(camera.fy * cam[:, 1] / cam[:, 2] + camera.cy).astype(np.int64)
     inside = (cam[:, 2] > _NEAR_MM) & (pu >= 0) & (pu < camera.width) & (pv >= 0) & (pv < camera.height)
     visible = np.zeros(len(v), bool)
     zb = depth[pv[inside], pu[inside]]
-    visible[inside] = cam[inside, 2] <= zb + 3.0
+    visible[inside] = np.isfinite(zb) & (cam[inside, 2] <= zb + 3.0)
     referenced = np.zeros(len(v), bool)
     referenced[used] = True
     visible &= referenced

@@ -104,7 +104,9 @@ def make_compact(source: str | Path, out: str | Path = COMPACT_PATH) -> dict[str
 
     Returns the largest storage error per kind (mm), measured on the round trip.
     """
-    from rig.asset import write_npz_atomic
+    import io
+
+    from rig.io.atomic import write_bytes_atomic
 
     src = np.load(source, allow_pickle=False)
     n = SKIN_VERTICES
@@ -129,7 +131,9 @@ def make_compact(source: str | Path, out: str | Path = COMPACT_PATH) -> dict[str
     arrays["eye_centres"] = np.stack([neutral_full[a:b].mean(0) for a, b in EYEBALLS]).astype(np.float32)
     if not set(arrays["landmarks68"].tolist()) <= set(range(n)):
         raise SetupError("ICT: a landmark is not on the skin")
-    write_npz_atomic(out, arrays)
+    buffer = io.BytesIO()
+    np.savez_compressed(buffer, **arrays)
+    write_bytes_atomic(out, buffer.getvalue(), make_parents=True)
     return errors
 
 
@@ -140,9 +144,14 @@ def load_ict(path: str | None = None) -> IctModel:
     Raises:
         SetupError: the file is missing or unreadable.
     """
-    from rig.asset import read_npz
-
-    d = read_npz(path or COMPACT_PATH, SetupError, "ICT face model copy", "it is committed with jnr: restore it")
+    path = Path(path or COMPACT_PATH)
+    if not path.is_file():
+        raise SetupError(f"ICT face model copy not found: {path} (it is committed with jnr: restore it)")
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            d = {k: data[k] for k in data.files}
+    except Exception as exc:  # zip/npz errors come in many types
+        raise SetupError(f"ICT face model copy {path} is unreadable: {exc}") from None
     return IctModel(
         neutral=d["neutral"].astype(np.float64),
         identity=_dequantise(d["identity_q"], d["identity_scale"]),

@@ -141,9 +141,10 @@ CAP_CASES = _cases(
 @pytest.mark.parametrize("name, cases, attachment_bound", [("glasses", GLASSES_CASES, 2.5), ("cap", CAP_CASES, 5.0)])
 def test_examples_follow_joint_edits_and_expressions(asset, examples, transfers, name, cases, attachment_bound):
     """Transferred skinning keeps the examples out of the head and on their anchors; glued to skull_root, the
-    same edits sink them in. Measured (python -m pipeline.accessory, docs/accessories.md): penetration 0.00 mm
-    in every case here; attachment change at most 1.79 mm (glasses, ear moved out 10 mm) and 3.84 mm (cap,
-    crown up 40 mm); glued: 7.89 mm deep (glasses, nose root 10 mm forward), 36.8 mm (cap, crown up 40 mm)."""
+    same edits sink them in. Measured (python -m pipeline.accessory, docs/accessories.md; issue 25's template):
+    penetration 0.00 mm in every case here; attachment change at most 1.90 mm (glasses, nose root 10 mm
+    forward) and 2.12 mm (cap, crown up 40 mm); glued: 7.54 mm deep (glasses, nose root 10 mm forward), 36.8 mm
+    (cap, crown up 40 mm)."""
     item, transfer = examples[name], transfers[name]
     rows = {r["case"]: r for r in follow_figures(item.vertices, item.faces, transfer, cases, asset=asset)}
     naive = {

@@ -93,7 +93,7 @@ class TestHeadViewAndSliders:
 
     def test_every_channel_and_shape_has_a_slider_within_its_limits(self, head):
         sliders = rig_sliders(head)
-        assert list(sliders.joint_sliders) == [c.name for c in CHANNELS] and len(sliders.joint_sliders) == 105
+        assert list(sliders.joint_sliders) == [c.name for c in CHANNELS] and len(sliders.joint_sliders) == 107
         assert list(sliders.expression_sliders) == list(EXPRESSION_NAMES)
         for c in CHANNELS:
             s = sliders.joint_sliders[c.name]
@@ -220,7 +220,7 @@ def _deformation_fit(models, schedule):
         return Loss({"data_mm2": data, **rig_prior_terms(state, PriorWeights(lambda_z=0.01))})
 
     stages = (
-        Stage("joints", ("joints",), 4),
+        Stage("joints", ("joints",), 8),
         Stage("latent", ("latent",), 2),
         Stage("expressions", ("expressions",), 3),
     )

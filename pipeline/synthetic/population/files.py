@@ -219,7 +219,7 @@ def _age_years(value: float) -> float:
 
 
 def _mode_runs(sd: np.ndarray) -> str:
-    """``"modes 1-30: normal(0, 1.25^2), modes 31-100: normal(0, 2^2)"``: the per-mode normals, 1-based."""
+    """``"modes 1-30: normal(0, 1.25^2), modes 31-100: normal(0, 1.5^2)"``: the per-mode normals, 1-based."""
     sd = np.asarray(sd, float)
     starts = [0] + [i for i in range(1, len(sd)) if sd[i] != sd[i - 1]]
     ends = starts[1:] + [len(sd)]

@@ -37,7 +37,11 @@ def asset():
 
 @pytest.fixture(scope="module")
 def hand_fit(asset):
-    """A PhotoFit of the template turned 20 degrees (yaw), 600 mm away, without photometric stages."""
+    """A PhotoFit of the template turned 20 degrees (yaw), 600 mm away, without photometric stages.
+
+    The rig's origin is on the optical axis: the face is well inside the 192 px photo and so is the front of
+    the neck below the chin (row ~181), the top of the scalp and the bottom of the neck are cut off.
+    """
     from landmarks.ibug68.embedding import ibug68_embedding
     from landmarks.ibug68.positions import landmark_positions
     from pipeline.camera import make_camera
@@ -46,7 +50,7 @@ def hand_fit(asset):
     from rig.expressions import EXPRESSION_NAMES
     from rig.parameters import NUM_PARAMETERS
 
-    rotation, translation = head_rotation(20.0, 0.0, 0.0), np.array([0.0, 20.0, 600.0])
+    rotation, translation = head_rotation(20.0, 0.0, 0.0), np.array([0.0, 0.0, 600.0])
     camera = make_camera(WIDTH, HEIGHT, FOCAL, rotation=rotation, translation=translation)
     v = np.asarray(asset.vertices, np.float64)
     points = landmark_positions(v, ibug68_embedding(asset), asset.faces)[0]
@@ -229,7 +233,10 @@ class TestOverlay:
         assert (face <= coverage).all() and 0.2 * coverage.sum() < face.sum() < 0.8 * coverage.sum()
         nose_tip = _project(hand_fit, asset.vertices[[np.argmax(asset.vertices[:, 2])]])[0]
         neck = asset.vertices[asset.regions == asset.region_names.index("neck")]
-        front_neck = _project(hand_fit, neck[[np.argmax(neck[:, 2] - 0.1 * neck[:, 1])]])[0]
+        chin = asset.vertices[asset.regions == asset.region_names.index("chin")]
+        # The front of the neck below the chin: its top, tucked under the chin, is hidden by the chin.
+        neck = neck[neck[:, 1] < chin[:, 1].min() - 5.0]
+        front_neck = _project(hand_fit, neck[[np.argmax(neck[:, 2])]])[0]
         assert face[round(nose_tip[1]), round(nose_tip[0])] == 1
         assert coverage[round(front_neck[1]), round(front_neck[0])] == 1
         assert face[round(front_neck[1]), round(front_neck[0])] == 0

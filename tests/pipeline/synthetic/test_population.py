@@ -461,8 +461,8 @@ def test_write_and_read_round_trip(tmp_path, asset, ict_splits):
         assert f"crc32('ict-{name}')" in entry["seed_derivation"] and "features" not in entry
     dist = manifest["distributions"]
     assert dist["ict"]["mode_sd"] == [1.0] * 100
-    assert dist["ict"]["shifted_mode_sd"] == [1.25] * 30 + [2.0] * 70
-    assert "modes 1-30: normal(0, 1.25^2), modes 31-100: normal(0, 2^2)" in dist["ict"]["coefficients"]
+    assert dist["ict"]["shifted_mode_sd"] == [1.25] * 30 + [1.5] * 70
+    assert "modes 1-30: normal(0, 1.25^2), modes 31-100: normal(0, 1.5^2)" in dist["ict"]["coefficients"]
     assert {"phenotype", "local", "asym", "head_shape"} <= set(dist["makehuman"])
     head = manifest["heads"][0]
     assert head["split"] == "val" and head["name"] == "val_000" and head["file"] == "val/val_000.ply"

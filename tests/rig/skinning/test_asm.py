@@ -173,7 +173,12 @@ def test_gradients_of_zeta_pi_mu_sigma_match_finite_differences(asm64):
         value = objective(AsmParameters(**{**p.as_dict(), name: base}))
         (grad,) = torch.autograd.grad(value, base)
         direction = torch.randn(base.shape, generator=g, dtype=torch.float64)
-        eps = 1e-7 if name in ("zeta", "mu") else 1e-6  # zeta moves vertices by ~1e4 mm per UV unit
+        # float64 steps where truncation (~eps^4) and round-off (~1e-16 |objective| / eps) are both small,
+        # checked by halving the step over 1e-3 .. 1e-8: the narrowest initial Gaussian is ~1e-5 UV wide (mu
+        # needs 1e-8; at 1e-7 it is 6e-5 off); zeta moves vertices by ~1e4 mm per UV unit (1e-7); log_pi is a
+        # log-weight whose gradient is small beside the objective, so round-off rules below 1e-4 (1e-6:
+        # 5e-5 off, 1e-3: 2e-8)
+        eps = {"zeta": 1e-7, "mu": 1e-8, "log_pi": 1e-3}.get(name, 1e-6)
 
         def at(step: float, name=name, base=base, direction=direction) -> torch.Tensor:
             return objective(AsmParameters(**{**p.as_dict(), name: base.detach() + step * direction}))
