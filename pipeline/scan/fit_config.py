@@ -12,10 +12,10 @@ from pipeline.fitting.priors import PriorWeights
 def jnr_schedule(
     joint_iterations: int = 20,
     latent_iterations: int = 5,
-    expression_iterations: int = 20,
+    expression_iterations: int = 25,
     identity_cycles: int = 2,
     outer_cycles: int = 2,
-    coarse_iterations: int = 15,
+    coarse_iterations: int = 25,
 ) -> tuple[Stage, ...]:
     """JNR 4.3's schedule: (joints, then Z) x ``identity_cycles``, then expressions; all x ``outer_cycles``.
 

@@ -192,7 +192,7 @@ class ScanObjective:
         _, j1 = cKDTree(v_cloud, balanced_tree=False, compact_nodes=False).query(self.p_sub)
         # cloud -> model: the closest point on the model's surface (around the nearest vertex).
         f1, b1, q1 = closest_on_one_ring(self.p_sub, v_cloud, faces, self.incident, j1)
-        n1 = (b1[:, :, None] * vn[faces[f1]]).sum(1)
+        n1 = np.einsum("nk,nki->ni", b1, vn[faces[f1]])
         n1 /= np.linalg.norm(n1, axis=1, keepdims=True).clip(1e-12)
         d1 = np.linalg.norm(self.p_sub - q1, axis=1)
         ok1 = (d1 <= self.max_d) & ((self.n_sub * n1).sum(1) >= self.cos_max)

@@ -75,12 +75,12 @@ def test_data_synth_writes_meshes_and_manifest(tmp_path, capsys):
     assert "--force" in capsys.readouterr().err
 
 
-@pytest.mark.skipif(not (RESULTS / "capacity.json").exists(), reason="no committed capacity table yet")
+@pytest.mark.skipif(not (RESULTS / "capacity_ict.json").exists(), reason="no committed capacity table yet")
 @pytest.mark.slow
 def test_committed_artifacts_reproduce_the_committed_table():
     from pipeline.evaluation.capacity import CapacitySettings, evaluate_capacity
 
-    table = json.loads((RESULTS / "capacity.json").read_text())
+    table = json.loads((RESULTS / "capacity_ict.json").read_text())  # issue 25: the ICT identities
     settings = CapacitySettings(**table["settings"])
     result = evaluate_capacity(("test",), settings, models=("jnr",))
     for name in ("initial", "learned_linear", "neural"):
