@@ -39,8 +39,7 @@ projected back into their limits after each step.
 from __future__ import annotations
 
 import time
-from collections.abc import Iterator, Mapping
-from contextlib import contextmanager
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -119,24 +118,6 @@ def _cloud_normals(cloud: PointCloud, config: FitScanConfig) -> np.ndarray:
     )
 
 
-FIT_THREADS = 1
-"""Torch threads while :func:`fit_scan` runs (the caller's count is restored after). One head is small
-(4,874 vertices, batch 1, ~1,400 of them evaluated per step): a second intra-op thread only adds a
-synchronisation per operation, which on a shared 2-core machine stalls every step (measured: 0.2 s a step
-with 2 threads under load, 5-10 ms with 1; ``docs/fit_scan.md``, "Speed")."""
-
-
-@contextmanager
-def _torch_threads(n: int) -> Iterator[None]:
-    """Run the block with ``n`` torch threads, then restore the caller's count."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(n)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(before)
-
-
 def fit_scan(
     cloud: PointCloud,
     config: FitScanConfig | None = None,
@@ -169,22 +150,7 @@ def fit_scan(
             :func:`landmarks.points3d.check_landmarks_3d` (coincident, not head-sized, not face-like or
             mirrored, turned away from the scanner, off the cloud); checked before the pre-alignment.
     """
-    with _torch_threads(FIT_THREADS):
-        config = config or FitScanConfig()
-        return _fit_scan(cloud, config, landmarks, rig, neural, expressions, progress, landmarks_source)
-
-
-def _fit_scan(
-    cloud: PointCloud,
-    config: FitScanConfig,
-    landmarks: Mapping[str, np.ndarray] | None,
-    rig: JointRig | None,
-    neural: NeuralSkinning | None,
-    expressions: ExpressionModel | None,
-    progress: Progress | None,
-    landmarks_source: str,
-) -> ScanFit:
-    """:func:`fit_scan` (its arguments; ``config`` given)."""
+    config = config or FitScanConfig()
     t_start = time.perf_counter()
     rig = rig or JointRig()
     asm_model, neural = _head_models(config, rig, neural)

@@ -10,12 +10,12 @@ from pipeline.fitting.priors import PriorWeights
 
 
 def jnr_schedule(
-    joint_iterations: int = 20,
-    latent_iterations: int = 5,
-    expression_iterations: int = 25,
+    joint_iterations: int = 30,
+    latent_iterations: int = 15,
+    expression_iterations: int = 30,
     identity_cycles: int = 2,
     outer_cycles: int = 2,
-    coarse_iterations: int = 25,
+    coarse_iterations: int = 20,
 ) -> tuple[Stage, ...]:
     """JNR 4.3's schedule: (joints, then Z) x ``identity_cycles``, then expressions; all x ``outer_cycles``.
 
@@ -23,11 +23,7 @@ def jnr_schedule(
     expressions take up large deformations such as an open jaw: started with the joints, the fit
     explains an open mouth with joint motion and stays in that local minimum (measured on the rig's own
     posed, expressive vertices fitted as a cloud: ``docs/fit_scan.md``). JNR runs 500 iterations per
-    stage on a GPU; the defaults are scaled to a 2-core CPU: 155 steps (was 30 / 15 / 30 / 20, 260 steps;
-    chosen on simulated scans of held-out heads 5-14, not the benchmark's 0-4: the same true face error,
-    where halving every stage, fewer joint or expression steps, one identity cycle or rebuilding the
-    correspondences every 10 steps each lost 0.06-0.26 mm and larger steps 0.4-0.7 mm;
-    ``docs/fit_scan.md``, "Speed").
+    stage on a GPU; the defaults are scaled to a 2-core CPU.
     """
     stages: list[Stage] = []
     if coarse_iterations:

@@ -1,10 +1,5 @@
 """The point-cloud fit's data term: closest-point correspondences both ways, point-to-plane residuals
-under a Geman-McClure loss, rebuilt as the fit goes (:class:`ScanObjective`).
-
-Speed (``docs/fit_scan.md``, "Speed"): a step evaluates only the vertices its pairs and landmarks read (about
-a third of the head on a single-view scan; the loss and its gradient are the same, as the rig priors read no
-vertices), and what the stage keeps fixed is computed once (:class:`HeadVertices`): no decoder pass while Z
-is fixed, no joint chain while the joints are."""
+under a Geman-McClure loss, rebuilt as the fit goes (:class:`ScanObjective`)."""
 
 from __future__ import annotations
 
@@ -16,7 +11,7 @@ import torch
 from scipy.spatial import cKDTree
 
 from pipeline.fitting.engine import Loss, Stage
-from pipeline.fitting.state import AsmScanState, ScanState
+from pipeline.fitting.state import ScanState
 from pipeline.fitting.terms import Inputs, Term, Value, term_values
 from pipeline.scan.fit_config import FitScanConfig
 from pipeline.scan.registration import (
@@ -24,18 +19,13 @@ from pipeline.scan.registration import (
     incident_faces,
 )
 from rig.geometry import vertex_normals
-from rig.lbs import skin_with_basis, skinning_basis
 
 
 @dataclass(frozen=True)
 class Pairs:
-    """Correspondences of one rebuild: cloud -> model pairs (cloud point ``c_i`` at ``c_points (M, 3)``, triangle
-    ``c_tri (M, 3)``, barycentric ``c_bary (M, 3)``, fixed normal ``c_n (M, 3)``), model -> cloud pairs (vertex
-    ``m_j``, cloud point ``m_k`` at ``m_points (K, 3)``, cloud normal ``m_n``) and the Geman-McClure scale
-    ``sigma`` (mm).
-
-    ``ids (U,)``: the (sorted) vertices the pairs and the landmarks read, the only ones a step evaluates, or
-    None for all; ``c_tri``, ``m_j`` and ``landmark_rows`` are rows of those ``U`` (of all vertices for None)."""
+    """Correspondences of one rebuild: cloud -> model pairs (cloud point ``c_i``, triangle ``c_tri (M, 3)``,
+    barycentric ``c_bary (M, 3)``, fixed normal ``c_n (M, 3)``), model -> cloud pairs (vertex ``m_j``,
+    cloud point ``m_k``, cloud normal ``m_n``) and the Geman-McClure scale ``sigma`` (mm)."""
 
     c_i: torch.Tensor
     c_tri: torch.Tensor
@@ -45,75 +35,6 @@ class Pairs:
     m_k: torch.Tensor
     m_n: torch.Tensor
     sigma: float
-    c_points: torch.Tensor
-    m_points: torch.Tensor
-    ids: torch.Tensor | None = None
-    landmark_rows: torch.Tensor | None = None
-
-
-class HeadVertices:
-    """Rig-space vertices of a JNR head (:class:`~pipeline.fitting.state.ScanState`), all or only some rows:
-    ``head(free, ids)`` equals ``state.rig_vertices(free)[ids]`` (the same gradients), with what the stage
-    keeps fixed computed once and reused while it stays the same (keyed by the parameters' versions, as
-    the state's own basis): the skinning weights while Z is fixed (no decoder pass), the joints' skinning
-    transforms while the joints are, and the skinning basis while rest shape and weights are.
-
-    Args:
-        state: the fit state (neural skinning, or the rig's own weights without it).
-    """
-
-    def __init__(self, state: ScanState) -> None:
-        self.state = state
-        self._weights: tuple[int, torch.Tensor] | None = None
-        self._skinning: tuple[int, torch.Tensor] | None = None
-        self._basis: dict[str, tuple[tuple, torch.Tensor | None, torch.Tensor]] = {}
-
-    def weights(self, grad: bool) -> torch.Tensor:
-        """``(V, K)`` skinning weights; with ``grad`` a new decoder pass that carries Z's gradient."""
-        s = self.state
-        if grad:
-            return s.weights()
-        if self._weights is None or self._weights[0] != s.z._version:
-            with torch.no_grad():
-                self._weights = (s.z._version, s.weights())
-        return self._weights[1]
-
-    def skinning(self, grad: bool) -> torch.Tensor:
-        """``(1, K, 4, 4)`` the joints' skinning transforms; with ``grad`` they carry the joints' gradient."""
-        s = self.state
-        if grad:
-            return s.rig.joint_transforms(s.theta[None])[1]
-        if self._skinning is None or self._skinning[0] != s.theta_n._version:
-            with torch.no_grad():
-                self._skinning = (s.theta_n._version, s.rig.joint_transforms(s.theta[None])[1])
-        return self._skinning[1]
-
-    def rest(self, c: torch.Tensor, ids: torch.Tensor | None) -> torch.Tensor:
-        """``(U, 3)`` expressive rest vertices of coefficients ``c (E,)`` (rows ``ids``; all for None)."""
-        expr = self.state.models.expressions
-        rest = expr.template + expr(c[None])[0]  # all rows, then the few: cheaper than gathering the basis
-        return rest if ids is None else rest[ids]
-
-    def __call__(self, free: tuple[str, ...] = (), ids: torch.Tensor | None = None) -> torch.Tensor:
-        """``(U, 3)`` rig-space vertices ``ids`` (all for None), mm; only the groups in ``free`` carry gradients."""
-        s = self.state
-        skinning = self.skinning("joints" in free)
-        if "latent" not in free and "expressions" not in free:
-            # rest shape and weights fixed: one GEMM with their cached basis
-            name, key = ("all" if ids is None else "rows"), (s.z._version, s.c._version)
-            cached = self._basis.get(name)
-            if cached is None or cached[0] != key or cached[1] is not ids:
-                with torch.no_grad():
-                    w = self.weights(False)
-                    basis = skinning_basis(self.rest(s.c, ids), w if ids is None else w[ids])
-                cached = self._basis[name] = (key, ids, basis)
-            return skin_with_basis(cached[2], skinning)[0]
-        c = s.c if "expressions" in free else s.c.detach()
-        w = self.weights("latent" in free)
-        # LBS as each vertex's blended transform sum_k w_k A_k (3 x 4) applied to its rest position
-        blend = ((w if ids is None else w[ids]) @ skinning[0, :, :3, :].reshape(-1, 12)).view(-1, 3, 4)
-        rest = self.rest(c, ids)
-        return (blend[:, :, :3] @ rest[:, :, None])[:, :, 0] + blend[:, :, 3]
 
 
 def plane_residual(d: torch.Tensor, n: torch.Tensor, tangential: float) -> torch.Tensor:
@@ -165,7 +86,9 @@ class ScanObjective:
             else np.arange(len(points))
         )
         self.p_sub, self.n_sub = points[sub], normals[sub]
-        self.cloud_tree = cKDTree(points, balanced_tree=False, compact_nodes=False)  # quicker to build and query here
+        self.cloud_tree = cKDTree(points)
+        self.P_sub = torch.as_tensor(self.p_sub, dtype=dtype)
+        self.P_all = torch.as_tensor(points, dtype=dtype)
         self.cos_max = math.cos(math.radians(c.normal_angle_deg))
         self.landmarks = (
             None if landmarks is None else (torch.as_tensor(landmarks[0]), torch.as_tensor(landmarks[1], dtype=dtype))
@@ -174,36 +97,29 @@ class ScanObjective:
         self.incident = incident_faces(faces, len(state.rig.asset.vertices))
         self.max_d, self.lambda_m, self.previous = c.max_distance_mm, config.prior.lambda_m, None
         self.pairs: Pairs | None = None
-        # a JNR head is evaluated on the rows the pairs read; ASM's on all (its smoothness prior reads them)
-        self.head = None if isinstance(state, AsmScanState) else HeadVertices(state)
 
     def before_step(self, stage: Stage, iteration: int) -> None:
         """Rebuild the correspondences at the stage's first step and every ``correspondences.every``."""
         if iteration % self.c.every == 0:
             with torch.no_grad():
-                v_rig = self.state.rig_vertices() if self.head is None else self.head()
-                v = self.state.to_cloud(v_rig).numpy().astype(np.float64)
+                v = self.state.to_cloud(self.state.rig_vertices()).numpy().astype(np.float64)
             self.pairs = self.rebuild(v)
 
     def _candidates(self, v_cloud: np.ndarray):
         """Both pair directions, found and rejected (module docstring), with their residuals (mm^2)."""
         c, faces = self.c, self.state.rig.asset.faces
         vn = vertex_normals(v_cloud, faces)
-        _, j1 = cKDTree(v_cloud, balanced_tree=False, compact_nodes=False).query(self.p_sub)
+        _, j1 = cKDTree(v_cloud).query(self.p_sub)
         # cloud -> model: the closest point on the model's surface (around the nearest vertex).
         f1, b1, q1 = closest_on_one_ring(self.p_sub, v_cloud, faces, self.incident, j1)
-        n1 = np.einsum("nk,nki->ni", b1, vn[faces[f1]])
+        n1 = (b1[:, :, None] * vn[faces[f1]]).sum(1)
         n1 /= np.linalg.norm(n1, axis=1, keepdims=True).clip(1e-12)
         d1 = np.linalg.norm(self.p_sub - q1, axis=1)
         ok1 = (d1 <= self.max_d) & ((self.n_sub * n1).sum(1) >= self.cos_max)
-        # model -> cloud: only vertices facing the sensor are searched, and only within the rejection distance
-        facing = vn @ self.view_dir > c.min_facing if self.view_dir is not None else np.ones(len(v_cloud), bool)
-        k2 = np.zeros(len(v_cloud), np.int64)
-        d2 = np.full(len(v_cloud), np.inf)
-        d2[facing], k2[facing] = self.cloud_tree.query(v_cloud[facing], distance_upper_bound=1.001 * self.max_d)
-        found = np.isfinite(d2)
-        k2[~found] = 0
-        ok2 = found & (d2 <= self.max_d) & ~self.border[k2] & ((vn * self.normals[k2]).sum(1) >= self.cos_max)
+        d2, k2 = self.cloud_tree.query(v_cloud)
+        ok2 = (d2 <= self.max_d) & ~self.border[k2] & ((vn * self.normals[k2]).sum(1) >= self.cos_max)
+        if self.view_dir is not None:
+            ok2 &= vn @ self.view_dir > c.min_facing
         e1 = plane_residual(
             torch.from_numpy(self.p_sub[ok1] - q1[ok1]), torch.from_numpy(n1[ok1]), c.tangential_weight
         ).numpy()
@@ -225,47 +141,30 @@ class ScanObjective:
             target = p.lambda_m_end + (p.lambda_m - p.lambda_m_end) * min(1.0, motion / p.settle_mm)
             self.lambda_m = min(self.lambda_m, target)
         self.previous = v_cloud.copy()
-        c_tri, m_j = faces[f1[ok1]], np.flatnonzero(ok2)
-        marks = np.zeros(0, np.int64) if self.landmarks is None else self.landmarks[0].numpy()
-        ids = None
-        if self.head is not None:  # the rows a step evaluates, and the pairs' vertices as rows of them
-            ids = np.unique(np.concatenate([c_tri.ravel(), m_j, marks]))
-            c_tri, m_j, marks = np.searchsorted(ids, c_tri), np.searchsorted(ids, m_j), np.searchsorted(ids, marks)
         return Pairs(
             c_i=torch.as_tensor(np.flatnonzero(ok1), dtype=torch.long),
-            c_tri=torch.as_tensor(c_tri, dtype=torch.long),
-            c_bary=torch.as_tensor(b1[ok1], dtype=dtype),
-            c_n=torch.as_tensor(n1[ok1], dtype=dtype),
-            m_j=torch.as_tensor(m_j, dtype=torch.long),
+            c_tri=torch.as_tensor(faces[f1[ok1]], dtype=torch.long),
+            c_bary=torch.as_tensor(torch.as_tensor(b1[ok1], dtype=dtype)),
+            c_n=torch.as_tensor(torch.as_tensor(n1[ok1], dtype=dtype)),
+            m_j=torch.as_tensor(np.flatnonzero(ok2), dtype=torch.long),
             m_k=torch.as_tensor(k2[ok2], dtype=torch.long),
-            m_n=torch.as_tensor(self.normals[k2[ok2]], dtype=dtype),
+            m_n=torch.as_tensor(torch.as_tensor(self.normals[k2[ok2]], dtype=dtype)),
             sigma=float(sigma),
-            c_points=torch.as_tensor(self.p_sub[ok1], dtype=dtype),
-            m_points=torch.as_tensor(self.points[k2[ok2]], dtype=dtype),
-            ids=None if ids is None else torch.as_tensor(ids, dtype=torch.long),
-            landmark_rows=None if self.landmarks is None else torch.as_tensor(marks, dtype=torch.long),
         )
 
     def __call__(self, free: tuple[str, ...]) -> Loss:
         """One step's loss: ``sqrt(mean robust residual)``, the head model's priors, the landmark RMSE."""
-        pairs, c, state = self.pairs, self.c, self.state
-        # a JNR head: only the rows the pairs read (the priors read no vertices; a term that asked for
-        # rig_vertices would get all of them)
-        v_rig = state.rig_vertices(free) if self.head is None else self.head(free, pairs.ids)
-        v_cloud = state.to_cloud(v_rig)  # (U, 3): the rows pairs.ids, or all vertices
+        pairs, c = self.pairs, self.c
+        v_rig = self.state.rig_vertices(free)
+        v_cloud = self.state.to_cloud(v_rig)
         on_surface = (pairs.c_bary[:, :, None] * v_cloud[pairs.c_tri]).sum(1)
-        e1 = plane_residual(pairs.c_points - on_surface, pairs.c_n, c.tangential_weight)
-        e2 = plane_residual(v_cloud[pairs.m_j] - pairs.m_points, pairs.m_n, 0.0)
-        inputs = state.term_inputs().add({"pair_vertices": v_cloud[None]})
-        inputs = (
-            inputs.add({"rig_vertices": v_rig[None]})
-            if self.head is None
-            else inputs.add(rig_vertices=lambda: self.head(free)[None])
-        )
+        e1 = plane_residual(self.P_sub[pairs.c_i] - on_surface, pairs.c_n, c.tangential_weight)
+        e2 = plane_residual(v_cloud[pairs.m_j] - self.P_all[pairs.m_k], pairs.m_n, 0.0)
+        inputs = self.state.term_inputs().add({"rig_vertices": v_rig[None], "cloud_vertices": v_cloud[None]})
         terms = (
             self.data_term(e1, e2, pairs.sigma),
-            *state.prior_terms(self.config.prior, lambda_m=self.lambda_m),
-            *(() if self.landmarks is None else (self.landmark_term(pairs.landmark_rows),)),
+            *self.state.prior_terms(self.config.prior, lambda_m=self.lambda_m),
+            *(() if self.landmarks is None else (self.landmark_term(),)),
         )
         data_rms = e1.detach().clamp_max((3 * pairs.sigma) ** 2).mean().sqrt()
         return Loss(
@@ -296,14 +195,14 @@ class ScanObjective:
             note="the root of a mean robust residual is not a sum of squares",
         )
 
-    def landmark_term(self, rows: torch.Tensor) -> Term:
-        """``landmarks``: ``lambda_landmarks`` times the RMSE of the 3D landmarks (mm, cloud frame): rows ``rows``
-        of the input ``pair_vertices (B, U, 3)`` (the vertices a step evaluates, :attr:`Pairs.ids`)."""
-        positions = self.landmarks[1]
+    def landmark_term(self) -> Term:
+        """``landmarks``: ``lambda_landmarks`` times the RMSE of the 3D landmarks (mm, cloud frame; the input
+        ``cloud_vertices (B, V, 3)``)."""
+        ids, positions = self.landmarks
         return Term(
             "landmarks",
             self.config.lambda_landmarks,
-            lambda p: ((p["pair_vertices"][:, rows] - positions) ** 2).sum(-1).mean(-1).sqrt()[:, None],
+            lambda p: ((p["cloud_vertices"][:, ids] - positions) ** 2).sum(-1).mean(-1).sqrt()[:, None],
             Value(),
             lm="none",
             note="an RMSE (the root of a mean) is not a sum of squares",

@@ -15,6 +15,8 @@ from scipy.spatial import cKDTree
 
 from rig.geometry import (
     Similarity,
+    barycentric,
+    closest_points_on_triangles,
     head_rotation,
     vertex_normals,
 )
@@ -36,45 +38,6 @@ def incident_faces(faces: np.ndarray, num_vertices: int) -> np.ndarray:
     return table
 
 
-def triangle_coordinates(
-    d1: np.ndarray, d2: np.ndarray, ab2: np.ndarray, ac2: np.ndarray, abac: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """Where on triangles ``(a, b, c)`` the closest points to points ``p`` lie, as ``q = a + v ab + w ac``
-    (``ab = b - a``, ``ac = c - a``), from five dot products, each ``(M,)``: ``d1 = ab.(p - a)``,
-    ``d2 = ac.(p - a)``, ``ab2 = ab.ab``, ``ac2 = ac.ac``, ``abac = ab.ac``.
-
-    The Voronoi regions of :func:`rig.geometry.closest_points_on_triangles` (Ericson 5.1.5, the same order
-    of precedence), with the other four dot products written through these (``bp = ap - ab``,
-    ``cp = ap - ac``): the triangle's three are shared by all its points, so a point costs two.
-
-    Returns:
-        ``(v (M,), w (M,))``, ``v, w >= 0``, ``v + w <= 1`` (up to rounding).
-    """
-    d3, d4 = d1 - ab2, d2 - abac
-    d5, d6 = d1 - abac, d2 - ac2
-    va, vb, vc = d3 * d6 - d5 * d4, d5 * d2 - d1 * d6, d1 * d4 - d3 * d2
-    tiny = 1e-300
-    # Interior (default), then the edge and vertex regions in increasing priority.
-    denom = va + vb + vc
-    denom = np.where(np.abs(denom) > tiny, denom, tiny)
-    v, w = vb / denom, vc / denom
-    e_bc = (va <= 0) & ((d4 - d3) >= 0) & ((d5 - d6) >= 0)  # q = b + t (c - b)
-    t = (d4 - d3) / np.where(((d4 - d3) + (d5 - d6)) > tiny, (d4 - d3) + (d5 - d6), tiny)
-    v, w = np.where(e_bc, 1.0 - t, v), np.where(e_bc, t, w)
-    e_ac = (vb <= 0) & (d2 >= 0) & (d6 <= 0)  # q = a + t ac
-    t = d2 / np.where((d2 - d6) > tiny, d2 - d6, tiny)
-    v, w = np.where(e_ac, 0.0, v), np.where(e_ac, t, w)
-    e_ab = (vc <= 0) & (d1 >= 0) & (d3 <= 0)  # q = a + t ab
-    t = d1 / np.where((d1 - d3) > tiny, d1 - d3, tiny)
-    v, w = np.where(e_ab, t, v), np.where(e_ab, 0.0, w)
-    at_c = (d6 >= 0) & (d5 <= d6)
-    v, w = np.where(at_c, 0.0, v), np.where(at_c, 1.0, w)
-    at_b = (d3 >= 0) & (d4 <= d3)
-    v, w = np.where(at_b, 1.0, v), np.where(at_b, 0.0, w)
-    at_a = (d1 <= 0) & (d2 <= 0)
-    return np.where(at_a, 0.0, v), np.where(at_a, 0.0, w)
-
-
 def closest_on_one_ring(
     points: np.ndarray, vertices: np.ndarray, faces: np.ndarray, incident: np.ndarray, nearest: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -85,33 +48,21 @@ def closest_on_one_ring(
         nearest: ``(N,)`` id of each point's nearest vertex.
 
     Returns:
-        ``(face (N,), bary (N, 3), closest (N, 3))``: ``closest = sum_i bary_i * vertices[faces[face, i]]``;
-        of equally close faces, the first in ``incident``'s row.
+        ``(face (N,), bary (N, 3), closest (N, 3))``: ``closest = sum_i bary_i * vertices[faces[face, i]]``.
     """
     cand = incident[nearest]  # (N, W), -1 padded (a few pole vertices make W large: work on the valid pairs)
     rows, cols = np.nonzero(cand >= 0)
     face_of = cand[rows, cols]
-    # each face's corner a and edges ab, ac, and their dot products, once (the fit's rebuilds call this
-    # every few steps); then two dot products per (point, face) pair (:func:`triangle_coordinates`)
-    a = vertices[faces[:, 0]]
-    ab, ac = vertices[faces[:, 1]] - a, vertices[faces[:, 2]] - a
-    dots = np.einsum("fi,fi->f", ab, ab), np.einsum("fi,fi->f", ac, ac), np.einsum("fi,fi->f", ab, ac)
-    ap = points[rows] - a[face_of]
-    ab_m, ac_m = ab[face_of], ac[face_of]
-    v, w = triangle_coordinates(
-        np.einsum("mi,mi->m", ab_m, ap), np.einsum("mi,mi->m", ac_m, ap), *(d[face_of] for d in dots)
-    )
-    offset = ap - v[:, None] * ab_m - w[:, None] * ac_m  # p - q
-    # each point's nearest candidate (the first of equals): an argmin over its row of the padded table
-    d2 = np.full(cand.shape, np.inf)
-    d2[rows, cols] = np.einsum("mi,mi->m", offset, offset)
-    at = np.zeros(cand.shape, np.int64)
-    at[rows, cols] = np.arange(len(rows))
-    first = at[np.arange(len(cand)), d2.argmin(1)]
-    bary = np.clip(np.stack([1.0 - v[first] - w[first], v[first], w[first]], 1), 0.0, 1.0)
-    bary /= bary.sum(1, keepdims=True)
+    tri = vertices[faces[face_of]]  # (M, 3, 3)
+    q = closest_points_on_triangles(points[rows], tri[:, 0], tri[:, 1], tri[:, 2])
+    d2 = ((q - points[rows]) ** 2).sum(-1)
+    order = np.lexsort((d2, rows))  # by point, then by distance
+    first = order[np.r_[0, np.flatnonzero(np.diff(rows[order])) + 1]]
     face = face_of[first]
-    closest = np.einsum("nk,nki->ni", bary, vertices[faces[face]])
+    closest = q[first]
+    t = vertices[faces[face]]
+    bary = np.clip(barycentric(closest, t[:, 0], t[:, 1], t[:, 2]), 0.0, 1.0)
+    bary /= bary.sum(1, keepdims=True)
     return face, bary, closest
 
 

@@ -362,7 +362,7 @@ def landmark_scan(asset):
     [
         ("coincident", "'left_eye_outer' and 'left_eye_inner' are 0 mm apart"),
         ("mirrored", "look mirrored"),
-        ("metres", r"(0\.000(9[5-9])|0\.00(10|10[0-5]))\d* x the size of the template's"),  # ~1/1000 of the head
+        ("metres", r"(0\.000[6-9]|0\.001[0-4])\d* x the size of the template's"),  # ~1/1000 of the head
         ("far", "mm from the nearest cloud point"),
     ],
 )
