@@ -18,15 +18,21 @@ What we change in the data (:func:`build_expression_basis`)
 - **Strays removed**: the eye and brow shapes (``eye*``, ``brow*``) also move vertices of the mouth bag,
   teeth and tongue in the data (``eyeBlink*`` moves 81 mouth-bag vertices by up to 8.5 mm); those rows are
   set to zero.
+- **Carried onto the template's shape triangle by triangle**: the shapes were sculpted on MakeHuman's head
+  (:func:`rig.template.makehuman_vertices`); the template has the ICT mean's. Each shape is moved by
+  deformation transfer (:func:`rig.geometry.deformation_transfer`: every triangle deforms as it does on
+  MakeHuman's head), then made exactly symmetric again. Copied as raw offsets, the lip corners folded at
+  ``jawOpen`` 0.75. The lid shapes are the exception (next item).
+- **Lid travel fitted to the template's eyes**: the lid shapes (:data:`_LID_SHAPES`) keep their raw offsets,
+  with the +Y offsets scaled by :func:`lid_factor` (the template's lid gap over MakeHuman's, per rim vertex),
+  so that a blink closes the template's wider aperture.
 - **jawOpen is a rotation plus a corrective**: ``jawOpen = c`` rotates the jaw by ``c *``
   :data:`JAW_ANGLE_DEG` about the hinge axis (+X through the template's ``jaw_root`` joint, :func:`jaw_pivot`),
-  each vertex with weight ``jaw_weight`` in [0, 1], and adds ``c`` times a corrective shape; weight and
-  corrective are fitted on MakeHuman's head (where the shape was sculpted, hinge :data:`JAW_PIVOT`), where
-  at ``c = 1`` the sum is the artist's ``jawOpen`` exactly.
-- **Lid travel fitted to the template's eyes**: the lid shapes' +Y offsets are scaled by :func:`lid_factor`
-  (the template's lid gap over MakeHuman's, per rim vertex). The weight is fitted to the artist's shape (per vertex, the
-  least-squares weight of the rotation's displacement, clipped to [0, 1], smoothed over the mesh, made
-  symmetric) and the corrective is what the rotation leaves; :func:`jaw_summary` gives the figures.
+  each vertex with weight ``jaw_weight`` in [0, 1], and adds ``c`` times a corrective shape. The weight is
+  fitted to the artist's shape on MakeHuman's head (hinge :data:`JAW_PIVOT`; per vertex, the least-squares
+  weight of the rotation's displacement, clipped to [0, 1], smoothed over the mesh, made symmetric); the
+  corrective is what that rotation of the template's vertices leaves of the transferred shape, so at
+  ``c = 1`` the sum is the transferred ``jawOpen`` exactly; :func:`jaw_summary` gives the figures.
 
 Coordinates: millimetres, right-handed, +Y up, +Z out of the face, +X the subject's left.
 """
@@ -46,7 +52,7 @@ from torch import nn
 
 from rig.asset import RigAsset, cached_per_asset, load_asset
 from rig.errors import InputError
-from rig.geometry import mesh_edges
+from rig.geometry import deformation_transfer, mesh_edges
 from rig.makehuman.face_units import ARKIT_NAMES, arkit_offsets
 from rig.template import makehuman_vertices, rim_halves
 
@@ -248,10 +254,26 @@ def build_expression_basis(asset: RigAsset | None = None) -> tuple[np.ndarray, n
         if name.startswith(_LID_SHAPES):
             f[:, 1] *= lid
         basis[i] = f
-    # the jaw: weight and corrective from the artist's shape on MakeHuman's (where it was sculpted); the
-    # rotation then turns the template's own vertices about its own hinge
-    weight = _jaw_weight(asset, basis[JAW_INDEX])
-    basis[JAW_INDEX] = basis[JAW_INDEX] - weight[:, None] * _rotation_displacement(makehuman_vertices(), JAW_ANGLE_DEG)
+    basis_raw_jaw = basis[JAW_INDEX].copy()
+    # onto the template's shape triangle by triangle (the shapes were sculpted on MakeHuman's; copied as raw
+    # offsets, the lip corners folded at jawOpen 0.75), then made exactly symmetric again; the lid shapes
+    # keep their raw offsets, with the lid travel fitted to the template's aperture (lid_factor)
+    makehuman = makehuman_vertices()
+    moved = deformation_transfer(makehuman, makehuman + basis, asset.vertices, asset.faces)
+    for i, name in enumerate(EXPRESSION_NAMES):
+        if name.startswith(_LID_SHAPES):
+            continue
+        f = 0.5 * (moved[i] + _mirror(asset, moved[_INDEX[_twin(name)]]))
+        if name.startswith(("eye", "brow")):
+            f = np.where(stray[:, None], 0.0, f)
+        basis[i] = f
+    # the jaw: the rotation's weight fitted to the artist's shape on MakeHuman's (where it was sculpted);
+    # the corrective is what the rotation of the template's own vertices about its own hinge leaves of the
+    # transferred shape, so that jawOpen = 1 is that shape exactly
+    weight = _jaw_weight(asset, basis_raw_jaw)
+    basis[JAW_INDEX] = basis[JAW_INDEX] - weight[:, None] * _rotation_displacement(
+        asset.vertices, JAW_ANGLE_DEG, jaw_pivot(asset)
+    )
     return basis, weight
 
 
@@ -297,8 +319,8 @@ def jaw_summary(asset: RigAsset | None = None) -> dict[str, float]:
     than 0.1 mm) of the artist's shape, of the corrective, and the corrective's largest vertex norm."""
     asset = load_asset() if asset is None else asset
     basis, weight = _cached(asset)
-    rotation = weight[:, None] * _rotation_displacement(makehuman_vertices(), JAW_ANGLE_DEG)
-    artist = basis[JAW_INDEX] + rotation
+    rotation = weight[:, None] * _rotation_displacement(asset.vertices, JAW_ANGLE_DEG, jaw_pivot(asset))
+    artist = basis[JAW_INDEX] + rotation  # the artist's shape carried onto the template
     moved = np.linalg.norm(artist, axis=1) > 0.1
 
     def rms(f):

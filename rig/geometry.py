@@ -431,3 +431,71 @@ class Similarity:
         m[:3, :3] = self.scale * self.rotation
         m[:3, 3] = self.translation
         return m
+
+
+def _triangle_frames(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """``(..., F, 3, 3)``: each triangle's two edges and its scaled normal (``n / sqrt|n|``) as columns."""
+    a, b, c = (vertices[..., faces[:, k], :] for k in range(3))
+    e1, e2 = b - a, c - a
+    n = np.cross(e1, e2)
+    n = n / np.sqrt(np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-12))
+    return np.stack([e1, e2, n], axis=-1)
+
+
+def deformation_transfer(
+    source: np.ndarray, deformed: np.ndarray, target: np.ndarray, faces: np.ndarray, anchor: float = 1e-3
+) -> np.ndarray:
+    """Carry shapes sculpted on one mesh onto another of the same topology, triangle by triangle.
+
+    Each source triangle's deformation gradient ``S = [e1' e2' n'] [e1 e2 n]^-1`` (edges and scaled normal,
+    Sumner and Popovic 2004) is applied to the target's edges; the target's displaced vertices are the least-
+    squares solution of ``(y_b + d_b) - (y_a + d_a) = S (y_b - y_a)`` over every triangle edge, plus
+    ``anchor^2 |d - (deformed - source)|^2`` (which fixes each connected piece's translation; small, so
+    the raw offsets hardly count where edges constrain). The vertices a shape does not move on the source
+    stay still (so a local shape stays local and sparse). On the source itself it returns the offsets.
+
+    Args:
+        source: ``(V, 3)`` the mesh the shapes were made on, mm.
+        deformed: ``(E, V, 3)`` the shapes on it (positions), mm.
+        target: ``(V, 3)`` the other mesh, mm; faces: ``(F, 3)`` shared.
+        anchor: weight of the raw offsets (relative to an edge residual of 1 mm).
+
+    Returns:
+        ``(E, V, 3)`` float64 displacements of ``target``, mm.
+    """
+    source, target = np.asarray(source, float), np.asarray(target, float)
+    deformed = np.asarray(deformed, float)
+    faces = np.asarray(faces, np.int64)
+    check_shape(target.shape == source.shape, "deformation_transfer", "target", f"{source.shape}", target.shape)
+    expected = f"(E, {len(source)}, 3)"
+    check_shape(deformed.shape[-2:] == source.shape, "deformation_transfer", "deformed", expected, deformed.shape)
+    frames = _triangle_frames(source, faces)
+    ok = np.abs(np.linalg.det(frames)) > 1e-10
+    frames, f = frames[ok], faces[ok]
+    grads = _triangle_frames(deformed, f) @ np.linalg.inv(frames)  # (E, F, 3, 3)
+    import scipy.sparse as sp
+    import scipy.sparse.linalg as spla
+
+    rows, cols, vals, rhs = [], [], [], []
+    for k, (i, j) in enumerate(((0, 1), (0, 2))):
+        e = target[f[:, j]] - target[f[:, i]]  # (F, 3)
+        w = 1.0 / np.maximum(np.linalg.norm(e, axis=1), 1e-3)  # relative residuals: small triangles count
+        r = np.arange(len(f)) + k * len(f)
+        rows += [r, r]
+        cols += [f[:, j], f[:, i]]
+        vals += [w, -w]
+        rhs.append(w[:, None] * (np.einsum("efij,fj->efi", grads, e) - e))  # (E, F, 3)
+    d_op = sp.csr_matrix(
+        (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(2 * len(f), len(source))
+    ).tocsc()
+    b = np.concatenate(rhs, axis=1)  # (E, 2F, 3)
+    raw = deformed - source
+    out = np.zeros_like(raw)
+    for s in range(len(raw)):
+        moved = np.flatnonzero(np.abs(raw[s]).max(1) > 0)  # the rest stay still (exactly: sparse shapes)
+        if len(moved) == 0:
+            continue
+        d = d_op[:, moved]
+        system = spla.splu((d.T @ d + anchor**2 * sp.identity(len(moved))).tocsc())
+        out[s, moved] = system.solve(np.asarray(d.T @ b[s]) + anchor**2 * raw[s, moved])
+    return out

@@ -118,6 +118,12 @@ def _cloud_normals(cloud: PointCloud, config: FitScanConfig) -> np.ndarray:
     )
 
 
+FIT_THREADS = 1
+"""Torch threads while :func:`fit_scan` runs (the caller's count is restored after). One head is small (4,874
+vertices, batch 1): a second intra-op thread adds a synchronisation to every small operation, which on a
+shared 2-core machine stalls the steps (``docs/fit_scan.md``, "Speed", has the measurement)."""
+
+
 def fit_scan(
     cloud: PointCloud,
     config: FitScanConfig | None = None,
@@ -150,7 +156,27 @@ def fit_scan(
             :func:`landmarks.points3d.check_landmarks_3d` (coincident, not head-sized, not face-like or
             mirrored, turned away from the scanner, off the cloud); checked before the pre-alignment.
     """
-    config = config or FitScanConfig()
+    threads = torch.get_num_threads()
+    torch.set_num_threads(FIT_THREADS)
+    try:
+        return _fit_scan(
+            cloud, config or FitScanConfig(), landmarks, rig, neural, expressions, progress, landmarks_source
+        )
+    finally:
+        torch.set_num_threads(threads)
+
+
+def _fit_scan(
+    cloud: PointCloud,
+    config: FitScanConfig,
+    landmarks: Mapping[str, np.ndarray] | None,
+    rig: JointRig | None,
+    neural: NeuralSkinning | None,
+    expressions: ExpressionModel | None,
+    progress: Progress | None,
+    landmarks_source: str,
+) -> ScanFit:
+    """:func:`fit_scan` with its arguments, ``config`` given."""
     t_start = time.perf_counter()
     rig = rig or JointRig()
     asm_model, neural = _head_models(config, rig, neural)

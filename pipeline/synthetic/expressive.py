@@ -60,14 +60,15 @@ non-zero coefficients). Flipped visible-skin triangles in 1,000 draws on the tem
 
 Limits
 ------
-- ICT's shapes fold the template's skin a little at full strength: 13 of the 53 turn some triangles of
+- ICT's shapes fold the template's skin a little at full strength: 24 of the 53 turn some triangles of
   the visible skin (no vertex in :data:`rig.template.HIDDEN_REGIONS`) by more than 90 degrees:
-  ``mouthClose`` alone 118 mm² (124 triangles; never drawn alone: with ``jawOpen`` 20.8 mm²), the others
-  at most 12.3 mm² (``eyeBlink_*``, about 15 small triangles at the lid), then ``mouthShrugLower`` 7.9,
-  ``mouthRollUpper`` 7.2, ``jawOpen`` 5.6, ``jawForward`` 3.9, a few at the lips and cheeks for
-  ``jawLeft``/``jawRight``, ``mouthDimple_*``, ``mouthSmile_*``. Sampled heads keep these folds (1,000
-  draws: at most 15.7 mm²); mixes of non-folding shapes can fold a little too (at most 7.1 mm² in those
-  draws). No sampled head is a broken mesh for scans or photos, but "no flipped triangle" does not hold.
+  ``mouthClose`` alone 101 mm² (94 triangles; never drawn alone: with ``jawOpen`` 14.6 mm²), the others
+  at most 15.2 mm² (``mouthShrugLower``), then ``mouthRollUpper`` 13.6, ``eyeBlink_*`` 10-11 (small
+  triangles at the lid), ``mouthDimple_*`` 6.8, ``mouthRollLower`` 6.3, ``jawForward`` 3.8, ``jawLeft``/
+  ``jawRight`` 3.0, ``jawOpen`` 2.6, and below 1 mm² for ten more, all but the lids in the mouth corners,
+  where the template's lip rim meets ICT's lip contact line (13 shapes folded when the rim went to ICT's
+  skin boundary inside the mouth). Sampled heads keep these folds (1,000 draws: at most 15.6 mm²). No
+  sampled head is a broken mesh for scans or photos, but "no flipped triangle" does not hold.
 - The closed lids are ICT's: ``eyeBlink_*`` moves the upper lid's skin up to 9.5 mm down over the eyeball
   (a ray along -Z through the eyeball's centre meets the eyeball at rest and the lid at weight 0.5); the
   template's rim loops (:attr:`rig.asset.RigAsset.eye_loops`, deeper in the lid) move by at most 4.8 mm.

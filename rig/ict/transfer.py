@@ -5,7 +5,9 @@ Registration (:func:`register`, deterministic: numpy and scipy only, fixed sched
 
 1. **Rims.** The ICT skin (:mod:`rig.ict.data`) has four boundary loops: both eyelid rims, the lip rim
    and the bottom of the neck; the template has the same three rims (where its skin meets the eye pockets
-   and the mouth bag). Each rim is split at its two corners into an upper and a lower half (ICT's with
+   and the mouth bag). ICT's lip rim lies deep inside the mouth (the lips ~11 mm apart there), so the
+   template's lip rim goes to ICT's lip *contact line* instead (:class:`IctRims`), and ICT's inner-lip
+   triangles inside it are not used. Each rim is split at its two corners into an upper and a lower half (ICT's with
    :func:`rig.template.rim_loop`, the template's are stored so) and the template's rim vertices are matched
    to the ICT rim at equal normalised arc length: 2 x ``n_eye`` + ``n_mouth`` landmark pairs.
 2. **Frame.** ICT's data is brought into the rig frame by the rigid transform (rotation and translation,
@@ -56,7 +58,9 @@ __all__ = [
     "SCHEDULE",
     "Registration",
     "Transfer",
+    "IctRims",
     "boundary_loops",
+    "ict_rims",
     "register",
     "rim_targets",
 ]
@@ -114,8 +118,66 @@ def _resample(polyline: np.ndarray, t: np.ndarray) -> np.ndarray:
     return np.stack([np.interp(t, s, polyline[:, k]) for k in range(3)], 1)
 
 
-def _ict_rims(ict: IctModel) -> dict[str, np.ndarray]:
-    """ICT's rims in :func:`rig.template.rim_loop` order: ``left_eye`` (+X), ``right_eye``, ``mouth``."""
+def _hops(num: int, faces: np.ndarray, sources: np.ndarray) -> np.ndarray:
+    """Edge hops ``(num,)`` of every vertex from the nearest of ``sources`` (``inf`` where unreachable)."""
+    from scipy.sparse.csgraph import breadth_first_order
+
+    e = mesh_edges(faces)
+    g = sp.coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(num + 1, num + 1)).tocsr()
+    g = g + g.T
+    # one extra node joined to every source: a breadth-first search from it gives hops + 1
+    hub = sp.coo_matrix((np.ones(len(sources)), (np.full(len(sources), num), sources)), shape=(num + 1, num + 1))
+    g = (g + hub + hub.T).tocsr()
+    order, pred = breadth_first_order(g, num, directed=False, return_predecessors=True)
+    hops = np.full(num + 1, np.inf)
+    hops[num] = -1.0
+    for i in order[1:]:
+        hops[i] = hops[pred[i]] + 1.0
+    return hops[:num]
+
+
+def _ring_loop(vertices: np.ndarray, faces: np.ndarray, ring: np.ndarray) -> np.ndarray | None:
+    """The vertices ``ring`` ``(V,)`` bool as one loop in :func:`rig.template.rim_loop` order, or None where
+    their edges do not form one simple loop."""
+    e = mesh_edges(faces)
+    e = e[ring[e].all(1)]
+    try:
+        return rim_loop(vertices, ordered_loop(e))
+    except SetupError:
+        return None
+
+
+def _lip_gap(vertices: np.ndarray, loop: np.ndarray, samples: int = 39) -> float:
+    """Mean distance (mm) between a mouth loop's upper and lower rims at equal normalised arc lengths."""
+    upper, lower = rim_halves(vertices, loop)
+    t = np.linspace(0.0, 1.0, samples + 2)[1:-1]
+    return float(np.linalg.norm(_resample(vertices[upper], t) - _resample(vertices[lower], t), axis=1).mean())
+
+
+@dataclass(frozen=True)
+class IctRims:
+    """ICT's rims on its mean (vertex ids in :func:`rig.template.rim_loop` order) and the triangles inside
+    its lips.
+
+    Attributes:
+        left_eye, right_eye: ``(n,)`` the eyelid rims (boundary loops of ICT's skin), left is +X.
+        mouth: ``(m,)`` the lip *contact line*: ICT's skin ends deep inside the mouth (its boundary loop there
+            has the lips ~11 mm apart at the midline); the contact line is the edge ring around that loop (the
+            vertices at the same number of edge hops from it) whose upper and lower rims are closest (mean gap
+            at equal arc length; ring 6 of ICT's light model, 0.59 mm), which is where the template's lip rim
+            (its skin meeting the mouth bag, the lips 1.4 mm apart) belongs.
+        inner: ``(T,)`` bool over ICT's skin triangles: those inside the contact line (the inner lips that the
+            template's mouth bag continues); the registration does not use them.
+    """
+
+    left_eye: np.ndarray
+    right_eye: np.ndarray
+    mouth: np.ndarray
+    inner: np.ndarray
+
+
+def ict_rims(ict: IctModel) -> IctRims:
+    """ICT's rims and inner-lip triangles (:class:`IctRims`), from its mean's topology and shape."""
     v = ict.neutral
     loops = boundary_loops(ict.triangles)
     if len(loops) != 4:
@@ -127,20 +189,38 @@ def _ict_rims(ict: IctModel) -> dict[str, np.ndarray]:
     eyes = [i for i in rest if i != mouth]
     left = max(eyes, key=lambda i: centre[i, 0])
     right = min(eyes, key=lambda i: centre[i, 0])
-    return {name: rim_loop(v, loops[i]) for name, i in (("left_eye", left), ("right_eye", right), ("mouth", mouth))}
+    hops = _hops(len(v), ict.triangles, loops[mouth])
+    rings = []
+    for r in range(0, 64):
+        loop = _ring_loop(v, ict.triangles, hops == r)
+        if loop is None:
+            break
+        rings.append((_lip_gap(v, loop), r, loop))
+    if not rings:
+        raise SetupError("ICT skin: the mouth's boundary is not a simple loop")
+    _, ring, contact = min(rings, key=lambda g: (g[0], g[1]))
+    return IctRims(
+        left_eye=rim_loop(v, loops[left]),
+        right_eye=rim_loop(v, loops[right]),
+        mouth=contact,
+        inner=(hops[ict.triangles] < ring).all(1),
+    )
 
 
-def rim_targets(template: TemplateMesh, ict: IctModel) -> tuple[np.ndarray, np.ndarray]:
+def rim_targets(template: TemplateMesh, ict: IctModel, head: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Template rim vertex ids ``(R,)`` and their points on ICT's rims ``(R, 3)`` (ICT's frame, mm), matched
-    half-rim by half-rim at equal normalised arc length."""
+    half-rim by half-rim at equal normalised arc length: the eyelid rims and the lip contact line
+    (:class:`IctRims`), found on the mean; the points lie on ``head`` ``(N, 3)`` (default: the mean)."""
     ours = {"left_eye": template.eye_loops[0], "right_eye": template.eye_loops[1], "mouth": template.mouth_loop}
-    theirs = _ict_rims(ict)
+    theirs = ict_rims(ict)
+    head = ict.neutral if head is None else np.asarray(head, float)
     ids, points = [], []
     for name, loop in ours.items():
-        for our_half, their_half in zip(rim_halves(template.vertices, loop), rim_halves(ict.neutral, theirs[name])):
+        their_loop = getattr(theirs, name)
+        for our_half, their_half in zip(rim_halves(template.vertices, loop), rim_halves(ict.neutral, their_loop)):
             t = _arc(template.vertices[our_half])
             ids.append(our_half)
-            points.append(_resample(ict.neutral[their_half], t))
+            points.append(_resample(head[their_half], t))
     ids_all, pts = np.concatenate(ids), np.concatenate(points)
     _, first = np.unique(ids_all, return_index=True)  # the corners appear in both halves
     first = np.sort(first)
@@ -204,16 +284,17 @@ def register(template: TemplateMesh, ict: IctModel, target: np.ndarray | None = 
             comparable.
     """
     rims, rim_points = rim_targets(template, ict)
-    ict_rims = np.concatenate(
-        [rim_points]
-    )  # points on ICT's neutral rims; the frame: rigid, from these to the template's rim vertices
-    frame = Similarity.fit(ict_rims, template.vertices[rims])
+    # the frame: rigid, from the points on the mean's rims to the template's rim vertices
+    frame = Similarity.fit(rim_points, template.vertices[rims])
     rot, trans = frame.rotation, frame.translation
     head = ict.neutral if target is None else np.asarray(target, float)
     surface = head @ rot.T + trans
-    if target is not None:  # the target's own rim points, at the mean's barycentric positions along its rims
-        _, rim_points = rim_targets(template, IctModel(**{**ict.__dict__, "neutral": np.asarray(target, float)}))
+    if target is not None:  # the target's own rim points, at the mean's arc-length positions along its rims
+        _, rim_points = rim_targets(template, ict, head)
     goal = rim_points @ rot.T + trans
+    # the surface searched: ICT's skin without the inner lips (inside the contact line)
+    outer = np.flatnonzero(~ict_rims(ict).inner)
+    outer_tris = ict.triangles[outer]
     skin, skin_faces = _pieces(template)
     sid = np.flatnonzero(skin)
     local = np.full(len(template.vertices), -1)
@@ -230,10 +311,10 @@ def register(template: TemplateMesh, ict: IctModel, target: np.ndarray | None = 
     stl = (s_rim.T @ s_rim).tocsc()
     lx0 = ltl @ x0
     srhs = s_rim.T @ goal
-    tri_normals = face_normals(surface, ict.triangles)
+    tri_normals = face_normals(surface, outer_tris)
     for alpha, steps in SCHEDULE:
         for _ in range(steps):
-            found = closest_surface_points(x, surface, ict.triangles)
+            found = closest_surface_points(x, surface, outer_tris)
             normals = vertex_normals(x, faces)
             ok = (
                 data_ids
@@ -244,7 +325,7 @@ def register(template: TemplateMesh, ict: IctModel, target: np.ndarray | None = 
             a = sp.diags(w) + RIM_WEIGHT * stl + alpha * ltl
             b = w[:, None] * found.closest + RIM_WEIGHT * srhs + alpha * lx0
             x = spla.splu(a.tocsc()).solve(b)
-    found = closest_surface_points(x, surface, ict.triangles)
+    found = closest_surface_points(x, surface, outer_tris)
     normals = vertex_normals(x, faces)
     covered_local = (
         np.isin(template.regions[sid], [REGION_NAMES.index(r) for r in COVERED_REGIONS])
@@ -256,7 +337,7 @@ def register(template: TemplateMesh, ict: IctModel, target: np.ndarray | None = 
         rotation=rot,
         translation=trans,
         covered=sid[covered_local],
-        triangle=found.face[covered_local],
+        triangle=outer[found.face[covered_local]],
         barycentric=found.barycentric[covered_local],
         registered=x,
         distance=found.distance[covered_local],

@@ -32,57 +32,57 @@ GOLDEN_FACES = [
     5492,
     7134,
     7793,
-    315,
-    287,
-    282,
+    323,
+    3430,
+    291,
     1479,
     284,
     4624,
     5809,
-    4623,
-    4626,
-    4655,
+    4630,
+    7746,
+    4662,
     170,
     169,
     2528,
-    2207,
-    403,
+    334,
+    389,
     455,
     424,
     4794,
-    4743,
-    1655,
+    4728,
+    1649,
     1625,
-    1652,
-    1644,
+    1660,
+    1635,
     1629,
     3128,
-    5972,
-    5980,
+    5963,
+    5988,
     5952,
-    5982,
+    5976,
     7447,
     5956,
-    536,
+    3287,
     601,
-    605,
+    604,
     589,
-    4944,
+    4945,
     4941,
-    4876,
-    4958,
+    7603,
+    4959,
     4975,
     922,
     634,
-    618,
-    696,
-    845,
+    619,
+    2271,
+    694,
     680,
-    5183,
-    5036,
-    5183,
+    5035,
+    6598,
+    5032,
     845,
-    845,
+    692,
 ]
 
 MIDLINE = [8, 27, 28, 29, 30, 33, 51, 57, 62, 66]
@@ -110,17 +110,6 @@ def _distance_to_loop(vertices, loop, p):
     return float(np.linalg.norm(a + t[:, None] * (b - a) - p, axis=1).min())
 
 
-_STALE_TABLES = pytest.mark.xfail(
-    strict=True,
-    reason="issue 25, known defect: the correction tables (landmarks/ibug68/corrections.py) were fitted to dlib on "
-    "renders of MakeHuman's shape; refitted on the ICT-shaped template (bench_landmark_offsets.py --fit) the inner "
-    "lip rows 51, 53 and 65 land on the wrong lip, because the template's lip rim was registered to ICT's skin "
-    "boundary, which lies inside the mouth (midline rim vertices 10.8 mm apart, 1.4 mm before): the old tables "
-    "stay until the mouth rim is registered to ICT's lip contact line",
-)
-
-
-@_STALE_TABLES
 def test_golden_faces_and_shapes(emb):
     assert len(IBUG68_NAMES) == 68 == len(set(IBUG68_NAMES))
     assert isinstance(emb, LandmarkEmbedding)
@@ -205,7 +194,6 @@ def test_each_landmark_lies_in_its_region(asset, emb, pts):
     assert pts[51, 1] > pts[62, 1] and pts[57, 1] < pts[66, 1] and pts[33, 1] > pts[51, 1] > pts[57, 1] > pts[CHIN, 1]
 
 
-@_STALE_TABLES
 def test_committed_corrections_reproduce_the_embedding(asset, emb, pts, heuristic_pts):
     """Each row of the table moves the geometric placement onto a point of its surface (the fit picks
     surface points): the corrected landmark is the placement plus the row, up to the row's rounding."""

@@ -149,7 +149,7 @@ def test_detector_weights_follow_the_measured_errors():
     from pathlib import Path
 
     from landmarks.ibug68.names import IBUG68_MIRROR
-    from landmarks.loss import DETECTOR_ERROR_PX, detector_landmark_weights
+    from landmarks.loss import DETECTOR_ERROR_PX, DETECTOR_REFERENCE_PX, detector_landmark_weights
 
     results = Path(__file__).resolve().parents[2] / "benchmarks" / "results"
     table = json.loads((results / "landmark_offsets.json").read_text())
@@ -163,7 +163,7 @@ def test_detector_weights_follow_the_measured_errors():
     assert w[30] == 1.0 and w[0] < 0.1 and w[19] < 0.25
     e = 0.5 * (np.array(DETECTOR_ERROR_PX) + np.array(DETECTOR_ERROR_PX)[list(IBUG68_MIRROR)])
     free = (w > 0.05) & (w < 1.0)
-    np.testing.assert_allclose(w[free], (2.0 / e[free]) ** 2)
+    np.testing.assert_allclose(w[free], (DETECTOR_REFERENCE_PX / e[free]) ** 2)
 
 
 def test_landmark_weights_of_both_weightings():

@@ -281,15 +281,22 @@ def test_preview_and_renderer_coexist(sphere_scene):
     """The still-picture preview (scalar_rgb) and the renderer (llvm_ad_rgb) can be used in turn."""
     import mitsuba as mi
 
+    from render.backend import reproducible
     from render.preview import render_preview
 
     r, v0, albedo0, light, _ = sphere_scene
     v, a = torch.tensor(v0, dtype=torch.float32), torch.tensor(albedo0, dtype=torch.float32)
-    before = r.render(v, a, light, seed=4).image
+    # one Dr.Jit thread: with several, the film's atomic adds may change the last bits from run to run
+    # (seen once in CI, under load); the claim here is that the scene survives the variant switch
+    with reproducible():
+        before = r.render(v, a, light, seed=4).image
     picture = render_preview(v0, np.asarray(_icosphere(60.0, 2)[1]), size=(32, 24), spp=1, distance=400.0)
     assert picture.shape == (24, 32, 3)
     assert mi.variant() == r.variant  # the caller's variant is restored
-    assert torch.equal(r.render(v, a, light, seed=4).image, before)
+    with reproducible():
+        after = r.render(v, a, light, seed=4).image
+    assert before.abs().max() > 0.1  # the sphere is in the picture
+    torch.testing.assert_close(after, before, atol=1e-6, rtol=1e-6)
 
 
 # -- LLVM check --------------------------------------------------------------------------------------

@@ -164,3 +164,44 @@ def test_closest_surface_points_bad_input(asset):
         closest_surface_points(np.zeros((1, 3)), v, f[:0])
     with pytest.raises(InputError, match="faces index outside"):
         closest_surface_points(np.zeros((1, 3)), v, f + len(v))
+
+
+def _bumpy_sphere(seed=0):
+    import trimesh
+
+    s = trimesh.creation.icosphere(subdivisions=3, radius=50.0)
+    v = np.asarray(s.vertices, float)
+    v = v * (1.0 + 0.05 * np.sin(3 * v[:, :1] / 50.0))
+    rng = np.random.default_rng(seed)
+    shapes = v[None] + rng.normal(0.0, 1.0, (3, 1, 3)) * np.exp(-(((v - v[0]) / 30.0) ** 2).sum(1))[None, :, None]
+    return v, np.asarray(s.faces), shapes
+
+
+def test_deformation_transfer_on_the_source_returns_its_offsets():
+    from rig.geometry import deformation_transfer
+
+    v, f, shapes = _bumpy_sphere()
+    np.testing.assert_allclose(deformation_transfer(v, shapes, v, f), shapes - v, atol=1e-6)
+
+
+def test_deformation_transfer_onto_a_scaled_moved_copy_scales_the_offsets():
+    """A target that is ``s source + t``: every triangle deforms as on the source, so the transferred offsets
+    are ``s offsets`` up to one translation, which the anchor sets to the raw offsets' mean: ``s o + (1 - s)
+    mean(o)`` (a known deformation to recover); the raw offsets are not."""
+    from rig.geometry import deformation_transfer
+
+    v, f, shapes = _bumpy_sphere(1)
+    target = 1.3 * v + np.array([5.0, -7.0, 2.0])
+    # the anchor pulls towards the raw offsets, which differ here: a small anchor for the exact answer
+    out = deformation_transfer(v, shapes, target, f, anchor=1e-6)
+    o = shapes - v
+    np.testing.assert_allclose(out, 1.3 * o - 0.3 * o.mean(1, keepdims=True), atol=1e-4)
+    assert np.abs(out - o).max() > 0.1
+
+
+def test_deformation_transfer_checks_shapes():
+    from rig.geometry import deformation_transfer
+
+    v, f, shapes = _bumpy_sphere()
+    with pytest.raises(ShapeError, match="target"):
+        deformation_transfer(v, shapes, v[:-1], f)

@@ -9,7 +9,7 @@ from rig.asset import DEFAULT_ASSET, build_asset, load_asset, read_asset
 from rig.geometry import closest_surface_points
 from rig.ict.data import COMPACT_PATH, MAX_STORAGE_ERROR_MM, NUM_IDENTITY_MODES, SKIN_VERTICES, load_ict
 from rig.ict.modes import expression_shapes, identity_modes, transfer_of
-from rig.ict.transfer import boundary_loops
+from rig.ict.transfer import boundary_loops, ict_rims
 from rig.template import REGION_NAMES, build_makehuman_template
 
 ZERO_PARAMETER_BOUND_MM = 0.25
@@ -56,6 +56,26 @@ def test_skin_has_the_eye_mouth_and_neck_rims(ict):
     assert len(loops) == 4
     centres = np.array([ict.neutral[lp].mean(0) for lp in loops])
     assert (np.sort(np.sign(np.round(centres[:, 0]))) == [-1, 0, 0, 1]).all()
+
+
+def test_lip_rim_is_icts_contact_line_not_its_skin_boundary(ict):
+    """ICT's skin ends deep in the mouth, its lips ~11 mm apart there; the template's lip rim (lips 1.4 mm
+    apart on MakeHuman's shape) goes to ICT's lip contact line, so the committed template's lips meet."""
+    rims = ict_rims(ict)
+    mouth = next(lp for lp in boundary_loops(ict.triangles) if abs(ict.neutral[lp, 0].mean()) < 1 and lp.size < 200)
+    v = ict.neutral
+    loops = (("boundary", mouth), ("contact", rims.mouth))
+    gap = {name: float(np.ptp(v[lp][np.abs(v[lp, 0]) < 1.0, 1])) for name, lp in loops}
+    assert gap["boundary"] > 8.0 and gap["contact"] < 1.5
+    # the contact line lies between the outer lips' landmarks (iBUG 51 above, 57 below) and the mouth's end
+    y = v[rims.mouth][np.abs(v[rims.mouth, 0]) < 1.0, 1]
+    assert v[ict.landmarks68[57], 1] < y.min() and y.max() < v[ict.landmarks68[51], 1]
+    assert 0 < rims.inner.sum() < 0.1 * len(ict.triangles)
+    # the committed template: its upper and lower lip rims nearly touch at the midline
+    asset = load_asset()
+    loop = asset.mouth_loop
+    mid = loop[np.abs(asset.vertices[loop, 0]) < 1.0]
+    assert np.ptp(asset.vertices[mid, 1]) < 2.0
 
 
 def test_committed_asset_is_rebuilt_from_the_vendored_data_bit_for_bit():

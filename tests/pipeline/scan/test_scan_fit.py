@@ -66,8 +66,10 @@ def test_recovers_a_known_pose_and_expression_from_its_own_scan(known_head, asse
     scan = simulate_scan(known_head, asset.faces, rng=5, settings=CLEAN, yaw_deg=25.0)
     fit = fit_scan(validate_points(scan.points, scan.normals))
     err, start = _face_error(fit, scan, asset), _template_error(fit, scan, asset)
-    # measured 1.36 vs 4.41 mm on the MakeHuman rig (0.88 vs 3.17 on the first, procedural template)
-    assert err < 1.6 and err < 0.35 * start, (err, start)
+    # measured 1.69 vs 4.85 mm on the ICT-shaped rig with the 135-step schedule (1.59 with the earlier 260
+    # steps, which were slower and worse on the held-out scans: docs/fit_scan.md, "Speed"); 1.36 vs 4.41 on
+    # the MakeHuman rig, 0.88 vs 3.17 on the first, procedural template
+    assert err < 1.8 and err < 0.4 * start, (err, start)
     jaw = EXPRESSION_NAMES.index("jawOpen")
     assert abs(fit.expressions[jaw] - TRUE_EXPRESSION["jawOpen"]) < 0.15
     assert [s.name for s in fit.stages][:2] == ["coarse", "joints 1.1"]
@@ -80,8 +82,9 @@ def test_robust_to_noise_outliers_and_a_30_percent_hole(known_head, asset):
     assert scan.hole_fraction > 0.25
     fit = fit_scan(validate_points(scan.points, scan.normals))
     err, start = _face_error(fit, scan, asset), _template_error(fit, scan, asset)
-    # measured 2.68 vs 3.98 mm on the MakeHuman rig (1.50 vs 3.21 on the first template)
-    assert err < 3.0 and err < 0.75 * start, (err, start)
+    # measured 3.24 vs 5.03 mm on the ICT-shaped rig with the 135-step schedule (3.07 with the earlier 260
+    # steps; 2.90 with 2 torch threads: the fit's path is that sensitive), 2.68 vs 3.98 on the MakeHuman rig
+    assert err < 3.3 and err < 0.75 * start, (err, start)
 
 
 def test_config_yaml_overrides_and_rejects_unknown_keys(tmp_path):
@@ -99,7 +102,7 @@ def test_config_yaml_overrides_and_rejects_unknown_keys(tmp_path):
         load_config(FitScanConfig, path)
     with pytest.raises(ConfigError, match="iterations"):
         load_config(FitScanConfig, None, {"stages": [{"name": "a", "free": ["pose"], "iterations": "many"}]})
-    assert len(jnr_schedule()) == 1 + 2 * (2 * 2 + 1)  # coarse + JNR 4.3
+    assert len(jnr_schedule()) == 1 + 2 * (1 * 2 + 1)  # coarse + JNR 4.3 (one identity cycle, twice)
     from pathlib import Path
 
     shipped = Path(__file__).resolve().parents[3] / "configs" / "fit_scan.yaml"
