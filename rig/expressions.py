@@ -228,6 +228,16 @@ def _jaw_weight(asset: RigAsset, artist: np.ndarray) -> np.ndarray:
     return 0.5 * (w + w[asset.mirror])
 
 
+def _symmetrised(asset: RigAsset, shapes: np.ndarray, stray: np.ndarray) -> np.ndarray:
+    """``(E, V, 3)``: each pair's symmetric average (a midline shape's own symmetric part); the eye and brow
+    shapes without their ``stray`` ``(V,)`` rows."""
+    out = np.empty_like(shapes)
+    for i, name in enumerate(EXPRESSION_NAMES):
+        f = 0.5 * (shapes[i] + _mirror(asset, shapes[_INDEX[_twin(name)]]))
+        out[i] = np.where(stray[:, None], 0.0, f) if name.startswith(("eye", "brow")) else f
+    return out
+
+
 def build_expression_basis(asset: RigAsset | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The 52 shapes at coefficient 1 and the jaw rotation's weight (deterministic).
 
@@ -244,33 +254,21 @@ def build_expression_basis(asset: RigAsset | None = None) -> tuple[np.ndarray, n
     if raw.shape[1] != len(asset.vertices):
         raise ExpressionError(f"the ARKit face units have {raw.shape[1]} vertices, the template {len(asset.vertices)}")
     stray = asset.region_mask(*_STRAY_REGIONS)
-    lid = lid_factor(asset)
-    basis = np.zeros_like(raw)
-    for i, name in enumerate(EXPRESSION_NAMES):
-        j = _INDEX[_twin(name)]
-        f = 0.5 * (raw[i] + _mirror(asset, raw[j]))  # a pair's symmetric average; a midline shape's own part
-        if name.startswith(("eye", "brow")):
-            f = np.where(stray[:, None], 0.0, f)
-        if name.startswith(_LID_SHAPES):
-            f[:, 1] *= lid
-        basis[i] = f
-    basis_raw_jaw = basis[JAW_INDEX].copy()
-    # onto the template's shape triangle by triangle (the shapes were sculpted on MakeHuman's; copied as raw
-    # offsets, the lip corners folded at jawOpen 0.75), then made exactly symmetric again; the lid shapes
-    # keep their raw offsets, with the lid travel fitted to the template's aperture (lid_factor)
+    symmetric = _symmetrised(asset, raw, stray)  # on MakeHuman's head, where the shapes were sculpted
+    lids = np.array([name.startswith(_LID_SHAPES) for name in EXPRESSION_NAMES])
+    basis = symmetric.copy()
+    # the lid shapes keep the data's offsets, with the lid travel fitted to the template's aperture
+    basis[lids, :, 1] *= lid_factor(asset)
+    # the others go onto the template's shape triangle by triangle (copied as raw offsets, the lip corners
+    # folded at jawOpen 0.75), then are made exactly symmetric again (a twin of a non-lid shape is one too)
     makehuman = makehuman_vertices()
-    moved = deformation_transfer(makehuman, makehuman + basis, asset.vertices, asset.faces)
-    for i, name in enumerate(EXPRESSION_NAMES):
-        if name.startswith(_LID_SHAPES):
-            continue
-        f = 0.5 * (moved[i] + _mirror(asset, moved[_INDEX[_twin(name)]]))
-        if name.startswith(("eye", "brow")):
-            f = np.where(stray[:, None], 0.0, f)
-        basis[i] = f
+    moved = np.zeros_like(symmetric)
+    moved[~lids] = deformation_transfer(makehuman, makehuman + symmetric[~lids], asset.vertices, asset.faces)
+    basis[~lids] = _symmetrised(asset, moved, stray)[~lids]
     # the jaw: the rotation's weight fitted to the artist's shape on MakeHuman's (where it was sculpted);
     # the corrective is what the rotation of the template's own vertices about its own hinge leaves of the
     # transferred shape, so that jawOpen = 1 is that shape exactly
-    weight = _jaw_weight(asset, basis_raw_jaw)
+    weight = _jaw_weight(asset, symmetric[JAW_INDEX])
     basis[JAW_INDEX] = basis[JAW_INDEX] - weight[:, None] * _rotation_displacement(
         asset.vertices, JAW_ANGLE_DEG, jaw_pivot(asset)
     )

@@ -120,29 +120,18 @@ def _resample(polyline: np.ndarray, t: np.ndarray) -> np.ndarray:
 
 def _hops(num: int, faces: np.ndarray, sources: np.ndarray) -> np.ndarray:
     """Edge hops ``(num,)`` of every vertex from the nearest of ``sources`` (``inf`` where unreachable)."""
-    from scipy.sparse.csgraph import breadth_first_order
+    from scipy.sparse.csgraph import dijkstra
 
     e = mesh_edges(faces)
-    g = sp.coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(num + 1, num + 1)).tocsr()
-    g = g + g.T
-    # one extra node joined to every source: a breadth-first search from it gives hops + 1
-    hub = sp.coo_matrix((np.ones(len(sources)), (np.full(len(sources), num), sources)), shape=(num + 1, num + 1))
-    g = (g + hub + hub.T).tocsr()
-    order, pred = breadth_first_order(g, num, directed=False, return_predecessors=True)
-    hops = np.full(num + 1, np.inf)
-    hops[num] = -1.0
-    for i in order[1:]:
-        hops[i] = hops[pred[i]] + 1.0
-    return hops[:num]
+    g = sp.coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(num, num)).tocsr()
+    return dijkstra(g, directed=False, unweighted=True, indices=sources, min_only=True)
 
 
-def _ring_loop(vertices: np.ndarray, faces: np.ndarray, ring: np.ndarray) -> np.ndarray | None:
-    """The vertices ``ring`` ``(V,)`` bool as one loop in :func:`rig.template.rim_loop` order, or None where
-    their edges do not form one simple loop."""
-    e = mesh_edges(faces)
-    e = e[ring[e].all(1)]
+def _ring_loop(vertices: np.ndarray, edges: np.ndarray, ring: np.ndarray) -> np.ndarray | None:
+    """The vertices ``ring`` ``(V,)`` bool as one loop in :func:`rig.template.rim_loop` order (``edges``
+    ``(E, 2)`` the mesh's), or None where their edges do not form one simple loop."""
     try:
-        return rim_loop(vertices, ordered_loop(e))
+        return rim_loop(vertices, ordered_loop(edges[ring[edges].all(1)]))
     except SetupError:
         return None
 
@@ -190,9 +179,10 @@ def ict_rims(ict: IctModel) -> IctRims:
     left = max(eyes, key=lambda i: centre[i, 0])
     right = min(eyes, key=lambda i: centre[i, 0])
     hops = _hops(len(v), ict.triangles, loops[mouth])
+    edges = mesh_edges(ict.triangles)
     rings = []
     for r in range(0, 64):
-        loop = _ring_loop(v, ict.triangles, hops == r)
+        loop = _ring_loop(v, edges, hops == r)
         if loop is None:
             break
         rings.append((_lip_gap(v, loop), r, loop))
@@ -207,12 +197,15 @@ def ict_rims(ict: IctModel) -> IctRims:
     )
 
 
-def rim_targets(template: TemplateMesh, ict: IctModel, head: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+def rim_targets(
+    template: TemplateMesh, ict: IctModel, head: np.ndarray | None = None, rims: IctRims | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """Template rim vertex ids ``(R,)`` and their points on ICT's rims ``(R, 3)`` (ICT's frame, mm), matched
     half-rim by half-rim at equal normalised arc length: the eyelid rims and the lip contact line
-    (:class:`IctRims`), found on the mean; the points lie on ``head`` ``(N, 3)`` (default: the mean)."""
+    (:class:`IctRims`, ``rims`` or found on the mean); the points lie on ``head`` ``(N, 3)`` (default: the
+    mean)."""
     ours = {"left_eye": template.eye_loops[0], "right_eye": template.eye_loops[1], "mouth": template.mouth_loop}
-    theirs = ict_rims(ict)
+    theirs = ict_rims(ict) if rims is None else rims
     head = ict.neutral if head is None else np.asarray(head, float)
     ids, points = [], []
     for name, loop in ours.items():
@@ -283,17 +276,18 @@ def register(template: TemplateMesh, ict: IctModel, target: np.ndarray | None = 
             frame comes from the mean's rims whatever the target, so registrations of different heads are
             comparable.
     """
-    rims, rim_points = rim_targets(template, ict)
+    ict_rim = ict_rims(ict)
+    rims, rim_points = rim_targets(template, ict, rims=ict_rim)
     # the frame: rigid, from the points on the mean's rims to the template's rim vertices
     frame = Similarity.fit(rim_points, template.vertices[rims])
     rot, trans = frame.rotation, frame.translation
     head = ict.neutral if target is None else np.asarray(target, float)
     surface = head @ rot.T + trans
     if target is not None:  # the target's own rim points, at the mean's arc-length positions along its rims
-        _, rim_points = rim_targets(template, ict, head)
+        _, rim_points = rim_targets(template, ict, head, ict_rim)
     goal = rim_points @ rot.T + trans
     # the surface searched: ICT's skin without the inner lips (inside the contact line)
-    outer = np.flatnonzero(~ict_rims(ict).inner)
+    outer = np.flatnonzero(~ict_rim.inner)
     outer_tris = ict.triangles[outer]
     skin, skin_faces = _pieces(template)
     sid = np.flatnonzero(skin)
