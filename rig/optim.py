@@ -1,4 +1,5 @@
-"""What every iterative routine of jnr shares: the progress-callback type and freezing a module.
+"""What every iterative routine of jnr shares: the progress-callback type, freezing a module and the torch
+thread count of a block.
 
 Training (:mod:`rig.skinning`) and fitting (:mod:`pipeline.fitting`) report progress through the same
 callable, ``progress(stage, iteration, iterations)``, with ``iteration`` counting from 1 to
@@ -36,3 +37,24 @@ def frozen(*modules: torch.nn.Module | None) -> Iterator[None]:
     finally:
         for p in params:
             p.requires_grad_(True)
+
+
+@contextmanager
+def torch_threads(count: int | None) -> Iterator[None]:
+    """Run the block with ``count`` torch intra-op threads (``None``: unchanged) and restore the caller's
+    count after, also when the block raises.
+
+    Example:
+        >>> before = torch.get_num_threads()
+        >>> with torch_threads(1):
+        ...     assert torch.get_num_threads() == 1
+        >>> torch.get_num_threads() == before
+        True
+    """
+    before = torch.get_num_threads()
+    if count is not None:
+        torch.set_num_threads(count)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(before)

@@ -21,7 +21,7 @@ from render.backend import reproducible
 from render.lighting import Lighting
 from render.renderer import DifferentiableRenderer
 from rig.geometry import mesh_edges, vertex_normals
-from rig.optim import Progress
+from rig.optim import Progress, torch_threads
 
 
 def hemisphere_directions(n: int) -> np.ndarray:
@@ -99,24 +99,19 @@ def _photometric(
 ):
     """The photometric stages; updates ``state`` in place. Returns the light direction (camera frame)
     and the stage logs."""
-    threads = torch.get_num_threads()
-    if settings.reproducible:  # torch's CPU scatter-adds (index backward) are order-dependent on several threads too
-        torch.set_num_threads(1)
-    try:
-        with reproducible(settings.reproducible):
-            fit = PhotometricObjective(photo, crop, focal, state, term, settings)
-            stages = run_schedule(
-                state,
-                settings.stages,
-                fit,
-                settings.lr,
-                label="fit_photo",
-                progress=progress,
-                before_stage=fit.before_stage,
-            )
-            return np.asarray(fit.direction, float), stages
-    finally:
-        torch.set_num_threads(threads)
+    # torch's CPU scatter-adds (index backward) are order-dependent on several threads too
+    with torch_threads(1 if settings.reproducible else None), reproducible(settings.reproducible):
+        fit = PhotometricObjective(photo, crop, focal, state, term, settings)
+        stages = run_schedule(
+            state,
+            settings.stages,
+            fit,
+            settings.lr,
+            label="fit_photo",
+            progress=progress,
+            before_stage=fit.before_stage,
+        )
+        return np.asarray(fit.direction, float), stages
 
 
 class PhotometricObjective:

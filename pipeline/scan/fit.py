@@ -60,7 +60,7 @@ from rig.expressions import ExpressionModel
 from rig.geometry import Similarity
 from rig.head_model import HeadParams
 from rig.model import JointRig
-from rig.optim import Progress
+from rig.optim import Progress, torch_threads
 from rig.parameters import NUM_PARAMETERS
 from rig.skinning.asm import AdaptiveSkinning, asm_params_to_dict
 from rig.skinning.neural import LATENT, NeuralSkinning, load_neural
@@ -156,14 +156,10 @@ def fit_scan(
             :func:`landmarks.points3d.check_landmarks_3d` (coincident, not head-sized, not face-like or
             mirrored, turned away from the scanner, off the cloud); checked before the pre-alignment.
     """
-    threads = torch.get_num_threads()
-    torch.set_num_threads(FIT_THREADS)
-    try:
+    with torch_threads(FIT_THREADS):
         return _fit_scan(
             cloud, config or FitScanConfig(), landmarks, rig, neural, expressions, progress, landmarks_source
         )
-    finally:
-        torch.set_num_threads(threads)
 
 
 def _fit_scan(
