@@ -143,16 +143,20 @@ def mean_vertex_error(fitted: np.ndarray, truth: np.ndarray) -> np.ndarray:
     return vertex_errors(fitted, truth).mean(axis=-1)
 
 
-def landmark_errors(projected: np.ndarray, landmarks2d: np.ndarray) -> tuple[np.ndarray, float]:
+def landmark_errors(
+    projected: np.ndarray, landmarks2d: np.ndarray, eye_corners: tuple[int, int] = EYE_OUTER
+) -> tuple[np.ndarray, float]:
     """Per-landmark pixel error and the NME.
 
     Args:
-        projected: ``(68, 2)`` fitted landmarks, px (iBUG-68 order).
-        landmarks2d: ``(68, 2)`` target landmarks, px.
+        projected: ``(N, 2)`` fitted landmarks, px (iBUG-68 order by default).
+        landmarks2d: ``(N, 2)`` target landmarks, px.
+        eye_corners: the indices of the outer eye corners (:data:`EYE_OUTER` for iBUG-68;
+            :attr:`landmarks.layout.LandmarkLayout.eye_corners` for another layout).
 
     Returns:
-        ``(68,)`` errors, px, and the NME: their mean divided by the distance between the outer eye
-        corners (:data:`EYE_OUTER`) of the *target* (NaN if those coincide).
+        ``(N,)`` errors, px, and the NME: their mean divided by the distance between the outer eye
+        corners of the *target* (NaN if those coincide).
     """
     projected = np.asarray(projected, dtype=np.float64)
     landmarks2d = np.asarray(landmarks2d, dtype=np.float64)
@@ -160,14 +164,14 @@ def landmark_errors(projected: np.ndarray, landmarks2d: np.ndarray) -> tuple[np.
         projected.shape != landmarks2d.shape
         or projected.ndim != 2
         or projected.shape[1] != 2
-        or projected.shape[0] <= max(EYE_OUTER)
+        or projected.shape[0] <= max(eye_corners)
     ):
         raise ValueError(
-            f"landmark_errors: projected and landmarks2d must have the same shape (68, 2), got "
+            f"landmark_errors: projected and landmarks2d must have the same shape (N, 2), got "
             f"{projected.shape} and {landmarks2d.shape}"
         )
     error = np.linalg.norm(projected - landmarks2d, axis=1)
-    inter_ocular = float(np.linalg.norm(landmarks2d[EYE_OUTER[0]] - landmarks2d[EYE_OUTER[1]]))
+    inter_ocular = float(np.linalg.norm(landmarks2d[eye_corners[0]] - landmarks2d[eye_corners[1]]))
     return error, (float(error.mean() / inter_ocular) if inter_ocular > 0 else math.nan)
 
 

@@ -1,16 +1,17 @@
-"""The 68-landmark reprojection term of one photo, defined once for both solvers.
+"""The landmark reprojection term of one photo, defined once for both solvers, for any landmark layout.
 
 :class:`LandmarkTerm` is the observation: the target pixels, the camera, each landmark's weight, the Huber
-threshold and the jaw contour (0-16, re-picked as the silhouette seen from the camera centre,
-:func:`landmarks.ibug68.contour.contour_landmarks`). Its :meth:`LandmarkTerm.term` is the
-:class:`~pipeline.fitting.terms.Term` (``Huber`` on each landmark's pixel error, weighted, normalised by the
-weights' sum: :func:`landmarks.loss.landmark_reprojection_loss`) reading the input ``landmarks_px (B, 68, 2)``.
-Two evaluations give that input:
+threshold and the layout (:class:`landmarks.layout.LandmarkLayout`: dlib's iBUG-68 by default), whose
+contour points are re-picked as the silhouette seen from the camera centre (for iBUG-68 the jaw contour
+0-16 but the chin, :func:`landmarks.ibug68.contour.contour_vertex_ids`). Its :meth:`LandmarkTerm.term` is
+the :class:`~pipeline.fitting.terms.Term` (``Huber`` on each landmark's pixel error, weighted, normalised by
+the weights' sum: :func:`landmarks.loss.landmark_reprojection_loss`) reading the input ``landmarks_px
+(B, N, 2)``. Two evaluations give that input:
 
 - the live state (:meth:`LandmarkTerm.pixels`): the full mesh in the state's dtype, the contour re-picked every
   call; the Adam objectives and the results use it;
 - :class:`BatchedLandmarks`, for the Levenberg-Marquardt solver: a batch of parameter sets at once, in float64,
-  skinning only the ~200 vertices the landmarks and the contour's pick read, with the skinning weights of the
+  skinning only the vertices the landmarks and the contour's pick read, with the skinning weights of the
   state's latent held fixed and the contour re-picked by :meth:`BatchedLandmarks.prepare` (the first
   :data:`CONTOUR_UPDATES` times).
 """
@@ -24,11 +25,9 @@ import torch
 from kornia.geometry.camera import PinholeCamera
 from kornia.geometry.conversions import axis_angle_to_rotation_matrix
 
-from landmarks.ibug68.contour import contour_landmarks, contour_support_ids, contour_vertex_ids
-from landmarks.ibug68.embedding import ibug68_embedding
-from landmarks.ibug68.names import CHIN
 from landmarks.ibug68.positions import landmark_positions
-from landmarks.loss import CONTOUR_WEIGHT, landmark_weights, project_points
+from landmarks.layout import LandmarkLayout, ibug68_layout
+from landmarks.loss import CONTOUR_WEIGHT, project_points
 from pipeline.fitting.state import PhotoState
 from pipeline.fitting.terms import Huber, Inputs, Term
 from rig.asset import cached_per_asset
@@ -38,6 +37,7 @@ from rig.lbs import skin_vertices_shared_weights
 from rig.model import JointRig
 
 NUM_LANDMARKS = 68
+"""The points of the default layout (dlib's iBUG-68)."""
 
 CONTOUR_UPDATES = 4
 """LM iterations per stage that re-pick the jaw contour's silhouette vertices; later ones keep the last
@@ -46,14 +46,18 @@ the cost cycled (seen on synthetic heads) instead of converging."""
 
 
 class LandmarkTerm:
-    """The 68-landmark reprojection term of one photo (module docstring).
+    """The landmark reprojection term of one photo (module docstring).
 
     Args:
-        asset: the rig asset (faces, contour candidates).
-        landmarks2d: ``(68, 2)`` target pixels (OpenCV, 0-based), iBUG-68 order.
+        asset: the rig asset (faces).
+        landmarks2d: ``(N, 2)`` target pixels (OpenCV, 0-based), in the layout's order.
         camera: ``PinholeCamera`` with identity extrinsics (the model moves points to camera space).
         huber_delta_px: Huber threshold, pixels.
-        contour_weight, weighting: each landmark's weight (:func:`landmarks.loss.landmark_weights`).
+        contour_weight, weighting: each landmark's weight (:meth:`landmarks.layout.LandmarkLayout.weights`).
+        layout: the landmark scheme (default: :func:`landmarks.layout.ibug68_layout` of ``asset``).
+
+    Raises:
+        landmarks.layout.LayoutError: ``landmarks2d`` does not have the layout's shape.
     """
 
     def __init__(
@@ -64,16 +68,20 @@ class LandmarkTerm:
         huber_delta_px: float,
         contour_weight: float = CONTOUR_WEIGHT,
         weighting: str = "contour",
+        layout: LandmarkLayout | None = None,
     ) -> None:
         self.asset, self.camera, self.delta = asset, camera, float(huber_delta_px)
-        self.weights = landmark_weights(weighting, contour_weight, camera.intrinsics.dtype)
+        self.layout = ibug68_layout(asset) if layout is None else layout
+        target = self.layout.check(landmarks2d, "LandmarkTerm")
+        self.weights = self.layout.weights(weighting, contour_weight, camera.intrinsics.dtype)
         self.faces = asset.faces
-        self.embedding = ibug68_embedding(asset)
-        self.target = torch.as_tensor(np.array(landmarks2d, np.float64), dtype=camera.intrinsics.dtype)[None]
+        self.embedding = self.layout.embedding
+        self.contour = torch.as_tensor(self.layout.contour, dtype=torch.long)
+        self.target = torch.as_tensor(target, dtype=camera.intrinsics.dtype)[None]
 
     def term(self, weight: float = 1.0, name: str = "landmarks_px2", key: str = "landmarks_px") -> Term:
         """The :class:`~pipeline.fitting.terms.Term` of these landmarks: ``weight`` times the weighted mean
-        Huber of the pixel errors (px^2), reading the input ``key`` ``(B, 68, 2)``."""
+        Huber of the pixel errors (px^2), reading the input ``key`` ``(B, N, 2)``."""
 
         def pixel_error(p: Inputs) -> torch.Tensor:
             px = p[key]
@@ -82,13 +90,15 @@ class LandmarkTerm:
         return Term(name, weight, pixel_error, Huber(self.delta), normaliser="weights", group_weights=self.weights)
 
     def points3d(self, model: PhotoState, v: torch.Tensor) -> torch.Tensor:
-        """``(68, 3)`` rig space, mm: the static embedding, the jaw contour as seen from the camera."""
+        """``(N, 3)`` rig space, mm: the static embedding, the contour points as seen from the camera."""
         static = landmark_positions(v, self.embedding, self.faces)[0]
-        contour = contour_landmarks(v, self.faces, model.camera_center(), self.asset)
-        return torch.cat([contour, static[17:]])
+        picked = self.layout.pick(v.detach().cpu().double().numpy(), model.camera_center())
+        points = static.clone()
+        points[self.contour] = v[torch.as_tensor(picked, dtype=torch.long, device=v.device)]
+        return points
 
     def pixels(self, model: PhotoState, v: torch.Tensor, free: tuple[str, ...] = ()) -> torch.Tensor:
-        """``(1, 68, 2)`` the landmarks of the state's head ``v (V, 3)`` in the photo, pixels; the pose carries
+        """``(1, N, 2)`` the landmarks of the state's head ``v (V, 3)`` in the photo, pixels; the pose carries
         gradients if ``pose`` is in ``free``."""
         return project_points(model.to_camera(self.points3d(model, v), free)[None], self.camera)
 
@@ -97,14 +107,9 @@ class LandmarkTerm:
         return self.term().value(Inputs(landmarks_px=lambda: self.pixels(model, v, free)))[0]
 
     def project(self, model: PhotoState, v: torch.Tensor) -> np.ndarray:
-        """``(68, 2)`` float64 pixels of the model's landmarks."""
+        """``(N, 2)`` float64 pixels of the model's landmarks."""
         with torch.no_grad():
             return self.pixels(model, v)[0].double().numpy()
-
-
-@cached_per_asset
-def _support_ids(asset) -> torch.Tensor:
-    return torch.as_tensor(contour_support_ids(asset), dtype=torch.long)
 
 
 @cached_per_asset
@@ -133,15 +138,15 @@ class BatchedLandmarks:
         self.expressions = expressions64(term.asset)
         self.flip = torch.tensor(RIG_TO_OPENCV, dtype=f64)
         emb = term.embedding
-        self.static_ids = torch.as_tensor(np.asarray(term.faces)[emb.faces], dtype=torch.long)  # (68, 3)
-        self.static_bary = torch.as_tensor(emb.barycentric, dtype=f64)  # (68, 3)
-        self.support_ids = _support_ids(term.asset)
+        self.static_ids = torch.as_tensor(np.asarray(term.faces)[emb.faces], dtype=torch.long)  # (N, 3)
+        self.static_bary = torch.as_tensor(emb.barycentric, dtype=f64)  # (N, 3)
+        self.support_ids = torch.as_tensor(term.layout.support, dtype=torch.long)
         self.prepared, self.contour = 0, None
         self._rest: torch.Tensor | None = None
         self._skinning: torch.Tensor | None = None
 
     def prepare(self, p: Mapping[str, torch.Tensor], camera_center: np.ndarray) -> None:
-        """Re-pick the jaw contour (the first :data:`CONTOUR_UPDATES` calls) from ``camera_center (3,)`` (rig
+        """Re-pick the contour points (the first :data:`CONTOUR_UPDATES` calls) from ``camera_center (3,)`` (rig
         space, mm) at the batch-1 parameters ``p`` (``theta (1, P)``, ``c (1, E)``)."""
         self.prepared += 1
         if self.prepared <= CONTOUR_UPDATES or self.contour is None:
@@ -151,21 +156,20 @@ class BatchedLandmarks:
                 _, skinning = self.rig.joint_transforms(p["theta"])
                 v = torch.zeros(len(self.expressions.template), 3, dtype=torch.float64)
                 v[ids] = skin_vertices_shared_weights(rest, self.weights[ids], skinning)[0]
-                self.contour = contour_vertex_ids(v, self.term.faces, camera_center, self.term.asset)
+                self.contour = torch.as_tensor(self.term.layout.pick(v.numpy(), camera_center), dtype=torch.long)
         ids = self.static_ids.clone()
         bary = self.static_bary.clone()
-        for k in range(17):
-            if k != CHIN:
-                ids[k] = self.contour[k]
-                bary[k] = torch.tensor([1.0, 0.0, 0.0], dtype=torch.float64)
+        slots = self.term.contour
+        ids[slots] = self.contour[:, None].expand(-1, 3)  # the picked vertex (its weight on the first corner)
+        bary[slots] = torch.tensor([1.0, 0.0, 0.0], dtype=torch.float64)
         self.vertex_ids, inverse = torch.unique(ids.reshape(-1), return_inverse=True)
         self._rest = None
-        self.local_ids = inverse.reshape(NUM_LANDMARKS, 3)
+        self.local_ids = inverse.reshape(ids.shape)
         self.bary = bary
         self.rest_weights = self.weights[self.vertex_ids]
 
     def points(self, p: Mapping[str, torch.Tensor]) -> torch.Tensor:
-        """``(B, 68, 3)`` the landmarks in rig space, mm, of ``p``'s ``theta (B, P)`` and ``c (B, E)``."""
+        """``(B, N, 3)`` the landmarks in rig space, mm, of ``p``'s ``theta (B, P)`` and ``c (B, E)``."""
         batch = p["theta"].shape[0]
         # groups the stage does not move are the same in every row: computed once per stage (the rest
         # shape once per contour pick, which changes the vertices)
@@ -189,11 +193,11 @@ class BatchedLandmarks:
         return (posed[:, self.local_ids] * self.bary[..., None]).sum(2)
 
     def pixels(self, p: Mapping[str, torch.Tensor]) -> torch.Tensor:
-        """``(B, 68, 2)`` pixels of ``p``'s ``rotvec (B, 3)``, ``translation (B, 3)``, ``theta``, ``c``."""
+        """``(B, N, 2)`` pixels of ``p``'s ``rotvec (B, 3)``, ``translation (B, 3)``, ``theta``, ``c``."""
         return self.to_pixels(self.points(p), p["rotvec"], p["translation"])
 
     def to_pixels(self, points: torch.Tensor, rotvec: torch.Tensor, translation: torch.Tensor) -> torch.Tensor:
-        """``(B, 68, 2)`` pixels of landmarks ``points (B, 68, 3)`` (rig space, mm) seen with head pose
+        """``(B, N, 2)`` pixels of landmarks ``points (B, N, 3)`` (rig space, mm) seen with head pose
         ``rotvec (B, 3)``, ``translation (B, 3)`` (:mod:`pipeline.camera`)."""
         rotation = axis_angle_to_rotation_matrix(rotvec)  # (B, 3, 3)
         cam = points @ (self.flip @ rotation).transpose(1, 2) + translation[:, None]

@@ -35,6 +35,7 @@ import torch
 from kornia.geometry.camera import PinholeCamera
 
 from landmarks.ibug68.positions import landmark_positions
+from landmarks.layout import LandmarkLayout, ibug68_layout
 from landmarks.loss import CONTOUR_WEIGHT, WEIGHTINGS
 from pipeline.camera import default_focal, make_camera, solve_pose
 from pipeline.fitting.engine import LearningRates, Loss, Objective, Stage, StageLog, run_schedule
@@ -162,10 +163,12 @@ class LandmarkFit:
         expressions: ``(E,)`` coefficients (:data:`rig.expressions.EXPRESSION_NAMES`).
         rotation, translation: head pose, ``x_cam = RIG_TO_OPENCV @ rotation @ x_rig + translation`` (mm).
         camera: the fitted ``PinholeCamera`` (world = rig space; :func:`pipeline.camera.make_camera`).
-        landmarks_px: ``(68, 2)`` projection of the fitted landmarks (jaw contour dynamic), pixels.
-        error_px: ``(68,)`` distance from each input landmark, pixels.
-        nme: mean error / inter-ocular distance (outer eye corners 36, 45 of the input).
-        landmarks3d: ``(68, 3)`` fitted landmarks in rig space (static embedding), mm.
+        landmarks_px: ``(N, 2)`` projection of the fitted landmarks (contour dynamic), pixels, in the layout's
+            order (iBUG-68: ``N = 68``).
+        error_px: ``(N,)`` distance from each input landmark, pixels.
+        nme: mean error / inter-ocular distance (the layout's outer eye corners of the input; 36, 45 in iBUG-68).
+        landmarks3d: ``(N, 3)`` fitted landmarks in rig space (static embedding), mm.
+        layout: the layout's name (``"ibug68"``, ``"mediapipe"``).
         losses: per stage name, the total loss at its end; ``"data_px2"`` the final reprojection term.
         stages: one :class:`~pipeline.fitting.engine.StageLog` per stage (every loss term at its end).
         seconds: wall time of the whole fit.
@@ -184,18 +187,18 @@ class LandmarkFit:
     losses: dict
     stages: tuple[StageLog, ...]
     seconds: float
+    layout: str = "ibug68"
 
 
-def check_landmarks_2d_shape(landmarks2d, function: str = "fit_landmarks") -> np.ndarray:
-    """``(68, 2)`` float64 copy of ``landmarks2d`` (array or tensor, pixels); raises ShapeError for another
+def check_landmarks_2d_shape(landmarks2d, function: str = "fit_landmarks", count: int = NUM_LANDMARKS) -> np.ndarray:
+    """``(count, 2)`` float64 copy of ``landmarks2d`` (array or tensor, pixels); raises ShapeError for another
     shape and ValueError for NaN or inf (naming ``function``)."""
     lm = np.asarray(
         landmarks2d.detach().cpu() if isinstance(landmarks2d, torch.Tensor) else landmarks2d, dtype=np.float64
     )
-    if lm.shape != (NUM_LANDMARKS, 2):
-        raise ShapeError(
-            f"{function}: landmarks2d must have shape ({NUM_LANDMARKS}, 2) (iBUG-68 order, pixels), got {lm.shape}"
-        )
+    if lm.shape != (count, 2):
+        order = "iBUG-68 order" if count == NUM_LANDMARKS else "the layout's order"
+        raise ShapeError(f"{function}: landmarks2d must have shape ({count}, 2) ({order}, pixels), got {lm.shape}")
     if not np.isfinite(lm).all():
         bad = np.flatnonzero(~np.isfinite(lm).all(1)).tolist()
         raise ValueError(f"{function}: landmarks2d must be finite; rows {bad} contain NaN or inf")
@@ -213,11 +216,14 @@ def fit_landmarks(
     neural: NeuralSkinning | None = None,
     progress: Progress | None = None,
     terms: tuple[Term, ...] = (),
+    layout: LandmarkLayout | None = None,
 ) -> LandmarkFit:
-    """Fit pose, joints, Z and expressions of the rig to the 68 iBUG landmarks of one photo.
+    """Fit pose, joints, Z and expressions of the rig to the landmarks of one photo (dlib's 68 iBUG points by
+    default, or another ``layout``'s).
 
     Args:
-        landmarks2d: ``(68, 2)`` pixels (OpenCV, 0-based; x right, y down), iBUG-68 order.
+        landmarks2d: ``(N, 2)`` pixels (OpenCV, 0-based; x right, y down), in the layout's order (iBUG-68:
+            ``N = 68``).
         width, height: image size, pixels.
         focal: focal length in pixels (default :func:`pipeline.camera.default_focal`).
         config: settings and schedule (default :class:`LandmarkFitConfig`).
@@ -226,6 +232,7 @@ def fit_landmarks(
         terms: more loss terms (:class:`~pipeline.fitting.terms.Term`, reading the inputs of
             :func:`landmark_inputs`: ``theta``, ``theta_n``, ``z``, ``c``, ``landmarks_px``), minimised with the
             landmark term and the priors by either solver.
+        layout: the landmark scheme (:class:`landmarks.layout.LandmarkLayout`; default iBUG-68).
 
     Returns:
         :class:`LandmarkFit`.
@@ -235,12 +242,13 @@ def fit_landmarks(
             landmark set PnP cannot place, or (solver ``lm``) a term Levenberg-Marquardt cannot take.
     """
     t_start = time.perf_counter()
-    lm = check_landmarks_2d_shape(landmarks2d)
+    rig = rig or JointRig()
+    layout = ibug68_layout(rig.asset) if layout is None else layout
+    lm = check_landmarks_2d_shape(landmarks2d, count=layout.count)
     if not (width > 0 and height > 0):
         raise ValueError(f"fit_landmarks: width and height must be > 0, got {width} x {height}")
     focal = default_focal(width, height) if focal is None else float(focal)
     config = config or LandmarkFitConfig()
-    rig = rig or JointRig()
     if config.use_neural and neural is None:
         neural, _ = load_neural(rig)
     if not config.use_neural:
@@ -255,10 +263,10 @@ def fit_landmarks(
         weights0 = neural(torch.zeros(1, LATENT, dtype=dtype))[0] if neural is not None else None
         start = rig(torch.zeros(1, NUM_PARAMETERS, dtype=dtype), weights=weights0).vertices[0]
     term = LandmarkTerm(
-        asset, lm, intrinsic_camera, config.huber_delta_px, config.contour_weight, config.landmark_weighting
+        asset, lm, intrinsic_camera, config.huber_delta_px, config.contour_weight, config.landmark_weighting, layout
     )
     model_points = landmark_positions(start.double().numpy(), term.embedding, term.faces)[0]
-    rotation0, translation0 = solve_pose(lm, model_points, width, height, focal)
+    rotation0, translation0 = solve_pose(lm, model_points, width, height, focal, exclude=layout.pose_exclude)
     state = PhotoState(rig, neural, ExpressionModel(asset, dtype=dtype), rotation0, translation0)
     # the data term, the head model's priors and the caller's: one list, minimised by either solver
     all_terms = (term.term(), *state.prior_terms(config.prior), *terms)
@@ -368,7 +376,7 @@ def _landmark_result(
     values = state.arrays()
     losses = {s.name: s.loss_end for s in stages}
     losses["data_px2"] = data
-    error, nme = landmark_errors(projected, lm)
+    error, nme = landmark_errors(projected, lm, term.layout.eye_corners)
     return LandmarkFit(
         theta=values["theta"],
         z=values["z"],
@@ -383,4 +391,5 @@ def _landmark_result(
         losses=losses,
         stages=stages,
         seconds=time.perf_counter() - t_start,
+        layout=term.layout.name,
     )
