@@ -12,7 +12,8 @@ true vertex error are computed (pipeline.evaluation.photos). Rows: the full fit 
 stage (``landmarks``, seconds = that stage alone) and the unfitted template (``template``), mean ±
 sample std (ddof=1) over photos (pipeline.metrics). Heads from 20 on by default: the fit's
 defaults were chosen on heads 0-5. ``--photometric`` adds the photometric stages to the ``jnr`` rows (off in
-``jnr fit``'s defaults); ``--detected`` fits dlib's own detections on the renders.
+``jnr fit``'s defaults); ``--detected`` fits dlib's own detections on the renders; ``--landmarks
+mediapipe`` MediaPipe's 478 points (the dense layout), ``--landmarks mediapipe68`` its 68 iBUG points.
 """
 
 from __future__ import annotations
@@ -31,7 +32,7 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from pipeline.evaluation.photos import evaluate_photos
+from pipeline.evaluation.photos import LANDMARK_SOURCES, evaluate_photos
 from pipeline.metrics import summarize
 from pipeline.photo.fit_config import FitPhotoConfig
 
@@ -51,7 +52,15 @@ def main() -> None:
     parser.add_argument(
         "--detected",
         action="store_true",
-        help="fit dlib's detections on the renders (HOG, then the CNN) instead of the true landmarks + 1 px noise",
+        help="fit dlib's detections on the renders (HOG, then the CNN) instead of the true landmarks + 1 px noise "
+        "(= --landmarks dlib)",
+    )
+    parser.add_argument(
+        "--landmarks",
+        choices=LANDMARK_SOURCES,
+        default=None,
+        help="the fit's landmarks: noisy (the true ones + 1 px, default), dlib, mediapipe (its 478 points, the dense "
+        "layout) or mediapipe68 (its 68 iBUG points)",
     )
     args = parser.parse_args()
     torch.set_num_threads(2)
@@ -75,7 +84,7 @@ def main() -> None:
         first=args.first,
         seed=args.seed,
         config=config,
-        landmarks="dlib" if args.detected else "noisy",
+        landmarks=args.landmarks or ("dlib" if args.detected else "noisy"),
         progress=progress,
     )
     wall = time.perf_counter() - t0

@@ -41,6 +41,7 @@ from landmarks.detect import detect_landmarks
 from landmarks.detector import NoFaceError
 from landmarks.ibug68.embedding import ibug68_embedding
 from landmarks.ibug68.positions import landmark_positions
+from landmarks.mediapipe.layout import mediapipe_layout
 from pipeline.camera import solve_pose
 from pipeline.evaluation.scans import scan_seed
 from pipeline.fitting.state import head_vertices
@@ -81,7 +82,10 @@ METRICS: tuple[str, ...] = (
     "landmark_error_px",
     "seconds",
 )
-LANDMARK_SOURCES: tuple[str, ...] = ("noisy", "dlib")
+LANDMARK_SOURCES: tuple[str, ...] = ("noisy", "dlib", "mediapipe", "mediapipe68")
+"""Where the fit's landmarks come from: the true ones + 1 px noise; dlib's 68 detected on the render;
+MediaPipe's 478 points (the dense layout, :mod:`landmarks.mediapipe.layout`); MediaPipe's 68 iBUG points
+(mapped from its mesh) through the iBUG-68 fit."""
 
 
 @dataclass(frozen=True)
@@ -255,8 +259,10 @@ def evaluate_photos(
         seed: seed of the photos (placement, light, albedo, landmark noise).
         config: fitting settings (default :class:`FitPhotoConfig`).
         settings: :class:`pipeline.synthetic.photos.settings.PhotoSettings` (default ones).
-        landmarks: ``"noisy"`` (the true landmarks + 1 px noise) or ``"dlib"`` (dlib's detection on the
-            render, HOG then the CNN; photos without a detection are skipped and listed in the settings).
+        landmarks: ``"noisy"`` (the true landmarks + 1 px noise), ``"dlib"`` (dlib's detection on the
+            render, HOG then the CNN), ``"mediapipe"`` (MediaPipe's 478 points, fitted with the dense layout)
+            or ``"mediapipe68"`` (its 68 iBUG points); photos without a detection are skipped and listed in
+            the settings.
         progress: called with each record as it is made.
 
     Returns:
@@ -295,15 +301,18 @@ def evaluate_photos(
                 index, expressive=kind == "expressive", seed=scan_seed(seed, "photo-" + kind, index), settings=settings
             )
             truth = photo.gt_vertices
-            target = photo.landmarks2d
-            if landmarks == "dlib":
+            target, dense = photo.landmarks2d, None
+            if landmarks != "noisy":
                 try:
-                    target = detect_landmarks(photo.image, detector="auto").landmarks
+                    face = detect_landmarks(photo.image, detector="auto" if landmarks == "dlib" else "mediapipe")
                 except NoFaceError:
                     missed.append(photo.name)
                     continue
+                target = face.landmarks
+                if landmarks == "mediapipe":
+                    dense = (face.dense[:, :2], mediapipe_layout(asset))
             t0 = time.perf_counter()
-            fit = fit_photo(photo.image, target, focal=photo.focal, config=config, rig=rig, neural=neural)
+            fit = fit_photo(photo.image, target, focal=photo.focal, config=config, rig=rig, neural=neural, dense=dense)
             seconds = time.perf_counter() - t0
             common = {"name": photo.name, "kind": kind, "yaw_deg": float(photo.yaw_deg)}
             lfit = fit.landmark_fit
@@ -341,7 +350,7 @@ def evaluate_photos(
             "n_expressive": n_expressive,
             "seed": seed,
             "landmarks": landmarks,
-            "missed_by_dlib": missed,
+            "missed_by_detector": missed,
             "photo_settings": dict(settings.__dict__),
         },
     )

@@ -77,7 +77,7 @@ class LandmarkTerm:
         self.faces = asset.faces
         self.embedding = self.layout.embedding
         self.contour = torch.as_tensor(self.layout.contour, dtype=torch.long)
-        self.target = torch.as_tensor(target, dtype=camera.intrinsics.dtype)[None]
+        self.target = torch.tensor(target, dtype=camera.intrinsics.dtype)[None]  # a copy: detections may be read-only
 
     def term(self, weight: float = 1.0, name: str = "landmarks_px2", key: str = "landmarks_px") -> Term:
         """The :class:`~pipeline.fitting.terms.Term` of these landmarks: ``weight`` times the weighted mean

@@ -42,6 +42,7 @@ import numpy as np
 import torch
 from kornia.geometry.camera import PinholeCamera
 
+from landmarks.layout import LandmarkLayout
 from pipeline.camera import (
     camera_direction_to_rig,
     check_focal,
@@ -145,17 +146,22 @@ def fit_photo(
     rig: JointRig | None = None,
     neural: NeuralSkinning | None = None,
     progress: Progress | None = None,
+    dense: tuple[np.ndarray, LandmarkLayout] | None = None,
 ) -> PhotoFit:
     """Reconstruct the head in one photo (module docstring).
 
     Args:
         image: ``(H, W, 3)`` uint8 sRGB (as :func:`landmarks.images.load_image` returns) or float32
             linear RGB in [0, 1].
-        landmarks2d: ``(68, 2)`` pixels (OpenCV, 0-based), iBUG-68 order.
+        landmarks2d: ``(68, 2)`` pixels (OpenCV, 0-based), iBUG-68 order: the fit's landmarks, or with
+            ``dense`` only those the outputs and the error report (e.g. a dense detector's 68 points).
         focal: focal length in pixels (default :func:`pipeline.camera.default_focal`).
         config: settings and schedules (default :class:`FitPhotoConfig`).
         rig, neural: the models (default: the committed rig, float32, and its learned skinning).
         progress: :data:`rig.optim.Progress`, called after every step of both fits.
+        dense: ``(points (N, 2) pixels, layout)``: fit these landmarks of another layout instead
+            (:class:`landmarks.layout.LandmarkLayout`, e.g. MediaPipe's 478 points); ``landmarks2d`` is then
+            only reported.
 
     Returns:
         :class:`PhotoFit`.
@@ -175,8 +181,17 @@ def fit_photo(
         neural = None
     elif neural is None:
         neural, _ = load_neural(rig)
+    fitted, layout = (lm, None) if dense is None else dense
     lfit = fit_landmarks(
-        lm, width, height, focal=focal, config=config.landmarks, rig=rig, neural=neural, progress=progress
+        fitted,
+        width,
+        height,
+        focal=focal,
+        config=config.landmarks,
+        rig=rig,
+        neural=neural,
+        progress=progress,
+        layout=layout,
     )
     t_landmarks = time.perf_counter() - t0
 
@@ -188,8 +203,19 @@ def fit_photo(
     term = LandmarkTerm(
         rig.asset, lm, camera, landmark.huber_delta_px, landmark.contour_weight, landmark.landmark_weighting
     )
+    fit_term = term
+    if dense is not None:
+        fit_term = LandmarkTerm(
+            rig.asset,
+            fitted,
+            camera,
+            landmark.huber_delta_px,
+            landmark.contour_weight,
+            landmark.landmark_weighting,
+            layout,
+        )
     t1 = time.perf_counter()
-    appearance, stages, crop = fit_appearance(photo, lm, focal, state, term, config.photometric, progress)
+    appearance, stages, crop = fit_appearance(photo, lm, focal, state, fit_term, config.photometric, progress)
     t_photo = time.perf_counter() - t1
 
     with torch.no_grad():

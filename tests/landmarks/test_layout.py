@@ -10,6 +10,7 @@ from landmarks.ibug68.contour import contour_landmarks
 from landmarks.ibug68.embedding import ibug68_embedding
 from landmarks.ibug68.positions import landmark_positions
 from landmarks.layout import IBUG68_CONTOUR, LayoutError, ibug68_layout
+from landmarks.loss import CONTOUR_WEIGHT
 from landmarks.mediapipe.contour import GRAZING, contour_lines, pick_contour
 from rig.asset import load_asset
 from rig.geometry import head_rotation, vertex_normals
@@ -77,3 +78,34 @@ def test_contour_lines_pick_the_silhouette_of_a_turned_head(asset):
 def test_contour_lines_reject_bad_points(asset):
     with pytest.raises(ValueError, match="finite"):
         contour_lines(asset, np.array([[0.0, np.nan, 0.0]]))
+
+
+def test_mediapipe_layout_has_478_points_weighted_by_scatter(asset):
+    from landmarks.mediapipe.embedding import mediapipe_embedding
+    from landmarks.mediapipe.layout import MIN_WEIGHT, mediapipe_layout
+
+    layout = mediapipe_layout(asset)
+    embedding = mediapipe_embedding(asset)
+    assert layout.count == 478 and layout.name == "mediapipe"
+    assert np.array_equal(layout.contour, np.flatnonzero(embedding.contour))
+    assert layout.pose_exclude == tuple(layout.contour.tolist())
+    assert layout.check(np.zeros((478, 2)), "f").shape == (478, 2)
+    with pytest.raises(LayoutError, match="478 points"):
+        layout.check(np.zeros((68, 2)), "f")
+    w = layout.point_weights("detector", CONTOUR_WEIGHT)
+    sigma = np.asarray(embedding.sigma_px)
+    fixed = ~embedding.contour
+    # the best placed points count fully, the most scattered least; more scatter never weighs more
+    assert w[fixed].max() == 1.0 and MIN_WEIGHT <= w.min() < 0.5
+    order = np.argsort(sigma[fixed])
+    assert np.all(np.diff(w[fixed][order]) <= 1e-12)
+    assert np.mean(w[fixed] == 1.0) == pytest.approx(0.25, abs=0.02)
+    c = layout.point_weights("contour", 0.3)
+    assert np.all(c[layout.contour] == 0.3) and np.all(c[fixed] == 1.0)
+    with pytest.raises(ValueError, match="weighting"):
+        layout.point_weights("uniform", 0.3)
+    # the contour points start (seen from the front) near where the embedding puts them
+    v = np.asarray(asset.vertices, np.float64)
+    static = landmark_positions(v, embedding, asset.faces)[0][layout.contour]
+    picked = v[layout.pick(v, _camera(0.0))]
+    assert np.median(np.linalg.norm(picked - static, axis=1)) < 6.0
