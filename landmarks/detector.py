@@ -7,9 +7,10 @@ name from a registry (:func:`create_detector`), so ``jnr fit --detector NAME`` a
 registered one; :func:`landmarks.detect.detect_faces` is the front that checks the image and the faces
 and sorts them largest first.
 
-Built in: dlib's HOG and CNN detectors (:mod:`landmarks.dlib_detector`), ``auto`` (HOG, and the CNN
-only when HOG finds nothing) and ``mediapipe`` (:mod:`landmarks.mediapipe.detector`: MediaPipe's models,
-which also fill :attr:`FaceDetection.dense` and :attr:`FaceDetection.roll_deg`). Adding one is a module
+Built in: dlib's HOG and CNN detectors (:mod:`landmarks.dlib_detector`), ``dlib`` (HOG, and the CNN
+only when HOG finds nothing), ``mediapipe`` (:mod:`landmarks.mediapipe.detector`: MediaPipe's models,
+which also fill :attr:`FaceDetection.dense` and :attr:`FaceDetection.roll_deg`) and ``auto``, the default
+(``mediapipe``, and ``dlib`` only when it finds nothing). Adding one is a module
 with a class that implements :class:`FaceDetector` and one :func:`register_detector` call: in the new
 module (imported before use), or below in this module's :func:`_register_builtin` for one jnr ships
 (importing the implementation lazily, in its factory, so that this module, which ``jnr fit --help``
@@ -259,8 +260,8 @@ def _register_builtin() -> None:
         "512 x 512 photo on 2 cores",
     )
     register_detector(
-        "auto",
-        lazy_factory("landmarks.dlib_detector:auto_detector"),
+        "dlib",
+        lazy_factory("landmarks.dlib_detector:dlib_detector"),
         summary="hog, and cnn only when hog finds no face",
     )
     register_detector(
@@ -268,6 +269,11 @@ def _register_builtin() -> None:
         lazy_factory("landmarks.mediapipe.detector:MediaPipeDetector"),
         summary="MediaPipe's face detector, 478-point mesh and irises (ai-edge-litert): finds small, turned and "
         "tilted faces; about 11 ms for a 512 x 512 photo on 1 core",
+    )
+    register_detector(
+        "auto",
+        lazy_factory("landmarks.mediapipe.detector:auto_detector"),
+        summary="mediapipe, and dlib only when mediapipe finds no face",
     )
 
 

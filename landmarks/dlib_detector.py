@@ -4,7 +4,8 @@
 * :class:`CnnDetector` (``"cnn"``): dlib's CNN (MMOD) detector (``mmod_human_face_detector.dat`` from
   ``face-recognition-models``): finds turned, tilted and low-contrast faces HOG misses, at about 5 s for
   a 512 x 512 photo on 2 CPU cores.
-* :func:`auto_detector` (``"auto"``): HOG, and the CNN only when HOG finds nothing.
+* :func:`dlib_detector` (``"dlib"``): HOG, and the CNN only when HOG finds nothing (``"auto"``, the
+  default, tries MediaPipe's first: :func:`landmarks.mediapipe.detector.auto_detector`).
 
 Both give each face the 68 iBUG landmarks of dlib's shape predictor (``shape_predictor_68_face_landmarks.dat``
 from ``face-recognition-models``), in 0-based OpenCV pixels (dlib's part coordinates are integer pixel
@@ -186,11 +187,11 @@ class CnnDetector:
         return _with_landmarks(image, boxes, self.name)
 
 
-def auto_detector(upsample: int = 1, min_score: float = DEFAULT_MIN_SCORE) -> FallbackDetector:
-    """``"auto"``: :class:`HogDetector` (``upsample``, ``min_score``), and :class:`CnnDetector` (``upsample``,
+def dlib_detector(upsample: int = 1, min_score: float = DEFAULT_MIN_SCORE, name: str = "dlib") -> FallbackDetector:
+    """``"dlib"``: :class:`HogDetector` (``upsample``, ``min_score``), and :class:`CnnDetector` (``upsample``,
     :data:`CNN_MIN_CONFIDENCE`) only when HOG finds no face (the CNN model is loaded only then)."""
     return FallbackDetector(
-        "auto", (HogDetector(upsample, min_score), CnnDetector(upsample)), "dlib's HOG and CNN detectors"
+        name, (HogDetector(upsample, min_score), CnnDetector(upsample)), "dlib's HOG and CNN detectors"
     )
 
 
@@ -201,7 +202,7 @@ __all__ = [
     "PREDICTOR_FILE",
     "CnnDetector",
     "HogDetector",
-    "auto_detector",
+    "dlib_detector",
     "cnn_detector_path",
     "shape_predictor_path",
 ]

@@ -1,7 +1,9 @@
 """Read and write 2D landmark files: iBUG ``.pts``, ``.json`` and ``.csv``.
 
 In memory, points are always ``(N, 2)`` float64 **0-based OpenCV pixel coordinates** (origin at the centre
-of the top-left pixel, x right, y down), iBUG-68 order.
+of the top-left pixel, x right, y down), in one of two layouts told apart by the count: iBUG-68 (68 points)
+or MediaPipe's face mesh (468 points, or 478 with the two irises, centre first, the subject's right then
+left: MediaPipe's own order).
 
 =======  ======================================================================================
 format   layout
@@ -10,7 +12,8 @@ format   layout
          (300-W) files hold **1-based** (Matlab) pixel coordinates: 1 is subtracted on read and
          added on write.
 .json    ``{"landmarks": [[x, y], ...], "convention": "ibug68", "pixel_origin": "opencv"}``
-         (0-based; a file whose ``pixel_origin`` is ``"matlab"`` is shifted by -1 on read).
+         (0-based; a file whose ``pixel_origin`` is ``"matlab"`` is shifted by -1 on read);
+         ``"convention": "mediapipe"`` for 468 or 478 points.
 .csv     header ``index,x,y`` then one ``i,x,y`` row per point, ``i`` = 0..N-1 in order (0-based).
 =======  ======================================================================================
 """
@@ -29,6 +32,10 @@ from rig.errors import InputError
 from rig.io.atomic import write_bytes_atomic
 
 NUM_LANDMARKS = 68
+MEDIAPIPE_COUNTS = (468, 478)
+"""MediaPipe's face mesh without and with the irises."""
+CONVENTIONS = {68: "ibug68", 468: "mediapipe", 478: "mediapipe"}
+"""The JSON ``convention`` of each point count."""
 FORMATS = (".pts", ".json", ".csv")
 
 
@@ -58,9 +65,11 @@ def _format(path: Path) -> str:
     return suffix
 
 
-def _check_count(points: np.ndarray, n_points: int, path: Path) -> np.ndarray:
-    if len(points) != n_points:
-        raise _error(path, None, f"expected {n_points} landmarks, got {len(points)}")
+def _check_count(points: np.ndarray, n_points: int | tuple[int, ...], path: Path) -> np.ndarray:
+    allowed = (n_points,) if isinstance(n_points, int) else tuple(n_points)
+    if len(points) not in allowed:
+        expected = " or ".join(str(n) for n in allowed)
+        raise _error(path, None, f"expected {expected} landmarks, got {len(points)}")
     return points
 
 
@@ -108,8 +117,8 @@ def _read_json(path: Path, text: str, n_points: int) -> np.ndarray:
     if not isinstance(data, dict) or "landmarks" not in data:
         raise _error(path, None, "expected an object with a 'landmarks' list")
     convention = data.get("convention", "ibug68")
-    if convention != "ibug68":
-        raise _error(path, None, f"unsupported convention {convention!r}; expected 'ibug68'")
+    if convention not in ("ibug68", "mediapipe"):
+        raise _error(path, None, f"unsupported convention {convention!r}; expected 'ibug68' or 'mediapipe'")
     origin = data.get("pixel_origin", "opencv")
     if origin not in ("opencv", "matlab"):
         raise _error(path, None, f"pixel_origin must be 'opencv' or 'matlab', got {origin!r}")
@@ -128,6 +137,8 @@ def _read_json(path: Path, text: str, n_points: int) -> np.ndarray:
             raise _error(path, None, f"landmark {i}: non-finite value {row!r}")
         points.append([float(c) for c in row])
     points = _check_count(np.array(points, np.float64).reshape(-1, 2), n_points, path)
+    if CONVENTIONS.get(len(points)) != convention:
+        raise _error(path, None, f"{len(points)} landmarks do not match the convention {convention!r}")
     return points - 1.0 if origin == "matlab" else points
 
 
@@ -150,11 +161,15 @@ def _read_csv(path: Path, text: str, n_points: int) -> np.ndarray:
     return _check_count(np.array(points, np.float64).reshape(-1, 2), n_points, path)
 
 
-def read_landmarks(path: str | Path, n_points: int = NUM_LANDMARKS) -> np.ndarray:
+def read_landmarks(path: str | Path, n_points: int | tuple[int, ...] = NUM_LANDMARKS) -> np.ndarray:
     """Read 2D landmarks; the format is chosen by the extension (``.pts``, ``.json``, ``.csv``).
 
+    Args:
+        path: the file.
+        n_points: the count the file must have, or a tuple of the counts accepted (e.g. ``(68, 468, 478)``).
+
     Returns:
-        ``(n_points, 2)`` float64, 0-based OpenCV pixel coordinates.
+        ``(N, 2)`` float64, 0-based OpenCV pixel coordinates, ``N`` one of ``n_points``.
 
     Raises:
         FileNotFoundError: ``path`` does not exist.
@@ -188,8 +203,9 @@ def write_landmarks(path: str | Path, points) -> None:
         body = "\n".join(f"{x!r} {y!r}" for x, y in (pts + 1.0).tolist())
         text = f"version: 1\nn_points: {len(pts)}\n{{\n{body}\n}}\n"
     elif fmt == ".json":
+        convention = CONVENTIONS.get(len(pts), "ibug68")
         text = (
-            json.dumps({"landmarks": pts.tolist(), "convention": "ibug68", "pixel_origin": "opencv"}, indent=1) + "\n"
+            json.dumps({"landmarks": pts.tolist(), "convention": convention, "pixel_origin": "opencv"}, indent=1) + "\n"
         )
     else:
         text = "index,x,y\n" + "".join(f"{i},{x!r},{y!r}\n" for i, (x, y) in enumerate(pts.tolist()))

@@ -53,6 +53,8 @@ class LandmarkLayout:
             fit's reprojection term (:meth:`weights`).
         pose_exclude: the points left out of the first pose estimate (PnP on the template), whose 3D points
             slide with the view: the contour points (iBUG-68: the whole jaw line 0-16, the chin too).
+        sees_irises: the points include the irises, which tell the gaze (the photo fit then gives the eyeLook*
+            coefficients a weaker prior, ``PriorWeights.lambda_gaze``).
     """
 
     name: str
@@ -64,6 +66,7 @@ class LandmarkLayout:
     eye_corners: tuple[int, int]
     point_weights: Callable[[str, float], np.ndarray]
     pose_exclude: tuple[int, ...]
+    sees_irises: bool = False
 
     def weights(
         self, weighting: str = "contour", contour_weight: float = CONTOUR_WEIGHT, dtype: torch.dtype = torch.float32

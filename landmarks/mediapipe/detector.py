@@ -30,12 +30,14 @@ Example::
 from __future__ import annotations
 
 import dataclasses
+import importlib.util
+import logging
 import math
 import time
 
 import numpy as np
 
-from landmarks.detector import DetectionError, FaceDetection
+from landmarks.detector import DetectionError, FaceDetection, FallbackDetector
 from landmarks.images import check_image
 from landmarks.mediapipe.anchors import DETECTOR_OPTIONS, DetectorOptions
 from landmarks.mediapipe.crop import RotatedRect, square_rect
@@ -43,6 +45,9 @@ from landmarks.mediapipe.detection import BoxDetection, detect_boxes, weighted_n
 from landmarks.mediapipe.ibug68_map import mesh_to_ibug68
 from landmarks.mediapipe.iris import EYE_CORNERS, add_irises
 from landmarks.mediapipe.mesh import FACE_RECT_SCALE, FaceMesh, eye_line_angle, face_mesh, face_rect
+from landmarks.mediapipe.models import model_dir
+
+_log = logging.getLogger(__name__)
 
 DETECTION_MODELS = ("full", "short", "both")
 """The ``model`` choices: MediaPipe's full-range detector, its short-range one, or both merged."""
@@ -115,6 +120,8 @@ class MediaPipeDetector:
             from that mesh (:func:`mesh_rect`), better centred and turned.
         refine_eyes: let the iris model's eye contours replace the mesh's eye and brow points.
         num_threads: LiteRT's CPU threads per model (1-16).
+        tiles: also search overlapping squares of a large or wide image for faces too small in the whole
+            image (:func:`detection_tiles`; default True).
 
     Raises:
         DetectionError: a bad option.
@@ -131,6 +138,7 @@ class MediaPipeDetector:
         mesh_passes: int = 2,
         refine_eyes: bool = True,
         num_threads: int = 1,
+        tiles: bool = True,
     ):
         if model not in DETECTION_MODELS:
             raise DetectionError(
@@ -142,6 +150,7 @@ class MediaPipeDetector:
         self.mesh_passes = _check_int(mesh_passes, "mesh_passes", 1, 2)
         self.refine_eyes = bool(refine_eyes)
         self.num_threads = _check_int(num_threads, "num_threads", 1, 16)
+        self.tiles = bool(tiles)
         self.last_timings_ms: dict[str, float] = {}
         """Milliseconds of each stage of the last :meth:`detect` (``detection``, ``mesh``, ``iris``,
         summed over its faces)."""
@@ -161,8 +170,16 @@ class MediaPipeDetector:
         """
         image = check_image(image, "MediaPipeDetector.detect_boxes")
         options = self._options()
-        found = [face for o in options for face in detect_boxes(image, o, self.num_threads)]
-        if len(options) == 1 or not found:
+        found = []
+        for o in options:
+            tiles = detection_tiles(*image.shape[:2], o.anchors.input_size) if self.tiles else [(0, 0, 0)]
+            for left, top, side in tiles:
+                tile = image if side == 0 else np.ascontiguousarray(image[top : top + side, left : left + side])
+                shift = np.array([left, top], dtype=np.float64)
+                for face in detect_boxes(tile, o, self.num_threads):
+                    box = np.asarray(face.box, np.float64) + np.tile(shift, 2)
+                    found.append(BoxDetection(box, np.asarray(face.keypoints, np.float64) + shift, face.score))
+        if len(found) < 2:
             return found
         boxes = np.array([f.box for f in found])
         merged = weighted_nms(
@@ -193,13 +210,18 @@ class MediaPipeDetector:
         start = time.perf_counter()
         boxes = self.detect_boxes(image)
         timings["detection"] = 1e3 * (time.perf_counter() - start)
-        faces = []
+        faces, meshes = [], []
         for box in boxes:
             start = time.perf_counter()
             mesh = self.mesh(image, box)
             timings["mesh"] += 1e3 * (time.perf_counter() - start)
             if mesh.presence < self.min_presence:
                 continue
+            # a face seen whole and in part (the image and a tile) ends on one mesh: keep the first, best box
+            extent = np.r_[mesh.points[:, :2].min(0), mesh.points[:, :2].max(0)]
+            if any(_overlap(extent, other) > DUPLICATE_IOU for other in meshes):
+                continue
+            meshes.append(extent)
             start = time.perf_counter()
             dense, _ = add_irises(image, mesh.points, self.refine_eyes, self.num_threads)
             timings["iris"] += 1e3 * (time.perf_counter() - start)
@@ -223,15 +245,79 @@ class MediaPipeDetector:
     def __repr__(self) -> str:
         return (
             f"MediaPipeDetector(model={self.model!r}, min_score={self.min_score}, min_presence={self.min_presence}, "
-            f"mesh_passes={self.mesh_passes}, refine_eyes={self.refine_eyes}, num_threads={self.num_threads})"
+            f"mesh_passes={self.mesh_passes}, refine_eyes={self.refine_eyes}, num_threads={self.num_threads}, "
+            f"tiles={self.tiles})"
         )
+
+
+DUPLICATE_IOU = 0.5
+"""Two faces whose meshes' boxes overlap by more than this (intersection over union) are one face."""
+
+
+def detection_tiles(height: int, width: int, input_size: int) -> list[tuple[int, int, int]]:
+    """Where the face detector looks: ``(left, top, side)`` squares of the image, the first ``(0, 0, 0)`` the
+    whole image (letterboxed to the detector's ``input_size``).
+
+    The detector sees the whole image at ``input_size`` pixels, so a small face in a large or wide image
+    shrinks below what it finds (about 15 px of its input). When the longer side exceeds twice
+    ``input_size``, overlapping squares of side ``min(shorter side, max(2 * input_size, longer side / 2))``
+    (half a side apart, covering the image) are searched too: a 448 x 256 image adds two 256-px squares
+    (faces 1.75x larger to the detector), a 1920 x 1080 photo six 960-px ones (2x). Their boxes are merged
+    with the whole image's by weighted non-maximum suppression, and faces that end on the same mesh are
+    kept once (:data:`DUPLICATE_IOU`).
+    """
+    tiles = [(0, 0, 0)]
+    longer, shorter = max(height, width), min(height, width)
+    if longer <= 2 * input_size:
+        return tiles
+    side = int(min(shorter, max(2 * input_size, longer // 2)))
+
+    def starts(extent: int) -> list[int]:
+        if extent <= side:
+            return [0]
+        count = math.ceil((extent - side) / (side / 2)) + 1
+        return [round(i * (extent - side) / (count - 1)) for i in range(count)]
+
+    tiles += [(left, top, side) for top in starts(height) for left in starts(width)]
+    return tiles
+
+
+def _overlap(a: np.ndarray, b: np.ndarray) -> float:
+    """Intersection over union of two ``[left, top, right, bottom]`` boxes."""
+    inter = max(0.0, min(a[2], b[2]) - max(a[0], b[0])) * max(0.0, min(a[3], b[3]) - max(a[1], b[1]))
+    union = (a[2] - a[0]) * (a[3] - a[1]) + (b[2] - b[0]) * (b[3] - b[1]) - inter
+    return float(inter / union) if union > 0 else 0.0
+
+
+def auto_detector() -> FallbackDetector:
+    """``"auto"``, ``jnr fit``'s default: :class:`MediaPipeDetector`, and dlib's detectors (HOG, then the CNN:
+    :func:`landmarks.dlib_detector.dlib_detector`) only when it finds no face. MediaPipe first because on
+    the synthetic validation and benchmark photos its 478 points fit better than dlib's 68 and it found more
+    faces (docs/fit_photo.md, "Dense landmarks"). Without LiteRT or MediaPipe's model files (the
+    ``landmarks`` extra not installed) ``auto`` is dlib's alone, said once in the log."""
+    from landmarks.dlib_detector import dlib_detector
+
+    dlib = dlib_detector()
+    try:
+        if importlib.util.find_spec("ai_edge_litert") is None:
+            raise DetectionError("LiteRT (ai-edge-litert) is not installed")
+        model_dir()
+    except DetectionError as exc:
+        _log.info("--detector auto: dlib's detectors only (%s)", exc)
+        return FallbackDetector("auto", dlib.detectors, dlib.description)
+    return FallbackDetector(
+        "auto", (MediaPipeDetector(), *dlib.detectors), "MediaPipe's models, then dlib's HOG and CNN detectors"
+    )
 
 
 __all__ = [
     "DEFAULT_MIN_PRESENCE",
     "DETECTION_MODELS",
+    "DUPLICATE_IOU",
     "TRACKING_ROTATION_POINTS",
     "MediaPipeDetector",
+    "auto_detector",
+    "detection_tiles",
     "mesh_rect",
     "roll_degrees",
 ]

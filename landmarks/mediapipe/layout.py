@@ -14,6 +14,8 @@ Example::
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from landmarks.ibug68.positions import landmark_positions
@@ -23,6 +25,9 @@ from landmarks.mediapipe.contour import contour_lines, pick_contour
 from landmarks.mediapipe.embedding import mediapipe_embedding
 from rig.asset import RigAsset, cached_per_asset
 
+MESH_POINTS = 468
+"""MediaPipe's face-mesh points (the irises follow, 5 per eye)."""
+IRIS_POINTS = 10
 EYE_OUTER_CORNERS = (33, 263)
 """MediaPipe's outer eye corners (the subject's right, then left): the NME's normaliser."""
 REFERENCE_QUANTILE = 0.25
@@ -40,12 +45,44 @@ def mediapipe_layout(asset: RigAsset) -> LandmarkLayout:
         landmarks.detector.DetectionError: the committed table does not match the template (the message says
             how to refit it).
     """
-    embedding = mediapipe_embedding(asset)
+    return _layout(asset, MESH_POINTS + IRIS_POINTS)
+
+
+@cached_per_asset
+def mediapipe_mesh_layout(asset: RigAsset) -> LandmarkLayout:
+    """MediaPipe's 468 mesh points without the irises (a landmark file of 468 points), as
+    :func:`mediapipe_layout` (the same places and weights)."""
+    return _layout(asset, MESH_POINTS)
+
+
+def mediapipe_layout_for(asset: RigAsset, count: int) -> LandmarkLayout:
+    """The MediaPipe layout of ``count`` (468 or 478) points.
+
+    Raises:
+        ValueError: another count.
+    """
+    if count == MESH_POINTS + IRIS_POINTS:
+        return mediapipe_layout(asset)
+    if count == MESH_POINTS:
+        return mediapipe_mesh_layout(asset)
+    raise ValueError(f"MediaPipe's layouts have {MESH_POINTS} or {MESH_POINTS + IRIS_POINTS} points, got {count}")
+
+
+def _layout(asset: RigAsset, count: int) -> LandmarkLayout:
+    full = mediapipe_embedding(asset)
+    embedding = replace(
+        full,
+        faces=full.faces[:count],
+        barycentric=full.barycentric[:count],
+        contour=full.contour[:count],
+        sigma_px=full.sigma_px[:count],
+    )
     contour = np.flatnonzero(embedding.contour).astype(np.int64)
     frontal = landmark_positions(np.asarray(asset.vertices, np.float64), embedding, asset.faces)[0]
     lines = contour_lines(asset, frontal[contour])
     sigma = np.asarray(embedding.sigma_px, np.float64)
-    reference = float(np.quantile(sigma[~embedding.contour], REFERENCE_QUANTILE))
+    # the reference of the full table, so that the 468-point layout weighs each point as the 478-point one
+    reference = float(np.quantile(np.asarray(full.sigma_px)[~full.contour], REFERENCE_QUANTILE))
 
     def pick(vertices: np.ndarray, camera_centre: np.ndarray) -> np.ndarray:
         return pick_contour(lines, vertices, camera_centre)
@@ -64,7 +101,7 @@ def mediapipe_layout(asset: RigAsset) -> LandmarkLayout:
         return w
 
     return LandmarkLayout(
-        name="mediapipe",
+        name="mediapipe" if count == MESH_POINTS + IRIS_POINTS else "mediapipe468",
         count=len(sigma),
         embedding=embedding,
         contour=contour,
@@ -73,7 +110,17 @@ def mediapipe_layout(asset: RigAsset) -> LandmarkLayout:
         eye_corners=EYE_OUTER_CORNERS,
         point_weights=point_weights,
         pose_exclude=tuple(int(i) for i in contour),
+        sees_irises=count == MESH_POINTS + IRIS_POINTS,
     )
 
 
-__all__ = ["EYE_OUTER_CORNERS", "MIN_WEIGHT", "REFERENCE_QUANTILE", "mediapipe_layout"]
+__all__ = [
+    "EYE_OUTER_CORNERS",
+    "IRIS_POINTS",
+    "MESH_POINTS",
+    "MIN_WEIGHT",
+    "REFERENCE_QUANTILE",
+    "mediapipe_layout",
+    "mediapipe_layout_for",
+    "mediapipe_mesh_layout",
+]

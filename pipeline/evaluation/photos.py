@@ -304,7 +304,7 @@ def evaluate_photos(
             target, dense = photo.landmarks2d, None
             if landmarks != "noisy":
                 try:
-                    face = detect_landmarks(photo.image, detector="auto" if landmarks == "dlib" else "mediapipe")
+                    face = detect_landmarks(photo.image, detector="dlib" if landmarks == "dlib" else "mediapipe")
                 except NoFaceError:
                     missed.append(photo.name)
                     continue

@@ -24,6 +24,7 @@ import torch
 
 from pipeline.fitting.identity import IdentityPrior, load_identity_prior
 from pipeline.fitting.terms import L1, L2, Inputs, Term, Value, term_values
+from rig.expressions import EXPRESSION_NAMES
 from rig.parameters import mirror_theta
 
 NUM_JOINTS = 52
@@ -46,6 +47,9 @@ class PriorWeights:
     """Optional symmetry prior ``|theta - mirror(theta)|^2 / P`` (0: off)."""
     lambda_identity: float = 0.0
     """The learned identity prior (:mod:`pipeline.fitting.identity`), its negative log-density (0: off)."""
+    lambda_gaze: float = 0.02
+    """|c|^2 of the eight eyeLook* coefficients instead of ``lambda_expressions`` when the landmarks see the
+    irises (MediaPipe's 478 points, :func:`gaze_scale`); without them the gaze keeps ``lambda_expressions``."""
     lambda_asm: float = 1e-2
     """ASM fits only (``skinning: asm``): weight of ASM's regulariser (its eq. 19, :meth:`rig.skinning.asm.
     AdaptiveSkinning.regularizer`), which replaces L_m, L_x and |Z|^2; it diminishes with L_m's schedule."""
@@ -89,9 +93,28 @@ def latent_term(weight: float) -> Term:
     return Term("latent", weight, lambda p: p["z"], L2())
 
 
-def expression_term(weight: float, name: str = "expressions", key: str = "c") -> Term:
-    """``weight * |c|^2`` on the expression coefficients (the input ``key``, ``(B, E)``)."""
-    return Term(name, weight, lambda p: p[key], L2())
+def expression_term(
+    weight: float, name: str = "expressions", key: str = "c", scale: torch.Tensor | None = None
+) -> Term:
+    """``weight * |scale * c|^2`` on the expression coefficients (the input ``key``, ``(B, E)``; ``scale``
+    ``(E,)``, default all 1: :func:`gaze_scale`)."""
+    if scale is None:
+        return Term(name, weight, lambda p: p[key], L2())
+    return Term(name, weight, lambda p: p[key] * scale.to(p[key].dtype), L2())
+
+
+GAZE_NAMES = tuple(n for n in EXPRESSION_NAMES if n.startswith("eyeLook"))
+"""The eight ARKit coefficients of the eyes' direction."""
+
+
+def gaze_scale(weights: PriorWeights) -> torch.Tensor:
+    """``(E,)`` float64 scale of :func:`expression_term` that gives the eyeLook* coefficients the weight
+    ``lambda_gaze`` instead of ``lambda_expressions`` (1 elsewhere)."""
+    scale = torch.ones(len(EXPRESSION_NAMES), dtype=torch.float64)
+    if weights.lambda_expressions > 0:
+        ratio = (weights.lambda_gaze / weights.lambda_expressions) ** 0.5
+        scale[[EXPRESSION_NAMES.index(n) for n in GAZE_NAMES]] = ratio
+    return scale
 
 
 def identity_term(weight: float, identity: IdentityPrior) -> Term:
@@ -142,6 +165,7 @@ def jnr_prior_terms(
     lambda_m: float | None = None,
     identity: IdentityPrior | None = None,
     latent: bool = True,
+    gaze: bool = False,
 ) -> tuple[Term, ...]:
     """The priors of the JNR joints: ``L_m``, ``L_x``, ``latent`` (unless ``latent=False``: a head without a
     latent), ``expressions`` (and ``identity``, ``symmetry`` when their weights are not 0).
@@ -151,12 +175,13 @@ def jnr_prior_terms(
         lambda_m: overrides ``weights.lambda_m`` (the point-cloud fit lowers it as correspondences settle).
         identity: the identity prior; default :func:`cached_identity_prior` when ``weights.lambda_identity``
             is not 0.
+        gaze: the data sees the irises: the eyeLook* coefficients get ``weights.lambda_gaze``.
     """
     terms = [
         joint_magnitude_term(weights.lambda_m if lambda_m is None else lambda_m),
         joint_limit_term(weights.lambda_x, low, high),
         *((latent_term(weights.lambda_z),) if latent else ()),
-        expression_term(weights.lambda_expressions),
+        expression_term(weights.lambda_expressions, scale=gaze_scale(weights) if gaze else None),
     ]
     if weights.lambda_identity:
         terms.append(identity_term(weights.lambda_identity, identity or cached_identity_prior()))

@@ -238,11 +238,17 @@ class FitState(GroupedParameters):
         )
 
     def prior_terms(
-        self, weights: PriorWeights, *, lambda_m: float | None = None, identity: IdentityPrior | None = None
+        self,
+        weights: PriorWeights,
+        *,
+        lambda_m: float | None = None,
+        identity: IdentityPrior | None = None,
+        gaze: bool = False,
     ) -> tuple[Term, ...]:
         """The priors of this head model with ``weights`` (:func:`pipeline.fitting.priors.jnr_prior_terms`:
-        L_m, L_x, latent, expressions, identity, symmetry); ``lambda_m`` overrides L_m's weight."""
-        return jnr_prior_terms(weights, self.low, self.high, lambda_m=lambda_m, identity=identity)
+        L_m, L_x, latent, expressions, identity, symmetry); ``lambda_m`` overrides L_m's weight; ``gaze``: the
+        data sees the irises (the eyeLook* coefficients get ``lambda_gaze``)."""
+        return jnr_prior_terms(weights, self.low, self.high, lambda_m=lambda_m, identity=identity, gaze=gaze)
 
     def head_params(self) -> HeadParams:
         """The fitted head as its head model's parameters (:class:`rig.head_model.HeadParams`, kind ``jnr``:
@@ -463,7 +469,12 @@ class AsmScanState(ScanState):
         return super().term_inputs().add(asm=self.asm_parameters)
 
     def prior_terms(
-        self, weights: PriorWeights, *, lambda_m: float | None = None, identity: IdentityPrior | None = None
+        self,
+        weights: PriorWeights,
+        *,
+        lambda_m: float | None = None,
+        identity: IdentityPrior | None = None,
+        gaze: bool = False,
     ) -> tuple[Term, ...]:
         """ASM's priors instead of the joints' (:func:`pipeline.fitting.priors.asm_prior_terms`: eq. 19
         following L_m's schedule, expressions, smoothness); ``identity`` does not apply."""

@@ -2,15 +2,16 @@
 
 * :func:`detect_photo_faces` runs a registered detector (:mod:`landmarks.detector`) on a photo's working
   image and describes every face it finds for ``report.json`` (:class:`DetectedFaces`).
-* :func:`photo_landmarks` gives the 68 landmarks one fit uses, from a file (checked) or from the face
-  picked among those detected.
+* :func:`photo_landmarks` gives the landmarks one fit uses, from a file (checked) or from the face
+  picked among those detected: the 68 iBUG points, and MediaPipe's dense points when the detector or the
+  file gives them (468 or 478; their 68 iBUG points are then mapped from the mesh).
 * :func:`name_photo` puts the photo's name into a detection error.
 
 Example:
     >>> photo = load_working_image("face.jpg")  # doctest: +SKIP
-    >>> points, source = photo_landmarks(photo, None, face=None, detector="auto")  # doctest: +SKIP
-    >>> source["detector"], points.shape  # doctest: +SKIP
-    ('hog', (68, 2))
+    >>> points, source, dense = photo_landmarks(photo, None, face=None, detector="mediapipe")  # doctest: +SKIP
+    >>> source["detector"], points.shape, dense.shape  # doctest: +SKIP
+    ('mediapipe', (68, 2), (478, 2))
 """
 
 from __future__ import annotations
@@ -24,8 +25,9 @@ import numpy as np
 
 from landmarks.detect import detect_faces
 from landmarks.detector import DEFAULT_DETECTOR, DetectionError, FaceDetection, NoFaceError, create_detector
-from landmarks.formats import read_landmarks
+from landmarks.formats import MEDIAPIPE_COUNTS, NUM_LANDMARKS, read_landmarks
 from landmarks.images import LoadedImage
+from landmarks.mediapipe.ibug68_map import mesh_to_ibug68
 from landmarks.plausibility import check_landmarks_2d
 from rig.errors import InputError
 
@@ -65,6 +67,12 @@ class DetectedFaces:
             "faces": self.listed,
         }
 
+    def dense(self, index: int) -> np.ndarray | None:
+        """``(478, 2)`` MediaPipe's dense points of face ``index`` in the working image's pixels, or None
+        (a detector without them)."""
+        points = self.faces[index].dense
+        return None if points is None else np.array(points[:, :2], np.float64)
+
 
 def detect_photo_faces(photo: LoadedImage, detector: str) -> DetectedFaces:
     """Every face in the working image of ``photo``, found by the registered detector ``detector``.
@@ -90,26 +98,34 @@ def detect_photo_faces(photo: LoadedImage, detector: str) -> DetectedFaces:
 
 def photo_landmarks(
     photo: LoadedImage, landmarks_path: Path | None, face: int | None, detector: str = DEFAULT_DETECTOR
-) -> tuple[np.ndarray, dict]:
-    """``(landmarks (68, 2) in the working image's pixels, report.json's description of their source)``:
-    read from ``landmarks_path`` (the photo file's pixels; checked to be a plausible face in or near the
+) -> tuple[np.ndarray, dict, np.ndarray | None]:
+    """``(landmarks (68, 2), report.json's description of their source, dense (N, 2) or None)``, points in
+    the working image's pixels: read from ``landmarks_path`` (the photo file's pixels; 68 iBUG points, or
+    MediaPipe's 468 or 478, whose 68 iBUG points are mapped from the mesh
+    (:func:`landmarks.mediapipe.ibug68_map.mesh_to_ibug68`); checked to be a plausible face in or near the
     image), or detected: face ``face`` (0, the largest, when None) of :func:`detect_photo_faces`, the
-    description listing every face found (box in the photo's pixels, score, detector).
+    description listing every face found (box in the photo's pixels, score, detector); ``dense``:
+    MediaPipe's points when the file or the detector gives them.
 
     Raises:
         InputError: a bad landmarks file; DetectionError: no face, or ``face`` out of range.
     """
     width, height = photo.original_size
     if landmarks_path:
-        points = read_landmarks(landmarks_path)
+        points = read_landmarks(landmarks_path, (NUM_LANDMARKS, *MEDIAPIPE_COUNTS))
+        dense = None
+        if len(points) != NUM_LANDMARKS:
+            dense, points = photo.to_working(points), mesh_to_ibug68(points)
         check_landmarks_2d(points, width, height, source=str(landmarks_path))
-        return photo.to_working(points), {"landmarks": os.path.abspath(landmarks_path)}
+        count = NUM_LANDMARKS if dense is None else len(dense)
+        source = {"landmarks": os.path.abspath(landmarks_path), "landmark_count": count}
+        return photo.to_working(points), source, dense
     detected = detect_photo_faces(photo, detector)
     index = 0 if face is None else int(face)
     if not 0 <= index < len(detected.faces):
         n = len(detected.faces)
         raise DetectionError(f"found {n} {'face' if n == 1 else 'faces'}; --face must be 0..{n - 1}, got {index}")
-    return detected.source(index)
+    return (*detected.source(index), detected.dense(index))
 
 
 def check_face(face: object) -> None:

@@ -137,6 +137,9 @@ class LandmarkFitConfig:
     ``detector`` was better with the true landmarks + 1 px noise and with dlib's (docs/fit_photo.md)."""
     use_neural: bool = True
     """Use the neural skinning (learned linear + decoded residual); else the rig's own weights."""
+    dense: bool = True
+    """``jnr fit``: fit MediaPipe's dense points (478, or 468 from a file) when the detector or the landmarks
+    file gives them (:mod:`landmarks.mediapipe.layout`); ``false``: fit the 68 iBUG points mapped from them."""
 
     def __post_init__(self) -> None:
         if self.landmark_weighting not in WEIGHTINGS:
@@ -269,7 +272,7 @@ def fit_landmarks(
     rotation0, translation0 = solve_pose(lm, model_points, width, height, focal, exclude=layout.pose_exclude)
     state = PhotoState(rig, neural, ExpressionModel(asset, dtype=dtype), rotation0, translation0)
     # the data term, the head model's priors and the caller's: one list, minimised by either solver
-    all_terms = (term.term(), *state.prior_terms(config.prior), *terms)
+    all_terms = (term.term(), *state.prior_terms(config.prior, gaze=layout.sees_irises), *terms)
     check_unique(all_terms)
 
     def objective(free: tuple[str, ...]) -> Loss:

@@ -289,7 +289,7 @@ def fit_multiview_files(
             width, height = photo.original_size
             if focal is not None:
                 check_focal(focal, width, height)
-            lm, source = photo_landmarks(photo, sidecar, None, detector)
+            lm, source, _ = photo_landmarks(photo, sidecar, None, detector)
         except (ImageError, DetectionError) as exc:
             raise name_photo(exc, path) from None
         k = photo.factor

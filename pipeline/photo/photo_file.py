@@ -26,6 +26,7 @@ import numpy as np
 
 from landmarks.detector import DEFAULT_DETECTOR, DetectionError, check_detector_name
 from landmarks.images import ImageError, LoadedImage, load_working_image
+from landmarks.mediapipe.layout import mediapipe_layout_for
 from pipeline.camera import check_focal
 from pipeline.files import check_output, staged_folder
 from pipeline.photo.detection import (
@@ -42,6 +43,7 @@ from pipeline.photo.inputs import sidecar_landmarks
 from pipeline.photo.outputs import write_photo_outputs
 from pipeline.photo.summary import SUMMARY_FILE, PhotoFileResult, summary_csv
 from rig.errors import InputError
+from rig.model import JointRig
 
 
 def _fit_and_write(
@@ -51,6 +53,7 @@ def _fit_and_write(
     source: dict,
     out: Path,
     *,
+    dense: np.ndarray | None = None,
     label: str,
     config,
     focal,
@@ -61,11 +64,16 @@ def _fit_and_write(
     command: str,
     inputs: list,
 ) -> dict:
-    """Fit ``points`` on the loaded photo and write ``out``: :func:`fit_photo_file`'s summary, less the
-    detection fields; errors name ``label`` (the photo, or the photo and the face)."""
+    """Fit ``points`` (68, or MediaPipe's ``dense`` points when given and ``config.landmarks.dense``) on the
+    loaded photo and write ``out``: :func:`fit_photo_file`'s summary, less the detection fields; errors name
+    ``label`` (the photo, or the photo and the face)."""
     t0 = time.perf_counter()
     width, height = photo.original_size
     k = photo.factor
+    rig = rig or JointRig()
+    fitted = None
+    if dense is not None and config.landmarks.dense:
+        fitted = (dense, mediapipe_layout_for(rig.asset, len(dense)))
     try:
         fit = fit_photo(
             photo.image,
@@ -75,6 +83,7 @@ def _fit_and_write(
             rig=rig,
             neural=neural,
             progress=progress,
+            dense=fitted,
         )
     except FloatingPointError as exc:  # a diverged fit
         raise FloatingPointError(f"{label}: {exc}") from None
@@ -90,6 +99,7 @@ def _fit_and_write(
             "reduction": k,
             "focal_px": fit.focal * k,
             "focal_source": "--focal" if focal else "default 1.4 * max(W, H)",
+            "fitted_layout": "ibug68" if fitted is None else fitted[1].name,
             **source,
         },
         "command": command,
@@ -151,13 +161,13 @@ def fit_photo_file(
         photo_path: the image file.
         out: the output folder (:mod:`pipeline.photo.outputs` lists its files).
         config: :class:`pipeline.photo.fit.FitPhotoConfig` (default: its defaults).
-        landmarks: a file of 68 landmarks (``.pts`` 1-based, ``.json``, ``.csv``; pixels of the photo
-            file), ``"auto"`` for the one beside the photo (:func:`sidecar_landmarks`), or None to
-            detect them (``detector``).
+        landmarks: a file of 68 iBUG landmarks, or of MediaPipe's 468 or 478 points (``.pts`` 1-based,
+            ``.json``, ``.csv``; pixels of the photo file), ``"auto"`` for the one beside the photo
+            (:func:`sidecar_landmarks`), or None to detect them (``detector``).
         face: which detected face, 0 = the largest (default 0); not with ``landmarks``. For every face,
             see :func:`fit_photo_faces`.
         detector: the face detector, a name :func:`landmarks.detector.detector_names` lists (default
-            ``"auto"``: dlib's HOG detector, and its slower CNN only when HOG finds no face).
+            ``"auto"``: MediaPipe's models, and dlib's detectors only when they find no face).
         focal: the focal length in pixels of the photo file (default: 1.4 x its longer side).
         force: replace an existing output folder (only one jnr wrote).
         progress: ``progress(stage, iteration, iterations)`` during the fit.
@@ -195,7 +205,7 @@ def fit_photo_file(
         width, height = photo.original_size
         if focal is not None:
             check_focal(focal, width, height)
-        points, source = photo_landmarks(photo, landmarks_path, face, detector)
+        points, source, dense = photo_landmarks(photo, landmarks_path, face, detector)
     except (ImageError, DetectionError) as exc:
         raise name_photo(exc, photo_path) from None
     summary = _fit_and_write(
@@ -204,6 +214,7 @@ def fit_photo_file(
         points,
         source,
         out,
+        dense=dense,
         label=str(photo_path),
         config=config,
         focal=focal,
@@ -303,6 +314,7 @@ def _fit_face(
             points,
             source,
             staged / f"face_{k}",
+            dense=detected.dense(k),
             label=f"{photo_path} (face {k})",
             force=False,
             inputs=inputs,

@@ -16,7 +16,7 @@ from landmarks.dlib_detector import (
     DEFAULT_MIN_SCORE,
     CnnDetector,
     HogDetector,
-    auto_detector,
+    dlib_detector,
     shape_predictor_path,
 )
 from landmarks.ibug68.names import IBUG68_MIRROR
@@ -36,7 +36,7 @@ def astronaut() -> np.ndarray:
 
 @pytest.fixture(scope="module")
 def astronaut_face(astronaut) -> FaceDetection:
-    return detect_landmarks(astronaut)
+    return detect_landmarks(astronaut, detector="dlib")
 
 
 def _grown_box(box: np.ndarray, factor: float) -> np.ndarray:
@@ -57,14 +57,14 @@ class TestSmoke:
         assert isinstance(astronaut_face.score, float)
 
     def test_deterministic(self, astronaut, astronaut_face):
-        again = detect_landmarks(astronaut)
+        again = detect_landmarks(astronaut, detector="dlib")
         np.testing.assert_array_equal(again.landmarks, astronaut_face.landmarks)
         np.testing.assert_array_equal(again.box, astronaut_face.box)
 
 
 class TestAstronaut:
     def test_exactly_one_face(self, astronaut):
-        faces = detect_faces(astronaut)
+        faces = detect_faces(astronaut, detector="dlib")
         assert len(faces) == 1
 
     def test_landmarks_inside_image_and_face_box(self, astronaut, astronaut_face):
@@ -88,7 +88,7 @@ class TestAstronaut:
 
     def test_mirrored_image_mirrors_landmarks(self, astronaut, astronaut_face):
         w = astronaut.shape[1]
-        mirrored = detect_landmarks(np.ascontiguousarray(astronaut[:, ::-1]))
+        mirrored = detect_landmarks(np.ascontiguousarray(astronaut[:, ::-1]), detector="dlib")
         back = mirrored.landmarks[list(IBUG68_MIRROR)].copy()
         back[:, 0] = (w - 1) - back[:, 0]
         error = np.linalg.norm(back - astronaut_face.landmarks, axis=1)
@@ -106,22 +106,24 @@ def two_faces(astronaut) -> np.ndarray:
 
 class TestSeveralFaces:
     def test_two_faces_largest_first(self, two_faces, astronaut):
-        faces = detect_faces(two_faces)
+        faces = detect_faces(two_faces, detector="dlib")
         assert len(faces) == 2
         assert faces[0].area > faces[1].area
         w = astronaut.shape[1]
         assert faces[0].landmarks[:, 0].max() < w <= faces[1].landmarks[:, 0].min()
 
     def test_face_index(self, two_faces):
-        faces = detect_faces(two_faces)
-        np.testing.assert_array_equal(detect_landmarks(two_faces).landmarks, faces[0].landmarks)
-        np.testing.assert_array_equal(detect_landmarks(two_faces, face=1).landmarks, faces[1].landmarks)
+        faces = detect_faces(two_faces, detector="dlib")
+        np.testing.assert_array_equal(detect_landmarks(two_faces, detector="dlib").landmarks, faces[0].landmarks)
+        np.testing.assert_array_equal(
+            detect_landmarks(two_faces, face=1, detector="dlib").landmarks, faces[1].landmarks
+        )
 
     def test_face_index_out_of_range(self, two_faces):
         with pytest.raises(DetectionError, match=r"found 2 faces; --face must be 0\.\.1"):
-            detect_landmarks(two_faces, face=2)
+            detect_landmarks(two_faces, face=2, detector="dlib")
         with pytest.raises(DetectionError, match=r"0\.\.1"):
-            detect_landmarks(two_faces, face=-1)
+            detect_landmarks(two_faces, face=-1, detector="dlib")
 
 
 @pytest.fixture(scope="module")
@@ -131,7 +133,7 @@ def tilted(astronaut):
 
 
 class TestDetectors:
-    """dlib's CNN (MMOD) detector, on request or when HOG finds nothing (``detector="auto"``)."""
+    """dlib's CNN (MMOD) detector, on request or when HOG finds nothing (``detector="dlib"``)."""
 
     def test_cnn_finds_the_upright_face_where_hog_does(self, astronaut, astronaut_face):
         (face,) = detect_faces(astronaut, detector="cnn")
@@ -141,9 +143,9 @@ class TestDetectors:
         assert inter / (face.area + astronaut_face.area - inter) > 0.5  # the same face
         assert np.abs(face.landmarks - astronaut_face.landmarks).mean() < 5.0
 
-    def test_auto_falls_back_to_the_cnn_when_hog_finds_nothing(self, astronaut, astronaut_face, tilted):
+    def test_dlib_falls_back_to_the_cnn_when_hog_finds_nothing(self, astronaut, astronaut_face, tilted):
         assert detect_faces(tilted, detector="hog") == []
-        face = detect_landmarks(tilted)  # auto, the default
+        face = detect_landmarks(tilted, detector="dlib")
         assert face.detector == "cnn"
         # where the upright face's landmarks go under the same 45 degree rotation about the image centre
         h, w = astronaut.shape[:2]
@@ -152,10 +154,10 @@ class TestDetectors:
         rot = np.array([[np.cos(t), np.sin(t)], [-np.sin(t), np.cos(t)]])  # counter-clockwise on screen (y down)
         expected = (astronaut_face.landmarks - c) @ rot.T + c
         assert np.linalg.norm(face.landmarks - expected, axis=1).mean() < 8.0
-        assert detect_landmarks(astronaut).detector == "hog"  # HOG finds it: the CNN is not run
+        assert detect_landmarks(astronaut, detector="dlib").detector == "hog"  # HOG finds it: the CNN is not run
 
     def test_unknown_detector(self, astronaut):
-        with pytest.raises(DetectionError, match="unknown face detector 'yolo'; the detectors are hog, cnn, auto"):
+        with pytest.raises(DetectionError, match="unknown face detector 'yolo'; the detectors are hog, cnn, dlib, "):
             detect_faces(astronaut, detector="yolo")
 
 
@@ -164,11 +166,12 @@ class TestInterface:
     :func:`detect_faces` by name gives what the class gives, sorted."""
 
     def test_the_registry_makes_the_dlib_classes(self):
-        hog, cnn, auto = (create_detector(name) for name in ("hog", "cnn", "auto"))
+        hog, cnn, dlib, auto = (create_detector(name) for name in ("hog", "cnn", "dlib", "auto"))
         assert isinstance(hog, HogDetector) and isinstance(cnn, CnnDetector)
-        assert all(isinstance(d, FaceDetector) for d in (hog, cnn, auto))
-        assert (hog.name, cnn.name, auto.name) == ("hog", "cnn", "auto")
-        assert [d.name for d in auto.detectors] == ["hog", "cnn"]
+        assert all(isinstance(d, FaceDetector) for d in (hog, cnn, dlib, auto))
+        assert (hog.name, cnn.name, dlib.name, auto.name) == ("hog", "cnn", "dlib", "auto")
+        assert [d.name for d in dlib.detectors] == ["hog", "cnn"]
+        assert [d.name for d in auto.detectors] == ["mediapipe", "hog", "cnn"]  # LiteRT installed
         assert (hog.upsample, hog.min_score, cnn.min_confidence) == (1, DEFAULT_MIN_SCORE, CNN_MIN_CONFIDENCE)
         assert create_detector("hog", upsample=2, min_score=0.0).min_score == 0.0
 
@@ -183,8 +186,8 @@ class TestInterface:
         (given,) = detect_faces(two_faces[:, :512], HogDetector())  # an instance instead of a name
         np.testing.assert_array_equal(given.landmarks, astronaut_face.landmarks)
 
-    def test_auto_is_hog_where_hog_finds_a_face(self, astronaut, astronaut_face):
-        (face,) = auto_detector().detect(astronaut)
+    def test_dlib_is_hog_where_hog_finds_a_face(self, astronaut, astronaut_face):
+        (face,) = dlib_detector().detect(astronaut)
         assert face.detector == "hog"
         np.testing.assert_array_equal(face.landmarks, astronaut_face.landmarks)
         assert astronaut_face.landmarks.flags.writeable is False and astronaut_face.box.flags.writeable is False
@@ -205,9 +208,9 @@ class TestInterface:
 class TestExceptions:
     def test_no_face(self):
         grey = np.full((200, 200, 3), 128, np.uint8)
-        assert detect_faces(grey) == []
+        assert detect_faces(grey, detector="dlib") == []
         with pytest.raises(NoFaceError, match="no face found"):
-            detect_landmarks(grey)
+            detect_landmarks(grey, detector="dlib")
 
     @pytest.mark.parametrize(
         "image",
@@ -220,20 +223,22 @@ class TestExceptions:
     )
     def test_bad_image(self, image):
         with pytest.raises(DetectionError, match=r"detect_faces: image .*got shape"):
-            detect_faces(image)
+            detect_faces(image, detector="dlib")
 
     def test_bad_arguments(self):
         grey = np.full((20, 20, 3), 128, np.uint8)
         with pytest.raises(DetectionError, match="upsample"):
-            detect_faces(grey, upsample=-1)
+            detect_faces(grey, upsample=-1, detector="dlib")
         with pytest.raises(DetectionError, match="min_score"):
-            detect_faces(grey, min_score=float("inf"))
+            detect_faces(grey, min_score=float("inf"), detector="dlib")
         with pytest.raises(DetectionError, match="face must be"):
-            detect_landmarks(grey, face="0")
+            detect_landmarks(grey, face="0", detector="dlib")
 
 
 class TestLoadedImage:
     def test_loaded_portrait_detects(self, tmp_path, astronaut, astronaut_face):
         path = tmp_path / "astronaut.png"
         Image.fromarray(astronaut).save(path)
-        np.testing.assert_array_equal(detect_landmarks(load_image(path)).landmarks, astronaut_face.landmarks)
+        np.testing.assert_array_equal(
+            detect_landmarks(load_image(path), detector="dlib").landmarks, astronaut_face.landmarks
+        )

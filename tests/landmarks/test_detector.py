@@ -59,8 +59,9 @@ def registered():
 
 class TestRegistry:
     def test_builtin_names(self):
-        assert detector_names()[:3] == ("hog", "cnn", "auto") and DEFAULT_DETECTOR == "auto"
-        assert "fast" in detector_summary("hog") and "hog finds no face" in detector_summary("auto")
+        assert detector_names()[:5] == ("hog", "cnn", "dlib", "mediapipe", "auto") and DEFAULT_DETECTOR == "auto"
+        assert "fast" in detector_summary("hog") and "hog finds no face" in detector_summary("dlib")
+        assert "dlib only when mediapipe finds no face" in detector_summary("auto")
 
     def test_register_create_unregister(self, registered):
         assert detector_names()[-2:] == ("fake", "empty") and detector_summary("fake") == "for tests"
@@ -73,7 +74,8 @@ class TestRegistry:
 
     def test_unknown_names_are_refused_with_the_list(self):
         with pytest.raises(
-            DetectionError, match=r"create_detector: unknown face detector 'yolo'; the detectors are hog, cnn, auto"
+            DetectionError,
+            match=r"create_detector: unknown face detector 'yolo'; the detectors are hog, cnn, dlib, mediapipe, auto",
         ):
             create_detector("yolo")
         with pytest.raises(DetectionError, match="fit_photo_file: unknown face detector 'HOG'"):

@@ -109,3 +109,26 @@ def test_write_landmarks_never_leaves_a_half_written_file(tmp_path, monkeypatch)
         write_landmarks(path, first + 1.0)
     assert path.read_bytes() == before and [p.name for p in tmp_path.iterdir()] == ["face.pts"]
     np.testing.assert_allclose(read_landmarks(path), first)
+
+
+@pytest.mark.parametrize("suffix", [".pts", ".json", ".csv"])
+@pytest.mark.parametrize("count", [468, 478])
+def test_mediapipe_point_files_round_trip(tmp_path, suffix, count):
+    points = np.random.default_rng(count).uniform(10.0, 500.0, (count, 2))
+    path = tmp_path / f"mesh{suffix}"
+    write_landmarks(path, points)
+    np.testing.assert_allclose(read_landmarks(path, (68, 468, 478)), points, atol=1e-9)
+    with pytest.raises(LandmarkFileError, match=f"expected 68 landmarks, got {count}"):
+        read_landmarks(path)  # an iBUG-68 reader refuses them
+    if suffix == ".json":
+        assert json.loads(path.read_text())["convention"] == "mediapipe"
+
+
+def test_json_convention_must_match_the_count(tmp_path):
+    path = tmp_path / "bad.json"
+    path.write_text(json.dumps({"landmarks": [[1.0, 2.0]] * 478, "convention": "ibug68"}))
+    with pytest.raises(LandmarkFileError, match="478 landmarks do not match the convention 'ibug68'"):
+        read_landmarks(path, (68, 478))
+    path.write_text(json.dumps({"landmarks": [[1.0, 2.0]] * 68, "convention": "dlib"}))
+    with pytest.raises(LandmarkFileError, match="unsupported convention 'dlib'"):
+        read_landmarks(path, (68, 478))

@@ -224,7 +224,8 @@ class TestAstronaut:
         tall[:512] = astronaut
         square = np.zeros((768, 768, 3), np.uint8)
         square[:512, :512] = astronaut
-        (in_tall,), (in_square,) = detector.detect(tall), detector.detect(square)
+        whole = MediaPipeDetector(tiles=False)  # the whole image only (tiles differ between the two)
+        (in_tall,), (in_square,) = whole.detect(tall), whole.detect(square)
         assert np.abs(in_tall.box - in_square.box).max() < 1.0
         assert np.linalg.norm(in_tall.dense[:, :2] - in_square.dense[:, :2], axis=1).mean() < 0.5
 
@@ -307,3 +308,18 @@ class TestIbug68Map:
         assert mesh_to_ibug68(points).shape == (68, 3) and mesh_to_ibug68(points[:468, :2]).shape == (68, 2)
         with pytest.raises(ValueError, match="468"):
             mesh_to_ibug68(points[:10])
+
+
+def test_detection_tiles_cover_wide_and_large_images():
+    from landmarks.mediapipe.detector import detection_tiles
+
+    assert detection_tiles(384, 384, 192) == [(0, 0, 0)]  # small enough: the whole image only
+    for height, width, size in ((256, 448, 128), (1080, 1920, 192), (512, 512, 192), (3000, 400, 192)):
+        tiles = detection_tiles(height, width, size)
+        assert tiles[0] == (0, 0, 0) and len(tiles) > 1
+        covered = np.zeros((height, width), bool)
+        for left, top, side in tiles[1:]:
+            assert 0 <= left and left + side <= width and 0 <= top and top + side <= height
+            assert side == min(height, width, max(2 * size, max(height, width) // 2))
+            covered[top : top + side, left : left + side] = True
+        assert covered.all()

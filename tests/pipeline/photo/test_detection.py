@@ -90,3 +90,70 @@ def test_unknown_detectors_are_refused_before_any_work(capsys, tmp_path, photo_d
     with pytest.raises(DetectionError, match="fit_photo_file: unknown face detector 'yolo'; the detectors are hog"):
         fit_photo_file(photo_dir / "face0.png", tmp_path / "o", detector="yolo")
     assert not (tmp_path / "o").exists()
+
+
+def _dense_points(photo_dir) -> np.ndarray:
+    """``(478, 3)`` MediaPipe-layout points for face0.png: the template's embedded points seen in the pose
+    that face0's 68 landmarks give (z: depth in the same pixel scale, as MediaPipe's)."""
+    from landmarks.ibug68.embedding import ibug68_embedding
+    from landmarks.ibug68.positions import landmark_positions
+    from landmarks.mediapipe.layout import mediapipe_layout
+    from pipeline.camera import RIG_TO_OPENCV, default_focal, solve_pose
+    from rig.asset import load_asset
+
+    asset = load_asset()
+    lm = read_landmarks(photo_dir / "face0.pts")
+    focal = default_focal(128, 128)
+    rotation, translation = solve_pose(
+        lm, landmark_positions(asset.vertices, ibug68_embedding(asset), asset.faces)[0], 128, 128, focal
+    )
+    points = landmark_positions(asset.vertices, mediapipe_layout(asset).embedding, asset.faces)[0]
+    camera = points @ (RIG_TO_OPENCV @ rotation).T + translation
+    uv = focal * camera[:, :2] / camera[:, 2:] + 63.5
+    return np.c_[uv, focal * (camera[:, 2] - camera[:, 2].mean()) / camera[:, 2].mean()]
+
+
+def test_dense_points_from_a_detector_or_a_478_point_file_fit_the_same(capsys, tmp_path, photo_dir):
+    """A detector's 478 dense points are what the fit uses (report: ``fitted_layout``), the same as those points
+    in a landmark file; ``landmarks.dense=false`` fits their 68 iBUG points instead; a 468-point file (no
+    irises) fits too; a file of another count is one line."""
+    from landmarks.formats import write_landmarks
+    from landmarks.mediapipe.ibug68_map import mesh_to_ibug68
+
+    dense = _dense_points(photo_dir)
+
+    class Dense:
+        name, description = "dense", "known dense points (a test's detector)"
+
+        def detect(self, image):
+            box = np.array([*dense[:, :2].min(0), *dense[:, :2].max(0)])
+            return [FaceDetection(box, 0.9, mesh_to_ibug68(dense[:, :2]), self.name, dense=dense)]
+
+    register_detector("dense", Dense, summary="known dense points")
+    try:
+        runs = {}
+        write_landmarks(tmp_path / "p478.json", dense[:, :2])
+        write_landmarks(tmp_path / "p468.csv", dense[:468, :2])
+        write_landmarks(tmp_path / "p100.csv", dense[:100, :2])
+        for name, args in (
+            ("detected", ["--detector", "dense"]),
+            ("file", ["--landmarks", tmp_path / "p478.json"]),
+            ("ibug", ["--detector", "dense", "--set", "landmarks.dense=false"]),
+            ("mesh", ["--landmarks", tmp_path / "p468.csv"]),
+        ):
+            out = tmp_path / name
+            code = main([str(a) for a in ("fit", photo_dir / "face0.png", *args, "--out", out, *fast_fit_args())])
+            assert code == 0, capsys.readouterr().err
+            runs[name] = out
+        layouts = {k: json.loads((v / "report.json").read_text())["input"]["fitted_layout"] for k, v in runs.items()}
+        assert layouts == {"detected": "mediapipe", "file": "mediapipe", "ibug": "ibug68", "mesh": "mediapipe468"}
+        for name in ("params.json", "mesh.obj", "landmarks.pts"):
+            assert (runs["detected"] / name).read_bytes() == (runs["file"] / name).read_bytes(), name
+        assert (runs["detected"] / "params.json").read_bytes() != (runs["ibug"] / "params.json").read_bytes()
+        code = main(
+            [str(a) for a in ("fit", photo_dir / "face0.png", "--landmarks", tmp_path / "p100.csv", "--out", "x")]
+        )
+        err = capsys.readouterr().err
+        assert code == 2 and "expected 68 or 468 or 478 landmarks, got 100" in err and len(err.splitlines()) == 1
+    finally:
+        unregister_detector("dense")
