@@ -39,6 +39,7 @@ Coordinates: millimetres, right-handed, +Y up, +Z out of the face, +X the subjec
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import warnings
 from collections.abc import Mapping
@@ -51,6 +52,7 @@ from scipy.sparse.linalg import spsolve
 from torch import nn
 
 from rig.asset import RigAsset, cached_per_asset, load_asset
+from rig.disk_cache import disk_cached
 from rig.errors import InputError
 from rig.geometry import deformation_transfer, mesh_edges
 from rig.makehuman.face_units import ARKIT_NAMES, arkit_offsets
@@ -277,7 +279,17 @@ def build_expression_basis(asset: RigAsset | None = None) -> tuple[np.ndarray, n
 
 @cached_per_asset
 def _cached(asset: RigAsset) -> tuple[np.ndarray, np.ndarray]:
-    return build_expression_basis(asset)
+    # ~1.9 s from MakeHuman's target files: kept on disk between runs (rig.disk_cache), keyed by the template
+    def build() -> dict[str, np.ndarray]:
+        basis, weight = build_expression_basis(asset)
+        return {"basis": basis, "jaw_weight": weight}
+
+    parts = [repr(f.name) for f in dataclasses.fields(asset)]
+    for f in dataclasses.fields(asset):
+        value = getattr(asset, f.name)
+        parts.append(value if isinstance(value, np.ndarray) else repr(value))
+    arrays = disk_cached("expression_basis", parts, build)
+    return arrays["basis"], arrays["jaw_weight"]
 
 
 def peak_displacements(asset: RigAsset | None = None) -> dict[str, float]:
