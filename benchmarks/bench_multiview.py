@@ -32,8 +32,10 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
+from bench_pose_detectors import dense_points
 from common import finish, load_models
 
+from landmarks.mediapipe.layout import mediapipe_layout
 from pipeline.evaluation.photos import face_error
 from pipeline.fitting.state import head_vertices
 from pipeline.photo.multiview import MultiViewConfig, fit_multiview
@@ -53,6 +55,13 @@ def main() -> None:
     parser.add_argument("--spp", type=int, default=16)
     parser.add_argument("--asm-register-iterations", type=int, default=100)
     parser.add_argument("--asm-iterations", type=int, default=60)
+    parser.add_argument(
+        "--landmarks",
+        choices=("ibug68", "mediapipe"),
+        default="ibug68",
+        help="the views' true landmarks + 1 px: iBUG's 68 (default) or MediaPipe's 478 (the dense layout, its "
+        "outline picked on each view's silhouette)",
+    )
     parser.add_argument("--json", type=Path)
     parser.add_argument("--figure", type=Path, help="grey renders (front, side) of the first head's fits")
     parser.add_argument("--merge", type=Path, nargs="+", help="only merge the records of these runs' JSON files")
@@ -78,10 +87,15 @@ def main() -> None:
         t0 = time.perf_counter()
         views = synthetic_views(head, most, settings=settings, render=args.photometric)
         truth = views.neutral_vertices
-        lms = [p.landmarks2d for p in views.photos]
+        lms, layouts = [p.landmarks2d for p in views.photos], None
+        if args.landmarks == "mediapipe":
+            layout = mediapipe_layout(rig.asset)
+            rng = np.random.default_rng([head, 478])
+            lms = [dense_points(p, layout, rig.asset.faces, rng) for p in views.photos]
+            layouts = [layout] * len(lms)
         sizes = [(p.width, p.height) for p in views.photos]
         images = [p.image for p in views.photos] if args.photometric else None
-        all_fit = fit_multiview(lms, sizes, rig=rig, neural=neural, config=base, min_views=1)
+        all_fit = fit_multiview(lms, sizes, rig=rig, neural=neural, config=base, min_views=1, layouts=layouts)
         singles = all_fit.single_view_fits
         single_errors = [
             face_error(head_vertices(rig, neural, s.theta, np.zeros(50), np.zeros(52)), truth)["s2m_median_mm"]
@@ -122,6 +136,7 @@ def main() -> None:
                         images=None if images is None else [images[i] for i in index],
                         min_views=1,
                         single_view_fits=tuple(singles[i] for i in index),
+                        layouts=None if layouts is None else [layouts[i] for i in index],
                     )
                 )
                 err = face_error(fit.identity_vertices, truth)

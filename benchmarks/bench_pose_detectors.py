@@ -53,7 +53,7 @@ def _angle(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.degrees(np.arccos(np.clip((np.trace(a @ b.T) - 1.0) / 2.0, -1.0, 1.0))))
 
 
-def _true_dense(photo, layout, faces: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+def dense_points(photo, layout, faces: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     """The photo's MediaPipe-layout points: the true head's embedded points, the outline picked on the
     silhouette seen from the camera, projected, + 1 px noise."""
     v = torch.as_tensor(photo.gt_vertices, dtype=torch.float64)
@@ -89,7 +89,7 @@ def main() -> None:
             rng = np.random.default_rng([args.seed, index, kind == "expressive"])
             points = {
                 "true68": (photo.landmarks2d, "ibug68"),
-                "true478": (_true_dense(photo, layouts["mediapipe"], asset.faces, rng), "mediapipe"),
+                "true478": (dense_points(photo, layouts["mediapipe"], asset.faces, rng), "mediapipe"),
             }
             for source, detector in (("dlib", "dlib"), ("mediapipe", "mediapipe")):
                 try:
@@ -158,9 +158,9 @@ def main() -> None:
             f"{source:10s} {len(rows):6d}  {pnp.mean():14.2f} / {pnp.max():5.2f}  {pose.mean():16.2f} / "
             f"{pose.max():5.2f}  {np.median(s2m):14.3f}   missed: {missed[source] or 'none'}"
         )
-    finish(
-        args.json, {"records": records, "summary": summary, "settings": vars(args) | {"json": str(args.json)}}, t_start
-    )
+    settings = {k: str(v) if isinstance(v, Path) else v for k, v in vars(args).items()}
+    print(f"wall time {time.perf_counter() - t_start:.0f} s")
+    finish({"records": records, "summary": summary, "settings": settings}, args.json)
 
 
 if __name__ == "__main__":

@@ -315,10 +315,11 @@ def cmd_fit(args: argparse.Namespace) -> int:
 
 
 FIT_DESCRIPTION = (
-    "Fit the rig (head pose, 107 joint channels, the 52 ARKit expressions) to one photo: detect the 68 "
-    "iBUG landmarks (dlib), place a pinhole camera (--focal, default 1.4 x the image's larger side) by "
-    "solvePnP, then fit the landmarks by Levenberg-Marquardt (~0.25 s) with an identity prior learned "
-    "from the synthetic head population. --photometric adds stages with a robust photometric loss on the "
+    "Fit the rig (head pose, 107 joint channels, the 52 ARKit expressions and gaze) to one photo: detect the "
+    "face's landmarks (MediaPipe's 478 points with the irises; dlib's 68 iBUG points when MediaPipe finds no "
+    "face), place a pinhole camera (--focal, default 1.4 x the image's larger side) by solvePnP, then fit the "
+    "landmarks by Levenberg-Marquardt (~0.5 s) with an identity prior learned from the synthetic head "
+    "population. --photometric adds stages with a robust photometric loss on the "
     "face pixels (Mitsuba 3 on the CPU; a per-vertex albedo, ambient + directional or SH light, the "
     "latent Z of the neural skinning), ~20 s, which did not improve the geometry on validation photos."
 )
@@ -342,8 +343,8 @@ FIT_EPILOG = (
     f"model); OUT/ gets {VIEWS_FOLDER.listing()}."
     "\nLimits: images up to 120 megapixels; photos longer than 2048 px are fitted reduced "
     "by a power of two (camera and landmarks are still written in the photo's pixels); --focal within "
-    "0.25-25 x the longer side; landmark files must look like a face in iBUG-68 order, in or near the "
-    "image, not mirrored.\nSafety: --out must not be, contain or lie in an input or the working "
+    "0.25-25 x the longer side; landmark files (68 iBUG points, or MediaPipe's 468 or 478) must look like a "
+    "face, in or near the image, not mirrored.\nSafety: --out must not be, contain or lie in an input or the working "
     "directory; --force replaces only a folder jnr wrote (it holds a .jnr-output file); outputs are "
     "moved into place atomically, and nothing is left behind on an error, Ctrl-C or SIGTERM.\n"
     f"Outputs: {PHOTO_FOLDER.help_text()}."
@@ -380,7 +381,8 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     fit.add_argument(
         "--landmarks",
         metavar="FILE|auto",
-        help="68 landmarks file (.pts, .json, .csv) instead of detection (one photo); 'auto': the "
+        help="landmarks file (.pts, .json, .csv; 68 iBUG points, or MediaPipe's 468/478) instead of "
+        "detection (one photo); 'auto': the "
         "file with the photo's name beside each photo (face.png -> face.pts), as in iBUG 300-W",
     )
     fit.add_argument(

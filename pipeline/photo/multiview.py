@@ -33,6 +33,7 @@ The identity is an interchangeable *identity model*: ``skinning="jnr"`` (the rig
 from __future__ import annotations
 
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -41,10 +42,12 @@ from kornia.geometry.conversions import axis_angle_to_rotation_matrix
 
 from landmarks.ibug68.contour import contour_landmarks
 from landmarks.ibug68.positions import landmark_positions
+from landmarks.layout import LandmarkLayout, ibug68_layout
 from landmarks.loss import project_points
+from landmarks.mediapipe.ibug68_map import mesh_to_ibug68
 from pipeline.camera import camera_center_in_rig, check_focal, default_focal, make_camera
 from pipeline.fitting.engine import LearningRates, StageLog, run_schedule
-from pipeline.fitting.landmark_term import LandmarkTerm, expressions64
+from pipeline.fitting.landmark_term import NUM_LANDMARKS, LandmarkTerm, expressions64
 from pipeline.fitting.least_squares import run_lm_stage
 from pipeline.fitting.terms import LeastSquaresTerms
 from pipeline.metrics import landmark_errors
@@ -158,10 +161,11 @@ class MultiViewFit:
 
 
 def _check_inputs(
-    images, landmarks, sizes, focals, config: MultiViewConfig, single_view_fits, min_views: int = 2
+    images, landmarks, sizes, focals, config: MultiViewConfig, single_view_fits, min_views: int = 2, layouts=None
 ) -> tuple[list[np.ndarray], list[float]]:
-    """The landmarks as ``(68, 2)`` float64 arrays and each view's start focal ``f0_k``; raises InputError for
-    too few views, lists of different lengths, or photometric consistency without images."""
+    """The landmarks as ``(N_k, 2)`` float64 arrays (68, or each view's layout's count) and each view's start
+    focal ``f0_k``; raises InputError for too few views, lists of different lengths, or photometric consistency
+    without images."""
     n = len(landmarks)
     if n < min_views:
         raise InputError(f"fit_multiview: needs at least {min_views} views, got {n}")
@@ -169,7 +173,10 @@ def _check_inputs(
         raise InputError(f"fit_multiview: {len(images)} images but {n} landmark sets")
     if focals is not None and len(focals) != n:
         raise InputError(f"fit_multiview: {len(focals)} focal lengths but {n} views")
-    lms = [check_landmarks_2d_shape(lm, "fit_multiview") for lm in landmarks]
+    if layouts is not None and len(layouts) != n:
+        raise InputError(f"fit_multiview: {len(layouts)} landmark layouts but {n} views")
+    counts = [NUM_LANDMARKS if layouts is None or layouts[k] is None else layouts[k].count for k in range(n)]
+    lms = [check_landmarks_2d_shape(lm, "fit_multiview", count) for lm, count in zip(landmarks, counts)]
     if len(sizes) != n:
         raise InputError(f"fit_multiview: {len(sizes)} image sizes but {n} views")
     if config.photometric.enabled and images is None:
@@ -194,11 +201,13 @@ def fit_multiview(
     neural: NeuralSkinning | None = None,
     single_view_fits: tuple[LandmarkFit, ...] | None = None,
     min_views: int = 2,
+    layouts: Sequence[LandmarkLayout | None] | None = None,
 ) -> MultiViewFit:
     """Reconstruct one head from ``N >= 2`` uncalibrated photos of it (module docstring).
 
     Args:
-        landmarks: ``N`` arrays ``(68, 2)``, pixels (OpenCV, 0-based), iBUG-68 order, one per view.
+        landmarks: ``N`` arrays ``(68, 2)``, pixels (OpenCV, 0-based), iBUG-68 order, one per view; or, for a
+            view with a ``layouts`` entry, ``(count, 2)`` points of that layout (e.g. MediaPipe's 478).
         sizes: ``N`` ``(width, height)`` image sizes, pixels.
         images: ``N`` ``(H, W, 3)`` uint8 sRGB photos; needed only for the photometric consistency.
         focals: ``N`` focal lengths in pixels to start from (None or a None entry: 1.4 x the longer side).
@@ -207,6 +216,9 @@ def fit_multiview(
         single_view_fits: the views' single-view fits, if already made (with the same focals and
             ``config.landmarks``; the benchmark reuses them for nested sets of views).
         min_views: the fewest views accepted (2; the benchmark runs the pipeline on 1 view to compare).
+        layouts: per view a :class:`landmarks.layout.LandmarkLayout` its landmarks follow, or None (iBUG-68);
+            None: every view iBUG-68. The views' :class:`ViewFit` landmarks are iBUG-68 either way (a dense
+            view's 68 mapped from its mesh, :func:`landmarks.mediapipe.ibug68_map.mesh_to_ibug68`).
 
     Returns:
         :class:`MultiViewFit`.
@@ -217,8 +229,9 @@ def fit_multiview(
     """
     t_start = time.perf_counter()
     config = config or MultiViewConfig()
-    lms, f0 = _check_inputs(images, landmarks, sizes, focals, config, single_view_fits, min_views)
+    lms, f0 = _check_inputs(images, landmarks, sizes, focals, config, single_view_fits, min_views, layouts)
     n = len(lms)
+    layouts = [None] * n if layouts is None else list(layouts)
     rig = rig or JointRig()
     if neural is None:
         neural, _ = load_neural(rig)
@@ -226,13 +239,13 @@ def fit_multiview(
     # 1. single-view fits, averaged
     t0 = time.perf_counter()
     singles = single_view_fits or tuple(
-        fit_landmarks(lm, w, h, focal=f, config=config.landmarks, rig=rig, neural=neural)
-        for lm, (w, h), f in zip(lms, sizes, f0)
+        fit_landmarks(lm, w, h, focal=f, config=config.landmarks, rig=rig, neural=neural, layout=layout)
+        for lm, (w, h), f, layout in zip(lms, sizes, f0, layouts)
     )
     singles = tuple(singles)
     t_single = time.perf_counter() - t0
     theta_mean = np.mean([s.theta for s in singles], 0)
-    problem = _problem(lms, sizes, f0, singles, theta_mean, config, rig, neural)
+    problem = _problem(lms, sizes, f0, singles, theta_mean, config, rig, neural, layouts)
     rows = LeastSquaresTerms(problem.terms())
     cost0 = _start_cost(problem, rows)
     stages = [StageLog("average", ("joints",), 0, cost0, cost0, metrics={"views": n}, seconds=t_single)]
@@ -263,7 +276,7 @@ def fit_multiview(
         theta=theta.numpy().copy(),
         z=np.zeros(LATENT),
         identity_vertices=identity,
-        views=tuple(_view_fits(problem, poses, view_vertices, lms, sizes, f0)),
+        views=tuple(_view_fits(problem, poses, view_vertices, lms, sizes, f0, layouts)),
         single_view_fits=singles,
         skinning=config.skinning,
         stages=tuple(stages),
@@ -272,7 +285,9 @@ def fit_multiview(
     )
 
 
-def _problem(lms, sizes, f0, singles, theta_mean, config: MultiViewConfig, rig: JointRig, neural) -> MultiViewProblem:
+def _problem(
+    lms, sizes, f0, singles, theta_mean, config: MultiViewConfig, rig: JointRig, neural, layouts
+) -> MultiViewProblem:
     """The joint refinement's problem, started from the single-view fits (module docstring, step 1)."""
     dtype = rig.template.dtype
     landmark = config.landmarks
@@ -284,8 +299,9 @@ def _problem(lms, sizes, f0, singles, theta_mean, config: MultiViewConfig, rig: 
             landmark.huber_delta_px,
             landmark.contour_weight,
             landmark.landmark_weighting,
+            layout,
         )
-        for lm, (w, h), f in zip(lms, sizes, f0)
+        for lm, (w, h), f, layout in zip(lms, sizes, f0, layouts)
     ]
     with torch.no_grad():
         weights = neural(torch.zeros(1, LATENT, dtype=dtype))[0].double()
@@ -320,9 +336,12 @@ def _photo_consistency(
     )
 
 
-def _view_fits(problem: MultiViewProblem, poses, view_vertices: list[np.ndarray], lms, sizes, f0) -> list[ViewFit]:
+def _view_fits(
+    problem: MultiViewProblem, poses, view_vertices: list[np.ndarray], lms, sizes, f0, layouts
+) -> list[ViewFit]:
     """One :class:`ViewFit` per view: its pose ``poses = (rotvec (N, 3), translation (N, 3))``, focal,
-    expressions, head, and the landmarks that head projects to."""
+    expressions, head, and the 68 iBUG landmarks that head projects to (a dense view's input 68 mapped from
+    its mesh)."""
     state = problem.state
     scales = problem.focal_scales()
     views = []
@@ -331,8 +350,9 @@ def _view_fits(problem: MultiViewProblem, poses, view_vertices: list[np.ndarray]
             rotation = axis_angle_to_rotation_matrix(poses[0][k][None])[0].numpy()
         translation = poses[1][k].numpy().copy()
         focal = f0[k] * scales[k]
-        px = _project_landmarks(view_vertices[k], rotation, translation, focal, w, h, problem.landmark_terms[k])
-        error, nme = landmark_errors(px, lms[k])
+        px = _project_landmarks(view_vertices[k], rotation, translation, focal, w, h, problem.state.rig.asset)
+        lm68 = lms[k] if layouts[k] is None else mesh_to_ibug68(lms[k])
+        error, nme = landmark_errors(px, lm68)
         views.append(
             ViewFit(
                 rotation=rotation,
@@ -343,7 +363,7 @@ def _view_fits(problem: MultiViewProblem, poses, view_vertices: list[np.ndarray]
                 height=int(h),
                 expressions=state.c[k].detach().numpy().copy(),
                 rig_vertices=view_vertices[k],
-                landmarks2d=lms[k],
+                landmarks2d=lm68,
                 landmarks_px=px,
                 error_px=error,
                 nme=nme,
@@ -361,11 +381,10 @@ def _vertices(rig: JointRig, weights: torch.Tensor, theta: torch.Tensor, c: torc
         return skin_vertices_shared_weights(rest, weights, skinning.double())[0].numpy()
 
 
-def _project_landmarks(vertices: np.ndarray, rotation, translation, focal, width, height, term: LandmarkTerm):
-    """``(68, 2)`` the landmarks of a rig-space head as a view's camera sees them (jaw contour dynamic)."""
-    asset = term.asset
+def _project_landmarks(vertices: np.ndarray, rotation, translation, focal, width, height, asset):
+    """``(68, 2)`` the iBUG landmarks of a rig-space head as a view's camera sees them (jaw contour dynamic)."""
     v = torch.as_tensor(vertices)
-    static = landmark_positions(v, term.embedding, asset.faces)[0]
+    static = landmark_positions(v, ibug68_layout(asset).embedding, asset.faces)[0]
     contour = contour_landmarks(v, asset.faces, camera_center_in_rig(rotation, translation), asset)
     points = torch.cat([contour, static[17:]]).double()
     cam = points @ torch.as_tensor(RIG_TO_OPENCV @ rotation).T + torch.as_tensor(translation)

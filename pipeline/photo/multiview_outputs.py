@@ -23,6 +23,7 @@ from scipy.spatial.transform import Rotation
 
 from landmarks.detector import DetectionError
 from landmarks.images import ImageError, load_working_image
+from landmarks.mediapipe.layout import mediapipe_layout_for
 from pipeline.camera import camera_direction_to_rig, camera_from_head_pose, check_focal
 from pipeline.config import CONFIG_FILE, config_to_dict, dump_config
 from pipeline.files import check_output, json_safe, staged_folder
@@ -40,6 +41,7 @@ from rig.expressions import EXPRESSION_NAMES
 from rig.geometry import head_angles
 from rig.head_model import JnrHead
 from rig.io.mesh import export_mesh, write_mtl
+from rig.model import JointRig
 from rig.template import FACE_REGIONS
 
 MIN_VIEWS = 2
@@ -282,19 +284,26 @@ def fit_multiview_files(
     sidecars = [sidecar_landmarks(p) for p in paths] if landmarks == "auto" else [None] * len(paths)
     inputs = [*paths, *[s for s in sidecars if s]]
     check_output(out, force=force, inputs=inputs)
-    images, points, sources, sizes, focals, factors = [], [], [], [], [], []
+    images, points, layouts, sources, sizes, focals, factors = [], [], [], [], [], [], []
     for path, sidecar in zip(paths, sidecars):
         try:
             photo = load_working_image(path)
             width, height = photo.original_size
             if focal is not None:
                 check_focal(focal, width, height)
-            lm, source, _ = photo_landmarks(photo, sidecar, None, detector)
+            lm, source, dense = photo_landmarks(photo, sidecar, None, detector)
         except (ImageError, DetectionError) as exc:
             raise name_photo(exc, path) from None
         k = photo.factor
         images.append(photo.image)
-        points.append(lm)
+        config = config or MultiViewConfig()
+        if dense is not None and config.landmarks.dense:  # MediaPipe's points, as for one photo
+            rig = rig or JointRig()
+            points.append(dense)
+            layouts.append(mediapipe_layout_for(rig.asset, len(dense)))
+        else:
+            points.append(lm)
+            layouts.append(None)
         sources.append(
             {"photo": str(path.absolute()), **{key: value for key, value in source.items() if key != "faces"}}
         )
@@ -303,7 +312,9 @@ def fit_multiview_files(
         factors.append(k)
     config = config or MultiViewConfig()
     try:
-        fit = fit_multiview(points, sizes, images=images, focals=focals, config=config, rig=rig, neural=neural)
+        fit = fit_multiview(
+            points, sizes, images=images, focals=focals, config=config, rig=rig, neural=neural, layouts=layouts
+        )
     except FloatingPointError as exc:
         raise FloatingPointError(f"{', '.join(map(str, paths))}: {exc}") from None
     except InputError:
