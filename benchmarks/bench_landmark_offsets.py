@@ -8,9 +8,9 @@ Views: the neutral template (``rig.asset.load_asset()``) photographed by
 skin tone, hair and brow colour (``synthesize_albedo``), point light + environment, background, focal
 length (1.2-1.7 x 384 px) and distance (450-650 mm), drawn anew for every view from (seed, pose) --
 at every (yaw, pitch) of the grid (default yaw -30..30 step 10, pitch -15, 0, 15, roll 0) for every
-seed. dlib finds the 68 landmarks (:func:`landmarks.detect.detect_landmarks` with the defaults ``jnr fit``
-uses); a view whose detected box does not contain the face counts as not found. The embedded landmarks
-are projected with each photo's own camera: 17-67 from the static embedding, the jaw contour 0-16 as
+seed. dlib finds the 68 landmarks (:func:`landmarks.detect.detect_landmarks` with ``detector="dlib"``, the
+detector the offsets are for); a view whose detected box does not contain the face counts as not found. The
+embedded landmarks are projected with each photo's own camera: 17-67 from the static embedding, the jaw contour 0-16 as
 that camera sees it (:func:`landmarks.ibug68.contour.contour_landmarks`, what the photo fit uses).
 
 Offsets are ``detected - projected`` in image pixels (x right, y down), scaled to an inter-ocular
@@ -162,7 +162,7 @@ def render_and_detect(yaws, pitches, seeds, cache_dir: Path | None, fresh: bool,
                         asset.vertices, rng, settings, asset, yaw_deg=yaw, pitch_deg=pitch, roll_deg=0.0
                     )
                 try:
-                    det = detect_landmarks(photo.image)
+                    det = detect_landmarks(photo.image, detector="dlib")
                     found, points, box, score = True, det.landmarks, det.box, det.score
                     cx, cy = photo.landmarks2d_true.mean(0)  # a false positive elsewhere is no detection
                     found = bool(box[0] <= cx <= box[2] and box[1] <= cy <= box[3])

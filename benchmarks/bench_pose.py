@@ -63,7 +63,7 @@ def main() -> None:
         photo = synthetic_photo(i, seed=scan_seed(0, "photo-neutral", i))
         sources = {"true + 1 px": photo.landmarks2d}
         try:
-            sources["dlib"] = detect_landmarks(photo.image).landmarks
+            sources["dlib"] = detect_landmarks(photo.image, detector="dlib").landmarks
         except NoFaceError:
             pass
         for source, lm in sources.items():

@@ -86,7 +86,7 @@ def main() -> None:
             target = photo.landmarks2d
             if args.detected:
                 try:
-                    target = detect_landmarks(photo.image).landmarks
+                    target = detect_landmarks(photo.image, detector="dlib").landmarks
                 except NoFaceError:
                     print(photo.name, "no face found by dlib: left out", flush=True)
                     continue
