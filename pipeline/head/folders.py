@@ -64,7 +64,11 @@ _MESH = (
     OutputFile("mesh.mtl", "the material: map_Kd texture.png"),
     OutputFile("texture.png", "the face unwrapped from the photo into the template's UVs"),
     OutputFile("mesh.ply", "the same head, binary PLY with vertex colours"),
-    OutputFile("mesh.glb", "skinned glTF 2.0 in metres: 52 joints, the 52 ARKit shapes as morph targets, textured"),
+    OutputFile(
+        "mesh.glb",
+        "skinned glTF 2.0 in metres: the fitted head as its bind mesh (what every reader loads), 52 joints, the 52 "
+        "ARKit shapes as morph targets, textured",
+    ),
 )
 _PARAMS = OutputFile(
     "params.json",

@@ -5,8 +5,9 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import torch
 
-from rig.expressions import EXPRESSION_NAMES, morph_targets
+from rig.expressions import EXPRESSION_NAMES, ExpressionModel, morph_targets
 from rig.io.gltf import export_skinned_gltf
 
 
@@ -20,21 +21,34 @@ def write_skinned_head(
     base_color_texture: bytes | None = None,
     attachments=(),
     animation=None,
+    bind: str = "posed",
 ) -> None:
-    """The skinned glTF of a head: the template as the bind mesh, the 52 ARKit shapes as morph targets named
-    by ARKit (:func:`rig.expressions.morph_targets`) with ``coefficients (E,)`` as their weights (zeros when
-    None), ``weights (V, J)``, the joint channel transforms ``tau (J, 4, 4)`` as the joints' pose,
+    """The skinned glTF of a head: the posed head as the bind mesh (``bind``), the 52 ARKit shapes as morph
+    targets named by ARKit (:func:`rig.expressions.morph_targets`) with ``coefficients (E,)`` as their weights
+    (zeros when None), ``weights (V, J)``, the joint channel transforms ``tau (J, 4, 4)`` as the joints' pose,
     ``vertex_colors (V, 3)`` linear RGB in [0, 1] (glTF's ``COLOR_0`` is linear) and ``base_color_texture``
     the bytes of a PNG in the asset's UVs as the material's base colour (glTF multiplies it with
     ``COLOR_0``, so a textured head takes no vertex colours: ValueError); ``attachments``
     (:class:`rig.io.gltf.GltfAttachment`: accessories skinned to the same joints, their morph targets under the
     52 ARKit names) and ``animation`` (:class:`rig.io.gltf.GltfAnimation`) as
-    :func:`rig.io.gltf.export_skinned_gltf`."""
+    :func:`rig.io.gltf.export_skinned_gltf`.
+
+    ``bind="posed"`` (the default): the file's bind mesh is the head as ``tau`` and ``coefficients`` pose it
+    (the fitted or edited head, its expression baked in; the morph weights then 0 and the coefficients in
+    ``extras.bakedMorphWeights``; with an ``animation`` only the joints' pose is baked), so that readers that
+    do not skin (trimesh, Open3D, MeshLab) load the same head as skinning viewers show; ``"rest"``: the
+    template as the bind mesh (the file jnr wrote before issue 27)."""
     if base_color_texture is not None and vertex_colors is not None:
         raise ValueError("write_skinned_head: a textured head takes no vertex colours (glTF would multiply them)")
+    rest = asset.vertices
+    if bind == "posed" and animation is None and coefficients is not None and np.any(coefficients):
+        # the expression baked into the bind mesh exactly (jawOpen turns the jaw; the morph targets are its chord)
+        with torch.no_grad():
+            c = torch.as_tensor(np.asarray(coefficients, np.float64))[None]
+            rest = ExpressionModel(asset, dtype=torch.float64).vertices(c)[0].numpy()
     export_skinned_gltf(
         path,
-        asset.vertices,
+        rest,
         asset.faces,
         joint_names=list(asset.joint_names),
         parents=asset.parents,
@@ -49,4 +63,5 @@ def write_skinned_head(
         base_color_texture=base_color_texture,
         attachments=attachments,
         animation=animation,
+        bind=bind,
     )

@@ -6,9 +6,11 @@ half-written. ``mesh.obj`` is the fitted head in rig space (mm, +Y up, +Z out of
 colours = fitted albedo (sRGB), the template's UVs and the material ``skin`` of ``mesh.mtl`` (``map_Kd
 texture.png``); ``texture.png`` is the face unwrapped from the photo into the template's UVs (1024 x 1024
 sRGB, :mod:`pipeline.photo.texture`; texels the camera does not see take the fitted albedo); ``mesh.glb``
-is the skinned glTF (metres; the 52 ARKit shapes as morph targets weighted by the fitted coefficients, the
-joints posed by the fitted parameters, ``texture.png`` as ``baseColorTexture``, no ``COLOR_0``, which glTF
-would multiply with the texture); ``params.json`` follows :mod:`pipeline.head.params` (fit ``photo``: the
+is the skinned glTF (metres; the fitted head as its bind mesh, so that readers that do not skin load the
+fit, :func:`pipeline.head.skinned.write_skinned_head`; the 52 ARKit shapes as morph targets, the fitted
+coefficients baked in, the joints posed by the fitted parameters, ``texture.png`` as
+``baseColorTexture``, no ``COLOR_0``, which glTF would multiply with the texture); ``params.json`` follows
+:mod:`pipeline.head.params` (fit ``photo``: the
 camera, the head pose, the light); ``overlay.png`` shows the fitted face regions of the photometric loss
 (60 %) over the photo with the input landmarks (green) and the fitted ones (red); ``landmarks3d.json`` holds
 the 68 fitted landmarks in the camera frame (OpenCV, mm) with their iBUG names.

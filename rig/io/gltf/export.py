@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import os
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -30,10 +30,10 @@ from rig.io.gltf.encoding import (
     _document_bytes,
     _translation,
 )
-from rig.io.gltf.skin import _check_morphs, _check_rig, _joint_nodes, _top_influences
+from rig.io.gltf.skin import _check_morphs, _check_rig, _joint_nodes, _scale_affine_to_metres, _top_influences
 from rig.io.mesh import check_mesh_arrays, resolve_format, split_uv_seams
 
-__all__ = ["GltfAttachment", "export_skinned_gltf"]
+__all__ = ["BIND_MODES", "GltfAttachment", "export_skinned_gltf", "posed_bind", "rebind"]
 
 
 @dataclass(frozen=True)
@@ -85,6 +85,7 @@ def export_skinned_gltf(
     base_color_texture: bytes | None = None,
     attachments: Sequence[GltfAttachment] = (),
     animation: GltfAnimation | None = None,
+    bind: str = "rest",
 ) -> None:
     """Write a skinned mesh with its joint hierarchy as glTF 2.0 (``.glb`` or ``.gltf``).
 
@@ -147,6 +148,21 @@ def export_skinned_gltf(
         rotations as unit quaternions with consecutive keys in the same hemisphere). The node TRS and mesh
         weights stay those of ``joint_transforms`` / ``morph_weights`` (what a viewer shows without
         playing the animation).
+    bind : {"rest", "posed"}
+        ``"rest"`` (default): the mesh (and attachments) stored at ``vertices``, the inverse bind matrices
+        ``T(-p_k)``; a reader that does not skin sees the rest mesh. ``"posed"``: the file's bind pose is
+        the posed head (needs ``joint_transforms``), so that every reader sees the same mesh: ``POSITION``
+        is ``vertices`` skinned by ``joint_transforms`` (each vertex ``sum_k w_k A_k v`` with the full
+        weights, :func:`posed_bind`, :func:`rebind`), the morph targets are carried into that pose (the
+        blended linear part applied to each offset), the inverse bind matrices are the inverses of the
+        joints' posed world frames ``G_k``, and the mesh weights are 0, ``morph_weights`` being recorded in
+        the mesh's ``extras.bakedMorphWeights``: the caller passes ``vertices`` with that expression
+        applied (its exact shape, not the linear targets'), and a morph weight then adds to it. Attachments
+        get their targets times ``morph_weights`` added before the pose. With an ``animation`` nothing is
+        baked (the weights stay the default and absolute; ``vertices`` is then the neutral rest mesh).
+        The joint nodes keep ``joint_transforms``,
+        so the file shows the posed head at rest and each joint still poses it (a re-bound skin: further
+        poses blend slightly differently from jnr's own skinning).
 
     Raises
     ------
@@ -177,8 +193,25 @@ def export_skinned_gltf(
         raise ValueError(f"{func}: at most 65536 joints fit JOINTS_0 (unsigned short), got {k}")
 
     joints4, weights4 = _top_influences(func, w)
-    normals = _unit_normals(v, f)
     targets, target_names, target_weights = _check_morphs(func, n_vertices, morph_targets, morph_names, morph_weights)
+    if bind not in BIND_MODES:
+        raise ValueError(f"{func}: bind must be one of {list(BIND_MODES)}, got {bind!r}")
+    inverse_bind = np.stack([_translation(-p * MM_TO_M) for p in pos])
+    mesh_extras: dict = {}
+    skinning = None
+    if bind == "posed":
+        if taus is None:
+            raise ValueError(f"{func}: bind='posed' needs joint_transforms")
+        world, skinning = posed_bind(pos, par, taus)
+        inverse_bind = np.linalg.inv(_scale_affine_to_metres(world))
+        bake = animation is None and len(target_weights) > 0
+        baked = np.asarray(target_weights, np.float64) if bake else None
+        v, targets = rebind(w, skinning, v, targets)  # the caller's vertices hold the expression (docstring)
+        if bake:
+            mesh_extras["bakedMorphWeights"] = [float(x) for x in target_weights]
+            target_weights = [0.0] * len(target_weights)
+        attachments = [_rebind_attachment(func, a, skinning, target_names, baked, len(names)) for a in attachments]
+    normals = _unit_normals(v, f)
     if base_color_texture is not None:
         png = base_color_texture if isinstance(base_color_texture, (bytes, bytearray)) else b""
         if not bytes(png).startswith(_PNG_SIGNATURE):
@@ -197,7 +230,6 @@ def export_skinned_gltf(
         pygltflib.Attributes(POSITION=builder.add_sparse(t[source] * MM_TO_M, name=f"target_{name}"))
         for t, name in zip(targets, target_names)
     ]
-    inverse_bind = np.stack([_translation(-p * MM_TO_M) for p in pos])
     # glTF matrices are column-major: store the transpose of each row-major numpy matrix
     ibm_accessor = builder.add(
         np.transpose(inverse_bind, (0, 2, 1)).reshape(k, 16), _FLOAT, "MAT4", name="inverseBindMatrices"
@@ -211,6 +243,8 @@ def export_skinned_gltf(
             "units": GLTF_UNITS_NOTE,
             EXTRAS_SOURCE_COUNT: int(n_vertices),
             EXTRAS_SPLIT_SOURCE: [int(s) for s in source[n_vertices:]],
+            "bind": bind,
+            **mesh_extras,
         },
     )
     morph = (morphs, target_names, target_weights)
@@ -234,6 +268,62 @@ def export_skinned_gltf(
             [k] + [k + 1 + i for i, (_, _, has_targets) in enumerate(extra) if has_targets],
         )
     write_bytes_atomic(path, _document_bytes(fmt, gltf, builder))
+
+
+BIND_MODES = ("rest", "posed")
+"""``export_skinned_gltf(bind=...)``: the mesh stored at rest (inverse bind matrices ``T(-p_k)``) or as posed."""
+
+
+def posed_bind(
+    joint_positions: np.ndarray, parents: np.ndarray, joint_transforms: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """``(world (K, 4, 4), skinning (K, 4, 4))``, millimetres: each joint's world frame ``G_k = G_parent @
+    T(p_k - p_parent) @ tau_k`` and its skinning transform ``A_k = G_k @ T(-p_k)`` (JNR eq. 1, as
+    :func:`rig.lbs.joint_world_transforms`, in numpy float64)."""
+    k = len(parents)
+    world = np.empty((k, 4, 4))
+    for j in range(k):
+        local = np.array(joint_transforms[j], dtype=np.float64)
+        parent = int(parents[j])
+        local[:3, 3] += joint_positions[j] - (joint_positions[parent] if parent >= 0 else 0.0)
+        world[j] = local if parent < 0 else world[parent] @ local
+    skinning = world.copy()
+    skinning[:, :3, 3] -= np.einsum("kij,kj->ki", world[:, :3, :3], joint_positions)
+    return world, skinning
+
+
+def rebind(
+    weights: np.ndarray,
+    skinning: np.ndarray,
+    vertices: np.ndarray,
+    targets: np.ndarray | None,
+    baked: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """Rest vertices ``(N, 3)`` and morph targets ``(M, N, 3)`` (mm) carried into the pose of ``skinning``
+    ``(K, 4, 4)`` with ``weights (N, K)``: ``sum_k w_k A_k (v + sum_m baked_m d_m)`` (``baked (M,)``, None:
+    no morph baked in) and each offset through the blended linear part (exact: skinning is linear in the
+    rest position)."""
+    blended = np.einsum("nk,kij->nij", weights, skinning)  # (N, 4, 4)
+    rest = vertices if baked is None or targets is None else vertices + np.einsum("m,mnj->nj", baked, targets)
+    posed = np.einsum("nij,nj->ni", blended[:, :3, :3], rest) + blended[:, :3, 3]
+    moved = None if targets is None else np.einsum("nij,mnj->mni", blended[:, :3, :3], targets)
+    return posed, moved
+
+
+def _rebind_attachment(
+    func: str, attachment, skinning: np.ndarray, target_names, baked: np.ndarray | None, n_joints: int
+):
+    """An attachment carried into the posed bind as the head is (``export_skinned_gltf(bind='posed')``)."""
+    if not isinstance(attachment, GltfAttachment):
+        return attachment  # refused with its message by _add_attachment
+    weights = np.asarray(attachment.weights, np.float64)
+    if weights.ndim != 2 or weights.shape[1] != n_joints:
+        return attachment  # refused with its message by _add_attachment
+    targets = None if attachment.morph_targets is None else np.asarray(attachment.morph_targets, np.float64)
+    if targets is not None and (targets.ndim != 3 or targets.shape[0] != len(target_names)):
+        return attachment
+    v, t = rebind(weights, skinning, np.asarray(attachment.vertices, np.float64), targets, baked)
+    return replace(attachment, vertices=v, morph_targets=t)
 
 
 def _add_attachment(

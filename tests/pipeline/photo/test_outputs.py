@@ -189,6 +189,20 @@ class TestTextureFiles:
         from_glb = mesh.visual.to_color().vertex_colors[:n, :3]
         np.testing.assert_array_equal(from_obj, from_glb)
 
+    def test_trimesh_loads_the_fitted_head_from_the_glb(self, out_dir, hand_fit, asset):
+        """Readers that do not skin (trimesh, Open3D, MeshLab) load the fitted head from mesh.glb, as from
+        mesh.obj: the glTF's bind mesh is the fit (issue 27), not the template."""
+        import trimesh
+        from scipy.spatial import cKDTree
+
+        obj = np.asarray(trimesh.load(out_dir / "mesh.obj", process=False).vertices)
+        glb = trimesh.load(out_dir / "mesh.glb", process=False)
+        glb = glb.to_geometry() if isinstance(glb, trimesh.Scene) else glb
+        loaded = np.asarray(glb.vertices) * 1000.0  # glTF metres -> mm
+        assert cKDTree(obj).query(loaded)[0].max() < 0.1  # seam duplicates included
+        assert cKDTree(loaded).query(obj)[0].max() < 0.1
+        assert np.abs(obj[: len(asset.vertices)] - hand_fit.rig_vertices).max() < 1e-3
+
     def test_seen_faces_show_the_photo_where_they_project(self, out_dir, hand_fit, asset):
         """Through the OBJ's texture as a viewer reads it (trimesh: the nearest texel, ~2.4 photo px here), the
         centres of the forehead and cheek triangles that face the camera show the photo where they project."""
