@@ -34,7 +34,7 @@ from pipeline.photo.detection import name_photo, photo_landmarks
 from pipeline.photo.inputs import sidecar_landmarks
 from pipeline.photo.multiview import MultiViewConfig, MultiViewFit, fit_multiview
 from pipeline.photo.outputs import MATERIAL_NAME, PHOTO_UNITS, _png_bytes, _save_png, overlay_image, render_fit
-from pipeline.photo.texture import texture_from_fit
+from pipeline.photo.texture import texture_from_fit, vertex_colours_from_texture
 from pipeline.viewer import VIEWER_FILE, ViewerView, fit_viewer_ready, write_viewer
 from rig.errors import InputError
 from rig.expressions import EXPRESSION_NAMES
@@ -185,6 +185,7 @@ def write_multiview_outputs(
         images[frontal], looks[frontal], asset.faces, asset.face_uvs, regions=asset.regions, skin_region_ids=skin_ids
     )
     texture_png = _png_bytes(texture.image)
+    colours = vertex_colours_from_texture(texture.image, asset.faces, asset.face_uvs, len(asset.vertices))
     report = {
         "views": [
             {
@@ -211,12 +212,13 @@ def write_multiview_outputs(
             fit.identity_vertices,
             asset.faces,
             face_uvs=asset.face_uvs,
+            vertex_colors=colours,
             mtllib="mesh.mtl",
             material=MATERIAL_NAME,
         )
         write_mtl(tmp / "mesh.mtl", MATERIAL_NAME, "texture.png")
         (tmp / "texture.png").write_bytes(texture_png)
-        export_mesh(tmp / "mesh.ply", fit.identity_vertices, asset.faces)
+        export_mesh(tmp / "mesh.ply", fit.identity_vertices, asset.faces, vertex_colors=colours)
         write_skinned_head(
             tmp / "mesh.glb", asset, jnr.weights, jnr.tau, jnr.expressions, base_color_texture=texture_png
         )

@@ -3,7 +3,8 @@ parameters back.
 
 The folder is written to a temporary folder beside it, then moved into place, so a failure leaves nothing
 half-written. ``mesh.obj`` is the fitted head in rig space (mm, +Y up, +Z out of the face) with vertex
-colours = fitted albedo (sRGB), the template's UVs and the material ``skin`` of ``mesh.mtl`` (``map_Kd
+colours sampled from ``texture.png`` at the vertices' UVs (sRGB, the corners of a seam vertex
+averaged), the template's UVs and the material ``skin`` of ``mesh.mtl`` (``map_Kd
 texture.png``); ``texture.png`` is the face unwrapped from the photo into the template's UVs (1024 x 1024
 sRGB, :mod:`pipeline.photo.texture`; texels the camera does not see take the fitted albedo); ``mesh.glb``
 is the skinned glTF (metres; the fitted head as its bind mesh, so that readers that do not skin load the
@@ -38,7 +39,7 @@ from pipeline.head.params import params_payload as head_params_payload
 from pipeline.head.skinned import write_skinned_head
 from pipeline.photo.fit import PhotoFit
 from pipeline.photo.fit_config import FitPhotoConfig
-from pipeline.photo.texture import TEXTURE_SIZE, UVTexture, texture_from_fit
+from pipeline.photo.texture import TEXTURE_SIZE, UVTexture, texture_from_fit, vertex_colours_from_texture
 from pipeline.viewer import VIEWER_FILE, ViewerView, write_fit_viewer
 from render.lighting import Lighting
 from render.renderer import DifferentiableRenderer
@@ -337,7 +338,6 @@ def write_photo_outputs(
     check_output(out_dir, force=force, inputs=inputs)  # before the rendering below
     head = photo_head(fit, JnrHead(rig=rig, neural=neural))
     asset = head.asset
-    colours = np.clip(np.round(linear_to_srgb(fit.albedo) * 255.0), 0, 255).astype(np.uint8)
     face_regions = tuple((config or FitPhotoConfig()).photometric.face_regions)
     render, face_mask = render_fit(fit, spp=spp, asset=asset, mask_regions=face_regions)
     texture = texture_from_fit(
@@ -350,6 +350,8 @@ def write_photo_outputs(
         size=texture_size,
     )
     texture_png = _png_bytes(texture.image)
+    # what MeshLab, CloudCompare and Open3D show of the OBJ/PLY: the texture at each vertex (seams averaged)
+    colours = vertex_colours_from_texture(texture.image, asset.faces, asset.face_uvs, len(asset.vertices))
 
     with staged_folder(out_dir, force, inputs=inputs, marker={"command": (extra or {}).get("command")}) as tmp:
         export_mesh(

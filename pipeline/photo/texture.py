@@ -38,12 +38,13 @@ from rig.geometry import vertex_normals
 __all__ = [
     "FULL_WEIGHT_COS",
     "TEXTURE_SIZE",
-    "VISIBLE_COS",
     "UVTexture",
+    "VISIBLE_COS",
     "rasterize_triangles",
     "texture_from_fit",
     "unwrap_texture",
     "uv_raster",
+    "vertex_colours_from_texture",
     "zbuffer",
 ]
 
@@ -432,3 +433,37 @@ def texture_from_fit(
         skin_faces=skin,
         size=size,
     )
+
+
+def vertex_colours_from_texture(
+    image: np.ndarray, faces: np.ndarray, face_uvs: np.ndarray, n_vertices: int
+) -> np.ndarray:
+    """Per-vertex colours sampled from a texture: each face corner's UV sampled bilinearly (texel centres at
+    ``((i + 0.5) / S, 1 - (j + 0.5) / S)``, rows from the top as :class:`UVTexture`), a vertex the mean of
+    its corners (a vertex on a UV seam has corners on both sides: their samples are averaged).
+
+    Args:
+        image: ``(S, S, 3)`` uint8 sRGB texture. faces: ``(F, 3)`` int. face_uvs: ``(F, 3, 2)`` UVs, v up.
+        n_vertices: ``V``.
+
+    Returns:
+        ``(V, 3)`` uint8 sRGB; a vertex in no face gets the texture's mean colour.
+    """
+    from scipy.ndimage import map_coordinates
+
+    image = np.asarray(image)
+    size_y, size_x = image.shape[:2]
+    uv = np.asarray(face_uvs, np.float64).reshape(-1, 2)
+    cols, rows = uv[:, 0] * size_x - 0.5, (1.0 - uv[:, 1]) * size_y - 0.5
+    samples = np.stack(
+        [map_coordinates(image[..., c].astype(np.float64), [rows, cols], order=1, mode="nearest") for c in range(3)],
+        axis=1,
+    )
+    corner_vertex = np.asarray(faces, np.int64).reshape(-1)
+    total = np.zeros((n_vertices, 3))
+    count = np.zeros(n_vertices)
+    np.add.at(total, corner_vertex, samples)
+    np.add.at(count, corner_vertex, 1.0)
+    mean = image.reshape(-1, 3).mean(0)
+    colours = np.where(count[:, None] > 0, total / np.maximum(count, 1.0)[:, None], mean)
+    return np.clip(np.round(colours), 0, 255).astype(np.uint8)

@@ -320,3 +320,27 @@ def test_transfer_uses_the_fits_weights(asset, fit_dir, examples):
     )
     np.testing.assert_allclose(result.skinning.weights, expected.weights, atol=1e-12)
     assert np.abs(result.skinning.weights - template.weights).max() > 1e-2
+
+
+def test_the_accessory_file_keeps_the_fits_texture(capsys, tmp_path, fit_dir):
+    """A fit folder with a texture.png (a photo fit's): head_with_accessory.glb shows the head with it, as the
+    fit's own mesh.glb does; a texture.png that is not a PNG leaves the head untextured, with a warning."""
+    import io
+    import shutil
+
+    from PIL import Image
+
+    textured = tmp_path / "textured_fit"
+    shutil.copytree(fit_dir, textured)
+    buffer = io.BytesIO()
+    Image.fromarray(np.full((16, 16, 3), (200, 120, 90), np.uint8)).save(buffer, format="PNG")
+    (textured / "texture.png").write_bytes(buffer.getvalue())
+    out = tmp_path / "with_texture"
+    code, _, err = run(capsys, "accessory", textured, "glasses", "--out", out, "--spp", 1)
+    assert code == 0, err
+    assert read_skinned_gltf(out / "head_with_accessory.glb")["base_color_texture"] == buffer.getvalue()
+    (textured / "texture.png").write_bytes(b"not a png")
+    with pytest.warns(UserWarning, match="not a PNG"):
+        code, _, err = run(capsys, "accessory", textured, "glasses", "--out", tmp_path / "bad", "--spp", 1)
+    assert code == 0, err
+    assert read_skinned_gltf(tmp_path / "bad" / "head_with_accessory.glb")["base_color_texture"] is None

@@ -189,6 +189,42 @@ class TestTextureFiles:
         from_glb = mesh.visual.to_color().vertex_colors[:n, :3]
         np.testing.assert_array_equal(from_obj, from_glb)
 
+    def test_obj_and_ply_vertex_colours_are_the_texture_at_their_uvs(self, out_dir, asset):
+        """MeshLab, CloudCompare and Open3D show the vertex colours: they are texture.png at each vertex's UV
+        (a naive bilinear loop, for the vertices off the UV seams), not one grey."""
+        import trimesh
+        from PIL import Image
+
+        texture = np.asarray(Image.open(out_dir / "texture.png").convert("RGB"))
+        n = len(asset.vertices)
+        ply = trimesh.load(out_dir / "mesh.ply", process=False)
+        colours = np.asarray(ply.visual.vertex_colors)[:n, :3].astype(int)
+        assert len(np.unique(colours, axis=0)) > 100  # they vary
+        obj_colours = trimesh.load(out_dir / "mesh.obj", process=False).visual.to_color().vertex_colors[:n, :3]
+        # (the OBJ's vertex colours are written beside its UVs; trimesh's loader keeps the texture visuals)
+        corners: dict[int, list] = {}
+        for f, uvs in zip(asset.faces, asset.face_uvs):
+            for vertex, uv in zip(f, uvs):
+                corners.setdefault(int(vertex), []).append(tuple(np.round(uv, 6)))
+        size = texture.shape[0]
+        checked = 0
+        for vertex, uvs in corners.items():
+            if len(set(uvs)) != 1:
+                continue  # on a seam: its corners are averaged
+            u, v = uvs[0]
+            x, y = u * size - 0.5, (1.0 - v) * size - 0.5  # texel centres at (i + 0.5) / size, rows from the top
+            x0, y0 = int(np.floor(x)), int(np.floor(y))
+            fx, fy = x - x0, y - y0
+            value = np.zeros(3)
+            for dy, wy in ((0, 1.0 - fy), (1, fy)):
+                for dx, wx in ((0, 1.0 - fx), (1, fx)):
+                    row, col = min(max(y0 + dy, 0), size - 1), min(max(x0 + dx, 0), size - 1)
+                    value += wy * wx * texture[row, col]
+            assert np.abs(colours[vertex] - value).max() <= 1.0, (vertex, colours[vertex], value)
+            checked += 1
+        assert checked > 0.8 * n
+        assert obj_colours.shape == (n, 3)
+
     def test_trimesh_loads_the_fitted_head_from_the_glb(self, out_dir, hand_fit, asset):
         """Readers that do not skin (trimesh, Open3D, MeshLab) load the fitted head from mesh.glb, as from
         mesh.obj: the glTF's bind mesh is the fit (issue 27), not the template."""
