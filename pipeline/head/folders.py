@@ -91,6 +91,8 @@ PHOTO_FOLDER = OutputFolder(
         OutputFile("landmarks.pts", "the input landmarks, iBUG .pts, 1-based pixels"),
         OutputFile("landmarks_fitted.pts", "the fitted head's landmarks projected, iBUG .pts"),
         OutputFile("landmarks3d.json", "the fitted landmarks in 3D, camera frame (OpenCV), mm"),
+        OutputFile("landmarks3d_mesh.json", "the same landmarks in mesh.obj's frame (rig space), mm: on mesh.obj"),
+        OutputFile("landmarks3d.pp", "the same, as MeshLab picked points of mesh.obj (Edit > PickPoints > Load)"),
         OutputFile("expressions.csv", "the 52 ARKit coefficients under their ARKit names"),
         _REPORT,
         _CONFIG,

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import json
 from dataclasses import asdict
+from html import escape
 from pathlib import Path
 
 import numpy as np
@@ -67,6 +68,40 @@ def landmarks3d_payload(fit: PhotoFit) -> dict:
         "names": list(IBUG68_NAMES),
         "points": [[float(c) for c in p] for p in points],
     }
+
+
+def landmarks3d_mesh_points(fit: PhotoFit) -> np.ndarray:
+    """``(68, 3)`` the fitted landmarks in the mesh's own frame (rig space: ``mesh.obj``'s, mm), the jaw
+    contour as the camera saw it: the camera-frame points taken back through the head pose
+    (the inverse of :func:`pipeline.camera.camera_from_head_pose`), so they lie on ``mesh.obj``."""
+    extrinsics = camera_from_head_pose(fit.rotation, fit.translation)  # rig -> camera
+    camera = np.asarray(fit.landmarks3d_camera, np.float64)
+    return (camera - extrinsics[:3, 3]) @ extrinsics[:3, :3]
+
+
+def landmarks3d_mesh_payload(fit: PhotoFit) -> dict:
+    """``landmarks3d_mesh.json``: :func:`landmarks3d_mesh_points` by iBUG-68 name."""
+    return {
+        "format": "jnr-landmarks3d/1",
+        "frame": "mesh (mesh.obj's rig space: x the subject's left, +Y up, +Z out of the face)",
+        "units": "mm",
+        "names": list(IBUG68_NAMES),
+        "points": [[float(c) for c in p] for p in landmarks3d_mesh_points(fit)],
+    }
+
+
+def meshlab_picked_points(points: np.ndarray, names, mesh_file: str = "mesh.obj") -> str:
+    """MeshLab's picked-points file (``.pp``, Edit > PickPoints > Load) of ``points (N, 3)`` in ``mesh_file``'s
+    frame and units, one ``<point>`` per name (no date, so the same fit writes the same file)."""
+    rows = "".join(
+        f' <point x="{x:.6f}" y="{y:.6f}" z="{z:.6f}" active="1" name="{escape(str(n), quote=True)}"/>\n'
+        for (x, y, z), n in zip(np.asarray(points, np.float64), names, strict=True)
+    )
+    head = (
+        '<!DOCTYPE PickedPoints>\n<PickedPoints>\n <DocumentData>\n  <User name="jnr"/>\n'
+        f'  <DataFileName name="{escape(mesh_file, quote=True)}"/>\n  <templateName name=""/>\n </DocumentData>\n'
+    )
+    return head + rows + "</PickedPoints>\n"
 
 
 def expressions_csv(coefficients) -> str:
@@ -377,6 +412,8 @@ def write_photo_outputs(
         write_landmarks(tmp / "landmarks.pts", np.asarray(fit.landmarks2d, float) * k + (k - 1) / 2)
         write_landmarks(tmp / "landmarks_fitted.pts", np.asarray(fit.landmarks_px, float) * k + (k - 1) / 2)
         (tmp / "landmarks3d.json").write_text(json.dumps(landmarks3d_payload(fit), indent=2) + "\n")
+        (tmp / "landmarks3d_mesh.json").write_text(json.dumps(landmarks3d_mesh_payload(fit), indent=2) + "\n")
+        (tmp / "landmarks3d.pp").write_text(meshlab_picked_points(landmarks3d_mesh_points(fit), IBUG68_NAMES))
         (tmp / "expressions.csv").write_text(expressions_csv(fit.expressions))
         report = report_payload(fit, config=config, extra=extra, image_factor=k, texture=texture)
         (tmp / "report.json").write_text(json.dumps(report, indent=2) + "\n")

@@ -225,6 +225,33 @@ class TestTextureFiles:
         assert checked > 0.8 * n
         assert obj_colours.shape == (n, 3)
 
+    def test_landmarks_in_the_mesh_frame_lie_on_mesh_obj_and_load_in_meshlab(self, out_dir, hand_fit, asset):
+        """landmarks3d_mesh.json and landmarks3d.pp: the camera-frame landmarks taken back to mesh.obj's frame
+        lie on its surface (<= 0.01 mm); the .pp is MeshLab's picked-points XML with the 68 names."""
+        import json
+        import xml.etree.ElementTree as ET
+
+        import trimesh
+
+        data = json.loads((out_dir / "landmarks3d_mesh.json").read_text())
+        points = np.asarray(data["points"])
+        assert data["units"] == "mm" and data["frame"].startswith("mesh") and points.shape == (68, 3)
+        mesh = trimesh.load(out_dir / "mesh.obj", process=False)
+        triangles = np.asarray(mesh.triangles)  # every landmark against every triangle (no spatial index)
+        pairs = trimesh.triangles.closest_point(
+            np.tile(triangles, (len(points), 1, 1)), np.repeat(points, len(triangles), axis=0)
+        )
+        distance = np.linalg.norm(pairs - np.repeat(points, len(triangles), axis=0), axis=1)
+        assert distance.reshape(len(points), -1).min(1).max() <= 0.01
+        np.testing.assert_allclose(points, hand_fit.landmark_fit.landmarks3d, atol=1e-6)
+        root = ET.parse(out_dir / "landmarks3d.pp").getroot()
+        assert root.tag == "PickedPoints"
+        assert root.find("DocumentData/DataFileName").get("name") == "mesh.obj"
+        picked = root.findall("point")
+        assert [p.get("name") for p in picked] == data["names"]
+        xyz = np.array([[float(p.get(k)) for k in "xyz"] for p in picked])
+        np.testing.assert_allclose(xyz, points, atol=1e-5)
+
     def test_trimesh_loads_the_fitted_head_from_the_glb(self, out_dir, hand_fit, asset):
         """Readers that do not skin (trimesh, Open3D, MeshLab) load the fitted head from mesh.glb, as from
         mesh.obj: the glTF's bind mesh is the fit (issue 27), not the template."""
