@@ -26,17 +26,6 @@ morph weights at every row of the curves and, with head angles, the ``skull_root
 
 from __future__ import annotations
 
-from pipeline.animation.curves import (
-    EXAMPLE_CURVES,
-    HEAD_COLUMNS,
-    HEAD_JOINT,
-    Curves,
-    CurvesError,
-    example_curves,
-    head_rotation_matrices,
-    read_curves,
-    write_curves,
-)
 from pipeline.animation.keyframes import (
     animate_fit,
     curve_keyframes,
@@ -47,6 +36,17 @@ from pipeline.animation.keyframes import (
     save_gif,
 )
 from pipeline.animation.retarget import retarget_fit, retarget_params
+from pipeline.head.curves import (
+    EXAMPLE_CURVES,
+    HEAD_COLUMNS,
+    HEAD_JOINT,
+    Curves,
+    CurvesError,
+    example_curves,
+    head_rotation_matrices,
+    read_curves,
+    write_curves,
+)
 
 __all__ = [
     "Curves",

@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from pipeline.animation.curves import HEAD_JOINT, Curves, head_rotation_matrices
 from pipeline.files import check_output, staged_file
+from pipeline.head.curves import HEAD_JOINT, Curves, head_rotation_matrices
 from pipeline.head.fitted import FittedHead, read_fit_folder
 from pipeline.head.skinned import write_skinned_head
 from render.preview import render_preview

@@ -94,6 +94,9 @@ PHOTO_FOLDER = OutputFolder(
         OutputFile("landmarks3d_mesh.json", "the same landmarks in mesh.obj's frame (rig space), mm: on mesh.obj"),
         OutputFile("landmarks3d.pp", "the same, as MeshLab picked points of mesh.obj (Edit > PickPoints > Load)"),
         OutputFile("expressions.csv", "the 52 ARKit coefficients under their ARKit names"),
+        OutputFile(
+            "expressions_livelink.csv", "the same in Live Link Face's CSV (Timecode, BlendShapeCount, head angles)"
+        ),
         _REPORT,
         _CONFIG,
         _VIEWER,

@@ -34,6 +34,7 @@ from pipeline.camera import camera_from_head_pose
 from pipeline.colour import linear_to_srgb
 from pipeline.config import CONFIG_FILE, config_to_dict, dump_config
 from pipeline.files import check_output, json_safe, staged_folder
+from pipeline.head.curves import Curves, write_curves
 from pipeline.head.fitted import FittedHead, fitted_head, fitted_head_from_arrays
 from pipeline.head.params import UNITS, ParamsFileError, load_params_file, read_params
 from pipeline.head.params import params_payload as head_params_payload
@@ -46,6 +47,7 @@ from render.lighting import Lighting
 from render.renderer import DifferentiableRenderer
 from rig.asset import RigAsset, load_asset
 from rig.expressions import EXPRESSION_NAMES
+from rig.geometry import head_angles
 from rig.head_model import JnrHead
 from rig.io.mesh import export_mesh, write_mtl
 from rig.model import JointRig
@@ -102,6 +104,19 @@ def meshlab_picked_points(points: np.ndarray, names, mesh_file: str = "mesh.obj"
         f'  <DataFileName name="{escape(mesh_file, quote=True)}"/>\n  <templateName name=""/>\n </DocumentData>\n'
     )
     return head + rows + "</PickedPoints>\n"
+
+
+LIVE_LINK_FILE = "expressions_livelink.csv"
+"""The fit's ARKit coefficients in Live Link Face's CSV layout (:func:`fit_curves`)."""
+
+
+def fit_curves(fit: PhotoFit) -> Curves:
+    """The fit as one frame of ARKit curves: its 52 coefficients and its head angles (yaw, pitch, roll of
+    the head pose, :func:`rig.geometry.head_angles`, degrees), written by
+    :func:`pipeline.head.curves.write_curves` in Live Link Face's layout (Timecode, BlendShapeCount,
+    capitalised names, radians) and read back by ``jnr animate``."""
+    angles = np.asarray(head_angles(np.asarray(fit.rotation, np.float64)), np.float64)
+    return Curves(np.zeros(1), np.asarray(fit.expressions, np.float64)[None], angles[None], "live-link-face")
 
 
 def expressions_csv(coefficients) -> str:
@@ -415,6 +430,7 @@ def write_photo_outputs(
         (tmp / "landmarks3d_mesh.json").write_text(json.dumps(landmarks3d_mesh_payload(fit), indent=2) + "\n")
         (tmp / "landmarks3d.pp").write_text(meshlab_picked_points(landmarks3d_mesh_points(fit), IBUG68_NAMES))
         (tmp / "expressions.csv").write_text(expressions_csv(fit.expressions))
+        write_curves(tmp / LIVE_LINK_FILE, fit_curves(fit), layout="live-link-face")
         report = report_payload(fit, config=config, extra=extra, image_factor=k, texture=texture)
         (tmp / "report.json").write_text(json.dumps(report, indent=2) + "\n")
         dump_config(config or FitPhotoConfig(), tmp / CONFIG_FILE, command=(extra or {}).get("command"))

@@ -23,7 +23,7 @@ from pipeline.animation import (
     write_curves,
 )
 from pipeline.cli import main
-from rig.expressions import EXPRESSION_NAMES
+from rig.expressions import EXPRESSION_NAMES, expression_limits
 from rig.model import JointRig
 from rig.parameters import random_theta, theta_to_params
 from tests.pipeline.conftest import rig_head_vertices
@@ -283,3 +283,47 @@ def test_jnr_retarget_puts_the_source_expression_on_the_target(tmp_path):
     np.testing.assert_allclose(
         np.asarray(trimesh.load(again / "mesh.ply", process=False).vertices), expected, atol=1e-3
     )
+
+
+def test_mediapipe_blendshapes_and_arkit_raw_keys_read_as_arkit_curves(tmp_path):
+    """MediaPipe's face blendshapes (its ``_neutral`` first, no ``tongueOut``, ``timestamp_ms``) and ARKit's
+    raw ``ARFaceAnchor`` keys (``eyeBlink_L``) read into the same ARKit coefficients."""
+    from pipeline.animation import read_curves
+
+    names = [n for n in EXPRESSION_NAMES if n != "tongueOut"]
+    rng = np.random.default_rng(27)
+    values = rng.uniform(0.0, 1.0, (3, len(names)))
+    rows = [["timestamp_ms", "_neutral", *names]]
+    rows += [[f"{33.3 * k:.1f}", "0.9", *(f"{v:.6f}" for v in values[k])] for k in range(3)]
+    (tmp_path / "mediapipe.csv").write_text("\n".join(",".join(r) for r in rows) + "\n")
+    curves = read_curves(tmp_path / "mediapipe.csv")
+    np.testing.assert_allclose(curves.times, [0.0, 0.0333, 0.0666], atol=1e-9)
+    for j, name in enumerate(names):
+        np.testing.assert_allclose(curves.coefficients[:, EXPRESSION_NAMES.index(name)], values[:, j], atol=1e-6)
+    assert np.all(curves.coefficients[:, EXPRESSION_NAMES.index("tongueOut")] == 0.0)
+
+    raw = "time,eyeBlink_L,mouthSmile_R,jawOpen,browInnerUp\n0,0.8,0.5,0.3,0.2\n0.1,0.1,0.2,0.0,0.0\n"
+    (tmp_path / "arkit_raw.csv").write_text(raw)
+    curves = read_curves(tmp_path / "arkit_raw.csv")
+    first = dict(zip(EXPRESSION_NAMES, curves.coefficients[0]))
+    assert (first["eyeBlinkLeft"], first["mouthSmileRight"], first["jawOpen"], first["browInnerUp"]) == pytest.approx(
+        (0.8, 0.5, 0.3, 0.2)
+    )
+    assert sum(v != 0 for v in first.values()) == 4
+
+
+def test_a_written_live_link_file_reads_back_to_the_same_coefficients(tmp_path):
+    from pipeline.animation import read_curves
+    from pipeline.head.curves import Curves, write_curves
+
+    rng = np.random.default_rng(3)
+    low, high = (t.numpy() for t in expression_limits())
+    coefficients = rng.uniform(np.maximum(low, 0.0), np.minimum(high, 1.0), (4, len(EXPRESSION_NAMES)))
+    head = rng.uniform(-20.0, 20.0, (4, 3))
+    write_curves(tmp_path / "take.csv", Curves(np.arange(4) / 60.0, coefficients, head), layout="live-link-face")
+    header = (tmp_path / "take.csv").read_text().splitlines()[0].split(",")
+    assert header[:3] == ["Timecode", "BlendShapeCount", "EyeBlinkLeft"]
+    back = read_curves(tmp_path / "take.csv")
+    np.testing.assert_allclose(back.coefficients, coefficients, atol=1e-6)
+    np.testing.assert_allclose(back.head_rotation, head, atol=1e-4)
+    np.testing.assert_allclose(back.times, np.arange(4) / 60.0, atol=1e-6)

@@ -252,6 +252,20 @@ class TestTextureFiles:
         xyz = np.array([[float(p.get(k)) for k in "xyz"] for p in picked])
         np.testing.assert_allclose(xyz, points, atol=1e-5)
 
+    def test_live_link_file_holds_the_fits_coefficients_and_head_angles(self, out_dir, hand_fit):
+        """expressions_livelink.csv: Live Link Face's layout, read back by jnr animate's reader to the fit's
+        coefficients and its head pose's yaw (20 degrees here)."""
+        from pipeline.head.curves import read_curves
+        from rig.geometry import head_angles
+
+        text = (out_dir / "expressions_livelink.csv").read_text().splitlines()
+        assert text[0].startswith("Timecode,BlendShapeCount,EyeBlinkLeft,") and len(text) == 2
+        back = read_curves(out_dir / "expressions_livelink.csv")
+        assert back.layout == "live-link-face"
+        np.testing.assert_allclose(back.coefficients[0], hand_fit.expressions, atol=1e-6)
+        np.testing.assert_allclose(back.head_rotation[0], head_angles(hand_fit.rotation), atol=1e-4)
+        assert back.head_rotation[0][0] == pytest.approx(20.0, abs=1e-4)
+
     def test_trimesh_loads_the_fitted_head_from_the_glb(self, out_dir, hand_fit, asset):
         """Readers that do not skin (trimesh, Open3D, MeshLab) load the fitted head from mesh.glb, as from
         mesh.obj: the glTF's bind mesh is the fit (issue 27), not the template."""

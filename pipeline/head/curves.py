@@ -60,6 +60,23 @@ def _expression_index() -> dict[str, int]:
     return {n.lower(): i for i, n in enumerate(EXPRESSION_NAMES)}
 
 
+IGNORED_COLUMNS = ("_neutral",)
+"""Columns read and dropped: MediaPipe's face blendshapes start with ``_neutral``, which ARKit has not."""
+TIME_COLUMNS = {"time": 1.0, "time_s": 1.0, "seconds": 1.0, "timestamp_ms": 1e-3}
+"""A plain file's time column names and their unit in seconds (MediaPipe's results carry ``timestamp_ms``)."""
+
+
+def _shape_key(name: str) -> str:
+    """A column name as the lower-case ARKit name: ARKit's raw ``ARFaceAnchor`` keys (``eyeBlink_L``,
+    ``mouthSmile_R``) become ``eyeblinkleft``, ``mouthsmileright``; other names are only lower-cased."""
+    key = name.strip().lower()
+    if key.endswith("_l"):
+        return key[:-2] + "left"
+    if key.endswith("_r"):
+        return key[:-2] + "right"
+    return key
+
+
 _TIMECODE = re.compile(r"^(\d+):(\d+):(\d+):(\d+(?:\.\d+)?)$")
 
 
@@ -87,7 +104,10 @@ def _number(text: str, path: Path, row: int, column: str) -> float:
 
 
 def read_curves(path: str | Path, *, fps: float | None = None, head_units: str | None = None) -> Curves:
-    """Read a Live Link Face or plain curves CSV (module docstring).
+    """Read a Live Link Face or plain curves CSV (module docstring). Shape columns may use ARKit's names
+    (``eyeBlinkLeft``, any case) or its raw ``ARFaceAnchor`` keys (``eyeBlink_L``); MediaPipe's blendshape
+    output reads as it is (its ``_neutral`` column skipped, its missing ``tongueOut`` 0, ``timestamp_ms`` a
+    time column); shapes a file does not have are 0.
 
     Args:
         fps: frames per second of the timecodes (Live Link Face, default :data:`LIVE_LINK_FPS`) or of the
@@ -122,20 +142,20 @@ def read_curves(path: str | Path, *, fps: float | None = None, head_units: str |
     index = _expression_index()
     head_names = [h.lower() for h in (LIVE_LINK_HEAD if live_link else HEAD_COLUMNS)]
     ignored = {h.lower() for h in LIVE_LINK_EYES} if live_link else set()
-    time_column = None
+    time_column, time_unit = None, 1.0
     columns: list[tuple[int, str, int | None]] = []  # (csv column, kind, target index)
     unknown = []
     for i, name in enumerate(header):
         key = name.lower()
         if live_link and i < 2:
             continue
-        if key in index:
-            columns.append((i, "shape", index[key]))
+        if _shape_key(name) in index:
+            columns.append((i, "shape", index[_shape_key(name)]))
         elif key in head_names:
             columns.append((i, "head", head_names.index(key)))
-        elif not live_link and key in ("time", "time_s", "seconds"):
-            time_column = i
-        elif key in ignored:
+        elif not live_link and key in TIME_COLUMNS:
+            time_column, time_unit = i, TIME_COLUMNS[key]
+        elif key in ignored or key in IGNORED_COLUMNS:
             continue
         else:
             unknown.append(name)
@@ -143,7 +163,7 @@ def read_curves(path: str | Path, *, fps: float | None = None, head_units: str |
         head_columns = "HeadYaw/HeadPitch/HeadRoll" if live_link else "time, head_yaw, head_pitch, head_roll"
         raise CurvesError(
             f"{path}: unknown column(s) {unknown}; a curves file has the 52 ARKit names "
-            f"(e.g. eyeBlinkLeft, jawOpen), {head_columns}"
+            f"(e.g. eyeBlinkLeft or ARKit's raw eyeBlink_L, jawOpen; MediaPipe's _neutral is skipped), {head_columns}"
         )
     if not any(kind == "shape" for _, kind, _ in columns):
         raise CurvesError(f"{path}: no ARKit expression column (e.g. eyeBlinkLeft, jawOpen)")
@@ -169,7 +189,7 @@ def read_curves(path: str | Path, *, fps: float | None = None, head_units: str |
         if live_link:
             times[r] = _timecode_seconds(row[0], rate, path, line)
         elif time_column is not None:
-            times[r] = _number(row[time_column], path, line, header[time_column])
+            times[r] = _number(row[time_column], path, line, header[time_column]) * time_unit
         else:
             times[r] = r / rate
     times = times - times[0]
