@@ -399,6 +399,12 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     )
     fit.add_argument("--focal", type=float, help="focal length in pixels (default: 1.4 x max(width, height))")
     fit.add_argument(
+        "--units",
+        choices=("mm", "m"),
+        help="units of mesh.obj and mesh.ply (default mm, rig space; m for Blender and tools that read metres; "
+        "mesh.glb is in metres either way; = --set outputs.units=...)",
+    )
+    fit.add_argument(
         "--landmarks-only", action="store_true", help="the landmark fit only (the default; kept for scripts)"
     )
     fit.add_argument(

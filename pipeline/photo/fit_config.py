@@ -150,6 +150,24 @@ class PhotometricConfig:
             )
 
 
+MESH_UNITS = {"mm": 1.0, "m": 1e-3}
+"""``outputs.units`` (``jnr fit --units``): the unit of ``mesh.obj`` / ``mesh.ply`` and its factor from mm."""
+
+
+@dataclass(frozen=True)
+class OutputsConfig:
+    """What the fit's files hold (``outputs.*``; ``jnr fit --units``)."""
+
+    units: str = "mm"
+    """The unit of ``mesh.obj`` and ``mesh.ply``: ``mm`` (rig space, the default; every other jnr file and
+    ``params.json`` are in mm too) or ``m`` (what Blender and most DCC tools take an OBJ/PLY's numbers for;
+    ``mesh.glb`` is in metres either way). Only those two files change."""
+
+    def __post_init__(self) -> None:
+        if self.units not in MESH_UNITS:
+            raise ValueError(f"outputs.units must be one of {list(MESH_UNITS)}, got {self.units!r}")
+
+
 @dataclass(frozen=True)
 class FitPhotoConfig:
     """Settings of :func:`fit_photo` (``configs/fit_photo.yaml`` holds the defaults)."""
@@ -158,3 +176,5 @@ class FitPhotoConfig:
     """The landmark fit (Levenberg-Marquardt with the identity prior, :data:`PHOTO_PRIOR`)."""
     photometric: PhotometricConfig = field(default_factory=PhotometricConfig)
     """The photometric stages."""
+    outputs: OutputsConfig = field(default_factory=OutputsConfig)
+    """The output files (``outputs.units``)."""

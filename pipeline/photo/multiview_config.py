@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from pipeline.fitting.least_squares import LMSettings
-from pipeline.photo.fit_config import PHOTO_PRIOR
+from pipeline.photo.fit_config import PHOTO_PRIOR, OutputsConfig
 from pipeline.photo.landmark_fit import LandmarkFitConfig
 from rig.asset import REGION_NAMES
 from rig.template import FACE_REGIONS
@@ -118,6 +118,8 @@ class MultiViewConfig:
     """Weight of the identity prior, counted once against the landmark terms summed over the views."""
     fit_focal: bool = True
     """Fit each view's focal length (``s_k``); False: keep ``f0_k``."""
+    outputs: OutputsConfig = field(default_factory=OutputsConfig)
+    """The output files (``outputs.units``: mesh.obj / mesh.ply in mm or m)."""
     lambda_focal: float = 10.0
     """Prior ``0.5 lambda_focal s_k^2`` on the log focal change of each view."""
     photometric: PhotoConsistencyConfig = field(default_factory=PhotoConsistencyConfig)

@@ -33,7 +33,15 @@ from pipeline.head.skinned import write_skinned_head
 from pipeline.photo.detection import name_photo, photo_landmarks
 from pipeline.photo.inputs import sidecar_landmarks
 from pipeline.photo.multiview import MultiViewConfig, MultiViewFit, fit_multiview
-from pipeline.photo.outputs import MATERIAL_NAME, PHOTO_UNITS, _png_bytes, _save_png, overlay_image, render_fit
+from pipeline.photo.outputs import (
+    MATERIAL_NAME,
+    PHOTO_UNITS,
+    _png_bytes,
+    _save_png,
+    mesh_units,
+    overlay_image,
+    render_fit,
+)
 from pipeline.photo.texture import texture_from_fit, vertex_colours_from_texture
 from pipeline.viewer import VIEWER_FILE, ViewerView, fit_viewer_ready, write_viewer
 from rig.errors import InputError
@@ -207,18 +215,21 @@ def write_multiview_outputs(
         **(extra or {}),
     }
     with staged_folder(out_dir, force, inputs=inputs, marker={"command": (extra or {}).get("command")}) as tmp:
+        scale, comment = mesh_units((config or MultiViewConfig()).outputs.units)
         export_mesh(
             tmp / "mesh.obj",
-            fit.identity_vertices,
+            fit.identity_vertices * scale,
             asset.faces,
             face_uvs=asset.face_uvs,
             vertex_colors=colours,
             mtllib="mesh.mtl",
             material=MATERIAL_NAME,
+            comment=comment,
         )
         write_mtl(tmp / "mesh.mtl", MATERIAL_NAME, "texture.png")
         (tmp / "texture.png").write_bytes(texture_png)
-        export_mesh(tmp / "mesh.ply", fit.identity_vertices, asset.faces, vertex_colors=colours)
+        ply = fit.identity_vertices * scale
+        export_mesh(tmp / "mesh.ply", ply, asset.faces, vertex_colors=colours, comment=comment)
         write_skinned_head(
             tmp / "mesh.glb", asset, jnr.weights, jnr.tau, jnr.expressions, base_color_texture=texture_png
         )

@@ -40,7 +40,7 @@ from pipeline.head.params import UNITS, ParamsFileError, load_params_file, read_
 from pipeline.head.params import params_payload as head_params_payload
 from pipeline.head.skinned import write_skinned_head
 from pipeline.photo.fit import PhotoFit
-from pipeline.photo.fit_config import FitPhotoConfig
+from pipeline.photo.fit_config import MESH_UNITS, FitPhotoConfig
 from pipeline.photo.texture import TEXTURE_SIZE, UVTexture, texture_from_fit, vertex_colours_from_texture
 from pipeline.viewer import VIEWER_FILE, ViewerView, write_fit_viewer
 from render.lighting import Lighting
@@ -49,7 +49,7 @@ from rig.asset import RigAsset, load_asset
 from rig.expressions import EXPRESSION_NAMES
 from rig.geometry import head_angles
 from rig.head_model import JnrHead
-from rig.io.mesh import export_mesh, write_mtl
+from rig.io.mesh import RIG_SPACE_COMMENT, export_mesh, write_mtl
 from rig.model import JointRig
 from rig.skinning.neural import NeuralSkinning
 
@@ -72,6 +72,13 @@ def landmarks3d_payload(fit: PhotoFit) -> dict:
     }
 
 
+def mesh_units(units: str) -> tuple[float, str]:
+    """``(factor from mm, header comment)`` of ``mesh.obj`` / ``mesh.ply`` in ``units`` (``outputs.units``)."""
+    if units not in MESH_UNITS:
+        raise ValueError(f"outputs.units must be one of {list(MESH_UNITS)}, got {units!r}")
+    return MESH_UNITS[units], RIG_SPACE_COMMENT.replace("millimetres", "metres" if units == "m" else "millimetres")
+
+
 def landmarks3d_mesh_points(fit: PhotoFit) -> np.ndarray:
     """``(68, 3)`` the fitted landmarks in the mesh's own frame (rig space: ``mesh.obj``'s, mm), the jaw
     contour as the camera saw it: the camera-frame points taken back through the head pose
@@ -81,14 +88,15 @@ def landmarks3d_mesh_points(fit: PhotoFit) -> np.ndarray:
     return (camera - extrinsics[:3, 3]) @ extrinsics[:3, :3]
 
 
-def landmarks3d_mesh_payload(fit: PhotoFit) -> dict:
-    """``landmarks3d_mesh.json``: :func:`landmarks3d_mesh_points` by iBUG-68 name."""
+def landmarks3d_mesh_payload(fit: PhotoFit, units: str = "mm") -> dict:
+    """``landmarks3d_mesh.json``: :func:`landmarks3d_mesh_points` by iBUG-68 name, in ``units`` (mesh.obj's)."""
+    scale, _ = mesh_units(units)
     return {
         "format": "jnr-landmarks3d/1",
         "frame": "mesh (mesh.obj's rig space: x the subject's left, +Y up, +Z out of the face)",
-        "units": "mm",
+        "units": units,
         "names": list(IBUG68_NAMES),
-        "points": [[float(c) for c in p] for p in landmarks3d_mesh_points(fit)],
+        "points": [[float(c) for c in p] for p in landmarks3d_mesh_points(fit) * scale],
     }
 
 
@@ -402,20 +410,22 @@ def write_photo_outputs(
     texture_png = _png_bytes(texture.image)
     # what MeshLab, CloudCompare and Open3D show of the OBJ/PLY: the texture at each vertex (seams averaged)
     colours = vertex_colours_from_texture(texture.image, asset.faces, asset.face_uvs, len(asset.vertices))
+    scale, comment = mesh_units((config or FitPhotoConfig()).outputs.units)
 
     with staged_folder(out_dir, force, inputs=inputs, marker={"command": (extra or {}).get("command")}) as tmp:
         export_mesh(
             tmp / "mesh.obj",
-            fit.rig_vertices,
+            fit.rig_vertices * scale,
             asset.faces,
             face_uvs=asset.face_uvs,
             vertex_colors=colours,
             mtllib="mesh.mtl",
             material=MATERIAL_NAME,
+            comment=comment,
         )
         write_mtl(tmp / "mesh.mtl", MATERIAL_NAME, "texture.png")
         (tmp / "texture.png").write_bytes(texture_png)
-        export_mesh(tmp / "mesh.ply", fit.rig_vertices, asset.faces, vertex_colors=colours)
+        export_mesh(tmp / "mesh.ply", fit.rig_vertices * scale, asset.faces, vertex_colors=colours, comment=comment)
         write_skinned_head(
             tmp / "mesh.glb", asset, head.weights, head.tau, head.expressions, base_color_texture=texture_png
         )
@@ -427,8 +437,9 @@ def write_photo_outputs(
         write_landmarks(tmp / "landmarks.pts", np.asarray(fit.landmarks2d, float) * k + (k - 1) / 2)
         write_landmarks(tmp / "landmarks_fitted.pts", np.asarray(fit.landmarks_px, float) * k + (k - 1) / 2)
         (tmp / "landmarks3d.json").write_text(json.dumps(landmarks3d_payload(fit), indent=2) + "\n")
-        (tmp / "landmarks3d_mesh.json").write_text(json.dumps(landmarks3d_mesh_payload(fit), indent=2) + "\n")
-        (tmp / "landmarks3d.pp").write_text(meshlab_picked_points(landmarks3d_mesh_points(fit), IBUG68_NAMES))
+        units = (config or FitPhotoConfig()).outputs.units  # as mesh.obj
+        (tmp / "landmarks3d_mesh.json").write_text(json.dumps(landmarks3d_mesh_payload(fit, units), indent=2) + "\n")
+        (tmp / "landmarks3d.pp").write_text(meshlab_picked_points(landmarks3d_mesh_points(fit) * scale, IBUG68_NAMES))
         (tmp / "expressions.csv").write_text(expressions_csv(fit.expressions))
         write_curves(tmp / LIVE_LINK_FILE, fit_curves(fit), layout="live-link-face")
         report = report_payload(fit, config=config, extra=extra, image_factor=k, texture=texture)

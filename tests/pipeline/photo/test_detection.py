@@ -157,3 +157,32 @@ def test_dense_points_from_a_detector_or_a_478_point_file_fit_the_same(capsys, t
         assert code == 2 and "expected 68 or 468 or 478 landmarks, got 100" in err and len(err.splitlines()) == 1
     finally:
         unregister_detector("dense")
+
+
+def test_units_m_scales_the_obj_and_ply_and_nothing_else(capsys, tmp_path, photo_dir):
+    """``--units m``: mesh.obj, mesh.ply and the mesh-frame landmarks in metres; every other file as with mm."""
+    import trimesh
+
+    runs = {}
+    for units in ("mm", "m"):
+        out = tmp_path / units / "fit"  # the same folder name: it is in viewer.html
+        out.parent.mkdir()
+        args = ("fit", photo_dir / "face0.png", "--landmarks", photo_dir / "face0.pts", "--out", out, "--units", units)
+        code = main([str(a) for a in args] + fast_fit_args())
+        assert code == 0, capsys.readouterr().err
+        runs[units] = out
+    mm, m = runs["mm"], runs["m"]
+    for name in ("mesh.obj", "mesh.ply"):
+        a = np.asarray(trimesh.load(mm / name, process=False).vertices)
+        b = np.asarray(trimesh.load(m / name, process=False).vertices)
+        np.testing.assert_allclose(b, a * 1e-3, atol=1e-6)
+    assert "metres" in (m / "mesh.obj").read_text().splitlines()[0]
+    mesh_mm = np.asarray(json.loads((mm / "landmarks3d_mesh.json").read_text())["points"])
+    mesh_m = json.loads((m / "landmarks3d_mesh.json").read_text())
+    assert mesh_m["units"] == "m"
+    np.testing.assert_allclose(np.asarray(mesh_m["points"]), mesh_mm * 1e-3, atol=1e-9)
+    changed = {"mesh.obj", "mesh.ply", "landmarks3d_mesh.json", "landmarks3d.pp", "config.yaml", "report.json"}
+    for path in sorted(mm.iterdir()):
+        if path.name not in changed and path.is_file():
+            assert path.read_bytes() == (m / path.name).read_bytes(), path.name
+    assert json.loads((m / "report.json").read_text())["config"]["outputs"]["units"] == "m"
