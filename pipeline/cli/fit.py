@@ -185,7 +185,8 @@ def _fit_one(args: argparse.Namespace, photo: Path, config, out: Path) -> int:
     finally:
         bars.close()
     print(
-        f"fitted {photo} in {summary['fit_seconds']:.1f} s: landmark error {summary['mean_error_px']:.2f} px "
+        f"fitted {photo} in {summary['fit_seconds']:.1f} s ({summary['seconds']:.1f} s with detection and "
+        f"outputs; summary.csv's fit_seconds and seconds): landmark error {summary['mean_error_px']:.2f} px "
         f"(NME {summary['nme']:.4f})"
     )
     print(f"wrote {out}/: {_output_names()}")
@@ -328,7 +329,8 @@ FIT_EPILOG = (
     "folders of them. Several photos are fitted in parallel processes (--jobs) or on a Dask cluster "
     "(--scheduler ADDRESS); each gets OUT/<name>/, and OUT/summary.csv lists them, one row per photo (per "
     "face with --face all): photo, face, status (ok/error), error, output folder, landmark error px, NME, "
-    "seconds, faces detected, face box and score, kept (yes: the output of an earlier run, kept). It is "
+    "seconds in all and of the fit alone (fit_seconds, what stdout prints), faces detected, face box and "
+    "score, kept (yes: the output of an earlier run, kept). It is "
     "written also when some photos fail (the exit status is then 2, or 1 when every failure is a diverged "
     "fit).\n"
     "Resuming: run the same command again and the photos whose output folder is complete are kept (not "

@@ -28,6 +28,7 @@ SUMMARY_COLUMNS = (
     "mean_error_px",
     "nme",
     "seconds",
+    "fit_seconds",
     "faces_found",
     "box_left",
     "box_top",
@@ -39,14 +40,19 @@ SUMMARY_COLUMNS = (
 """The columns of :data:`SUMMARY_FILE`: the photo file; the face index (empty: landmarks from a file, or the
 photo failed before a face was picked); ``ok`` or ``error`` and the one-line error; the output folder
 (empty on an error: nothing was written); the landmark error in the photo's pixels and the NME by the
-outer eye corners (as in the fit's ``report.json``); the seconds spent on the photo (with ``--face all``,
-on that face: its fit and outputs; the detection, once per photo, is in ``report.json``); how many faces
+outer eye corners (as in the fit's ``report.json``); the seconds spent on the photo in all (with ``--face
+all``, on that face: its fit and outputs; the detection, once per photo, is in ``report.json``) and those of
+the fit alone (``fit_seconds``: what ``jnr fit`` prints after "fitted ... in"); how many faces
 the detector found (0: none; empty: not detected, e.g. an unreadable file or a landmarks file); the face's
 box in the photo's pixels and the detector's score; ``yes`` when the row is an earlier run's output that
 was kept (resumed: not fitted again, its numbers read back from its ``report.json``; ``seconds`` is then
 the time its fit took when it was made), ``no`` when it was fitted (or failed) in this run."""
-_EARLIER_SUMMARY_COLUMNS = (SUMMARY_COLUMNS[:-1],)
-"""The headers of the summaries earlier jnr versions wrote (before the ``kept`` column): still jnr's own."""
+_EARLIER_SUMMARY_COLUMNS = (
+    tuple(c for c in SUMMARY_COLUMNS if c not in ("fit_seconds", "kept")),
+    tuple(c for c in SUMMARY_COLUMNS if c != "fit_seconds"),
+)
+"""The headers of the summaries earlier jnr versions wrote (before the ``kept`` column, and before the
+``fit_seconds`` one): still jnr's own."""
 
 
 @dataclass(frozen=True)
@@ -107,6 +113,7 @@ def summary_csv(results: Iterable[PhotoFileResult]) -> str:
                 _number(fitted.get("mean_error_px"), 3),
                 _number(fitted.get("nme"), 5),
                 _number(r.seconds, 2),
+                _number(fitted.get("fit_seconds"), 2),
                 "" if r.faces_found is None else r.faces_found,
                 *(b if b == "" else _number(b, 1) for b in box),
                 _number(r.face_score, 4),

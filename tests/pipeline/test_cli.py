@@ -282,6 +282,9 @@ def test_fit_a_folder_in_parallel_with_sidecar_landmarks(capsys, tmp_path, photo
         assert float(row["mean_error_px"]) == pytest.approx(report["landmarks"]["mean_error_px"], abs=1e-3)
         assert float(row["nme"]) == pytest.approx(report["landmarks"]["nme_inter_ocular"], abs=1e-5)
         assert row["face"] == row["faces_found"] == "" and float(row["seconds"]) > 0  # landmarks from files
+        # the fit alone (what stdout's "fitted ... in" gives) and the photo in all (detection, fit, outputs)
+        assert float(row["fit_seconds"]) == pytest.approx(report["timings_s"]["total"], abs=0.01)
+        assert float(row["seconds"]) >= float(row["fit_seconds"]) > 0
 
 
 def _summary_rows(path):
