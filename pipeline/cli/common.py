@@ -82,6 +82,8 @@ class StageBars:
         self.done = done
         self.bar.n = done
         self.bar.refresh() if done == total or done % 10 == 0 else None
+        if done >= total:  # the stage is over: its log line says its own time, not the outputs' after it
+            self.close()
 
     def close(self) -> None:
         """End the current stage's bar; with ``-v`` a log line says what it did and how long it took."""

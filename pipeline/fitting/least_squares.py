@@ -308,7 +308,8 @@ def run_lm_stage(
         objective: the fit's Adam objective, to log every term's value at the stage's end (as the engine
             does); without it the log has the least-squares cost only.
         loss_start: the loss at the stage's start, if known (else the objective's, or the LM cost).
-        progress: :data:`rig.optim.Progress`, called once at the end.
+        progress: :data:`rig.optim.Progress`, called after each LM iteration (``iteration`` of at most
+            ``stage.iterations``) and with ``stage.iterations`` at the end (a converged stage finishes early).
         metrics: more figures to log.
 
     Returns:
@@ -324,7 +325,14 @@ def run_lm_stage(
         with torch.no_grad():
             loss_start = float(objective(stage.free).total)
 
+    jacobians = 0
+
     def prepare(x: torch.Tensor) -> None:
+        # before each Jacobian (and once more at the end): the iterations done so far are the progress
+        nonlocal jacobians
+        if progress is not None and 0 < jacobians < stage.iterations:  # the last: once, at the stage's end
+            progress(stage.name, jacobians, stage.iterations)
+        jacobians += 1
         problem.prepare(x)
         rows.reweight(problem.inputs(x[None]))
 

@@ -20,6 +20,8 @@ the 68 fitted landmarks in the camera frame (OpenCV, mm) with their iBUG names.
 from __future__ import annotations
 
 import json
+import logging
+import time
 from dataclasses import asdict
 from html import escape
 from pathlib import Path
@@ -53,6 +55,7 @@ from rig.io.mesh import RIG_SPACE_COMMENT, export_mesh, write_mtl
 from rig.model import JointRig
 from rig.skinning.neural import NeuralSkinning
 
+_log = logging.getLogger(__name__)
 PHOTO_UNITS = {**UNITS, "pixels": "OpenCV, 0-based"}
 MATERIAL_NAME = "skin"
 """The material of ``mesh.obj`` (``usemtl``) in ``mesh.mtl``."""
@@ -394,10 +397,20 @@ def write_photo_outputs(
     """
     out_dir = Path(out_dir)
     check_output(out_dir, force=force, inputs=inputs)  # before the rendering below
+    seconds: dict[str, float] = {}
+    clock = [time.perf_counter()]
+
+    def lap(name: str) -> None:  # the seconds since the last lap, under name (logged at the end, -v)
+        now = time.perf_counter()
+        seconds[name] = seconds.get(name, 0.0) + now - clock[0]
+        clock[0] = now
+
     head = photo_head(fit, JnrHead(rig=rig, neural=neural))
     asset = head.asset
     face_regions = tuple((config or FitPhotoConfig()).photometric.face_regions)
+    lap("head")
     render, face_mask = render_fit(fit, spp=spp, asset=asset, mask_regions=face_regions)
+    lap("render")
     texture = texture_from_fit(
         photo,
         fit,
@@ -411,6 +424,7 @@ def write_photo_outputs(
     # what MeshLab, CloudCompare and Open3D show of the OBJ/PLY: the texture at each vertex (seams averaged)
     colours = vertex_colours_from_texture(texture.image, asset.faces, asset.face_uvs, len(asset.vertices))
     scale, comment = mesh_units((config or FitPhotoConfig()).outputs.units)
+    lap("texture")
 
     with staged_folder(out_dir, force, inputs=inputs, marker={"command": (extra or {}).get("command")}) as tmp:
         export_mesh(
@@ -426,9 +440,11 @@ def write_photo_outputs(
         write_mtl(tmp / "mesh.mtl", MATERIAL_NAME, "texture.png")
         (tmp / "texture.png").write_bytes(texture_png)
         export_mesh(tmp / "mesh.ply", fit.rig_vertices * scale, asset.faces, vertex_colors=colours, comment=comment)
+        lap("obj, ply")
         write_skinned_head(
             tmp / "mesh.glb", asset, head.weights, head.tau, head.expressions, base_color_texture=texture_png
         )
+        lap("glb")
         params = params_payload(fit, image_factor, original_size, head)
         (tmp / "params.json").write_text(json.dumps(params, indent=2) + "\n")
         _save_png(np.clip(np.round(linear_to_srgb(render) * 255), 0, 255).astype(np.uint8), tmp / "render.png")
@@ -445,6 +461,7 @@ def write_photo_outputs(
         report = report_payload(fit, config=config, extra=extra, image_factor=k, texture=texture)
         (tmp / "report.json").write_text(json.dumps(report, indent=2) + "\n")
         dump_config(config or FitPhotoConfig(), tmp / CONFIG_FILE, command=(extra or {}).get("command"))
+        lap("pngs, landmarks, json, csv")
         write_fit_viewer(
             tmp / VIEWER_FILE,
             asset,
@@ -456,4 +473,12 @@ def write_photo_outputs(
             title=f"jnr fit: {out_dir.name}",
             subtitle=f"landmark NME {float(fit.nme):.3f}",
         )
+        lap("viewer")
+    lap("staging")
+    _log.info(
+        "%s: outputs in %.2f s (%s)",
+        out_dir,
+        sum(seconds.values()),
+        ", ".join(f"{name} {value:.2f} s" for name, value in seconds.items()),
+    )
     return out_dir

@@ -17,6 +17,7 @@ Example:
 
 from __future__ import annotations
 
+import logging
 import os
 import time
 from collections.abc import Callable, Iterable
@@ -44,6 +45,8 @@ from pipeline.photo.outputs import write_photo_outputs
 from pipeline.photo.summary import SUMMARY_FILE, PhotoFileResult, summary_csv
 from rig.errors import InputError
 from rig.model import JointRig
+
+_log = logging.getLogger(__name__)
 
 
 def _fit_and_write(
@@ -89,6 +92,14 @@ def _fit_and_write(
         raise FloatingPointError(f"{label}: {exc}") from None
     except ValueError as exc:  # bad image or landmarks for the fit (InputError and plain ValueError)
         raise InputError(f"{label}: {exc}") from None
+    _log.info(
+        "%s: fitted %s points in %.2f s (landmark fit %.2f s, photometric %.2f s)",
+        label,
+        "ibug68" if fitted is None else fitted[1].name,
+        fit.timings["total"],
+        fit.timings["landmarks"],
+        fit.timings["photometric"],
+    )
     extra = {
         "input": {
             "photo": os.path.abspath(photo_path),
@@ -201,11 +212,21 @@ def fit_photo_file(
     config = config or FitPhotoConfig()
     try:
         check_output(out, force=force, inputs=all_inputs)
+        t_read = time.perf_counter()
         photo = load_working_image(photo_path)
         width, height = photo.original_size
+        _log.info("%s: read %d x %d in %.2f s", photo_path, width, height, time.perf_counter() - t_read)
         if focal is not None:
             check_focal(focal, width, height)
+        t_detect = time.perf_counter()
         points, source, dense = photo_landmarks(photo, landmarks_path, face, detector)
+        _log.info(
+            "%s: %s landmarks (%s) in %.2f s",
+            photo_path,
+            "dense" if dense is not None else "68",
+            source.get("detector") or "file",
+            time.perf_counter() - t_detect,
+        )
     except (ImageError, DetectionError) as exc:
         raise name_photo(exc, photo_path) from None
     summary = _fit_and_write(

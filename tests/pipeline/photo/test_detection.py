@@ -2,6 +2,7 @@
 is what the fit uses, end to end through the command line; unknown names are refused before any work."""
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -186,3 +187,23 @@ def test_units_m_scales_the_obj_and_ply_and_nothing_else(capsys, tmp_path, photo
         if path.name not in changed and path.is_file():
             assert path.read_bytes() == (m / path.name).read_bytes(), path.name
     assert json.loads((m / "report.json").read_text())["config"]["outputs"]["units"] == "m"
+
+
+def test_verbose_logs_every_phase_with_its_seconds(tmp_path, photo_dir, caplog):
+    """``-v``: reading, the landmarks, the fit and every output each get a log line with seconds."""
+    import logging
+
+    with caplog.at_level(logging.INFO):
+        code = main(
+            [str(a) for a in ("fit", photo_dir / "face0.png", "--landmarks", photo_dir / "face0.pts")]
+            + ["--out", str(tmp_path / "out"), "-v", *fast_fit_args()]
+        )
+    assert code == 0
+    text = "\n".join(r.getMessage() for r in caplog.records)
+    for phase in (r"read 128 x 128 in \d+\.\d\d s", r"68 landmarks \(file\) in", r"fitted ibug68 points in"):
+        assert re.search(phase, text), (phase, text)
+    outputs = re.search(r"outputs in (\d+\.\d\d) s \((.*)\)", text)
+    assert outputs is not None, text
+    parts = dict(re.findall(r"(?:^|, )([a-z][a-z, ]*?) (\d+\.\d\d) s", outputs.group(2)))
+    assert {"render", "texture", "glb", "viewer"} <= set(parts), parts
+    assert sum(float(v) for v in parts.values()) == pytest.approx(float(outputs.group(1)), abs=0.05)

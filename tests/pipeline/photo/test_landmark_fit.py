@@ -221,3 +221,20 @@ def test_dense_layout_recovers_pose_identity_and_jaw(models, synthetic_head):
     assert angle < 2.5
     assert abs(jaw - 0.3) < 0.1
     assert err_fit < 0.5 * err_template
+
+
+def test_lm_progress_counts_the_iterations(models, synthetic_head):
+    """The LM stages report each iteration as it is done (a progress bar moves with the fit), then the stage's
+    full count at its end, in order."""
+    rig, neural = models
+    calls = []
+    fit = fit_landmarks(
+        synthetic_head["landmarks2d"], W, H, rig=rig, neural=neural, progress=lambda *a: calls.append(a)
+    )
+    for log in fit.stages:
+        mine = [(it, total) for name, it, total in calls if name == log.name]
+        assert mine[-1] == (mine[-1][1], mine[-1][1])  # complete at the end
+        done = [it for it, _ in mine[:-1]]
+        assert done == list(range(1, len(done) + 1))  # one call per iteration done, in order
+        assert len(done) >= min(log.iterations, mine[-1][1]) - 1
+    assert any(len([c for c in calls if c[0] == log.name]) > 2 for log in fit.stages)
