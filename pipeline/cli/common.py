@@ -117,7 +117,8 @@ def parse_overrides(items: list[str] | None) -> dict:
 
 def fit_photo_overrides(args: argparse.Namespace) -> dict:
     """The photo fit's overrides: ``--set`` items, ``--landmarks-only`` (``photometric.enabled: false``),
-    ``--photometric`` (``photometric.enabled: true``) and ``--units`` (``outputs.units``)."""
+    ``--photometric`` (``photometric.enabled: true``), ``--units`` (``outputs.units``) and ``--outputs``
+    (``outputs.files``)."""
     overrides = parse_overrides(args.set)
     photometric = getattr(args, "photometric", False)
     if args.landmarks_only and photometric:
@@ -126,10 +127,11 @@ def fit_photo_overrides(args: argparse.Namespace) -> dict:
         group = overrides.get("photometric")
         value = bool(photometric)
         overrides["photometric"] = {**group, "enabled": value} if isinstance(group, dict) else {"enabled": value}
-    units = getattr(args, "units", None)
-    if units is not None:  # --units mm|m: outputs.units
-        group = overrides.get("outputs")
-        overrides["outputs"] = {**group, "units": units} if isinstance(group, dict) else {"units": units}
+    for option, key in (("units", "units"), ("outputs", "files")):  # --units: outputs.units, --outputs: .files
+        value = getattr(args, option, None)
+        if value is not None:
+            group = overrides.get("outputs")
+            overrides["outputs"] = {**group, key: value} if isinstance(group, dict) else {key: value}
     return overrides
 
 

@@ -24,7 +24,7 @@ from pipeline.cli.common import (
     load_fit_photo_config,
     progress_bars_wanted,
 )
-from pipeline.head.folders import PHOTO_FOLDER, VIEWS_FOLDER
+from pipeline.head.folders import PHOTO_FOLDER, PHOTO_OUTPUT_SETS, VIEWS_FOLDER
 
 
 def _fit_worker(task, threads: int):
@@ -95,9 +95,10 @@ def _runner(jobs: int, threads: int, quiet: bool):
     return _with_bar(one_by_one if jobs == 1 else in_processes, quiet)
 
 
-def _output_names() -> str:
-    """The files of one fit's folder, as printed."""
-    return PHOTO_FOLDER.listing()
+def _output_names(config=None) -> str:
+    """The files of one fit's folder (of the ``--outputs`` set of ``config``), as printed."""
+    files = "all" if config is None else config.outputs.files
+    return ", ".join(PHOTO_OUTPUT_SETS[files])
 
 
 def _face_option(text: str | None) -> int | str | None:
@@ -158,7 +159,7 @@ def _fit_faces(args: argparse.Namespace, photo: Path, config, out: Path) -> int:
     failed = _print_results(results)
     print(
         f"fitted {len(results) - len(failed)} of {len(results)} faces in {photo}; wrote {out}/: face_<k>/ "
-        f"({_output_names()}) and {SUMMARY_FILE}"
+        f"({_output_names(config)}) and {SUMMARY_FILE}"
     )
     return _exit_status(failed)
 
@@ -189,7 +190,7 @@ def _fit_one(args: argparse.Namespace, photo: Path, config, out: Path) -> int:
         f"outputs; summary.csv's fit_seconds and seconds): landmark error {summary['mean_error_px']:.2f} px "
         f"(NME {summary['nme']:.4f})"
     )
-    print(f"wrote {out}/: {_output_names()}")
+    print(f"wrote {out}/: {_output_names(config)}")
     return EXIT_OK
 
 
@@ -400,6 +401,13 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
         help=f"the face detector: {_detector_help()}; report.json lists every face found",
     )
     fit.add_argument("--focal", type=float, help="focal length in pixels (default: 1.4 x max(width, height))")
+    fit.add_argument(
+        "--outputs",
+        choices=("all", "mesh", "minimal"),
+        help="which files each fit writes: all (default), mesh (mesh.obj/.mtl/.ply/.glb, texture.png, params.json, "
+        "report.json, config.yaml) or minimal (params.json, report.json, config.yaml; jnr rig edit rebuilds the "
+        "head from them); fewer files take less time (= --set outputs.files=...)",
+    )
     fit.add_argument(
         "--units",
         choices=("mm", "m"),

@@ -49,14 +49,19 @@ class OutputFolder:
         """The files with their descriptions, as ``--help`` prints them."""
         return "; ".join(f"{f.name}: {f.description}" for f in self.files)
 
-    def missing(self, folder: str | Path) -> tuple[str, ...]:
-        """The fixed-name files ``folder`` lacks (patterns are not checked)."""
+    def missing(self, folder: str | Path, names: tuple[str, ...] | None = None) -> tuple[str, ...]:
+        """The fixed-name files ``folder`` lacks (patterns are not checked), of ``names`` (default: all)."""
         folder = Path(folder)
-        return tuple(f.name for f in self.files if not f.per_item and not (folder / f.name).is_file())
+        return tuple(
+            f.name
+            for f in self.files
+            if not f.per_item and (names is None or f.name in names) and not (folder / f.name).is_file()
+        )
 
-    def is_complete(self, folder: str | Path) -> bool:
-        """Whether ``folder`` holds every fixed-name file (what a resumed folder run calls complete)."""
-        return not self.missing(folder)
+    def is_complete(self, folder: str | Path, names: tuple[str, ...] | None = None) -> bool:
+        """Whether ``folder`` holds every fixed-name file (of ``names``; what a resumed folder run calls
+        complete)."""
+        return not self.missing(folder, names)
 
 
 _MESH = (
@@ -103,6 +108,22 @@ PHOTO_FOLDER = OutputFolder(
     ),
 )
 """``jnr fit PHOTO --out DIR`` (one face; ``--face all`` writes one such folder per face)."""
+
+PHOTO_OUTPUT_SETS: dict[str, tuple[str, ...]] = {
+    "all": PHOTO_FOLDER.names,
+    "mesh": (
+        "mesh.obj",
+        "mesh.mtl",
+        "texture.png",
+        "mesh.ply",
+        "mesh.glb",
+        "params.json",
+        "report.json",
+        "config.yaml",
+    ),
+    "minimal": ("params.json", "report.json", "config.yaml"),
+}
+"""The files of each ``jnr fit --outputs`` set (``outputs.files``), in :data:`PHOTO_FOLDER`'s order."""
 
 VIEWS_FOLDER = OutputFolder(
     "jnr fit --views",

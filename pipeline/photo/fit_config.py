@@ -150,6 +150,8 @@ class PhotometricConfig:
             )
 
 
+OUTPUT_SET_NAMES = ("all", "mesh", "minimal")
+"""``outputs.files`` (``jnr fit --outputs``): the named sets of :data:`pipeline.head.folders.PHOTO_OUTPUT_SETS`."""
 MESH_UNITS = {"mm": 1.0, "m": 1e-3}
 """``outputs.units`` (``jnr fit --units``): the unit of ``mesh.obj`` / ``mesh.ply`` and its factor from mm."""
 
@@ -163,9 +165,18 @@ class OutputsConfig:
     ``params.json`` are in mm too) or ``m`` (what Blender and most DCC tools take an OBJ/PLY's numbers for;
     ``mesh.glb`` is in metres either way). Only those two files change."""
 
+    files: str = "all"
+    """Which files a photo fit writes (``jnr fit --outputs``): ``all`` (the default: every file of
+    :data:`pipeline.head.folders.PHOTO_FOLDER`), ``mesh`` (the meshes, their texture, params, report and
+    config) or ``minimal`` (params.json, report.json, config.yaml: ``jnr rig edit`` and the other commands
+    rebuild the head from them); :data:`pipeline.head.folders.PHOTO_OUTPUT_SETS`. Fewer files, less time: the
+    render and the texture are made only for the files that need them."""
+
     def __post_init__(self) -> None:
         if self.units not in MESH_UNITS:
             raise ValueError(f"outputs.units must be one of {list(MESH_UNITS)}, got {self.units!r}")
+        if self.files not in OUTPUT_SET_NAMES:
+            raise ValueError(f"outputs.files must be one of {list(OUTPUT_SET_NAMES)}, got {self.files!r}")
 
 
 @dataclass(frozen=True)

@@ -38,6 +38,7 @@ from pipeline.config import CONFIG_FILE, config_to_dict, dump_config
 from pipeline.files import check_output, json_safe, staged_folder
 from pipeline.head.curves import Curves, write_curves
 from pipeline.head.fitted import FittedHead, fitted_head, fitted_head_from_arrays
+from pipeline.head.folders import PHOTO_OUTPUT_SETS
 from pipeline.head.params import UNITS, ParamsFileError, load_params_file, read_params
 from pipeline.head.params import params_payload as head_params_payload
 from pipeline.head.skinned import write_skinned_head
@@ -407,73 +408,100 @@ def write_photo_outputs(
 
     head = photo_head(fit, JnrHead(rig=rig, neural=neural))
     asset = head.asset
-    face_regions = tuple((config or FitPhotoConfig()).photometric.face_regions)
+    settings = config or FitPhotoConfig()
+    wanted = set(PHOTO_OUTPUT_SETS[settings.outputs.files])
+
+    def want(*names: str) -> bool:
+        return any(n in wanted for n in names)
+
+    face_regions = tuple(settings.photometric.face_regions)
     lap("head")
-    render, face_mask = render_fit(fit, spp=spp, asset=asset, mask_regions=face_regions)
-    lap("render")
-    texture = texture_from_fit(
-        photo,
-        fit,
-        asset.faces,
-        asset.face_uvs,
-        regions=asset.regions,
-        skin_region_ids=[asset.region_names.index(r) for r in face_regions],
-        size=texture_size,
-    )
-    texture_png = _png_bytes(texture.image)
-    # what MeshLab, CloudCompare and Open3D show of the OBJ/PLY: the texture at each vertex (seams averaged)
-    colours = vertex_colours_from_texture(texture.image, asset.faces, asset.face_uvs, len(asset.vertices))
-    scale, comment = mesh_units((config or FitPhotoConfig()).outputs.units)
-    lap("texture")
+    render = face_mask = None
+    if want("render.png", "overlay.png"):
+        render, face_mask = render_fit(fit, spp=spp, asset=asset, mask_regions=face_regions)
+        lap("render")
+    texture = texture_png = colours = None
+    if want("texture.png", "mesh.obj", "mesh.ply", "mesh.glb", VIEWER_FILE):
+        texture = texture_from_fit(
+            photo,
+            fit,
+            asset.faces,
+            asset.face_uvs,
+            regions=asset.regions,
+            skin_region_ids=[asset.region_names.index(r) for r in face_regions],
+            size=texture_size,
+        )
+        texture_png = _png_bytes(texture.image)
+        # what MeshLab, CloudCompare and Open3D show of the OBJ/PLY: the texture at each vertex (seams averaged)
+        colours = vertex_colours_from_texture(texture.image, asset.faces, asset.face_uvs, len(asset.vertices))
+        lap("texture")
+    scale, comment = mesh_units(settings.outputs.units)
 
     with staged_folder(out_dir, force, inputs=inputs, marker={"command": (extra or {}).get("command")}) as tmp:
-        export_mesh(
-            tmp / "mesh.obj",
-            fit.rig_vertices * scale,
-            asset.faces,
-            face_uvs=asset.face_uvs,
-            vertex_colors=colours,
-            mtllib="mesh.mtl",
-            material=MATERIAL_NAME,
-            comment=comment,
-        )
-        write_mtl(tmp / "mesh.mtl", MATERIAL_NAME, "texture.png")
-        (tmp / "texture.png").write_bytes(texture_png)
-        export_mesh(tmp / "mesh.ply", fit.rig_vertices * scale, asset.faces, vertex_colors=colours, comment=comment)
+        if want("mesh.obj"):
+            export_mesh(
+                tmp / "mesh.obj",
+                fit.rig_vertices * scale,
+                asset.faces,
+                face_uvs=asset.face_uvs,
+                vertex_colors=colours,
+                mtllib="mesh.mtl",
+                material=MATERIAL_NAME,
+                comment=comment,
+            )
+        if want("mesh.mtl"):
+            write_mtl(tmp / "mesh.mtl", MATERIAL_NAME, "texture.png")
+        if want("texture.png"):
+            (tmp / "texture.png").write_bytes(texture_png)
+        if want("mesh.ply"):
+            export_mesh(tmp / "mesh.ply", fit.rig_vertices * scale, asset.faces, vertex_colors=colours, comment=comment)
         lap("obj, ply")
-        write_skinned_head(
-            tmp / "mesh.glb", asset, head.weights, head.tau, head.expressions, base_color_texture=texture_png
-        )
-        lap("glb")
+        if want("mesh.glb"):
+            write_skinned_head(
+                tmp / "mesh.glb", asset, head.weights, head.tau, head.expressions, base_color_texture=texture_png
+            )
+            lap("glb")
         params = params_payload(fit, image_factor, original_size, head)
         (tmp / "params.json").write_text(json.dumps(params, indent=2) + "\n")
-        _save_png(np.clip(np.round(linear_to_srgb(render) * 255), 0, 255).astype(np.uint8), tmp / "render.png")
-        _save_png(overlay_image(photo, render, face_mask, fit.landmarks2d, fit.landmarks_px), tmp / "overlay.png")
         k = image_factor
-        write_landmarks(tmp / "landmarks.pts", np.asarray(fit.landmarks2d, float) * k + (k - 1) / 2)
-        write_landmarks(tmp / "landmarks_fitted.pts", np.asarray(fit.landmarks_px, float) * k + (k - 1) / 2)
-        (tmp / "landmarks3d.json").write_text(json.dumps(landmarks3d_payload(fit), indent=2) + "\n")
-        units = (config or FitPhotoConfig()).outputs.units  # as mesh.obj
-        (tmp / "landmarks3d_mesh.json").write_text(json.dumps(landmarks3d_mesh_payload(fit, units), indent=2) + "\n")
-        (tmp / "landmarks3d.pp").write_text(meshlab_picked_points(landmarks3d_mesh_points(fit) * scale, IBUG68_NAMES))
-        (tmp / "expressions.csv").write_text(expressions_csv(fit.expressions))
-        write_curves(tmp / LIVE_LINK_FILE, fit_curves(fit), layout="live-link-face")
+        if want("render.png"):
+            srgb = np.clip(np.round(linear_to_srgb(render) * 255), 0, 255).astype(np.uint8)
+            _save_png(srgb, tmp / "render.png")
+        if want("overlay.png"):
+            _save_png(overlay_image(photo, render, face_mask, fit.landmarks2d, fit.landmarks_px), tmp / "overlay.png")
+        if want("landmarks.pts"):
+            write_landmarks(tmp / "landmarks.pts", np.asarray(fit.landmarks2d, float) * k + (k - 1) / 2)
+        if want("landmarks_fitted.pts"):
+            write_landmarks(tmp / "landmarks_fitted.pts", np.asarray(fit.landmarks_px, float) * k + (k - 1) / 2)
+        if want("landmarks3d.json"):
+            (tmp / "landmarks3d.json").write_text(json.dumps(landmarks3d_payload(fit), indent=2) + "\n")
+        if want("landmarks3d_mesh.json"):
+            mesh_landmarks = landmarks3d_mesh_payload(fit, settings.outputs.units)  # in mesh.obj's units
+            (tmp / "landmarks3d_mesh.json").write_text(json.dumps(mesh_landmarks, indent=2) + "\n")
+        if want("landmarks3d.pp"):
+            points = landmarks3d_mesh_points(fit) * scale
+            (tmp / "landmarks3d.pp").write_text(meshlab_picked_points(points, IBUG68_NAMES))
+        if want("expressions.csv"):
+            (tmp / "expressions.csv").write_text(expressions_csv(fit.expressions))
+        if want(LIVE_LINK_FILE):
+            write_curves(tmp / LIVE_LINK_FILE, fit_curves(fit), layout="live-link-face")
         report = report_payload(fit, config=config, extra=extra, image_factor=k, texture=texture)
         (tmp / "report.json").write_text(json.dumps(report, indent=2) + "\n")
-        dump_config(config or FitPhotoConfig(), tmp / CONFIG_FILE, command=(extra or {}).get("command"))
+        dump_config(settings, tmp / CONFIG_FILE, command=(extra or {}).get("command"))
         lap("pngs, landmarks, json, csv")
-        write_fit_viewer(
-            tmp / VIEWER_FILE,
-            asset,
-            theta=head.theta,
-            expressions=head.expressions,
-            weights=head.weights,
-            views=[ViewerView(out_dir.name, params["camera"], photo)],
-            texture=texture.image,
-            title=f"jnr fit: {out_dir.name}",
-            subtitle=f"landmark NME {float(fit.nme):.3f}",
-        )
-        lap("viewer")
+        if want(VIEWER_FILE):
+            write_fit_viewer(
+                tmp / VIEWER_FILE,
+                asset,
+                theta=head.theta,
+                expressions=head.expressions,
+                weights=head.weights,
+                views=[ViewerView(out_dir.name, params["camera"], photo)],
+                texture=texture.image,
+                title=f"jnr fit: {out_dir.name}",
+                subtitle=f"landmark NME {float(fit.nme):.3f}",
+            )
+            lap("viewer")
     lap("staging")
     _log.info(
         "%s: outputs in %.2f s (%s)",

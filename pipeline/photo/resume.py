@@ -21,7 +21,7 @@ from pathlib import Path
 
 from pipeline.config import config_to_dict
 from pipeline.files import OutputError, check_output, is_jnr_output, json_safe
-from pipeline.head.folders import PHOTO_FOLDER
+from pipeline.head.folders import PHOTO_FOLDER, PHOTO_OUTPUT_SETS
 from pipeline.photo.detection import FACE_ALL
 from pipeline.photo.fit_config import FitPhotoConfig
 from pipeline.photo.summary import SUMMARY_FILE, PhotoFileResult, read_summary
@@ -48,16 +48,20 @@ class EarlierOutput:
 
 
 def complete_report(folder: Path) -> dict | None:
-    """The report.json of a complete single-face output folder (every file of
-    :data:`pipeline.head.folders.PHOTO_FOLDER`, a report with jnr's landmark errors and input photo), or
+    """The report.json of a complete single-face output folder (every file of its ``--outputs`` set,
+    :data:`pipeline.head.folders.PHOTO_OUTPUT_SETS`, as its report's configuration records it; a report with
+    jnr's landmark errors and input photo), or
     None: the resume check of one fit's folder."""
-    if not PHOTO_FOLDER.is_complete(folder):
-        return None
     try:
         report = json.loads((folder / "report.json").read_text(encoding="utf-8"))
         landmarks, photo = report["landmarks"], report["input"]["photo"]
         float(landmarks["mean_error_px"]), float(landmarks["nme_inter_ocular"])
-    except (OSError, UnicodeDecodeError, ValueError, KeyError, TypeError):
+        # the files of the set it was written with (jnr fit --outputs; older folders: all)
+        files = ((report.get("config") or {}).get("outputs") or {}).get("files", "all")
+        names = PHOTO_OUTPUT_SETS[files]
+    except (OSError, UnicodeDecodeError, ValueError, KeyError, TypeError, AttributeError):
+        return None
+    if not PHOTO_FOLDER.is_complete(folder, names):
         return None
     return report if isinstance(photo, str) else None
 

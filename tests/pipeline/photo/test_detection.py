@@ -207,3 +207,30 @@ def test_verbose_logs_every_phase_with_its_seconds(tmp_path, photo_dir, caplog):
     parts = dict(re.findall(r"(?:^|, )([a-z][a-z, ]*?) (\d+\.\d\d) s", outputs.group(2)))
     assert {"render", "texture", "glb", "viewer"} <= set(parts), parts
     assert sum(float(v) for v in parts.values()) == pytest.approx(float(outputs.group(1)), abs=0.05)
+
+
+def test_outputs_sets_write_only_their_files_and_resume_with_them(capsys, tmp_path, photo_dir):
+    """``--outputs minimal`` / ``mesh`` write exactly their files; a folder run resumed with the same set keeps
+    the fits it made (complete for their set), and a fit made with another set counts as other settings."""
+    from pipeline.head.folders import PHOTO_OUTPUT_SETS
+
+    for name in ("minimal", "mesh"):
+        out = tmp_path / name
+        args = ("fit", photo_dir / "face0.png", "--landmarks", photo_dir / "face0.pts", "--out", out)
+        code = main([str(a) for a in args] + ["--outputs", name, *fast_fit_args()])
+        assert code == 0, capsys.readouterr().err
+        assert sorted(p.name for p in out.iterdir() if not p.name.startswith(".")) == sorted(PHOTO_OUTPUT_SETS[name])
+        assert json.loads((out / "report.json").read_text())["config"]["outputs"]["files"] == name
+    # a folder of two photos (their .pts beside them), minimal, run twice: the second keeps both
+    folder = tmp_path / "photos"
+    folder.mkdir()
+    for f in ("face0.png", "face0.pts", "face1.png", "face1.pts"):
+        (folder / f).write_bytes((photo_dir / f).read_bytes())
+    fits = tmp_path / "fits"
+    run = ["fit", str(folder), "--landmarks", "auto", "--out", str(fits), "--outputs", "minimal", *fast_fit_args()]
+    assert main(run) == 0
+    capsys.readouterr()
+    assert main(run) == 0
+    stdout = capsys.readouterr().out
+    assert "kept 2 (fitted earlier)" in stdout, stdout
+    assert not (fits / "face0" / "mesh.obj").exists()
