@@ -57,9 +57,7 @@ def dense_points(photo, layout, faces: np.ndarray, rng: np.random.Generator) -> 
     """The photo's MediaPipe-layout points: the true head's embedded points, the outline picked on the
     silhouette seen from the camera, projected, + 1 px noise."""
     v = torch.as_tensor(photo.gt_vertices, dtype=torch.float64)
-    points = landmark_positions(v, layout.embedding, faces)[0]
-    centre = camera_center_in_rig(photo.rotation, photo.translation)
-    points[torch.as_tensor(layout.contour)] = v[torch.as_tensor(layout.pick(v.numpy(), centre))]
+    points = layout.points3d(v, faces, camera_center_in_rig(photo.rotation, photo.translation))
     camera = make_camera(
         photo.width, photo.height, photo.focal, rotation=photo.rotation, translation=photo.translation, dtype=v.dtype
     )

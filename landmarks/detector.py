@@ -268,7 +268,7 @@ def _register_builtin() -> None:
         "mediapipe",
         lazy_factory("landmarks.mediapipe.detector:MediaPipeDetector"),
         summary="MediaPipe's face detector, 478-point mesh and irises (ai-edge-litert): finds small, turned and "
-        "tilted faces; about 11 ms for a 512 x 512 photo on 1 core",
+        "tilted faces; about 30 ms for a 512 x 512 photo on 1 core",
     )
     register_detector(
         "auto",

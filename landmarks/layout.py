@@ -26,6 +26,7 @@ import torch
 from landmarks.ibug68.contour import contour_support_ids, contour_vertex_ids
 from landmarks.ibug68.embedding import ibug68_embedding
 from landmarks.ibug68.names import CHIN, JAW_CONTOUR
+from landmarks.ibug68.positions import landmark_positions
 from landmarks.loss import CONTOUR_WEIGHT, landmark_weights
 from rig.asset import RigAsset, cached_per_asset
 
@@ -74,6 +75,21 @@ class LandmarkLayout:
         """``(N,)`` weights of the reprojection term: ``weighting`` ``"contour"`` (1, the contour
         ``contour_weight``) or ``"detector"`` (by the detector's measured error on each point)."""
         return torch.as_tensor(self.point_weights(weighting, float(contour_weight)), dtype=dtype)
+
+    def points3d(self, vertices: torch.Tensor, faces, camera_centre) -> torch.Tensor:
+        """``(N, 3)`` the layout's points on a head: the static embedding, the contour points on the silhouette
+        seen from ``camera_centre`` (:attr:`pick`).
+
+        Args:
+            vertices: ``(V, 3)`` torch tensor, rig space, mm (the result is differentiable w.r.t. it).
+            faces: ``(F, 3)`` the template's faces. camera_centre: ``(3,)`` the camera centre in rig space, mm.
+        """
+        static = landmark_positions(vertices, self.embedding, faces)[0]
+        picked = self.pick(vertices.detach().cpu().double().numpy(), np.asarray(camera_centre, np.float64))
+        points = static.clone()
+        device = vertices.device
+        points[torch.as_tensor(self.contour, device=device)] = vertices[torch.as_tensor(picked, device=device)]
+        return points
 
     def check(self, points: np.ndarray, function: str) -> np.ndarray:
         """``points`` as ``(N, 2)`` float64.

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import warnings
 from pathlib import Path
 
 import numpy as np
@@ -83,22 +82,6 @@ def report_payload(result: AccessoryOnFit, command: str | None = None) -> dict:
     }
 
 
-PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
-
-
-def _fit_texture(head) -> bytes | None:
-    """The fit's ``texture.png`` (a photo fit's face in the template's UVs, read with the fit folder) for the
-    head's material in ``head_with_accessory.glb``, or None when the fit has none (a scan fit) or it is not
-    a PNG file (said in a warning)."""
-    data = getattr(head, "texture", None)
-    if not data:
-        return None
-    if not bytes(data).startswith(PNG_SIGNATURE):
-        warnings.warn(f"{head.folder}: texture.png is not a PNG file; the accessory's head is untextured", stacklevel=2)
-        return None
-    return bytes(data)
-
-
 def write_accessory_outputs(
     out: str | Path,
     result: AccessoryOnFit,
@@ -142,7 +125,7 @@ def write_accessory_outputs(
             result.head.tau,
             result.head.expressions,
             attachments=[attachment],
-            base_color_texture=_fit_texture(result.head),
+            base_color_texture=result.head.texture,  # a photo fit's texture.png (read_fit_head checked it)
         )
         np.savez_compressed(
             tmp / "accessory_weights.npz",

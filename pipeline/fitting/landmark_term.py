@@ -25,7 +25,6 @@ import torch
 from kornia.geometry.camera import PinholeCamera
 from kornia.geometry.conversions import axis_angle_to_rotation_matrix
 
-from landmarks.ibug68.positions import landmark_positions
 from landmarks.layout import LandmarkLayout, ibug68_layout
 from landmarks.loss import CONTOUR_WEIGHT, project_points
 from pipeline.fitting.state import PhotoState
@@ -91,11 +90,7 @@ class LandmarkTerm:
 
     def points3d(self, model: PhotoState, v: torch.Tensor) -> torch.Tensor:
         """``(N, 3)`` rig space, mm: the static embedding, the contour points as seen from the camera."""
-        static = landmark_positions(v, self.embedding, self.faces)[0]
-        picked = self.layout.pick(v.detach().cpu().double().numpy(), model.camera_center())
-        points = static.clone()
-        points[self.contour] = v[torch.as_tensor(picked, dtype=torch.long, device=v.device)]
-        return points
+        return self.layout.points3d(v, self.faces, model.camera_center())
 
     def pixels(self, model: PhotoState, v: torch.Tensor, free: tuple[str, ...] = ()) -> torch.Tensor:
         """``(1, N, 2)`` the landmarks of the state's head ``v (V, 3)`` in the photo, pixels; the pose carries

@@ -18,7 +18,8 @@ the ASM states); the terms read the inputs ``theta (B, P)``, ``theta_n (B, P)``,
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+from dataclasses import dataclass, fields
 
 import torch
 
@@ -57,6 +58,12 @@ class PriorWeights:
     """ASM fits only: weight of the squared uniform Laplacian of the head's offset from the template (mm^2,
     mean over vertices), against the folds that sharp mixtures and free bone scales make (0: off); chosen on
     a simulated scan, docs/asm.md (the point-cloud section)."""
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
+                raise ValueError(f"prior.{f.name} must be a finite number >= 0, got {value!r}")
 
 
 # ----------------------------------------------------------------------------------------------------

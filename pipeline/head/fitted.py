@@ -9,6 +9,7 @@ notebook and the viewer all take one.
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -28,6 +29,7 @@ from rig.head_model import (
     create_from_dict,
     is_posable,
 )
+from rig.io.gltf.encoding import is_png
 from rig.parameters import ParameterError
 
 TEXTURE_FILE = "texture.png"
@@ -224,4 +226,7 @@ def read_fit_folder(
     fit = load_params_file(path)
     texture_path = folder / TEXTURE_FILE
     texture = texture_path.read_bytes() if texture_path.is_file() else None
+    if texture is not None and not is_png(texture):
+        warnings.warn(f"{texture_path} is not a PNG file; the head's files are written untextured", stacklevel=2)
+        texture = None
     return fitted_head(fit, model=model, folder=folder, texture=texture, source=path, posable_for=posable_for)

@@ -34,13 +34,12 @@ from pipeline.photo.detection import name_photo, photo_landmarks
 from pipeline.photo.inputs import sidecar_landmarks
 from pipeline.photo.multiview import MultiViewConfig, MultiViewFit, fit_multiview
 from pipeline.photo.outputs import (
-    MATERIAL_NAME,
     PHOTO_UNITS,
     _png_bytes,
     _save_png,
-    mesh_units,
     overlay_image,
     render_fit,
+    write_textured_meshes,
 )
 from pipeline.photo.texture import texture_from_fit, vertex_colours_from_texture
 from pipeline.viewer import VIEWER_FILE, ViewerView, fit_viewer_ready, write_viewer
@@ -48,7 +47,6 @@ from rig.errors import InputError
 from rig.expressions import EXPRESSION_NAMES
 from rig.geometry import head_angles
 from rig.head_model import JnrHead
-from rig.io.mesh import export_mesh, write_mtl
 from rig.model import JointRig
 from rig.template import FACE_REGIONS
 
@@ -215,21 +213,8 @@ def write_multiview_outputs(
         **(extra or {}),
     }
     with staged_folder(out_dir, force, inputs=inputs, marker={"command": (extra or {}).get("command")}) as tmp:
-        scale, comment = mesh_units((config or MultiViewConfig()).outputs.units)
-        export_mesh(
-            tmp / "mesh.obj",
-            fit.identity_vertices * scale,
-            asset.faces,
-            face_uvs=asset.face_uvs,
-            vertex_colors=colours,
-            mtllib="mesh.mtl",
-            material=MATERIAL_NAME,
-            comment=comment,
-        )
-        write_mtl(tmp / "mesh.mtl", MATERIAL_NAME, "texture.png")
-        (tmp / "texture.png").write_bytes(texture_png)
-        ply = fit.identity_vertices * scale
-        export_mesh(tmp / "mesh.ply", ply, asset.faces, vertex_colors=colours, comment=comment)
+        units = (config or MultiViewConfig()).outputs.units
+        write_textured_meshes(tmp, fit.identity_vertices, asset, colours, texture_png, units)
         write_skinned_head(
             tmp / "mesh.glb", asset, jnr.weights, jnr.tau, jnr.expressions, base_color_texture=texture_png
         )
@@ -297,6 +282,8 @@ def fit_multiview_files(
     sidecars = [sidecar_landmarks(p) for p in paths] if landmarks == "auto" else [None] * len(paths)
     inputs = [*paths, *[s for s in sidecars if s]]
     check_output(out, force=force, inputs=inputs)
+    config = config or MultiViewConfig()
+    rig = rig or JointRig()
     images, points, layouts, sources, sizes, focals, factors = [], [], [], [], [], [], []
     for path, sidecar in zip(paths, sidecars):
         try:
@@ -309,9 +296,7 @@ def fit_multiview_files(
             raise name_photo(exc, path) from None
         k = photo.factor
         images.append(photo.image)
-        config = config or MultiViewConfig()
         if dense is not None and config.landmarks.dense:  # MediaPipe's points, as for one photo
-            rig = rig or JointRig()
             points.append(dense)
             layouts.append(mediapipe_layout_for(rig.asset, len(dense)))
         else:
@@ -323,7 +308,6 @@ def fit_multiview_files(
         sizes.append((photo.image.shape[1], photo.image.shape[0]))
         focals.append(None if focal is None else focal / k)
         factors.append(k)
-    config = config or MultiViewConfig()
     try:
         fit = fit_multiview(
             points, sizes, images=images, focals=focals, config=config, rig=rig, neural=neural, layouts=layouts

@@ -76,6 +76,42 @@ def landmarks3d_payload(fit: PhotoFit) -> dict:
     }
 
 
+TEXTURED_MESH_FILES = ("mesh.obj", "mesh.mtl", "texture.png", "mesh.ply")
+"""The files :func:`write_textured_meshes` writes."""
+
+
+def write_textured_meshes(
+    folder: Path,
+    vertices: np.ndarray,
+    asset: RigAsset,
+    colours: np.ndarray,
+    texture_png: bytes,
+    units: str = "mm",
+    files=TEXTURED_MESH_FILES,
+) -> None:
+    """A fit's ``mesh.obj`` (the template's UVs, the material of ``mesh.mtl``: ``map_Kd texture.png``),
+    ``mesh.mtl``, ``texture.png`` and ``mesh.ply``, those of them in ``files``: ``vertices (V, 3)`` rig space,
+    mm, written in ``units`` (:func:`mesh_units`); ``colours (V, 3)`` uint8 sRGB vertex colours."""
+    scale, comment = mesh_units(units)
+    if "mesh.obj" in files:
+        export_mesh(
+            folder / "mesh.obj",
+            vertices * scale,
+            asset.faces,
+            face_uvs=asset.face_uvs,
+            vertex_colors=colours,
+            mtllib="mesh.mtl",
+            material=MATERIAL_NAME,
+            comment=comment,
+        )
+    if "mesh.mtl" in files:
+        write_mtl(folder / "mesh.mtl", MATERIAL_NAME, "texture.png")
+    if "texture.png" in files:
+        (folder / "texture.png").write_bytes(texture_png)
+    if "mesh.ply" in files:
+        export_mesh(folder / "mesh.ply", vertices * scale, asset.faces, vertex_colors=colours, comment=comment)
+
+
 def mesh_units(units: str) -> tuple[float, str]:
     """``(factor from mm, header comment)`` of ``mesh.obj`` / ``mesh.ply`` in ``units`` (``outputs.units``)."""
     if units not in MESH_UNITS:
@@ -435,26 +471,10 @@ def write_photo_outputs(
         # what MeshLab, CloudCompare and Open3D show of the OBJ/PLY: the texture at each vertex (seams averaged)
         colours = vertex_colours_from_texture(texture.image, asset.faces, asset.face_uvs, len(asset.vertices))
         lap("texture")
-    scale, comment = mesh_units(settings.outputs.units)
+    scale, _ = mesh_units(settings.outputs.units)
 
     with staged_folder(out_dir, force, inputs=inputs, marker={"command": (extra or {}).get("command")}) as tmp:
-        if want("mesh.obj"):
-            export_mesh(
-                tmp / "mesh.obj",
-                fit.rig_vertices * scale,
-                asset.faces,
-                face_uvs=asset.face_uvs,
-                vertex_colors=colours,
-                mtllib="mesh.mtl",
-                material=MATERIAL_NAME,
-                comment=comment,
-            )
-        if want("mesh.mtl"):
-            write_mtl(tmp / "mesh.mtl", MATERIAL_NAME, "texture.png")
-        if want("texture.png"):
-            (tmp / "texture.png").write_bytes(texture_png)
-        if want("mesh.ply"):
-            export_mesh(tmp / "mesh.ply", fit.rig_vertices * scale, asset.faces, vertex_colors=colours, comment=comment)
+        write_textured_meshes(tmp, fit.rig_vertices, asset, colours, texture_png, settings.outputs.units, wanted)
         lap("obj, ply")
         if want("mesh.glb"):
             write_skinned_head(

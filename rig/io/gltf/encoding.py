@@ -46,6 +46,12 @@ EXTRAS_SPLIT_SOURCE = "jnr_split_source"
 
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
+
+def is_png(data: bytes | None) -> bool:
+    """Whether ``data`` are the bytes of a PNG file (its signature), what a glTF ``baseColorTexture`` takes."""
+    return isinstance(data, (bytes, bytearray)) and bytes(data).startswith(_PNG_SIGNATURE)
+
+
 # glTF constants.
 _FLOAT = pygltflib.FLOAT  # 5126
 _UNSIGNED_SHORT = pygltflib.UNSIGNED_SHORT  # 5123

@@ -19,7 +19,6 @@ from rig.io.gltf.encoding import (
     _ARRAY_BUFFER,
     _ELEMENT_ARRAY_BUFFER,
     _FLOAT,
-    _PNG_SIGNATURE,
     _UNSIGNED_INT,
     _UNSIGNED_SHORT,
     EXTRAS_SOURCE_COUNT,
@@ -29,6 +28,7 @@ from rig.io.gltf.encoding import (
     _BufferBuilder,
     _document_bytes,
     _translation,
+    is_png,
 )
 from rig.io.gltf.skin import _check_morphs, _check_rig, _joint_nodes, _scale_affine_to_metres, _top_influences
 from rig.io.mesh import check_mesh_arrays, resolve_format, split_uv_seams
@@ -198,7 +198,6 @@ def export_skinned_gltf(
         raise ValueError(f"{func}: bind must be one of {list(BIND_MODES)}, got {bind!r}")
     inverse_bind = np.stack([_translation(-p * MM_TO_M) for p in pos])
     mesh_extras: dict = {}
-    skinning = None
     if bind == "posed":
         if taus is None:
             raise ValueError(f"{func}: bind='posed' needs joint_transforms")
@@ -213,8 +212,7 @@ def export_skinned_gltf(
         attachments = [_rebind_attachment(func, a, skinning, target_names, baked, len(names)) for a in attachments]
     normals = _unit_normals(v, f)
     if base_color_texture is not None:
-        png = base_color_texture if isinstance(base_color_texture, (bytes, bytearray)) else b""
-        if not bytes(png).startswith(_PNG_SIGNATURE):
+        if not is_png(base_color_texture):
             raise ValueError(f"{func}: base_color_texture must be the bytes of a PNG file")
         if uv is None:
             raise ValueError(f"{func}: base_color_texture needs face_uvs (TEXCOORD_0)")

@@ -12,7 +12,6 @@ import numpy as np
 import pytest
 import torch
 
-from landmarks.ibug68.positions import landmark_positions
 from landmarks.loss import project_points
 from landmarks.mediapipe.layout import mediapipe_layout, mediapipe_mesh_layout
 from pipeline.camera import camera_center_in_rig, default_focal, make_camera
@@ -57,9 +56,7 @@ def test_iris_moves_the_gaze_the_right_way(models, gaze, direction):
     c = coefficients_from_dict(gaze)
     v = (expressions.template + expressions(c[None])[0]).double()
     rotation, translation = head_rotation(10.0, -5.0, 0.0), np.array([0.0, 0.0, 550.0])
-    points = landmark_positions(v, layout.embedding, rig.asset.faces)[0]
-    centre = camera_center_in_rig(rotation, translation)
-    points[torch.as_tensor(layout.contour)] = v[torch.as_tensor(layout.pick(v.numpy(), centre))]
+    points = layout.points3d(v, rig.asset.faces, camera_center_in_rig(rotation, translation))
     camera = make_camera(W, H, default_focal(W, H), rotation=rotation, translation=translation, dtype=torch.float64)
     target = project_points(points[None], camera)[0].numpy()
     target = target + np.random.default_rng(26).normal(0.0, 0.5, target.shape)

@@ -203,8 +203,7 @@ def test_dense_layout_recovers_pose_identity_and_jaw(models, synthetic_head):
         weights = neural(torch.zeros(1, LATENT))[0]
         v = rig(theta, weights=weights, vertices=expr.template + expr(c[None].float())[0]).vertices[0].double()
         template = rig(torch.zeros(1, NUM_PARAMETERS), weights=weights).vertices[0].double()
-    points = landmark_positions(v, layout.embedding, faces)[0]
-    points[torch.as_tensor(layout.contour)] = v[torch.as_tensor(layout.pick(v.numpy(), camera_center_in_rig(rot, t)))]
+    points = layout.points3d(v, faces, camera_center_in_rig(rot, t))
     camera = make_camera(W, H, default_focal(W, H), rotation=rot, translation=t, dtype=torch.float64)
     lm2 = project_points(points[None], camera)[0].numpy()
     lm2 = lm2 + np.random.default_rng(0).normal(0.0, 0.5, lm2.shape)

@@ -291,7 +291,6 @@ def test_multiview_with_dense_points_beats_the_best_single_view(three_views):
     silhouette, 0.3 px noise): the shared identity is better than every single view's, and each view's
     landmarks are still reported as the 68 iBUG points (mapped from the mesh). Measured on 6 heads x 10 views:
     0.70 / 0.64 mm for 3 / 10 views against 0.71 mm for the best single view (docs/multiview.md)."""
-    from landmarks.ibug68.positions import landmark_positions
     from landmarks.loss import project_points
     from landmarks.mediapipe.layout import mediapipe_layout
     from pipeline.camera import camera_center_in_rig, make_camera
@@ -307,9 +306,7 @@ def test_multiview_with_dense_points_beats_the_best_single_view(three_views):
     lms = []
     for p in three_views.photos:
         v = torch.as_tensor(p.gt_vertices, dtype=torch.float64)
-        points = landmark_positions(v, layout.embedding, rig.asset.faces)[0]
-        picked = layout.pick(v.numpy(), camera_center_in_rig(p.rotation, p.translation))
-        points[torch.as_tensor(layout.contour)] = v[torch.as_tensor(picked)]
+        points = layout.points3d(v, rig.asset.faces, camera_center_in_rig(p.rotation, p.translation))
         camera = make_camera(p.width, p.height, p.focal, rotation=p.rotation, translation=p.translation, dtype=v.dtype)
         lms.append(project_points(points[None], camera)[0].numpy() + rng.normal(0.0, 0.3, (478, 2)))
     sizes = [(p.width, p.height) for p in three_views.photos]
