@@ -117,8 +117,8 @@ def parse_overrides(items: list[str] | None) -> dict:
 
 def fit_photo_overrides(args: argparse.Namespace) -> dict:
     """The photo fit's overrides: ``--set`` items, ``--landmarks-only`` (``photometric.enabled: false``),
-    ``--photometric`` (``photometric.enabled: true``), ``--units`` (``outputs.units``) and ``--outputs``
-    (``outputs.files``)."""
+    ``--photometric`` (``photometric.enabled: true``), ``--units`` (``outputs.units``), ``--outputs``
+    (``outputs.files``) and ``--ply-up`` (``outputs.ply_up``)."""
     overrides = parse_overrides(args.set)
     photometric = getattr(args, "photometric", False)
     if args.landmarks_only and photometric:
@@ -127,7 +127,7 @@ def fit_photo_overrides(args: argparse.Namespace) -> dict:
         group = overrides.get("photometric")
         value = bool(photometric)
         overrides["photometric"] = {**group, "enabled": value} if isinstance(group, dict) else {"enabled": value}
-    for option, key in (("units", "units"), ("outputs", "files")):  # --units: outputs.units, --outputs: .files
+    for option, key in (("units", "units"), ("outputs", "files"), ("ply_up", "ply_up")):  # outputs.<key>
         value = getattr(args, option, None)
         if value is not None:
             group = overrides.get("outputs")

@@ -95,10 +95,17 @@ def _runner(jobs: int, threads: int, quiet: bool):
     return _with_bar(one_by_one if jobs == 1 else in_processes, quiet)
 
 
-def _output_names(config=None) -> str:
-    """The files of one fit's folder (of the ``--outputs`` set of ``config``), as printed."""
+def _output_names(config=None, folder: Path | None = None) -> str:
+    """The files of one fit's folder (of the ``--outputs`` set of ``config``), as printed: an optional file
+    only if ``folder`` holds it (without ``folder``: marked as optional)."""
     files = "all" if config is None else config.outputs.files
-    return ", ".join(PHOTO_OUTPUT_SETS[files])
+    optional = set(PHOTO_FOLDER.names) - set(PHOTO_FOLDER.required)
+    names = [
+        f"{n} (if MediaPipe's points were fitted)" if n in optional and folder is None else n
+        for n in PHOTO_OUTPUT_SETS[files]
+        if n not in optional or folder is None or (folder / n).is_file()
+    ]
+    return ", ".join(names)
 
 
 def _face_option(text: str | None) -> int | str | None:
@@ -190,7 +197,7 @@ def _fit_one(args: argparse.Namespace, photo: Path, config, out: Path) -> int:
         f"outputs; summary.csv's fit_seconds and seconds): landmark error {summary['mean_error_px']:.2f} px "
         f"(NME {summary['nme']:.4f})"
     )
-    print(f"wrote {out}/: {_output_names(config)}")
+    print(f"wrote {out}/: {_output_names(config, out)}")
     return EXIT_OK
 
 
@@ -413,6 +420,12 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
         choices=("mm", "m"),
         help="units of mesh.obj and mesh.ply (default mm, rig space; m for Blender and tools that read metres; "
         "mesh.glb is in metres either way; = --set outputs.units=...)",
+    )
+    fit.add_argument(
+        "--ply-up",
+        choices=("y", "z"),
+        help="up axis of mesh.ply: y (default, rig space; MeshLab, Open3D, CloudCompare) or z (upright in "
+        "Blender's PLY importer with its default axes); mesh.obj stays Y-up (= --set outputs.ply_up=...)",
     )
     fit.add_argument(
         "--landmarks-only", action="store_true", help="the landmark fit only (the default; kept for scripts)"

@@ -18,10 +18,13 @@ class OutputFile:
     Attributes:
         name: the file name (``<k>`` stands for a number: one file per view).
         description: what it holds, one sentence (the ``--help`` text and the docs use it).
+        optional: written only by some runs (e.g. only when a detector's points exist): a folder without it
+            is still complete.
     """
 
     name: str
     description: str
+    optional: bool = False
 
     @property
     def per_item(self) -> bool:
@@ -41,6 +44,11 @@ class OutputFolder:
         """Every file name (patterns included)."""
         return tuple(f.name for f in self.files)
 
+    @property
+    def required(self) -> tuple[str, ...]:
+        """The names every run writes (patterns included; :attr:`OutputFile.optional` files left out)."""
+        return tuple(f.name for f in self.files if not f.optional)
+
     def listing(self) -> str:
         """The names as printed after a run: ``mesh.obj, mesh.mtl, ...``."""
         return ", ".join(self.names)
@@ -55,7 +63,10 @@ class OutputFolder:
         return tuple(
             f.name
             for f in self.files
-            if not f.per_item and (names is None or f.name in names) and not (folder / f.name).is_file()
+            if not f.per_item
+            and not f.optional
+            and (names is None or f.name in names)
+            and not (folder / f.name).is_file()
         )
 
     def is_complete(self, folder: str | Path, names: tuple[str, ...] | None = None) -> bool:
@@ -98,6 +109,15 @@ PHOTO_FOLDER = OutputFolder(
         OutputFile("landmarks3d.json", "the fitted landmarks in 3D, camera frame (OpenCV), mm"),
         OutputFile("landmarks3d_mesh.json", "the same landmarks in mesh.obj's frame (rig space), mm: on mesh.obj"),
         OutputFile("landmarks3d.pp", "the same, as MeshLab picked points of mesh.obj (Edit > PickPoints > Load)"),
+        OutputFile(
+            "landmarks_now.txt",
+            "the NoW benchmark's 7 points of mesh.obj (eye corners, nose bottom, mouth corners), one x y z a line",
+        ),
+        OutputFile(
+            "landmarks3d_mediapipe.json",
+            "MediaPipe's 478 fitted points in mesh.obj's frame (only when MediaPipe found the face)",
+            optional=True,
+        ),
         OutputFile("expressions.csv", "the 52 ARKit coefficients under their ARKit names"),
         OutputFile(
             "expressions_livelink.csv", "the same in Live Link Face's CSV (Timecode, BlendShapeCount, head angles)"

@@ -89,6 +89,8 @@ class PhotoFit:
         landmarks3d_camera: ``(68, 3)`` the fitted landmarks in 3D, camera frame (OpenCV: x right, y down,
             z forward), mm: the static embedding and the jaw contour as this camera sees it; projected with
             the camera they are ``landmarks_px``.
+        dense3d_camera: ``(N, 3)`` with ``dense``: the fitted points of that layout (e.g. MediaPipe's 478) in
+            3D, camera frame, mm, as ``landmarks3d_camera``; None without. dense_layout: that layout's name.
         landmark_fit: the landmark-only fit it started from.
         stages: one :class:`~pipeline.fitting.engine.StageLog` per photometric stage: every loss term,
             and the metrics ``photo`` (mean Charbonnier residual over the counted face pixels, linear RGB),
@@ -122,6 +124,8 @@ class PhotoFit:
     crop: Crop | None
     timings: dict
     landmarks3d_camera: np.ndarray | None = None
+    dense3d_camera: np.ndarray | None = None
+    dense_layout: str | None = None
 
 
 def check_photo(image) -> np.ndarray:
@@ -222,6 +226,7 @@ def fit_photo(
         v = state.rig_vertices()
         projected = term.project(state, v)
         landmarks3d_camera = state.to_camera(term.points3d(state, v)).double().numpy()
+        dense3d_camera = None if dense is None else state.to_camera(fit_term.points3d(state, v)).double().numpy()
         translation = state.translation.double().numpy()
     values = state.arrays()
     rotation = values["rotation"]
@@ -250,5 +255,7 @@ def fit_photo(
         stages=stages,
         crop=crop,
         landmarks3d_camera=landmarks3d_camera,
+        dense3d_camera=dense3d_camera,
+        dense_layout=None if layout is None else layout.name,
         timings={"landmarks": t_landmarks, "photometric": t_photo, "total": time.perf_counter() - t0},
     )

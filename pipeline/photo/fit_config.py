@@ -153,6 +153,8 @@ class PhotometricConfig:
 OUTPUT_SET_NAMES = ("all", "mesh", "minimal")
 """``outputs.files`` (``jnr fit --outputs``): the named sets of :data:`pipeline.head.folders.PHOTO_OUTPUT_SETS`."""
 MESH_UNITS = {"mm": 1.0, "m": 1e-3}
+PLY_UP_AXES = ("y", "z")
+"""``outputs.ply_up``: the up axis of ``mesh.ply``."""
 """``outputs.units`` (``jnr fit --units``): the unit of ``mesh.obj`` / ``mesh.ply`` and its factor from mm."""
 
 
@@ -172,7 +174,15 @@ class OutputsConfig:
     rebuild the head from them); :data:`pipeline.head.folders.PHOTO_OUTPUT_SETS`. Fewer files, less time: the
     render and the texture are made only for the files that need them."""
 
+    ply_up: str = "y"
+    """The up axis of ``mesh.ply`` (``jnr fit --ply-up``): ``y`` (the default: rig space, as ``mesh.obj``;
+    MeshLab, Open3D, CloudCompare and three.js show it upright) or ``z`` (rotated +90 degrees about x, the face
+    towards -Y: what Blender's PLY importer takes as upright with its default axes, Forward Y / Up Z).
+    ``mesh.obj`` stays Y-up either way (Blender's OBJ importer converts Y-up by default)."""
+
     def __post_init__(self) -> None:
+        if self.ply_up not in PLY_UP_AXES:
+            raise ValueError(f"outputs.ply_up must be one of {list(PLY_UP_AXES)}, got {self.ply_up!r}")
         if self.units not in MESH_UNITS:
             raise ValueError(f"outputs.units must be one of {list(MESH_UNITS)}, got {self.units!r}")
         if self.files not in OUTPUT_SET_NAMES:

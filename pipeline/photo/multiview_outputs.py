@@ -213,8 +213,10 @@ def write_multiview_outputs(
         **(extra or {}),
     }
     with staged_folder(out_dir, force, inputs=inputs, marker={"command": (extra or {}).get("command")}) as tmp:
-        units = (config or MultiViewConfig()).outputs.units
-        write_textured_meshes(tmp, fit.identity_vertices, asset, colours, texture_png, units)
+        outputs = (config or MultiViewConfig()).outputs
+        write_textured_meshes(
+            tmp, fit.identity_vertices, asset, colours, texture_png, outputs.units, ply_up=outputs.ply_up
+        )
         write_skinned_head(
             tmp / "mesh.glb", asset, jnr.weights, jnr.tau, jnr.expressions, base_color_texture=texture_png
         )

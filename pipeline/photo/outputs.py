@@ -88,10 +88,12 @@ def write_textured_meshes(
     texture_png: bytes,
     units: str = "mm",
     files=TEXTURED_MESH_FILES,
+    ply_up: str = "y",
 ) -> None:
     """A fit's ``mesh.obj`` (the template's UVs, the material of ``mesh.mtl``: ``map_Kd texture.png``),
     ``mesh.mtl``, ``texture.png`` and ``mesh.ply``, those of them in ``files``: ``vertices (V, 3)`` rig space,
-    mm, written in ``units`` (:func:`mesh_units`); ``colours (V, 3)`` uint8 sRGB vertex colours."""
+    mm, written in ``units`` (:func:`mesh_units`); ``colours (V, 3)`` uint8 sRGB vertex colours; ``ply_up``
+    ``"y"`` (rig space) or ``"z"`` (``mesh.ply`` by :func:`z_up`, for Blender's PLY importer)."""
     scale, comment = mesh_units(units)
     if "mesh.obj" in files:
         export_mesh(
@@ -109,7 +111,17 @@ def write_textured_meshes(
     if "texture.png" in files:
         (folder / "texture.png").write_bytes(texture_png)
     if "mesh.ply" in files:
-        export_mesh(folder / "mesh.ply", vertices * scale, asset.faces, vertex_colors=colours, comment=comment)
+        ply = z_up(vertices) if ply_up == "z" else np.asarray(vertices)
+        if ply_up == "z":
+            comment = comment.replace("+Y up, +Z out of the face", "+Z up, -Y out of the face (Blender's axes)")
+        export_mesh(folder / "mesh.ply", ply * scale, asset.faces, vertex_colors=colours, comment=comment)
+
+
+def z_up(points: np.ndarray) -> np.ndarray:
+    """``(N, 3)`` rig-space points (+Y up, +Z out of the face) in Blender's frame (+Z up, the face towards
+    -Y, x unchanged): a +90 degree rotation about x, ``(x, y, z) -> (x, -z, y)``."""
+    points = np.asarray(points)
+    return np.stack([points[:, 0], -points[:, 2], points[:, 1]], axis=1)
 
 
 def mesh_units(units: str) -> tuple[float, str]:
@@ -119,12 +131,13 @@ def mesh_units(units: str) -> tuple[float, str]:
     return MESH_UNITS[units], RIG_SPACE_COMMENT.replace("millimetres", "metres" if units == "m" else "millimetres")
 
 
-def landmarks3d_mesh_points(fit: PhotoFit) -> np.ndarray:
-    """``(68, 3)`` the fitted landmarks in the mesh's own frame (rig space: ``mesh.obj``'s, mm), the jaw
-    contour as the camera saw it: the camera-frame points taken back through the head pose
-    (the inverse of :func:`pipeline.camera.camera_from_head_pose`), so they lie on ``mesh.obj``."""
+def landmarks3d_mesh_points(fit: PhotoFit, camera_points: np.ndarray | None = None) -> np.ndarray:
+    """``(N, 3)`` fitted landmarks in the mesh's own frame (rig space: ``mesh.obj``'s, mm): ``camera_points
+    (N, 3)`` (default ``fit.landmarks3d_camera``, the 68, the jaw contour as the camera saw it) taken back
+    through the head pose (the inverse of :func:`pipeline.camera.camera_from_head_pose`), so they lie on
+    ``mesh.obj``."""
     extrinsics = camera_from_head_pose(fit.rotation, fit.translation)  # rig -> camera
-    camera = np.asarray(fit.landmarks3d_camera, np.float64)
+    camera = np.asarray(fit.landmarks3d_camera if camera_points is None else camera_points, np.float64)
     return (camera - extrinsics[:3, 3]) @ extrinsics[:3, :3]
 
 
@@ -138,6 +151,45 @@ def landmarks3d_mesh_payload(fit: PhotoFit, units: str = "mm") -> dict:
         "names": list(IBUG68_NAMES),
         "points": [[float(c) for c in p] for p in landmarks3d_mesh_points(fit) * scale],
     }
+
+
+DENSE_LANDMARKS_FILE = "landmarks3d_mediapipe.json"
+"""MediaPipe's 478 fitted points in ``mesh.obj``'s frame (fits whose landmarks came from MediaPipe)."""
+
+
+def dense_landmarks_payload(fit: PhotoFit, units: str = "mm") -> dict | None:
+    """``landmarks3d_mediapipe.json``: the points of the dense layout the fit used (MediaPipe's 478, in its
+    Face Mesh index order; the iris points 468-477 on the eyeballs) in ``mesh.obj``'s frame and ``units``;
+    None for a fit of the 68 iBUG points."""
+    if fit.dense3d_camera is None:
+        return None
+    scale, _ = mesh_units(units)
+    points = landmarks3d_mesh_points(fit, fit.dense3d_camera) * scale
+    return {
+        "format": "jnr-landmarks3d/1",
+        "layout": fit.dense_layout,
+        "frame": "mesh (mesh.obj's rig space: x the subject's left, +Y up, +Z out of the face)",
+        "units": units,
+        "names": [str(i) for i in range(len(points))],
+        "points": [[float(c) for c in p] for p in points],
+    }
+
+
+NOW_FILE = "landmarks_now.txt"
+"""The 7 points the NoW benchmark aligns a predicted mesh with (its ``.txt`` landmark file)."""
+NOW_IBUG_INDICES = (36, 39, 42, 45, 33, 48, 54)
+"""NoW's 7 landmarks as iBUG-68 indices, in NoW's order: right eye outer and inner corner, left eye inner and
+outer corner, nose bottom (subnasale), right and left mouth corner (the subject's sides; the order the NoW
+evaluation's scan landmarks and RingNet/DECA/MICA/metrical-tracker's predictions use)."""
+
+
+def now_landmarks_txt(points68: np.ndarray) -> str:
+    """NoW's landmark text file of a mesh: the :data:`NOW_IBUG_INDICES` rows of ``points68 (68, 3)`` (in the
+    mesh's frame and units), one ``x y z`` line each, single spaces (the evaluation splits on ``" "``)."""
+    points = np.asarray(points68, np.float64)
+    if points.shape != (68, 3):
+        raise ValueError(f"now_landmarks_txt: expected (68, 3) iBUG points, got {points.shape}")
+    return "\n".join(" ".join(f"{c:.6f}" for c in points[i]) for i in NOW_IBUG_INDICES) + "\n"
 
 
 def meshlab_picked_points(points: np.ndarray, names, mesh_file: str = "mesh.obj") -> str:
@@ -474,7 +526,9 @@ def write_photo_outputs(
     scale, _ = mesh_units(settings.outputs.units)
 
     with staged_folder(out_dir, force, inputs=inputs, marker={"command": (extra or {}).get("command")}) as tmp:
-        write_textured_meshes(tmp, fit.rig_vertices, asset, colours, texture_png, settings.outputs.units, wanted)
+        write_textured_meshes(
+            tmp, fit.rig_vertices, asset, colours, texture_png, settings.outputs.units, wanted, settings.outputs.ply_up
+        )
         lap("obj, ply")
         if want("mesh.glb"):
             write_skinned_head(
@@ -498,9 +552,15 @@ def write_photo_outputs(
         if want("landmarks3d_mesh.json"):
             mesh_landmarks = landmarks3d_mesh_payload(fit, settings.outputs.units)  # in mesh.obj's units
             (tmp / "landmarks3d_mesh.json").write_text(json.dumps(mesh_landmarks, indent=2) + "\n")
-        if want("landmarks3d.pp"):
+        if want("landmarks3d.pp", NOW_FILE):
             points = landmarks3d_mesh_points(fit) * scale
-            (tmp / "landmarks3d.pp").write_text(meshlab_picked_points(points, IBUG68_NAMES))
+            if want("landmarks3d.pp"):
+                (tmp / "landmarks3d.pp").write_text(meshlab_picked_points(points, IBUG68_NAMES))
+            if want(NOW_FILE):
+                (tmp / NOW_FILE).write_text(now_landmarks_txt(points))
+        dense = dense_landmarks_payload(fit, settings.outputs.units) if want(DENSE_LANDMARKS_FILE) else None
+        if dense is not None:
+            (tmp / DENSE_LANDMARKS_FILE).write_text(json.dumps(dense, indent=1) + "\n")
         if want("expressions.csv"):
             (tmp / "expressions.csv").write_text(expressions_csv(fit.expressions))
         if want(LIVE_LINK_FILE):

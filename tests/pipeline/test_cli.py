@@ -311,7 +311,7 @@ def test_fit_face_all_writes_every_face(capsys, tmp_path, two_faces_photo):
     boxes = []
     for k, row in enumerate(rows):
         folder = out / f"face_{k}"
-        assert set(PHOTO_FOLDER.names) <= {p.name for p in folder.iterdir()}
+        assert set(PHOTO_FOLDER.required) <= {p.name for p in folder.iterdir()}
         report = json.loads((folder / "report.json").read_text())
         assert report["input"]["face_index"] == k and len(report["input"]["faces"]) == 2
         box = [float(row[f"box_{side}"]) for side in ("left", "top", "right", "bottom")]

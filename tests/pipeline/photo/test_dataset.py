@@ -85,7 +85,7 @@ def test_a_second_run_fits_only_what_is_missing(capsys, tmp_path, batch):
     assert "fitted 1 of 3 photos with 1 process(es); kept 1 (fitted earlier), 1 failed" in stdout
     assert "face0.png" not in stdout and "face1.png" in stdout  # only the fitted one is listed
     assert mtimes(out / "face0") == face0  # kept, untouched
-    assert set(PHOTO_FOLDER.names) | {OUTPUT_MARKER} == {p.name for p in (out / "face1").iterdir()}
+    assert set(PHOTO_FOLDER.required) | {OUTPUT_MARKER} == {p.name for p in (out / "face1").iterdir()}
     assert sorted(p.name for p in out.iterdir()) == [".face1.notes", "face0", "face1", "summary.csv"]
     second = rows(out / "summary.csv")
     assert [r["kept"] for r in second] == ["no", "yes", "no"]
@@ -126,7 +126,7 @@ def test_a_second_run_fits_only_what_is_missing(capsys, tmp_path, batch):
         *fast_fit_args(),
     )
     assert code == 2 and "fitted 1 of 2 photos with 1 process(es); kept 0 (fitted earlier)" in stdout
-    assert all(mtimes(out / "face1")[n] > face1[n] for n in PHOTO_FOLDER.names)
+    assert all(mtimes(out / "face1")[n] > face1[n] for n in PHOTO_FOLDER.required)
     assert [(os.path.basename(r["photo"]), r["kept"]) for r in rows(out / "summary.csv")] == [
         ("face1.png", "no"),
         ("broken.png", "no"),
@@ -278,7 +278,7 @@ def test_a_dask_cluster_fits_what_the_local_run_fits(capsys, tmp_path, batch):
         assert a["photo"] == b["photo"] and b["output"] == str(remote / os.path.basename(a["output"]))
         assert b["status"] == "ok" and {k: b[k] for k in NUMBERS} == {k: a[k] for k in NUMBERS}
     for name in ("face0", "face1"):
-        assert {p.name for p in (remote / name).iterdir()} == set(PHOTO_FOLDER.names) | {OUTPUT_MARKER}
+        assert {p.name for p in (remote / name).iterdir()} == set(PHOTO_FOLDER.required) | {OUTPUT_MARKER}
         ours, theirs = (json.loads((f / name / "params.json").read_text()) for f in (local, remote))
         assert ours["joints"].keys() == theirs["joints"].keys()
         assert max(abs(ours["joints"][k] - theirs["joints"][k]) for k in ours["joints"]) < 1e-4

@@ -148,6 +148,22 @@ def test_dense_points_from_a_detector_or_a_478_point_file_fit_the_same(capsys, t
             runs[name] = out
         layouts = {k: json.loads((v / "report.json").read_text())["input"]["fitted_layout"] for k, v in runs.items()}
         assert layouts == {"detected": "mediapipe", "file": "mediapipe", "ibug": "ibug68", "mesh": "mediapipe468"}
+        # the dense points in 3D, mesh.obj's frame: all of them (478 / 468), on the fitted mesh's surface
+        import trimesh
+
+        from rig.geometry import closest_surface_points
+
+        counts = {}
+        for name, out in runs.items():
+            path = out / "landmarks3d_mediapipe.json"
+            counts[name] = len(json.loads(path.read_text())["points"]) if path.is_file() else None
+        assert counts == {"detected": 478, "file": 478, "ibug": None, "mesh": 468}
+        data = json.loads((runs["mesh"] / "landmarks3d_mediapipe.json").read_text())
+        assert data["layout"] == "mediapipe468" and data["units"] == "mm"
+        points = np.asarray(data["points"])
+        mesh = trimesh.load(runs["mesh"] / "mesh.obj", process=False)
+        distance = closest_surface_points(points, np.asarray(mesh.vertices), np.asarray(mesh.faces)).distance
+        assert distance.max() <= 0.01, distance.max()
         for name in ("params.json", "mesh.obj", "landmarks.pts"):
             assert (runs["detected"] / name).read_bytes() == (runs["file"] / name).read_bytes(), name
         assert (runs["detected"] / "params.json").read_bytes() != (runs["ibug"] / "params.json").read_bytes()
@@ -182,7 +198,8 @@ def test_units_m_scales_the_obj_and_ply_and_nothing_else(capsys, tmp_path, photo
     mesh_m = json.loads((m / "landmarks3d_mesh.json").read_text())
     assert mesh_m["units"] == "m"
     np.testing.assert_allclose(np.asarray(mesh_m["points"]), mesh_mm * 1e-3, atol=1e-9)
-    changed = {"mesh.obj", "mesh.ply", "landmarks3d_mesh.json", "landmarks3d.pp", "config.yaml", "report.json"}
+    changed = {"mesh.obj", "mesh.ply", "landmarks3d_mesh.json", "landmarks3d.pp", "landmarks_now.txt"}
+    changed |= {"config.yaml", "report.json"}
     for path in sorted(mm.iterdir()):
         if path.name not in changed and path.is_file():
             assert path.read_bytes() == (m / path.name).read_bytes(), path.name

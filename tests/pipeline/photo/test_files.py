@@ -36,7 +36,7 @@ def test_fit_photo_file_writes_the_outputs_and_uses_the_callers_models(tmp_path,
     assert summary["output"] == str(out) and summary["photo"] == str(photo_dir / "face0.png")
     assert 0 < summary["mean_error_px"] < 10 and 0 < summary["nme"] < 0.3
     assert summary["seconds"] >= summary["fit_seconds"] > 0
-    assert set(PHOTO_FOLDER.names) <= {p.name for p in out.iterdir()}
+    assert set(PHOTO_FOLDER.required) <= {p.name for p in out.iterdir()}
     report = json.loads((out / "report.json").read_text())
     assert report["input"]["landmarks"] == str(photo_dir / "face0.pts") and report["command"] == "test"
     assert report["landmarks"]["mean_error_px"] == pytest.approx(summary["mean_error_px"])

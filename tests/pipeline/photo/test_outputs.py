@@ -20,6 +20,12 @@ FOCAL = 400.0
 TEXTURE = 256
 
 
+def _ibug_names(indices) -> list[str]:
+    from landmarks.ibug68.names import IBUG68_NAMES
+
+    return [IBUG68_NAMES[i] for i in indices]
+
+
 def coordinate_photo() -> np.ndarray:
     photo = np.zeros((HEIGHT, WIDTH, 3), np.uint8)
     photo[..., 0] = np.arange(WIDTH)[None, :]
@@ -132,7 +138,7 @@ class TestTextureFiles:
         from pipeline.head.folders import PHOTO_FOLDER
         from pipeline.photo.texture import texture_from_fit
 
-        assert {"texture.png", "mesh.mtl"} <= set(PHOTO_FOLDER.names) <= {p.name for p in out_dir.iterdir()}
+        assert {"texture.png", "mesh.mtl"} <= set(PHOTO_FOLDER.required) <= {p.name for p in out_dir.iterdir()}
         image = np.asarray(Image.open(out_dir / "texture.png"))
         assert image.shape == (TEXTURE, TEXTURE, 3) and image.dtype == np.uint8
         skin = [asset.region_names.index(r) for r in FACE_REGIONS]  # the median fill's texels
@@ -251,6 +257,20 @@ class TestTextureFiles:
         assert [p.get("name") for p in picked] == data["names"]
         xyz = np.array([[float(p.get(k)) for k in "xyz"] for p in picked])
         np.testing.assert_allclose(xyz, points, atol=1e-5)
+
+    def test_now_landmarks_are_the_seven_ibug_points_in_nows_order(self, out_dir):
+        """landmarks_now.txt: 7 lines ``x y z`` (single spaces, as the NoW evaluation splits them) =
+        landmarks3d_mesh.json's right eye outer/inner, left eye inner/outer corners, nose bottom, right/left
+        mouth corners; the subject's right eye and mouth corner on -X (rig space: +X is their left)."""
+        data = json.loads((out_dir / "landmarks3d_mesh.json").read_text())
+        lines = (out_dir / "landmarks_now.txt").read_text().splitlines()
+        assert len(lines) == 7 and all(len(line.split(" ")) == 3 for line in lines)
+        now = np.array([[float(c) for c in line.split(" ")] for line in lines])
+        by_name = dict(zip(data["names"], np.asarray(data["points"]), strict=True))
+        expected = [by_name[n] for n in _ibug_names((36, 39, 42, 45, 33, 48, 54))]
+        np.testing.assert_allclose(now, expected, atol=1e-6)
+        assert now[0, 0] < now[1, 0] < 0 < now[2, 0] < now[3, 0]  # right outer, right inner, left inner, outer
+        assert now[5, 0] < 0 < now[6, 0] and now[4, 1] > now[5:, 1].max() and now[4, 1] < now[:4, 1].min()
 
     def test_live_link_file_holds_the_fits_coefficients_and_head_angles(self, out_dir, hand_fit):
         """expressions_livelink.csv: Live Link Face's layout, read back by jnr animate's reader to the fit's
@@ -375,3 +395,24 @@ def test_a_textured_head_takes_no_vertex_colours(asset, tmp_path):
             base_color_texture=b"\x89PNG",
         )
     assert list(tmp_path.iterdir()) == []
+
+
+def test_ply_up_z_turns_only_the_ply_into_blenders_axes(tmp_path, asset):
+    """``outputs.ply_up: z``: mesh.ply's vertices are the Y-up ones turned +90 degrees about x (the top of the
+    head along +Z, the nose towards -Y, the subject's left still +X); mesh.obj does not change."""
+    import trimesh
+
+    from pipeline.photo.outputs import write_textured_meshes
+
+    v = np.asarray(asset.vertices, np.float64)
+    colours = np.full((len(v), 3), 128, np.uint8)
+    for up in ("y", "z"):
+        (tmp_path / up).mkdir()
+        write_textured_meshes(tmp_path / up, v, asset, colours, b"", files=("mesh.obj", "mesh.ply"), ply_up=up)
+    y = np.asarray(trimesh.load(tmp_path / "y" / "mesh.ply", process=False).vertices)
+    z = np.asarray(trimesh.load(tmp_path / "z" / "mesh.ply", process=False).vertices)
+    np.testing.assert_allclose(y, v, atol=1e-6)
+    np.testing.assert_allclose(z, np.c_[v[:, 0], -v[:, 2], v[:, 1]], atol=1e-6)
+    assert z[:, 2].argmax() == v[:, 1].argmax() and z[:, 1].argmin() == v[:, 2].argmax()
+    assert (tmp_path / "y" / "mesh.obj").read_bytes() == (tmp_path / "z" / "mesh.obj").read_bytes()
+    assert "+Z up" in (tmp_path / "z" / "mesh.ply").read_bytes()[:400].decode("ascii", "replace")

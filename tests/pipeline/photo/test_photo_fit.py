@@ -199,7 +199,7 @@ def test_outputs_reload_to_the_same_mesh(known_photo, known_fit, tmp_path):
     from pipeline.files import OUTPUT_MARKER
     from pipeline.head.folders import PHOTO_FOLDER
 
-    assert sorted(p.name for p in out.iterdir()) == sorted((*PHOTO_FOLDER.names, OUTPUT_MARKER))
+    assert sorted(p.name for p in out.iterdir()) == sorted((*PHOTO_FOLDER.required, OUTPUT_MARKER))
     assert load_config(FitPhotoConfig, out / "config.yaml") == _short_config()  # the settings used, read back
     assert np.abs(mesh_from_photo_params(out / "params.json") - known_fit.rig_vertices).max() < 1e-3
     # the camera frame: projecting the mesh with the params' camera puts the landmarks where the fit says
