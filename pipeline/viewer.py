@@ -19,7 +19,15 @@ The page's JavaScript poses the head as :class:`rig.model.JointRig` does (channe
 hierarchy, linear blend skinning, expression offsets) in float64, so what it draws agrees with Python to
 float32 rounding of the data (``tests/pipeline/test_viewer.py`` compares them in headless Chromium).
 ASM fits (``skinning: asm``) are shown as their fitted mesh with the expression sliders only (their bones
-are not the rig's joints). See ``docs/viewer.md``.
+are not the rig's joints).
+
+A folder run's pages can share one copy of three.js instead (``three_src``, :func:`write_shared_three`):
+:data:`SHARED_THREE_FILE`, the module rewritten as a classic script (Chrome refuses module scripts from
+``file://`` URLs, not classic ones) in the run's output folder, ~0.9 MB less per page.
+
+The page's "Save pose" button downloads the sliders as a parameter file of ``jnr rig edit``
+(:data:`SAVE_FILE`): with the fit's ``latent_z`` the whole head as a fit's ``params.json`` holds it (joints,
+latent Z, expressions), without it the joint channels (:mod:`rig.io.params`). See ``docs/viewer.md``.
 """
 
 from __future__ import annotations
@@ -29,8 +37,10 @@ import functools
 import html
 import io
 import json
+import os
 import re
 import time
+import urllib.parse
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
@@ -39,6 +49,8 @@ import numpy as np
 
 from rig.errors import SetupError
 from rig.expressions import EXPRESSION_NAMES, EXPRESSIONS, JAW_ANGLE_DEG, JAW_INDEX, ExpressionModel, jaw_pivot
+from rig.io.atomic import write_bytes_atomic
+from rig.io.params import PARAMS_UNITS
 from rig.joints import CHANNEL_KINDS
 from rig.parameters import CHANNELS, NUM_PARAMETERS
 
@@ -47,6 +59,14 @@ VIEWER_FILE = "viewer.html"
 ASSETS_DIR = Path(__file__).with_name("viewer_assets")
 """Where ``make venv`` copies three.js from ``node_modules/three`` (gitignored, package data)."""
 THREE_FILE = "three.module.min.js"
+SHARED_THREE_FILE = "three.jnr.js"
+"""The shared copy of three.js of a folder run (:func:`write_shared_three`): a classic script, in the run's
+output folder beside the photos' folders, that pages written with ``three_src`` load instead of inlining
+three.js."""
+SHARED_THREE_GLOBAL = "JNR_THREE"
+"""The global that :data:`SHARED_THREE_FILE` sets: a frozen object of three.js's exports (``THREE``)."""
+SAVE_FILE = "params_edited.json"
+"""The name the page's "Save pose" button downloads its parameter file as."""
 TEMPLATE_FILE = Path(__file__).with_name("viewer_template.html")
 VIEWER_FORMAT = "jnr-viewer/1"
 PHOTO_MAX_SIDE = 1280
@@ -151,13 +171,127 @@ class ViewerUnavailableError(SetupError):
     """three.js was not vendored (a ``pip install`` without ``make venv``)."""
 
 
-def _three() -> tuple[str, str]:
+def _require_three() -> Path:
     path = three_js_path()
     if not path.is_file():
         raise ViewerUnavailableError(
             f"three.js is not installed ({path}); run `make venv` (npm ci, then the copy into {ASSETS_DIR.name}/)"
         )
+    return path
+
+
+def _three() -> tuple[str, str]:
+    path = _require_three()
     return _three_data_url(str(path), path.stat().st_mtime)
+
+
+class ThreeModuleError(SetupError):
+    """The vendored ``three.module.min.js`` is not the one self-contained module (no imports, one final
+    ``export{...}``) that :func:`shared_three_script` turns into a classic script."""
+
+
+_IMPORT = re.compile(r"(?<![\w$.])import(?:\s*[({*\"'`.]|\s+[\w$]+\s*(?:,|from\b))")
+"""An import statement, a dynamic ``import(...)`` or ``import.meta`` (not the word in a string such as
+"imported")."""
+_EXPORT_WORD = re.compile(r"(?<![\w$.])export(?![\w$])")
+_FINAL_EXPORT = re.compile(r"export\s*\{([^{}]*)\}\s*;?\s*$")
+_EXPORT_ITEM = re.compile(r"([A-Za-z_$][\w$]*)(?:\s+as\s+([A-Za-z_$][\w$]*))?")
+_LICENSE = re.compile(r"\s*(/\*.*?\*/)", re.S)
+
+
+@functools.lru_cache(maxsize=2)
+def _shared_three_text(path: str, mtime: float) -> str:
+    code = Path(path).read_text(encoding="utf-8")
+
+    def refuse(why: str) -> ThreeModuleError:
+        return ThreeModuleError(
+            f"{path} cannot be made into {SHARED_THREE_FILE}: {why}; the shared mode needs three.js's "
+            f"{THREE_FILE} as one module without imports whose only export is a final `export{{...}};` "
+            f"(three r170; from r171 the build imports three.core.js)"
+        )
+
+    header = _LICENSE.match(code)
+    if not header or "@license" not in header.group(1):
+        raise refuse("it does not start with its @license comment")
+    body = code[header.end() :]
+    final = _FINAL_EXPORT.search(body)
+    if not final:
+        raise refuse("it does not end with one export{...} statement")
+    if len(_EXPORT_WORD.findall(body)) != 1:
+        raise refuse("it has more than the final export")
+    if _IMPORT.search(body):
+        raise refuse("it imports other modules")
+    names = []
+    for item in final.group(1).split(","):
+        match = _EXPORT_ITEM.fullmatch(item.strip())
+        if not match:
+            raise refuse(f"its export list has an entry that is not `local as Name`: {item.strip()[:40]!r}")
+        names.append((match.group(1), match.group(2) or match.group(1)))
+    exported = [name for _, name in names]
+    if len(set(exported)) != len(exported):
+        raise refuse("its export list names an export twice")
+    revision = re.search(r'const [A-Za-z_$]+="(\d+)"', code[:2000])
+    exports = ",".join(f"{name}:{local}" for local, name in names)
+    return (
+        f"{header.group(1)}\n"
+        f"/* jnr (pipeline.viewer.write_shared_three): three.js r{revision.group(1) if revision else '?'} "
+        f"({THREE_FILE}, MIT, licence above) as a classic script for the viewer.html pages in the folders beside it.\n"
+        f"   Pages opened from file:// may not load module scripts from files, so the module's code runs in a\n"
+        f"   strict-mode function and its {len(names)} exports are the frozen global {SHARED_THREE_GLOBAL}. */\n"
+        f'(function () {{\n"use strict";\n{body[: final.start()].strip()}\n'
+        f"globalThis.{SHARED_THREE_GLOBAL}=Object.freeze({{{exports}}});\n}})();\n"
+    )
+
+
+def shared_three_script() -> str:
+    """The text of :data:`SHARED_THREE_FILE`: the vendored ``three.module.min.js`` rewritten as a classic
+    script. Its ``@license`` header stays first; the module's code (which imports nothing) runs in a
+    strict-mode function scope, and its one final ``export{a as B,...};`` becomes
+    ``globalThis.JNR_THREE=Object.freeze({B:a,...})`` (:data:`SHARED_THREE_GLOBAL`).
+
+    Raises:
+        ViewerUnavailableError: three.js was not vendored.
+        ThreeModuleError: the vendored file does not have that shape (another three.js build).
+    """
+    path = _require_three()
+    return _shared_three_text(str(path), path.stat().st_mtime)
+
+
+def write_shared_three(folder: str | Path) -> Path:
+    """Write :data:`SHARED_THREE_FILE` (:func:`shared_three_script`) into ``folder``, the output folder of
+    a folder run, for the pages written with ``three_src`` (:func:`shared_three_src`) in its subfolders.
+
+    Atomic (a temporary file beside it, then a rename: :func:`rig.io.atomic.write_bytes_atomic`) and
+    idempotent: a file with the same bytes already there is left as it is, so concurrent fits of one run
+    may all call it.
+
+    Args:
+        folder: an existing folder.
+
+    Returns:
+        The file's path.
+
+    Raises:
+        ViewerUnavailableError: three.js was not vendored; ThreeModuleError: not the expected three.js
+        build; OSError: the folder is missing or not writable.
+    """
+    target = Path(folder) / SHARED_THREE_FILE
+    payload = shared_three_script().encode("utf-8")
+    try:
+        if target.is_file() and target.stat().st_size == len(payload) and target.read_bytes() == payload:
+            return target
+    except OSError:
+        pass  # replaced meanwhile, or unreadable: write it
+    write_bytes_atomic(target, payload)
+    return target
+
+
+def shared_three_src(page_folder: str | Path, shared_folder: str | Path) -> str:
+    """The ``three_src`` of :func:`write_viewer` for a page that will be in ``page_folder`` (where it ends
+    up, not a temporary staging folder) and :data:`SHARED_THREE_FILE` in ``shared_folder``: a relative URL,
+    e.g. ``"../three.jnr.js"`` for ``OUT/<photo>/viewer.html`` and ``OUT/three.jnr.js``."""
+    relative = os.path.relpath(Path(shared_folder).absolute() / SHARED_THREE_FILE, Path(page_folder).absolute())
+    return urllib.parse.quote(Path(relative).as_posix())
 
 
 # ------------------------------------------------------------------------------------------ payload
@@ -191,6 +325,7 @@ def viewer_payload(
     theta: np.ndarray | None = None,
     expressions: np.ndarray | None = None,
     weights: np.ndarray | None = None,
+    latent_z: np.ndarray | None = None,
     views: tuple[ViewerView, ...] | list = (),
     texture: np.ndarray | None = None,
     vertex_colors: np.ndarray | None = None,
@@ -205,6 +340,9 @@ def viewer_payload(
         theta: ``(P,)`` fitted channels (deg, mm, ``scale - 1``; :mod:`rig.parameters`); None: rest.
         expressions: ``(E,)`` fitted ARKit coefficients; None: zeros.
         weights: ``(V, K)`` the fit's skinning weights (its latent Z's); None: the asset's.
+        latent_z: ``(50,)`` the fit's latent Z (the one ``weights`` were decoded from), or None. With it the
+            page's "Save pose" writes a whole head (joints, latent Z, expressions: what a fit's ``params.json``
+            holds for ``jnr rig edit``); without it the joint channels only.
         views: the photos and cameras (none: an orbit view only).
         texture: ``(T, T, 3)`` uint8 sRGB texture in the asset's UVs, or None.
         vertex_colors: ``(V, 3)`` uint8 sRGB, used when there is no texture, or None.
@@ -216,6 +354,8 @@ def viewer_payload(
         ViewerError: arrays of the wrong shape.
     """
     import torch
+
+    from rig.skinning.neural import LATENT
 
     n_vertices, n_joints = len(asset.vertices), len(asset.joint_names)
     parents = np.asarray(asset.parents, np.int64)
@@ -232,6 +372,10 @@ def viewer_payload(
     weights = asset.weights if weights is None else np.asarray(weights, np.float64)
     if weights.shape != (n_vertices, n_joints):
         raise ViewerError(f"viewer_payload: weights must have shape ({n_vertices}, {n_joints}), got {weights.shape}")
+    if latent_z is not None:
+        latent_z = np.asarray(latent_z, np.float64).reshape(-1)
+        if latent_z.shape != (LATENT,) or not np.isfinite(latent_z).all():
+            raise ViewerError(f"viewer_payload: latent_z must be ({LATENT},) finite values, got {latent_z.shape}")
     if n_joints > 255 or n_vertices >= 2**16:
         raise ViewerError(f"viewer_payload: at most 255 joints and 65535 vertices, got {n_joints} and {n_vertices}")
     skin_joints, skin_weights, dropped = _top4(weights)
@@ -332,41 +476,102 @@ def viewer_payload(
         "views": view_entries,
         "head_centre": [float(x) for x in (head.min(0) + head.max(0)) / 2],
         "sample_vertices": np.linspace(0, n_vertices - 1, SAMPLE_VERTICES).round().astype(int).tolist(),
+        # the Save button's parameter file: its name, units, model and the head's latent Z
+        "save": {
+            "file": SAVE_FILE,
+            "units": dict(PARAMS_UNITS),
+            "model": "jnr",
+            "latent_z": None if static or latent_z is None else [float(x) for x in latent_z],
+        },
     }
     return data, dropped
 
 
-def render_html(data: dict) -> str:
-    """The page: :data:`TEMPLATE_FILE` with the vendored three.js and ``data`` filled in.
+_INLINE_THREE = '<script type="importmap">{"imports": {"three": "%s"}}</script>'
+_SHARED_THREE = (
+    '<script id="jnr-three" src="%s"></script>\n'
+    "<script>if (!globalThis.%s) jnrThreeMissing();\n"
+    "/** The shared three.js file did not load (not copied with the page): say so in the page. */\n"
+    "function jnrThreeMissing() {\n"
+    '  const src = document.getElementById("jnr-three"), name = src.getAttribute("src");\n'
+    '  const box = document.createElement("div");\n'
+    '  box.id = "jnr-error";\n'
+    '  box.style.cssText = "max-width: 34em; padding: 16px; font-size: 14px; line-height: 1.5; color: #ffd27a";\n'
+    '  let file = name.split("/").pop();\n'
+    "  try { file = decodeURIComponent(file); } catch (err) { /* shown as written */ }\n"
+    "  box.textContent = `This page could not load three.js from the file ${file}, which must be at ${name} ` +\n"
+    "    `from the page (${src.src}). jnr fit FOLDER writes that file once into its output folder, beside ` +\n"
+    "    `the photos' folders: copy it along with the page's folder, keeping that layout.`;\n"
+    '  document.body.classList.add("no-ui");\n'
+    '  document.getElementById("viewport").appendChild(box);\n'
+    "}</script>"
+)
+_SHARED_IMPORT = (
+    "const THREE = globalThis.%s;\n"
+    'if (!THREE) throw new Error("jnr viewer: three.js did not load from " + document.getElementById("jnr-three").src);'
+)
+
+
+def _check_three_src(three_src: str) -> str:
+    if not isinstance(three_src, str) or not three_src.strip() or re.search(r"[\x00-\x1f\x7f]", three_src):
+        raise ViewerError(f"three_src must be a URL (e.g. '../{SHARED_THREE_FILE}'), got {three_src!r}")
+    return three_src
+
+
+def render_html(data: dict, *, three_src: str | None = None) -> str:
+    """The page: :data:`TEMPLATE_FILE` with three.js and ``data`` filled in.
+
+    Args:
+        data: :func:`viewer_payload`'s data.
+        three_src: None: three.js inlined (an import map ``data:`` URL; the page needs nothing else). A URL
+            relative to the page (:func:`shared_three_src`, e.g. ``"../three.jnr.js"``): the page loads
+            :data:`SHARED_THREE_FILE` (:func:`write_shared_three`) from there as a classic script and takes
+            ``THREE`` from its global; without that file it says in the page which file it needs.
 
     Raises:
-        ViewerUnavailableError: three.js was not vendored (:func:`viewer_available`).
+        ViewerUnavailableError: inline three.js that was not vendored (:func:`viewer_available`).
+        ViewerError: a ``three_src`` that is not a URL.
     """
-    three_url, _ = _three()
+    if three_src is None:
+        three_url, _ = _three()
+        three_script, three_import = _INLINE_THREE % three_url, 'import * as THREE from "three";'
+    else:
+        three_script = _SHARED_THREE % (html.escape(_check_three_src(three_src), quote=True), SHARED_THREE_GLOBAL)
+        three_import = _SHARED_IMPORT % SHARED_THREE_GLOBAL
     text = TEMPLATE_FILE.read_text(encoding="utf-8")
     data = dict(data)
     images = "".join(f'<img id="{key}" alt="" src="{url}">' for key, url in data.pop("images", {}).items())
     # "</" cannot end the script element early once escaped; JSON reads "<\/" as "</"
     payload = json.dumps(data, separators=(",", ":"), allow_nan=False).replace("</", "<\\/")
-    fills = {"TITLE": html.escape(data.get("title", "jnr")), "THREE_URL": three_url, "IMAGES": images, "DATA": payload}
-    return re.sub(r"__JNR_(TITLE|THREE_URL|IMAGES|DATA)__", lambda m: fills[m.group(1)], text)  # one pass
+    fills = {
+        "TITLE": html.escape(data.get("title", "jnr")),
+        "THREE_SCRIPT": three_script,
+        "THREE_IMPORT": three_import,
+        "IMAGES": images,
+        "DATA": payload,
+    }
+    return re.sub(r"__JNR_(TITLE|THREE_SCRIPT|THREE_IMPORT|IMAGES|DATA)__", lambda m: fills[m.group(1)], text)
 
 
-def write_viewer(path: str | Path, asset, **head) -> ViewerInfo:
+def write_viewer(path: str | Path, asset, *, three_src: str | None = None, **head) -> ViewerInfo:
     """Write ``viewer.html`` (module docstring) to ``path``, a file in a folder being staged by the caller
     (:func:`pipeline.files.staged_folder`).
 
     Args:
         path: the file to write.
         asset: the fit's rig asset.
+        three_src: None: three.js inlined (the page is self-contained). A URL relative to the page
+            (:func:`shared_three_src`): the page loads :data:`SHARED_THREE_FILE` from there (a folder run's
+            one copy, :func:`write_shared_three`; the caller writes it) and is ~0.9 MB smaller.
         **head: :func:`viewer_payload`'s keyword arguments (``theta``, ``expressions``, ``weights``,
-            ``views``, ``texture``, ``vertex_colors``, ``static_vertices``, ``title``, ``subtitle``).
+            ``latent_z``, ``views``, ``texture``, ``vertex_colors``, ``static_vertices``, ``title``,
+            ``subtitle``).
 
     Returns:
         :class:`ViewerInfo`.
 
     Raises:
-        ViewerUnavailableError: three.js was not vendored; ViewerError: bad arrays.
+        ViewerUnavailableError: three.js was not vendored (inline); ViewerError: bad arrays or ``three_src``.
 
     Example:
         >>> from rig.asset import load_asset
@@ -375,8 +580,10 @@ def write_viewer(path: str | Path, asset, **head) -> ViewerInfo:
         True
     """
     t0 = time.perf_counter()
+    if three_src is not None:
+        _check_three_src(three_src)
     data, dropped = viewer_payload(asset, **head)
-    text = render_html(data)
+    text = render_html(data, three_src=three_src)
     path = Path(path)
     path.write_text(text, encoding="utf-8")
     return ViewerInfo(path, len(text.encode("utf-8")), time.perf_counter() - t0, dropped)
@@ -399,11 +606,12 @@ def fit_viewer_ready() -> bool:
     return False
 
 
-def write_fit_viewer(path: str | Path, asset, **head) -> ViewerInfo | None:
-    """:func:`write_viewer` for the fits' output folders, skipped (None) when not :func:`fit_viewer_ready`."""
+def write_fit_viewer(path: str | Path, asset, *, three_src: str | None = None, **head) -> ViewerInfo | None:
+    """:func:`write_viewer` for the fits' output folders (``three_src`` as there), skipped (None) when not
+    :func:`fit_viewer_ready`."""
     if not fit_viewer_ready():
         return None
-    return write_viewer(path, asset, **head)
+    return write_viewer(path, asset, three_src=three_src, **head)
 
 
 def read_viewer_data(page: str | Path) -> dict:
@@ -448,7 +656,11 @@ def read_viewer_state(dom: str) -> dict:
 
 __all__ = [
     "ASSETS_DIR",
+    "SAVE_FILE",
+    "SHARED_THREE_FILE",
+    "SHARED_THREE_GLOBAL",
     "VIEWER_FILE",
+    "ThreeModuleError",
     "ViewerError",
     "ViewerInfo",
     "ViewerUnavailableError",
@@ -459,9 +671,12 @@ __all__ = [
     "read_viewer_data",
     "read_viewer_state",
     "render_html",
+    "shared_three_script",
+    "shared_three_src",
     "three_js_path",
     "viewer_available",
     "viewer_payload",
     "write_fit_viewer",
+    "write_shared_three",
     "write_viewer",
 ]

@@ -94,7 +94,9 @@ _PARAMS = OutputFile(
 _REPORT = OutputFile("report.json", "errors, every loss term per stage, timings, inputs, the configuration")
 _CONFIG = OutputFile("config.yaml", "the configuration used, every field resolved (--config repeats the fit)")
 _VIEWER = OutputFile(
-    "viewer.html", "a self-contained page: the head over the photo, sliders for the joints and ARKit shapes"
+    "viewer.html",
+    "a page that works offline: the head over the photo, sliders for the joints and ARKit shapes, Save pose "
+    "(in a folder run it loads the run's one three.jnr.js)",
 )
 
 PHOTO_FOLDER = OutputFolder(

@@ -13,6 +13,11 @@ the loss curves of a fit, one panel per stage.
   (:class:`~pipeline.notebook.sliders.RigSliders`).
 * :func:`~pipeline.notebook.curves.stage_curves` / :func:`~pipeline.notebook.curves.loss_curves`: every
   loss term per iteration of every stage of a fit (``matplotlib``, log y).
+* :func:`~pipeline.notebook.embed.picture` / :func:`~pipeline.notebook.embed.viewer_frame`: what a saved
+  notebook keeps: one JPEG or PNG per picture (a PIL image displayed as such is stored twice), and a fit's
+  ``viewer.html`` (three.js and the head in one file, :mod:`pipeline.viewer`) in an ``<iframe>`` whose
+  address is relative to the notebook, so that the saved 3D view is one line, works offline and needs no
+  widget state (``IPython`` and ``PIL``, which a kernel has).
 
 ``plotly``, ``ipywidgets`` and ``matplotlib`` are imported only by the functions that draw (the
 ``notebook`` extra: ``pip install -e ".[notebook]"``, :mod:`pipeline.notebook.extra`); importing this

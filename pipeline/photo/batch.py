@@ -30,6 +30,7 @@ from pipeline.photo.detection import FACE_ALL
 from pipeline.photo.resume import EarlierOutput, earlier_output, earlier_summary_seconds
 from pipeline.photo.summary import SUMMARY_FILE, PhotoFileResult, check_summary, write_summary
 from pipeline.photo.task import PhotoTask, fit_photo_task
+from pipeline.viewer import SHARED_THREE_FILE
 from rig.errors import InputError
 
 _log = logging.getLogger(__name__)
@@ -39,6 +40,26 @@ def output_names(photos: Sequence[str | Path]) -> list[str]:
     """The output folder name of each photo: its stem, or ``<stem>_<index>`` for stems that repeat."""
     stems = [Path(p).stem for p in photos]
     return [s if stems.count(s) == 1 else f"{s}_{i}" for i, s in enumerate(stems)]
+
+
+def _share_three(tasks: list[PhotoTask], out: Path, config) -> list[PhotoTask]:
+    """The tasks with ``shared_three``: one copy of three.js in ``out`` (:func:`pipeline.viewer.write_shared_three`)
+    for every fit's ``viewer.html`` instead of one inlined in each (when the fits write a page at all and
+    three.js was vendored)."""
+    from pipeline.head.folders import PHOTO_OUTPUT_SETS
+    from pipeline.viewer import VIEWER_FILE, ThreeModuleError, fit_viewer_ready, write_shared_three
+
+    files = "all" if config is None else config.outputs.files
+    if not tasks or VIEWER_FILE not in PHOTO_OUTPUT_SETS[files] or not fit_viewer_ready():
+        return tasks
+    try:
+        write_shared_three(out)
+    except OSError as exc:
+        raise OutputError(f"{out}: cannot write {SHARED_THREE_FILE} ({exc.strerror or exc})") from None
+    except ThreeModuleError as exc:  # three.js vendored in another shape: the pages keep their own copy
+        _log.warning("%s; the pages inline three.js", exc)
+        return tasks
+    return [replace(t, shared_three=str(out)) for t in tasks]
 
 
 def _sequential(rig, neural, progress):
@@ -187,9 +208,10 @@ def fit_photo_files(
     try:
         lock = lock_folder(out)
         if lock is not None:  # no other jnr fit writes here: what looks staged was left by a killed run
-            remove_leftovers(out, names)
+            remove_leftovers(out, names, files=(SUMMARY_FILE, SHARED_THREE_FILE))
         kept, todo, other_settings = _plan(tasks, out, resuming=resume and not force, force=force, inputs=inputs)
         check_summary(out / SUMMARY_FILE, force or resume, inputs)
+        todo = _share_three(todo, out, config)
     except OutputError:
         unlock(lock)
         if created:

@@ -234,7 +234,9 @@ def write_multiview_outputs(
             ]
             posable = identity.model.posable
             head = (
-                {"theta": jnr.theta, "weights": jnr.weights} if posable else {"static_vertices": fit.identity_vertices}
+                {"theta": jnr.theta, "weights": jnr.weights, "latent_z": np.asarray(fit.z, np.float64)}
+                if posable
+                else {"static_vertices": fit.identity_vertices}
             )
             subtitle = f"{len(views)} views, mean landmark error {fit.mean_error_px:.2f} px"
             write_viewer(

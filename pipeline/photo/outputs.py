@@ -45,7 +45,7 @@ from pipeline.head.skinned import write_skinned_head
 from pipeline.photo.fit import PhotoFit
 from pipeline.photo.fit_config import MESH_UNITS, FitPhotoConfig
 from pipeline.photo.texture import TEXTURE_SIZE, UVTexture, texture_from_fit, vertex_colours_from_texture
-from pipeline.viewer import VIEWER_FILE, ViewerView, write_fit_viewer
+from pipeline.viewer import VIEWER_FILE, ViewerView, shared_three_src, write_fit_viewer
 from render.lighting import Lighting
 from render.renderer import DifferentiableRenderer
 from rig.asset import RigAsset, load_asset
@@ -458,6 +458,7 @@ def write_photo_outputs(
     rig: JointRig | None = None,
     neural: NeuralSkinning | None = None,
     texture_size: int = TEXTURE_SIZE,
+    shared_three: str | Path | None = None,
 ) -> Path:
     """Write the output folder of a fit (see the module docstring) atomically.
 
@@ -479,6 +480,9 @@ def write_photo_outputs(
             from them (:class:`rig.head_model.JnrHead`), so they are the same whether the fit's float32 models are
             given or the defaults (the committed rig and learned skinning) are loaded here.
         texture_size: side of ``texture.png`` in texels.
+        shared_three: the folder holding a folder run's shared three.js (:data:`pipeline.viewer.SHARED_THREE_FILE`,
+            written by :func:`pipeline.viewer.write_shared_three`): ``viewer.html`` loads it from there (a
+            relative link) instead of inlining it; None: a self-contained page.
 
     Raises:
         pipeline.files.OutputError: ``out_dir`` is refused (exists without ``force``, not jnr's, an
@@ -578,6 +582,8 @@ def write_photo_outputs(
                 weights=head.weights,
                 views=[ViewerView(out_dir.name, params["camera"], photo)],
                 texture=texture.image,
+                latent_z=fit.z,
+                three_src=None if shared_three is None else shared_three_src(out_dir, shared_three),
                 title=f"jnr fit: {out_dir.name}",
                 subtitle=f"landmark NME {float(fit.nme):.3f}",
             )

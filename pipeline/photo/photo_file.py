@@ -66,6 +66,7 @@ def _fit_and_write(
     neural,
     command: str,
     inputs: list,
+    shared_three: str | Path | None = None,
 ) -> dict:
     """Fit ``points`` (68, or MediaPipe's ``dense`` points when given and ``config.landmarks.dense``) on the
     loaded photo and write ``out``: :func:`fit_photo_file`'s summary, less the detection fields; errors name
@@ -127,6 +128,7 @@ def _fit_and_write(
         original_size=photo.original_size,
         rig=rig,
         neural=neural,
+        shared_three=shared_three,
     )
     return {
         "photo": str(photo_path),
@@ -157,6 +159,7 @@ def fit_photo_file(
     command: str = "jnr fit",
     inputs: Iterable[str | Path] = (),
     detector: str = DEFAULT_DETECTOR,
+    shared_three: str | Path | None = None,
 ) -> dict:
     """Detect (or read) the landmarks of one photo file, fit it and write its output folder.
 
@@ -186,6 +189,8 @@ def fit_photo_file(
             learned skinning; see :func:`pipeline.photo.fit.fit_photo`).
         command: recorded in ``report.json`` and the output's marker.
         inputs: more input paths the output must not be, contain or lie in (e.g. the photo's folder).
+        shared_three: the folder of a folder run's shared three.js (:func:`pipeline.viewer.write_shared_three`,
+            already written): ``viewer.html`` loads it from there instead of holding its own copy.
 
     Returns:
         ``{"photo", "output"`` (str paths), ``"mean_error_px"`` (landmark error in the photo file's
@@ -245,6 +250,7 @@ def fit_photo_file(
         neural=neural,
         command=command,
         inputs=all_inputs,
+        shared_three=shared_three,
     )
     return {**summary, "seconds": time.perf_counter() - t0}
 
@@ -262,6 +268,7 @@ def fit_photo_faces(
     command: str = "jnr fit",
     inputs: Iterable[str | Path] = (),
     detector: str = DEFAULT_DETECTOR,
+    shared_three: str | Path | None = None,
 ) -> list[PhotoFileResult]:
     """Detect every face in one photo file and fit each into ``out/face_<k>/`` (``jnr fit --face all``).
 
@@ -274,7 +281,7 @@ def fit_photo_faces(
     :func:`fit_photo_file` come first.
 
     Args:
-        photo_path, out, config, focal, force, progress, rig, neural, command, inputs, detector: as
+        photo_path, out, config, focal, force, progress, rig, neural, command, inputs, detector, shared_three: as
             :func:`fit_photo_file` (``progress`` runs through each face's fit in turn).
 
     Returns:
@@ -298,6 +305,7 @@ def fit_photo_faces(
     except (ImageError, DetectionError) as exc:
         raise name_photo(exc, photo_path) from None
     fit_options = dict(config=config, focal=focal, progress=progress, rig=rig, neural=neural, command=command)
+    fit_options["shared_three"] = shared_three
     results: list[PhotoFileResult] = []
     first_failure: BaseException | None = None
     with staged_folder(out, force, inputs=all_inputs, marker={"command": command}) as staged:

@@ -37,6 +37,8 @@ class PhotoTask:
     face: str | None = None
     """None: the largest face (or the landmarks file); :data:`~pipeline.photo.detection.FACE_ALL`: every
     face (:func:`~pipeline.photo.photo_file.fit_photo_faces`)."""
+    shared_three: str | None = None
+    """The folder run's shared three.js folder (``viewer.html`` links to it), or None."""
 
 
 def fit_photo_task(
@@ -58,6 +60,7 @@ def fit_photo_task(
         neural=neural,
         progress=progress,
         detector=task.detector,
+        shared_three=task.shared_three,
     )
     try:
         if task.face == FACE_ALL:

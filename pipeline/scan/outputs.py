@@ -198,6 +198,7 @@ def _write_scan_viewer(folder: Path, head: FittedHead, name: str, distances: dic
         theta=head.theta,
         expressions=head.expressions,
         weights=head.weights,
+        latent_z=head.params["latent"],
         title=title,
         subtitle=subtitle,
     )

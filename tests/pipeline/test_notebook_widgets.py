@@ -1,6 +1,7 @@
-"""pipeline/notebook/ (the notebook's 3D view, sliders and loss curves) and the engine's per-step loss
-history it plots: sliders checked against the rig's forward pass, curves against the recorded values, and
-the history checked not to change a fit by one bit."""
+"""pipeline/notebook/ (the notebook's 3D view, sliders and loss curves, and what its saved outputs keep) and
+the engine's per-step loss history it plots: sliders checked against the rig's forward pass, curves against
+the recorded values, the history checked not to change a fit by one bit, pictures kept once and the viewer
+frame's address relative to the notebook."""
 
 from __future__ import annotations
 
@@ -19,6 +20,7 @@ from pipeline.fitting.engine import LearningRates, Loss, Stage, StageLog, run_sc
 from pipeline.fitting.priors import PriorWeights, rig_prior_terms
 from pipeline.fitting.state import FitState
 from pipeline.notebook.curves import LM_COST, loss_curves, stage_curves
+from pipeline.notebook.embed import picture, relative_src, viewer_frame
 from pipeline.notebook.head import posable_head
 from pipeline.notebook.sliders import rig_sliders
 from pipeline.notebook.view import head_view, update_head_view
@@ -338,3 +340,58 @@ class TestLossCurves:
             loss_curves([StageLog("average", ("joints",), 0, 1.0, 1.0)])
         with pytest.raises(InputError, match="expected a fit result"):
             loss_curves(object())
+
+
+class TestSavedOutputs:
+    """pipeline.notebook.embed: one representation per picture, and the 3D view as a relative <iframe>."""
+
+    @staticmethod
+    def _bundle(obj) -> dict:
+        from IPython.core.formatters import DisplayFormatter
+
+        data, _ = DisplayFormatter().format(obj)
+        return data
+
+    def test_a_pil_image_displayed_as_such_is_stored_twice(self):
+        # the reason for picture(): Jupyter keeps every representation Pillow offers
+        from PIL import Image
+
+        assert {"image/png", "image/jpeg"} <= set(self._bundle(Image.new("RGB", (8, 8))))
+
+    @pytest.mark.parametrize("fmt", ["jpeg", "png"])
+    def test_picture_is_one_image(self, fmt):
+        import base64
+        import io
+
+        from PIL import Image
+
+        image = np.zeros((30, 40, 3), np.uint8)
+        image[:, :20] = (200, 120, 40)
+        bundle = self._bundle(picture(image, format=fmt))
+        assert [m for m in bundle if m.startswith("image/")] == [f"image/{fmt}"]
+        decoded = np.asarray(Image.open(io.BytesIO(base64.b64decode(bundle[f"image/{fmt}"]))))
+        assert decoded.shape == image.shape
+        error = np.abs(decoded.astype(int) - image)
+        if fmt == "png":
+            assert error.max() == 0
+        else:  # lossy; its ringing is in the 16 px blocks at the colour edge
+            assert error.mean() < 2 and error[:, :16].max() <= 3 and error[:, 32:].max() <= 3
+        assert [m for m in self._bundle(picture(Image.fromarray(image), format=fmt))] == [f"image/{fmt}", "text/plain"]
+        with pytest.raises(InputError, match="format"):
+            picture(image, format="gif")
+
+    def test_viewer_frame_points_at_the_page_relative_to_the_notebook(self, tmp_path):
+        page = tmp_path / "out" / "a fit" / "viewer.html"
+        page.parent.mkdir(parents=True)
+        page.write_text("<html></html>")
+        assert relative_src(page, tmp_path) == "out/a%20fit/viewer.html"
+        html = self._bundle(viewer_frame(page, base=tmp_path, height=500))["text/html"]
+        assert 'src="out/a%20fit/viewer.html"' in html and 'height="500"' in html and "://" not in html
+
+    def test_viewer_frame_refuses_what_jupyter_cannot_serve(self, tmp_path):
+        page = tmp_path / "viewer.html"
+        page.write_text("<html></html>")
+        with pytest.raises(InputError, match="not inside"):
+            viewer_frame(page, base=tmp_path / "notebooks")
+        with pytest.raises(InputError, match="does not exist"):
+            viewer_frame(tmp_path / "missing.html", base=tmp_path)

@@ -5,7 +5,9 @@ they fail. Ground truth: the rig posed in Python (rig.model.JointRig, rig.expres
 the head's silhouette projected with the camera in numpy.
 """
 
+import html
 import json
+import re
 import shutil
 import subprocess
 import tempfile
@@ -117,7 +119,14 @@ def head(rig64):
     }
     yy, xx = np.mgrid[0:HEIGHT, 0:WIDTH]
     photo = np.stack([200 + 55 * xx / WIDTH, 40 + 80 * yy / HEIGHT, 30 + 0 * xx], -1).astype(np.uint8)
-    return {"theta": theta.numpy(), "c": c.numpy(), "weights": weights, "camera": camera, "photo": photo}
+    return {
+        "theta": theta.numpy(),
+        "c": c.numpy(),
+        "z": z.numpy(),
+        "weights": weights,
+        "camera": camera,
+        "photo": photo,
+    }
 
 
 def posed(rig64, weights, joints: dict, expressions: dict) -> np.ndarray:
@@ -152,10 +161,35 @@ def page(head, asset, three, tmp_path_factory):
         theta=head["theta"],
         expressions=head["c"],
         weights=head["weights"],
+        latent_z=head["z"],
         views=[ViewerView("known head", head["camera"], head["photo"])],
         title="known head",
     )
     assert info.bytes == path.stat().st_size and info.dropped_weight == 0.0
+    return path
+
+
+@pytest.fixture(scope="module")
+def shared_page(head, asset, three, tmp_path_factory):
+    """The known head's page in shared mode as a folder run lays it out: ``run/three.jnr.js`` and
+    ``run/known head/viewer.html`` (a space in the folder's name, as photos' names have)."""
+    run = tmp_path_factory.mktemp("run")
+    (run / "known head").mkdir()
+    path = run / "known head" / "viewer.html"
+    viewer.write_shared_three(run)
+    src = viewer.shared_three_src(path.parent, run)
+    assert src == "../three.jnr.js"
+    write_viewer(
+        path,
+        asset,
+        three_src=src,
+        theta=head["theta"],
+        expressions=head["c"],
+        weights=head["weights"],
+        latent_z=head["z"],
+        views=[ViewerView("known head", head["camera"], head["photo"])],
+        title="known head",
+    )
     return path
 
 
@@ -325,8 +359,8 @@ def test_browser_orbit_view_and_static_mesh_without_a_photo(chromium, asset, rig
     base_c[EXPRESSION_NAMES.index("mouthSmileRight")] = 0.5
     page = tmp_path / "scan_viewer.html"
     write_viewer(page, asset, expressions=base_c, static_vertices=mesh, title="static")
-    state = page_state(chromium, page, "state=all&jawOpen=0.5&mouthSmileRight=0")
-    assert state["camera"] == "orbit" and state["joints"] == {}
+    state = page_state(chromium, page, "state=all&jawOpen=0.5&mouthSmileRight=0&params=1")
+    assert state["camera"] == "orbit" and state["joints"] == {} and state["params"] is None  # nothing to save
     model = ExpressionModel(asset, dtype=torch.float64)
     c = base_c.copy()
     c[EXPRESSION_NAMES.index("jawOpen")], c[EXPRESSION_NAMES.index("mouthSmileRight")] = 0.5, 0.0
@@ -387,3 +421,208 @@ def test_jnr_fit_writes_a_viewer_that_poses_the_fitted_head(chromium, head, rig6
     state = page_state(chromium, out / "viewer.html", "")
     rebuilt = mesh_from_photo_params(params)
     assert np.abs(np.asarray(state["vertices"]) - rebuilt[state["vertex_ids"]]).max() < 1e-3
+
+
+# ------------------------------------------------------------------------------------------ shared three.js
+
+
+def _module_exports() -> list[str]:
+    """The names ``three.module.min.js`` exports, read from its final ``export{a as B,...}`` here."""
+    code = viewer.three_js_path().read_text(encoding="utf-8")
+    items = code[code.rindex("export{") + len("export{") : code.rindex("}")].split(",")
+    return [re.split(r"\s+as\s+", item.strip())[-1] for item in items]
+
+
+@needs_three
+def test_shared_three_script_keeps_the_licence_and_exports_every_name(three):
+    script = viewer.shared_three_script()
+    module = viewer.three_js_path().read_text(encoding="utf-8")
+    header = module[: module.index("*/") + 2]
+    assert "@license" in header and script.startswith(header + "\n")
+    exports = _module_exports()
+    assert len(exports) > 400 and {"WebGLRenderer", "REVISION", "BufferGeometry"} <= set(exports)
+    final = script[script.rindex("globalThis.JNR_THREE=Object.freeze({") :]
+    assert final.endswith("});\n})();\n")
+    frozen = final[len("globalThis.JNR_THREE=Object.freeze({") : -len("});\n})();\n")]
+    assert [item.split(":")[0] for item in frozen.split(",")] == exports
+    assert "export{" not in script and '(function () {\n"use strict";\n' in script
+    assert abs(len(script) - len(module)) < 2000  # the module's code itself, unchanged
+
+
+@needs_three
+def test_shared_three_refuses_a_three_js_of_another_shape(tmp_path, monkeypatch):
+    header = "/**\n * @license\n * Copyright 2010-2024 Three.js Authors\n * SPDX-License-Identifier: MIT\n */\n"
+    cases = {
+        "imports other modules": header + 'import{a as b}from"./three.core.js";const c=1;export{c as C};\n',
+        "does not end with one export": header + "const c=1;export{c as C};c.x=2;\n",
+        "more than the final export": header + "export const d=2;const c=1;export{c as C};\n",
+        "@license": "const c=1;export{c as C};\n",
+    }
+    for k, (why, code) in enumerate(cases.items()):
+        folder = tmp_path / f"assets{k}"
+        folder.mkdir()
+        (folder / viewer.THREE_FILE).write_text(code)
+        monkeypatch.setattr(viewer, "ASSETS_DIR", folder)
+        with pytest.raises(viewer.ThreeModuleError, match=why):
+            viewer.write_shared_three(tmp_path)
+    assert not (tmp_path / viewer.SHARED_THREE_FILE).exists()
+    (folder / viewer.THREE_FILE).write_text(header + 'const t="170";export{t as REVISION,t as Same};\n')
+    assert viewer.shared_three_script().endswith(
+        '"use strict";\nconst t="170";\nglobalThis.JNR_THREE=Object.freeze({REVISION:t,Same:t});\n})();\n'
+    )
+
+
+@needs_three
+def test_write_shared_three_is_atomic_and_idempotent(tmp_path):
+    path = viewer.write_shared_three(tmp_path)
+    assert path == tmp_path / viewer.SHARED_THREE_FILE and path.read_text() == viewer.shared_three_script()
+    before = path.stat()
+    assert viewer.write_shared_three(tmp_path) == path
+    after = path.stat()
+    assert (after.st_ino, after.st_mtime_ns) == (before.st_ino, before.st_mtime_ns)  # left as it was
+    path.write_text("stale")
+    viewer.write_shared_three(tmp_path)
+    assert path.read_text() == viewer.shared_three_script()
+    assert [p.name for p in tmp_path.iterdir()] == [viewer.SHARED_THREE_FILE]  # no temporary left
+    with pytest.raises(FileNotFoundError):
+        viewer.write_shared_three(tmp_path / "missing")
+
+
+@needs_three
+def test_shared_page_is_smaller_and_escapes_its_url(page, shared_page, asset, tmp_path):
+    inline, shared = page.stat().st_size, shared_page.stat().st_size
+    # measured: 2,310,209 bytes inline, 1,389,054 shared: three.js's 921,155 bytes of base64 left out
+    assert inline - shared > 0.9e6 and shared < 0.62 * inline
+    text = shared_page.read_text()
+    assert "data:text/javascript" not in text and 'type="importmap"' not in text
+    assert '<script id="jnr-three" src="../three.jnr.js"></script>' in text
+    assert read_viewer_data(shared_page)["channels"] == read_viewer_data(page)["channels"]
+    odd = tmp_path / "odd.html"
+    write_viewer(odd, asset, three_src='../a "b"&<c>.js')
+    assert '<script id="jnr-three" src="../a &quot;b&quot;&amp;&lt;c&gt;.js"></script>' in odd.read_text()
+    assert viewer.shared_three_src(tmp_path / "a b" / "c#d", tmp_path) == "../../three.jnr.js"
+    assert viewer.shared_three_src(tmp_path, tmp_path / "x y") == "x%20y/three.jnr.js"
+    for bad in ("", "  ", "../a\nb.js"):
+        with pytest.raises(viewer.ViewerError, match="three_src"):
+            write_viewer(tmp_path / "bad.html", asset, three_src=bad)
+
+
+@needs_browser
+def test_browser_shared_three_defines_every_export_as_one_global(chromium, tmp_path):
+    viewer.write_shared_three(tmp_path)
+    probe = tmp_path / "probe.html"
+    probe.write_text(
+        "<!doctype html><html><body><pre id=out></pre>\n"
+        "<script>const before = new Set(Object.getOwnPropertyNames(globalThis));</script>\n"
+        f'<script src="{viewer.SHARED_THREE_FILE}"></script>\n'
+        "<script>const T = globalThis.JNR_THREE; document.getElementById('out').textContent = JSON.stringify({"
+        "names: Object.keys(T), frozen: Object.isFrozen(T), revision: T.REVISION, renderer: typeof T.WebGLRenderer,"
+        "added: Object.getOwnPropertyNames(globalThis).filter((n) => !before.has(n)).sort()});</script>"
+        "</body></html>"
+    )
+    dom = _browse(chromium, probe, "", "--dump-dom").stdout.decode("utf-8")
+    out = json.loads(html.unescape(re.search(r"<pre id=\"out\">(.*?)</pre>", dom, re.S).group(1)))
+    assert out["names"] == _module_exports() and out["frozen"] and out["renderer"] == "function"
+    assert out["revision"] == "170" and out["added"] == ["JNR_THREE", "__THREE__"]  # three's own marker
+
+
+@needs_browser
+def test_browser_shared_page_renders_as_the_inline_page(chromium, page, shared_page, grey_shot, tmp_path):
+    hash_ = "state=all&jawOpen=0.7&nose_tip.translate_z=5&skull_root.rotate_x=20"
+    state, inline = page_state(chromium, shared_page, hash_), page_state(chromium, page, hash_)
+    assert state["ready"] and state["three_revision"] == "170"
+    assert state["vertices"] == inline["vertices"] and state["joints"] == inline["joints"]
+    shot = screenshot(chromium, shared_page, "opacity=1&mode=grey", tmp_path).astype(int)
+    assert np.abs(shot - grey_shot).max() == 0  # the same three.js code on the same data
+
+
+@needs_browser
+def test_browser_shared_page_without_its_file_says_which_file(chromium, shared_page, tmp_path):
+    alone = tmp_path / "copied" / "viewer.html"  # the page's folder copied without ../three.jnr.js
+    alone.parent.mkdir()
+    shutil.copy(shared_page, alone)
+    dom = _browse(chromium, alone, "", "--dump-dom").stdout.decode("utf-8")
+    message = html.unescape(re.search(r'<div id="jnr-error"[^>]*>(.*?)</div>', dom, re.S).group(1))
+    assert "could not load three.js from the file three.jnr.js" in message
+    assert "../three.jnr.js" in message and (tmp_path / "three.jnr.js").as_uri() in message
+    with pytest.raises(ValueError, match="no #jnr-state"):
+        read_viewer_state(dom)
+
+
+# ------------------------------------------------------------------------------------------ saving a pose
+
+SAVE_PROBE = """<script>
+window.addEventListener("load", () => setTimeout(async () => {
+  let blob = null, name = null;
+  URL.createObjectURL = (b) => { blob = b; return "blob:jnr-test"; };
+  HTMLAnchorElement.prototype.click = function () { name = this.download; };
+  document.getElementById("save").click();
+  const out = Object.assign(document.createElement("pre"), { id: "jnr-saved", hidden: true });
+  out.textContent = JSON.stringify({ name, type: blob.type, text: await blob.text() });
+  document.body.appendChild(out);
+}, 0));
+</script>
+"""
+"""Test-only: clicks the page's Save button after the page's own start, keeping the Blob it downloads."""
+
+
+@needs_browser
+def test_browser_saved_pose_is_the_fit_params_jnr_rig_edit_reads(chromium, page, head, rig64, tmp_path, capsys):
+    """The "Save pose" file of a page with the fit's latent Z: a whole head (joints, latent Z, expressions) that
+    ``jnr rig edit`` reads as a fit's params.json, posing exactly what the page shows."""
+    import trimesh
+
+    from pipeline.cli import main
+    from pipeline.edit import load_edit_params
+
+    # the page, with a script that clicks "Save pose" once it is drawn and keeps what it downloads
+    probe = tmp_path / "probe.html"
+    probe.write_text(page.read_text().replace("</body>", SAVE_PROBE + "</body>"))
+    hash_ = "state=all&params=1&jawOpen=0.7&mouthSmileLeft=1&nose_tip.translate_z=5&crown.translate_y=1000"
+    dom = _browse(chromium, probe, hash_, "--dump-dom").stdout.decode("utf-8")
+    state = read_viewer_state(dom)
+    download = json.loads(html.unescape(re.search(r'<pre id="jnr-saved"[^>]*>(.*?)</pre>', dom, re.S).group(1)))
+    assert download["name"] == "params_edited.json" and download["type"] == "application/json"
+    saved = json.loads(download["text"])
+    assert saved == state["params"] and list(saved) == ["model", "units", "joints", "latent_z", "expressions"]
+    assert saved["joints"] == state["joints"] and saved["expressions"] == state["expressions"]
+    assert saved["joints"]["crown.translate_y"] == CHANNELS[CHANNEL_INDEX["crown.translate_y"]].high  # at a limit
+    path = tmp_path / download["name"]
+    path.write_text(download["text"])
+    theta, fit = load_edit_params(path)
+    assert theta is None and fit is not None
+    assert np.array_equal(fit.theta, params_to_theta(state["joints"], dtype=torch.float64).numpy())
+    assert np.array_equal(fit.expressions, [state["expressions"][n] for n in EXPRESSION_NAMES])
+    assert np.array_equal(fit.params["latent"], head["z"])
+    assert np.abs(fit.vertices - np.asarray(state["vertices"])).max() < 1e-3  # mm: what the page drew
+    out = tmp_path / "edited.ply"
+    assert main(["rig", "edit", str(path), "--out", str(out), "--quiet"]) == 0, capsys.readouterr().err
+    assert np.abs(trimesh.load(out, process=False).vertices - fit.vertices).max() < 1e-3
+
+
+@needs_browser
+def test_browser_saved_pose_without_latent_z_is_a_joint_file_inside_the_limits(chromium, asset, tmp_path):
+    """Without the fit's latent Z the page saves its joint channels (``{"units", "joints"}``); a fitted
+    value a little outside its limits (a soft penalty allows it) is saved at the limit."""
+    from pipeline.edit import load_edit_params
+
+    theta = np.zeros(len(CHANNELS))
+    over = CHANNELS[CHANNEL_INDEX["jaw_front.rotate_z"]]
+    theta[CHANNEL_INDEX["jaw_front.rotate_z"]] = over.to_theta(over.high + 0.01 * (over.high - over.low))
+    page = tmp_path / "viewer.html"
+    write_viewer(page, asset, theta=theta)
+    state = page_state(chromium, page, "params=1&neck.rotate_x=-12.345678901234&left_cheek.scale=1.2")
+    saved = state["params"]
+    assert list(saved) == ["units", "joints"] and saved["units"] == {
+        "rotate": "deg",
+        "translate": "mm",
+        "scale": "factor",
+    }
+    assert list(saved["joints"]) == [c.name for c in CHANNELS]
+    assert saved["joints"]["jaw_front.rotate_z"] == over.high and state["joints"]["jaw_front.rotate_z"] > over.high
+    path = tmp_path / viewer.SAVE_FILE
+    path.write_text(json.dumps(saved))
+    loaded, fit = load_edit_params(path)
+    assert fit is None
+    expected = params_to_theta(saved["joints"], dtype=torch.float32).double()  # how the rig reads joint files
+    assert torch.equal(loaded, expected) and loaded[CHANNEL_INDEX["neck.rotate_x"]] == pytest.approx(-12.345678901234)

@@ -21,6 +21,7 @@ from pipeline.photo.fit_config import FitPhotoConfig
 from pipeline.photo.resume import earlier_output
 from pipeline.photo.summary import SUMMARY_COLUMNS
 from pipeline.photo.task import PhotoTask
+from pipeline.viewer import fit_viewer_ready
 from tests.pipeline.conftest import fast_fit_args
 
 NUMBERS = ("mean_error_px", "nme", "faces_found", "box_left", "box_top", "box_right", "box_bottom", "face_score")
@@ -86,7 +87,12 @@ def test_a_second_run_fits_only_what_is_missing(capsys, tmp_path, batch):
     assert "face0.png" not in stdout and "face1.png" in stdout  # only the fitted one is listed
     assert mtimes(out / "face0") == face0  # kept, untouched
     assert set(PHOTO_FOLDER.required) | {OUTPUT_MARKER} == {p.name for p in (out / "face1").iterdir()}
-    assert sorted(p.name for p in out.iterdir()) == [".face1.notes", "face0", "face1", "summary.csv"]
+    shared = ["three.jnr.js"] if fit_viewer_ready() else []
+    assert sorted(p.name for p in out.iterdir()) == [".face1.notes", "face0", "face1", "summary.csv", *shared]
+    if shared:  # one three.js for the run: each page links to it instead of holding its own
+        for name in ("face0", "face1"):
+            page = (out / name / "viewer.html").read_text()
+            assert 'src="../three.jnr.js"' in page and "data:text/javascript;base64" not in page
     second = rows(out / "summary.csv")
     assert [r["kept"] for r in second] == ["no", "yes", "no"]
     # the kept row is the first run's (numbers from report.json, seconds from the earlier summary); the
