@@ -20,6 +20,13 @@ FAST = {
 }
 
 
+def _shared_three() -> list[str]:
+    """The folder run's one copy of three.js (its pages link to it), when three.js is vendored."""
+    from pipeline.viewer import SHARED_THREE_FILE, fit_viewer_ready
+
+    return [SHARED_THREE_FILE] if fit_viewer_ready() else []
+
+
 @pytest.fixture(scope="module")
 def fast_config():
     return load_config(FitPhotoConfig, None, FAST)
@@ -95,7 +102,7 @@ def test_fit_photo_files_reports_each_photo(tmp_path, photo_dir, fast_config):
     assert good.error is None and good.summary["output"] == str(tmp_path / "out" / "b")
     assert bad.summary is None and bad.bad_input and "a.png" in bad.error
     assert seen == [("photos", 1, 2), ("photos", 2, 2)]
-    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["b", "summary.csv"]
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["b", "summary.csv", *_shared_three()]
     # summary.csv: one row per photo in the order given, the failure with its message
     rows = _rows(tmp_path / "out" / "summary.csv")
     assert [(r["photo"], r["status"], r["output"]) for r in rows] == [
@@ -148,7 +155,7 @@ def test_fit_photo_files_with_every_face(tmp_path, two_faces_photo, fast_config)
     for k in (0, 1):
         report = json.loads((out / "two" / f"face_{k}" / "report.json").read_text())
         assert report["input"]["face_index"] == k and report["command"] == "test"
-    assert sorted(p.name for p in out.iterdir()) == ["summary.csv", "two"]
+    assert sorted(p.name for p in out.iterdir()) == ["summary.csv", *_shared_three(), "two"]
 
     # nothing is replaced without force (or resume); force replaces only a summary.csv jnr wrote, checked first
     with pytest.raises(OutputError, match="exists"):
