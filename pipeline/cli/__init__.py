@@ -13,12 +13,13 @@
     jnr eval capacity [--json]                 known-correspondence error of each skinning variant
     jnr eval scans [--neutral N --expressive N]  fit-scan vs nricp_amberg on simulated depth scans
     jnr eval photos [--neutral N --expressive N] jnr fit on synthetic renders with known truth
+    jnr track VIDEO --out DIR                  follow a face through a video: ARKit curves, animated head, preview
     jnr animate FIT_DIR CURVES.csv --out OUT.glb  drive a fit with ARKit curves: animated glTF + GIF preview
     jnr retarget SOURCE_FIT TARGET_FIT --out DIR  one fit's expression on another fit's identity
     jnr accessory FIT_DIR ACCESSORY.obj --out DIR  glasses, a cap or your mesh skinned to a fitted head
 
 Each command's parser lives beside its handler, one module per command group (:mod:`.demo`,
-:mod:`.fit`, :mod:`.fit_scan`, :mod:`.rig`, :mod:`.data`, :mod:`.train`, :mod:`.evaluate`; shared
+:mod:`.fit`, :mod:`.fit_scan`, :mod:`.track`, :mod:`.rig`, :mod:`.data`, :mod:`.train`, :mod:`.evaluate`; shared
 pieces in :mod:`.common`); a handler parses, calls one library function, prints and maps errors.
 
 Errors in the input (:class:`rig.errors.InputError` and its subclasses: missing or malformed files,
@@ -33,10 +34,10 @@ import argparse
 import logging
 import sys
 
-from pipeline.cli import accessory, animate, data, demo, evaluate, fit, fit_scan, rig, train
+from pipeline.cli import accessory, animate, data, demo, evaluate, fit, fit_scan, rig, track, train
 from pipeline.cli.common import EXIT_FAILURE, EXIT_OK, EXIT_USAGE, CliError
 
-COMMAND_GROUPS = (demo, fit, fit_scan, animate, accessory, rig, data, train, evaluate)
+COMMAND_GROUPS = (demo, fit, fit_scan, track, animate, accessory, rig, data, train, evaluate)
 """The modules whose ``add_commands(subparsers)`` make the sub-commands, in the order ``--help`` lists them."""
 
 

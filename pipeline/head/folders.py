@@ -208,3 +208,21 @@ RETARGET_FOLDER = OutputFolder(
     ),
 )
 """``jnr retarget SOURCE_FIT TARGET_FIT --out DIR``."""
+
+TRACK_FOLDER = OutputFolder(
+    "jnr track",
+    (
+        OutputFile(
+            "livelink.csv",
+            "the ARKit curves in Live Link Face's CSV (Timecode at the clip's rate, BlendShapeCount, head angles)",
+        ),
+        OutputFile("curves.csv", "the same curves, plain: time in seconds, the 52 ARKit names, head angles in degrees"),
+        OutputFile("track.glb", "the fitted head, skinned, animated by the curves (morph weights, head rotation)"),
+        OutputFile("params.json", "the clip's identity as a fit's parameters (jnr animate / rig edit read the folder)"),
+        OutputFile("params.npz", "every frame's head pose, ARKit coefficients, landmarks and landmark error"),
+        OutputFile("preview.mp4", "the clip with the fitted head over it, beside the grey head (not --no-preview)"),
+        OutputFile("report.json", "frames, lost (bridged) frames, keyframes, errors, seconds and frames/s per phase"),
+        OutputFile("config.yaml", "the settings used, every field resolved (--config repeats the run)"),
+    ),
+)
+"""``jnr track VIDEO --out DIR``."""

@@ -28,8 +28,8 @@ from rig.head_model import HeadModel, HeadParams
 
 PARAMS_FILE = "params.json"
 PARAMS_FORMAT = "jnr-params/2"
-FIT_KINDS = ("photo", "views", "scan")
-"""What may write a ``params.json``: ``jnr fit PHOTO``, ``jnr fit --views``, ``jnr fit-scan``."""
+FIT_KINDS = ("photo", "views", "scan", "track")
+"""What may write a ``params.json``: ``jnr fit PHOTO``, ``jnr fit --views``, ``jnr fit-scan``, ``jnr track``."""
 LEGACY_FORMATS = {"jnr-photo-params/1": "photo", "jnr-multiview-params/1": "views", "jnr-scan-params/1": "scan"}
 """The formats of earlier versions and the fit each was written by."""
 UNITS = {"rotate": "deg", "translate": "mm", "scale": "factor"}
