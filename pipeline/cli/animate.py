@@ -16,6 +16,22 @@ def _curves_path(text: str) -> Path:
     return EXAMPLE_CURVES if text == "example" else Path(text)
 
 
+def _track_fps(fit_dir: str, curves_path: Path) -> float | None:
+    """The frame rate of a ``jnr track`` folder's own curves (its ``livelink.csv`` has timecodes at the clip's
+    rate, which the file does not state): ``params.json``'s ``track.fps`` when ``curves_path`` is in
+    ``fit_dir``; None otherwise (the layout's default rate)."""
+    import json
+
+    try:
+        if Path(curves_path).resolve().parent != Path(fit_dir).resolve():
+            return None
+        data = json.loads((Path(fit_dir) / "params.json").read_text(encoding="utf-8"))
+        fps = data.get("track", {}).get("fps") if data.get("fit") == "track" else None
+        return float(fps) if isinstance(fps, int | float) and 0.1 <= fps <= 1000 else None
+    except (OSError, ValueError, AttributeError):
+        return None
+
+
 def cmd_animate(args: argparse.Namespace) -> int:
     from pipeline.animation import animate_fit, read_curves
 
@@ -32,7 +48,7 @@ def cmd_animate(args: argparse.Namespace) -> int:
     check_output(out, args.force, inputs=inputs)
     if preview is not None:
         check_output(preview, args.force, inputs=inputs)
-    curves = read_curves(curves_path, fps=args.fps, head_units=args.head_units)
+    curves = read_curves(curves_path, fps=args.fps or _track_fps(args.fit_dir, curves_path), head_units=args.head_units)
     bars = StageBars(args.quiet)
     try:
         summary = animate_fit(
@@ -103,7 +119,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
         "--fps",
         type=float,
         help="frame rate of the curves' timecodes or rows (default: 60 for Live "
-        "Link Face, 30 for a plain CSV without a time column)",
+        "Link Face, 30 for a plain CSV without a time column; a jnr track folder's own livelink.csv: its clip's)",
     )
     an.add_argument(
         "--head-units",

@@ -39,6 +39,8 @@ from rig.model import JointRig
 
 NUM_EXPRESSIONS = len(EXPRESSION_NAMES)
 JAW_RADIANS = math.radians(JAW_ANGLE_DEG)
+GAZE_MASK = np.array([n.startswith("eyeLook") for n in EXPRESSION_NAMES])
+"""The eight gaze coefficients (eyeLook*)."""
 
 
 @dataclass(frozen=True)
@@ -50,11 +52,13 @@ class TrackSettings:
 
     Attributes:
         huber_delta_px: the Huber threshold of a point's pixel error (iteratively reweighted).
-        lambda_expressions: weight of ``|c|^2`` against the mean squared pixel error (4: chosen on the validation
-            clip, clip 0 of ``benchmarks/bench_track.py``, from 0.5, 1, 2, 4; the photo fit's 0.5 in this
-            normalisation is 1: a fixed identity leaves its errors to the expressions, a stronger prior keeps
-            them out).
+        lambda_expressions: weight of ``|c|^2`` against the mean squared pixel error (the photo fit's 0.5 is 1 in
+            this normalisation; a fixed identity leaves its errors to the expressions, a stronger prior keeps
+            them out). With ``lambda_sparse``, chosen on the validation clip (clip 0 of
+            ``benchmarks/bench_track.py``): 3 and 0.5 among (0.5, 1, 2, 3, 4) x (0, 0.25, 0.5, 1).
         lambda_gaze: the eight eyeLook* coefficients' instead (the irises show the gaze).
+        lambda_sparse: weight of ``sum_i c_i`` (the coefficients are >= 0: an L1 prior, which keeps the unused
+            ones at 0 without holding the used ones back as much as ``|c|^2``); not on the gaze.
         lambda_velocity, lambda_acceleration: the coefficients' temporal prior on the frames before (a light
             one: it keeps the warm start steady; :mod:`pipeline.track.smooth` does the smoothing).
         lambda_pose_velocity, lambda_pose_acceleration: the pose's (per degree, per mm).
@@ -63,7 +67,8 @@ class TrackSettings:
     """
 
     huber_delta_px: float = 5.0
-    lambda_expressions: float = 4.0
+    lambda_expressions: float = 3.0
+    lambda_sparse: float = 0.5
     lambda_gaze: float = 0.04
     lambda_velocity: float = 0.02
     lambda_acceleration: float = 0.2
@@ -77,6 +82,7 @@ class TrackSettings:
             "huber_delta_px",
             "lambda_expressions",
             "lambda_gaze",
+            "lambda_sparse",
             "lambda_velocity",
             "lambda_acceleration",
             "lambda_pose_velocity",
@@ -283,6 +289,7 @@ def solve_frame(
     w = np.asarray(weights, np.float64)
     base = w / max(w.sum(), 1e-12)  # each point's share, as the photo fit's landmark term
     prior = s.prior_scale()
+    sparse = np.where(GAZE_MASK, 0.0, s.lambda_sparse) if s.lambda_sparse else None
     p1, p2 = previous
     deg = 180.0 / math.pi
     # the temporal terms' targets: rotation as rotation vectors relative to the last frame (degrees)
@@ -353,13 +360,19 @@ def solve_frame(
     sw = np.sqrt(base)
     _, _, uv = evaluate(state, False, sw)
     sw = robust(uv)
+    def total(r: np.ndarray, c: np.ndarray) -> float:  # the squares and the L1 prior's linear term
+        return float(r @ r) + (0.0 if sparse is None else float(sparse @ c))
+
     r, jac, uv = evaluate(state, True, sw)
-    cost = float(r @ r)
+    cost = total(r, state.coefficients)
     damping = s.damping
     steps = 0
     for _ in range(s.iterations):
         jtj = jac.T @ jac
         g = jac.T @ r
+        if sparse is not None:
+            g = g.copy()
+            g[6:] += 0.5 * sparse
         diag = np.maximum(np.diag(jtj), 1e-9)
         accepted = False
         for _attempt in range(8):
@@ -374,7 +387,7 @@ def solve_frame(
                 np.clip(state.coefficients + step[6:], model.low, model.high),
             )
             r_trial, _, _ = evaluate(trial, False, sw)
-            trial_cost = float(r_trial @ r_trial)
+            trial_cost = total(r_trial, trial.coefficients)
             if trial_cost <= cost:
                 state, accepted = trial, True
                 damping = max(damping / 3.0, 1e-9)
@@ -386,7 +399,7 @@ def solve_frame(
         _, _, uv = evaluate(state, False, sw)
         sw = robust(uv)
         r, jac, uv = evaluate(state, True, sw)
-        cost = float(r @ r)
+        cost = total(r, state.coefficients)
     err2 = ((uv - obs) ** 2).sum(1)
     rms = float(np.sqrt((err2 * w).sum() / max(w.sum(), 1e-12)))
     # the frame's own information about x (the reprojection and the coefficients' prior, not the temporal

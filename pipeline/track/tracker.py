@@ -49,8 +49,9 @@ class TrackConfig:
     """Settings of :func:`track_clip` (``configs/track.yaml``).
 
     Attributes:
-        keyframes: frames the identity is fitted on (spread over the frames with a face; fewer if the clip
-            has fewer).
+        keyframes: frames the identity is fitted on (fewer if the clip has fewer frames with a face).
+        keyframe_choice: ``poses`` (the most different head poses, :func:`choose_keyframes`) or ``time``
+            (evenly spread over the frames with a face).
         face: which face of the first frame with faces (0 the largest).
         focal: the camera's focal length in pixels (default: :func:`pipeline.camera.default_focal`).
         cold_iterations: Gauss-Newton steps on a frame that starts from a keyframe rather than the last frame.
@@ -60,6 +61,7 @@ class TrackConfig:
     """
 
     keyframes: int = 5
+    keyframe_choice: str = "poses"
     face: int = 0
     focal: float | None = None
     cold_iterations: int = 15
@@ -70,6 +72,8 @@ class TrackConfig:
     def __post_init__(self) -> None:
         if not (isinstance(self.keyframes, int) and 2 <= self.keyframes <= 30):
             raise ValueError(f"keyframes must be an integer within [2, 30], got {self.keyframes!r}")
+        if self.keyframe_choice not in ("poses", "time"):
+            raise ValueError(f"keyframe_choice must be 'poses' or 'time', got {self.keyframe_choice!r}")
         if not (isinstance(self.face, int) and self.face >= 0):
             raise ValueError(f"face must be an integer >= 0, got {self.face!r}")
         if not (isinstance(self.cold_iterations, int) and 1 <= self.cold_iterations <= 100):
@@ -117,13 +121,37 @@ class TrackResult:
         return tuple(int(i) for i in np.flatnonzero(~self.observed))
 
 
-def choose_keyframes(observed: np.ndarray, count: int) -> list[int]:
-    """``count`` frame indices among the observed ones, evenly spread (the first and last included)."""
+NOSE_TIP, EYE_CORNERS = 1, (33, 263)
+"""MediaPipe's nose tip and outer eye corners: the keyframes' pose descriptor."""
+
+
+def pose_descriptor(landmarks: np.ndarray) -> np.ndarray:
+    """``(T, 2)`` a rough turn and nod of each frame from its points ``(T, 478, 2)``: the nose tip's offset from
+    the eyes' midpoint over their distance (NaN where no face)."""
+    eyes = landmarks[:, list(EYE_CORNERS)].astype(np.float64)
+    middle = eyes.mean(axis=1)
+    distance = np.linalg.norm(eyes[:, 1] - eyes[:, 0], axis=1).clip(1e-6)
+    return (landmarks[:, NOSE_TIP].astype(np.float64) - middle) / distance[:, None]
+
+
+def choose_keyframes(observed: np.ndarray, count: int, landmarks: np.ndarray | None = None) -> list[int]:
+    """``count`` frame indices among the observed ones: without ``landmarks`` evenly spread in time; with them
+    the most different head poses (:func:`pose_descriptor`, farthest-point sampling from the most frontal
+    frame), which tell the head's depth best."""
     frames = np.flatnonzero(observed)
     if len(frames) <= count:
         return [int(i) for i in frames]
-    picks = np.round(np.linspace(0, len(frames) - 1, count)).astype(int)
-    return [int(frames[i]) for i in picks]
+    if landmarks is None:
+        picks = np.round(np.linspace(0, len(frames) - 1, count)).astype(int)
+        return [int(frames[i]) for i in picks]
+    pose = pose_descriptor(landmarks[frames])
+    chosen = [int(np.argmin(np.linalg.norm(pose - np.median(pose, axis=0), axis=1)))]
+    distance = np.linalg.norm(pose - pose[chosen[0]], axis=1)
+    while len(chosen) < count:
+        k = int(np.argmax(distance))
+        chosen.append(k)
+        distance = np.minimum(distance, np.linalg.norm(pose - pose[k], axis=1))
+    return sorted(int(frames[k]) for k in chosen)
 
 
 def follow_clip(clip: Clip, face: int = 0, max_frames: int = MAX_FRAMES, progress: Progress | None = None):
@@ -211,7 +239,7 @@ def track_clip(
     focal = float(config.focal or default_focal(width, height))
     rig = rig or JointRig()
     layout = mediapipe_layout(rig.asset)
-    keys = choose_keyframes(observed, config.keyframes)
+    keys = choose_keyframes(observed, config.keyframes, landmarks if config.keyframe_choice == "poses" else None)
     identity_fit = fit_multiview(
         [landmarks[k].astype(np.float64) for k in keys],
         [clip.size] * len(keys),

@@ -76,7 +76,7 @@ def test_a_known_pose_and_expression_are_recovered(model):
     weights = model.layout.weights("detector", 1.0, torch.float64).numpy()
     start = FrameState(np.eye(3), np.array([0.0, 0.0, 600.0]))
     model.pick_contour(start)
-    settings = TrackSettings(iterations=25, lambda_expressions=1e-4, lambda_gaze=1e-4)
+    settings = TrackSettings(iterations=25, lambda_expressions=1e-4, lambda_gaze=1e-4, lambda_sparse=0.0)
     state, info = solve_frame(model, observed, weights, start, settings=settings)
     angle = np.degrees(np.arccos(np.clip((np.trace(state.rotation @ truth.rotation.T) - 1) / 2, -1, 1)))
     assert angle < 0.5, angle
@@ -94,7 +94,7 @@ def _frames(model, truths, noise_px, seed):
     for truth in truths:
         model.pick_contour(truth)
         observed = model.landmarks_px(truth) + rng.normal(0, noise_px, (478, 2))
-        settings = TrackSettings(iterations=6, lambda_expressions=0.25, lambda_gaze=0.01)
+        settings = TrackSettings(iterations=6, lambda_expressions=0.25, lambda_gaze=0.01, lambda_sparse=0.0)
         state, info = solve_frame(model, observed, weights, truth, settings=settings)
         states.append(state)
         information.append(info["information"])
@@ -182,3 +182,45 @@ def test_bridge_interpolates_between_and_holds_at_the_ends():
     np.testing.assert_allclose(r[2], head_rotation(20.0, 0.0, 0.0), atol=1e-9)  # slerp of 10 -> 40 degrees
     np.testing.assert_allclose(t[0], translations[1])
     np.testing.assert_allclose(c[5], coefficients[4])
+
+
+def test_the_sparse_prior_keeps_unused_coefficients_at_zero(model):
+    """A head with 8 coefficients moved, 0.5 px noise: the L1 prior (lambda_sparse) leaves more of the other 44 at
+    exactly 0 than the squares alone, and holds the moved ones back less than squares of the same strength."""
+    truth = _truth(8)
+    model.pick_contour(truth)
+    rng = np.random.default_rng(9)
+    observed = model.landmarks_px(truth) + rng.normal(0, 0.5, (478, 2))
+    weights = model.layout.weights("detector", 1.0, torch.float64).numpy()
+    moved = truth.coefficients > 0
+    results = {}
+    for name, settings in {
+        "squares": TrackSettings(iterations=20, lambda_expressions=3.0, lambda_sparse=0.0),
+        "sparse": TrackSettings(iterations=20, lambda_expressions=1.0, lambda_sparse=0.5),
+    }.items():
+        state, _ = solve_frame(model, observed, weights, truth, settings=settings)
+        results[name] = state.coefficients
+    zeros = {k: int((v[~moved] == 0).sum()) for k, v in results.items()}
+    shrink = {k: float((truth.coefficients - v)[moved].mean()) for k, v in results.items()}
+    assert zeros["sparse"] > zeros["squares"], zeros
+    assert shrink["sparse"] < shrink["squares"], shrink
+
+
+def test_keyframes_are_the_most_different_poses():
+    """Poses chosen by the nose's offset from the eyes: the frontal frame first, then the extremes; without
+    points, evenly in time; unobserved frames are never chosen."""
+    from pipeline.track.tracker import EYE_CORNERS, NOSE_TIP, choose_keyframes
+
+    count = 40
+    landmarks = np.zeros((count, 478, 2), np.float32)
+    turn = np.sin(np.linspace(0, 2 * np.pi, count))  # left and right once
+    landmarks[:, EYE_CORNERS[0]] = [-30.0, 0.0]
+    landmarks[:, EYE_CORNERS[1]] = [30.0, 0.0]
+    landmarks[:, NOSE_TIP, 0] = 20.0 * turn
+    landmarks[:, NOSE_TIP, 1] = 30.0
+    observed = np.ones(count, bool)
+    observed[10] = False  # the largest turn one way is not seen: the next largest is taken
+    chosen = choose_keyframes(observed, 3, landmarks)
+    assert 10 not in chosen and len(chosen) == 3
+    assert {int(np.argmin(turn)), int(np.argmax(np.where(observed, turn, -9)))} <= set(chosen)
+    assert choose_keyframes(observed, 3) == [0, 20, 39]

@@ -47,7 +47,7 @@ def test_a_short_clip_is_tracked_and_its_curves_follow_the_truth(capsys, tmp_pat
     """From the video: every frame tracked, the coefficients within 0.1 (mean absolute, measured 0.048) and
     the yaw's change over the clip within 3 degrees of the truth's (measured 0.8); the Live Link Face CSV
     reads back (jnr animate's reader) to the same coefficients and head angles; the folder is a fit folder
-    jnr animate takes."""
+    jnr animate takes, and its own curves play at the clip's rate (their timecodes do not say it)."""
     from pipeline.head.curves import read_curves
     from rig.geometry import head_angles
 
@@ -69,8 +69,9 @@ def test_a_short_clip_is_tracked_and_its_curves_follow_the_truth(capsys, tmp_pat
     np.testing.assert_allclose(curves.times, np.arange(FRAMES) / 30.0, atol=1e-6)
     report = json.loads((out / "report.json").read_text())
     assert report["frames"] == FRAMES and report["lost_frames"] == []
-    code, _, err = _run(capsys, "animate", out, out / "livelink.csv", "--out", tmp_path / "a.glb", "--no-preview")
+    code, stdout, err = _run(capsys, "animate", out, out / "livelink.csv", "--out", tmp_path / "a.glb", "--no-preview")
     assert code == 0, err
+    assert f"over {(FRAMES - 1) / 30:.2f} s" in stdout  # the folder's own curves play at the clip's rate
 
 
 def test_frames_without_a_face_are_bridged(capsys, tmp_path, clip):
