@@ -360,6 +360,7 @@ def solve_frame(
     sw = np.sqrt(base)
     _, _, uv = evaluate(state, False, sw)
     sw = robust(uv)
+
     def total(r: np.ndarray, c: np.ndarray) -> float:  # the squares and the L1 prior's linear term
         return float(r @ r) + (0.0 if sparse is None else float(sparse @ c))
 
