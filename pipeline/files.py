@@ -5,7 +5,9 @@ Every output of the ``jnr`` commands goes through this module:
 * :func:`check_output` refuses, before any work is done, an output path that is, contains or lies
   inside one of the command's inputs, or is (or contains) the working directory; an existing output
   without ``force``; with ``force``, an existing folder that jnr did not write (:func:`is_jnr_output`:
-  it has no :data:`OUTPUT_MARKER` file) or a folder where a file is expected; a parent folder that does not
+  it has no :data:`OUTPUT_MARKER` file of jnr's), one holding entries jnr did not write
+  (:func:`foreign_entries`: the user's files are never deleted with it), or a folder where a file is
+  expected; a parent folder that does not
   exist, is not writable or has less than :data:`MIN_FREE_BYTES` free. Messages name the user's path.
 * :func:`staged_folder` / :func:`staged_file` check the output, then write it with the one atomic
   writer, :mod:`rig.io.atomic`: into a hidden temporary folder/file beside the output, moved into place
@@ -67,13 +69,28 @@ LEGACY_OUTPUT_FILES = frozenset(
 ``demo``); see :func:`is_jnr_output`."""
 
 
+def read_marker(folder: str | Path) -> dict | None:
+    """The :data:`OUTPUT_MARKER` of ``folder`` when it is jnr's (a JSON object with ``"written_by": "jnr"``),
+    else None (missing, unreadable, or a marker anyone could have made, such as ``{}``)."""
+    path = Path(folder) / OUTPUT_MARKER
+    try:
+        if path.is_symlink() or not path.is_file() or path.stat().st_size > 1_000_000:
+            return None
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError, UnicodeDecodeError, RecursionError):
+        return None
+    return data if isinstance(data, dict) and data.get("written_by") == "jnr" else None
+
+
 def is_jnr_output(folder: str | Path) -> bool:
-    """Whether ``folder`` is an output folder jnr wrote: it holds :data:`OUTPUT_MARKER`, or (written before
-    the marker existed) nothing but jnr's own output names and a ``params.json`` in a jnr format or the
-    demo's ``summary.json``."""
+    """Whether ``folder`` is an output folder jnr wrote: it holds jnr's :data:`OUTPUT_MARKER`
+    (:func:`read_marker`), or (written before the marker existed) nothing but jnr's own output names and a
+    ``params.json`` in a jnr format or the demo's ``summary.json``."""
     folder = Path(folder)
-    if (folder / OUTPUT_MARKER).is_file():
+    if read_marker(folder) is not None:
         return True
+    if (folder / OUTPUT_MARKER).exists():
+        return False  # a marker jnr did not write
     try:
         names = {p.name for p in folder.iterdir()}
         if not names or not names <= LEGACY_OUTPUT_FILES:
@@ -85,6 +102,44 @@ def is_jnr_output(folder: str | Path) -> bool:
     except (OSError, ValueError, AttributeError):
         return False
     return False
+
+
+MARKER_SLACK_S = 2.0
+"""A marker without a list of files (jnr before 2026-12-04): an entry changed more than this after the
+marker was written is taken for the user's."""
+
+
+def foreign_entries(folder: str | Path) -> list[str]:
+    """The entries of jnr's output folder ``folder`` that jnr did not write (the user's: a note, an edited
+    mesh, a sub-folder), sorted: those not in its marker's ``files`` list; for a marker without the list,
+    those changed after the marker was written (:data:`MARKER_SLACK_S`); for a folder from before the
+    marker, none (:func:`is_jnr_output` admits only jnr's names there)."""
+    folder = Path(folder)
+    marker = read_marker(folder)
+    if marker is None:
+        return []
+    try:
+        entries = [p for p in folder.iterdir() if p.name != OUTPUT_MARKER]
+        files = marker.get("files")
+        if isinstance(files, list):
+            known = {str(f) for f in files}
+            return sorted(p.name for p in entries if p.name not in known)
+        written = (folder / OUTPUT_MARKER).stat().st_mtime
+        return sorted(p.name for p in entries if p.lstat().st_mtime > written + MARKER_SLACK_S)
+    except OSError:
+        return []
+
+
+def _refuse_foreign(out: Path, option: str) -> None:
+    """``--force`` replaces a jnr output folder only when everything in it is jnr's (the user's files would
+    go with it)."""
+    foreign = foreign_entries(out)
+    if foreign:
+        shown = ", ".join(foreign[:5]) + (f" and {len(foreign) - 5} more" if len(foreign) > 5 else "")
+        raise OutputError(
+            f"{option} {out} holds what jnr did not write ({shown}); --force replaces only jnr's own outputs: "
+            "move those out of it or choose another --out"
+        )
 
 
 class OutputError(InputError):
@@ -153,9 +208,10 @@ def check_output(
                 raise OutputError(f"{option} {out} exists and is not a folder; jnr will not replace it")
             if not is_jnr_output(out):
                 raise OutputError(
-                    f"{option} {out} is a folder jnr did not write (no {OUTPUT_MARKER} file in it); "
+                    f"{option} {out} is a folder jnr did not write (no {OUTPUT_MARKER} file of jnr's in it); "
                     "--force replaces only jnr's own outputs: remove it yourself or choose another"
                 )
+            _refuse_foreign(out, option)
         elif out.is_dir() or not out.is_file():
             raise OutputError(f"{option} {out} exists and is not a regular file; jnr will not replace it")
     _check_parent(out, option)
@@ -222,11 +278,13 @@ def _output_errors(out: Path) -> Iterator[None]:
 
 
 def _still_jnr_output(out: Path) -> None:
-    """Just before ``--force`` swaps a folder in: the folder there must still be one jnr wrote."""
+    """Just before ``--force`` swaps a folder in: the folder there must still be one jnr wrote, holding
+    nothing of the user's."""
     if not (out.is_dir() and is_jnr_output(out)):
         raise OutputError(
             f"output {out} changed while jnr was writing it and is no longer a jnr output folder; it was not replaced"
         )
+    _refuse_foreign(out, "--out")
 
 
 @contextmanager
@@ -252,8 +310,9 @@ def staged_folder(
     out_dir = Path(out_dir)
     check_output(out_dir, force=force, inputs=inputs, kind="folder")
 
-    def add_marker(tmp: Path) -> None:
-        (tmp / OUTPUT_MARKER).write_text(json.dumps({"written_by": "jnr", **(marker or {})}) + "\n")
+    def add_marker(tmp: Path) -> None:  # last: it lists every entry jnr wrote (foreign_entries)
+        files = sorted(p.name for p in tmp.iterdir())
+        (tmp / OUTPUT_MARKER).write_text(json.dumps({"written_by": "jnr", **(marker or {}), "files": files}) + "\n")
 
     with (
         _output_errors(out_dir),

@@ -17,6 +17,7 @@ Example:
 from __future__ import annotations
 
 import logging
+import re
 import shutil
 import warnings
 from collections.abc import Callable, Iterable, Sequence
@@ -36,10 +37,35 @@ from rig.errors import InputError
 _log = logging.getLogger(__name__)
 
 
-def output_names(photos: Sequence[str | Path]) -> list[str]:
-    """The output folder name of each photo: its stem, or ``<stem>_<index>`` for stems that repeat."""
-    stems = [Path(p).stem for p in photos]
-    return [s if stems.count(s) == 1 else f"{s}_{i}" for i, s in enumerate(stems)]
+MAX_NAME_CHARS = 100
+"""The longest output folder name taken from a photo's stem (the rest is cut)."""
+
+
+def safe_name(stem: str) -> str:
+    """A photo stem as a folder name that stays inside ``--out``: control characters (a newline, an escape)
+    replaced by ``_``, leading dots removed (``..``, ``.``, a hidden name), a leading ``-`` guarded, at most
+    :data:`MAX_NAME_CHARS` characters; ``photo`` when nothing is left."""
+    name = re.sub(r"[\x00-\x1f\x7f/\\]", "_", stem).strip().lstrip(".")
+    if name.startswith("-"):
+        name = "_" + name
+    return name[:MAX_NAME_CHARS] or "photo"
+
+
+def output_names(photos: Sequence[str | Path], reserved: Iterable[str] = ()) -> list[str]:
+    """The output folder name of each photo, unique by construction: its :func:`safe_name`, or
+    ``<name>_<index>`` for names that repeat, and ``_`` added until no name is taken twice or is one of
+    ``reserved`` (the run's own files: ``summary.csv``, ``three.jnr.js``). The same photos always get the
+    same names (a resumed run finds its folders)."""
+    base = [safe_name(Path(p).stem) for p in photos]
+    taken = {n.lower() for n in reserved}
+    names = []
+    for i, b in enumerate(base):
+        name = b if base.count(b) == 1 else f"{b}_{i}"
+        while name.lower() in taken:
+            name += "_"
+        taken.add(name.lower())
+        names.append(name)
+    return names
 
 
 def _share_three(tasks: list[PhotoTask], out: Path, config) -> list[PhotoTask]:
@@ -198,7 +224,7 @@ def fit_photo_files(
     _check_options(landmarks, face, detector)
     out = Path(out)
     inputs = tuple(str(p) for p in (*photos, *folders))
-    names = output_names(photos)
+    names = output_names(photos, reserved=(SUMMARY_FILE, SHARED_THREE_FILE))
     tasks = [
         PhotoTask(str(p), str(out / n), config, landmarks, focal, force, command, inputs, detector, face)
         for p, n in zip(photos, names)

@@ -38,9 +38,10 @@ projected back into their limits after each step.
 
 from __future__ import annotations
 
+import logging
 import time
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import torch
@@ -66,6 +67,8 @@ from rig.skinning.asm import AdaptiveSkinning, asm_params_to_dict
 from rig.skinning.neural import LATENT, NeuralSkinning, load_neural
 from rig.template import FACE_REGIONS
 
+_log = logging.getLogger(__name__)
+
 
 @dataclass(frozen=True)
 class ScanFit:
@@ -87,6 +90,9 @@ class ScanFit:
             (:func:`rig.skinning.asm.parameters.asm_params_to_dict`); ``theta`` and ``z`` are then zeros.
         head: the fitted head as its head model's parameters (:meth:`pipeline.fitting.state.FitState.head_params`:
             the model's kind and values), what the outputs and readers build the fitted head from.
+        clamped: the joint channels the fit's soft limit penalty left outside their limits, projected onto
+            them at the end (every fit writes values its own readers accept): ``{name: [fitted, written]}``
+            in the channel's unit.
     """
 
     theta: np.ndarray
@@ -102,6 +108,7 @@ class ScanFit:
     timings: dict
     asm: dict | None = None
     head: HeadParams | None = None
+    clamped: dict = field(default_factory=dict)
 
     @property
     def transform(self) -> Similarity:
@@ -203,6 +210,7 @@ def _fit_scan(
         progress=progress,
         before_step=objective.before_step,
     )
+    clamped = {} if asm_model is not None else _clamp_joints(state)
     with torch.no_grad():
         v_rig = state.rig_vertices()
         v_cloud = state.to_cloud(v_rig)
@@ -222,7 +230,23 @@ def _fit_scan(
         timings={"prealign": t_prealign, "fit": t_end - t_fit, "total": t_end - t_start},
         asm=None if asm_model is None else asm_params_to_dict(state.asm_parameters(()), rig.asset.joint_names),
         head=state.head_params(),
+        clamped=clamped,
     )
+
+
+def _clamp_joints(state: ScanState) -> dict:
+    """Project the joint channels the soft limit penalty left outside their limits onto them (in place):
+    ``{name: [fitted, written]}`` in the channel's unit (the scales as factors), logged."""
+    from rig.parameters import CHANNELS
+
+    before = state.theta.detach().double().numpy().copy()
+    state.clamp_joints()
+    after = state.theta.detach().double().numpy()
+    moved = np.flatnonzero(np.abs(after - before) > 1e-9)
+    clamped = {CHANNELS[i].name: [CHANNELS[i].from_theta(before[i]), CHANNELS[i].from_theta(after[i])] for i in moved}
+    if clamped:
+        _log.info("fit-scan: %d joint channel(s) clamped to their limits: %s", len(clamped), ", ".join(clamped))
+    return clamped
 
 
 def _head_models(

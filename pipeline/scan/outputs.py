@@ -166,6 +166,7 @@ def write_scan_outputs(
                 "scale": fit.prealign.scale,
             },
             "stages": [asdict(s) for s in fit.stages],
+            "clamped_to_limits": fit.clamped,
             "timings_s": fit.timings,
             "config": config_to_dict(config) if config is not None else None,
         }
