@@ -114,6 +114,8 @@ def _read_json(path: Path, text: str, n_points: int) -> np.ndarray:
         data = json.loads(text)
     except json.JSONDecodeError as exc:
         raise _error(path, exc.lineno, f"invalid JSON: {exc.msg}") from None
+    except RecursionError:
+        raise _error(path, None, "JSON nested too deeply to be a landmark file") from None
     if not isinstance(data, dict) or "landmarks" not in data:
         raise _error(path, None, "expected an object with a 'landmarks' list")
     convention = data.get("convention", "ibug68")

@@ -83,6 +83,32 @@ def _open_unguarded(path: Path):
         yield img
 
 
+WIDE_MODES = ("I;16", "I;16B", "I;16L", "I;16N", "I", "F")
+"""Pillow's single-channel modes wider than 8 bits: 16-bit and 32-bit integers, 32-bit floats."""
+
+
+def _to_8bit(img):
+    """A 16/32-bit integer or float greyscale image as 8-bit greyscale, by what its values mean: integers up to
+    65535 are 16-bit (divided by 257), larger ones 32-bit; floats within [0, 1] are fractions of white,
+    larger ones read as 8-bit or 16-bit levels. (Pillow's own conversion clips them at 255: a 16-bit photo
+    came out almost white, a float one black.)"""
+    from PIL import Image
+
+    values = np.asarray(img, dtype=np.float64)
+    finite = values[np.isfinite(values)]
+    top = float(finite.max()) if finite.size else 0.0
+    if img.mode == "F" and top <= 1.0:
+        scale = 255.0
+    elif img.mode.startswith("I;16") or 255.0 < top <= 65535.0:
+        scale = 255.0 / 65535.0
+    elif top > 65535.0:
+        scale = 255.0 / 4294967295.0
+    else:
+        scale = 1.0
+    grey = np.clip(np.round(np.nan_to_num(values) * scale), 0, 255).astype(np.uint8)
+    return Image.fromarray(grey, "L")
+
+
 def load_working_image(
     path: str | Path, max_side: int = WORKING_MAX_SIDE, max_pixels: int = MAX_IMAGE_PIXELS
 ) -> LoadedImage:
@@ -123,6 +149,7 @@ def load_working_image(
             if k > 1 and img.format == "JPEG":
                 img.draft("RGB", (-(-width // k), -(-height // k)))  # decoder-side 1/2, 1/4, 1/8 scaling
             done = max(1, round(width / img.size[0]))  # what the decoder already reduced
+            img = _to_8bit(img) if img.mode in WIDE_MODES else img
             img = img.convert("RGB") if img.mode != "RGB" else img
             img.load()
             rotated = img.getexif().get(0x0112, 1) in (5, 6, 7, 8)  # after load: PNG keeps EXIF after IDAT

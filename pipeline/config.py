@@ -100,6 +100,8 @@ def parse_overrides(items: list[str] | None) -> dict:
             out[key.strip()] = yaml.safe_load(value)
         except yaml.YAMLError as exc:
             raise ConfigError(f"--set {item}: the value is not valid YAML ({_yaml_problem(exc)})") from None
+        except RecursionError:
+            raise ConfigError(f"--set {item}: the value is nested too deeply") from None
     return out
 
 
@@ -124,6 +126,8 @@ def load_config(cls: type[T], path: str | Path | None = None, overrides: dict | 
             raise ConfigError(f"{path}: not valid YAML ({_yaml_problem(exc)})") from None
         except UnicodeDecodeError:
             raise ConfigError(f"{path}: not a text (YAML) file") from None
+        except RecursionError:
+            raise ConfigError(f"{path}: nested too deeply to be a jnr configuration") from None
         data = data or {}
         if not isinstance(data, dict):
             raise ConfigError(f"{path}: expected a mapping of {cls.__name__} fields")
@@ -172,7 +176,7 @@ def dump_config(config, path: str | Path, *, command: str | None = None) -> None
     import yaml
 
     header = f"# The settings of this fit ({type(config).__module__}.{type(config).__name__}), every field resolved.\n"
-    if command:
-        header += f"# Made by: {command}\n"
+    if command:  # one comment line, whatever the command line held (a newline in a file name)
+        header += f"# Made by: {command.encode('unicode_escape').decode('ascii')}\n"
     header += "# Repeat it with --config on this file.\n"
     Path(path).write_text(header + yaml.safe_dump(config_to_dict(config), sort_keys=False, width=100))

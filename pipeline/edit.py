@@ -57,7 +57,7 @@ def load_edit_params(params: str | Path | None, clamp: bool = False) -> tuple[to
     path = Path(params)
     try:
         data = json.loads(path.read_text()) if path.is_file() else None
-    except (json.JSONDecodeError, UnicodeDecodeError):
+    except (json.JSONDecodeError, UnicodeDecodeError, RecursionError):
         data = None  # load_params_json reports it
     if _is_fit_params(data):
         kind = str(data.get("model", data.get("skinning", "jnr")))

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 import warnings
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import torch
@@ -125,9 +126,15 @@ def params_to_theta(
     Raises:
         ParameterError: an unknown name, a non-finite value, or (without ``clamp``) a value outside limits.
     """
+    if not isinstance(values, Mapping):
+        raise ParameterError(
+            f"rig parameters must be an object of names to values, got {type(values).__name__} "
+            '(e.g. {"nose_tip.translate_y": 2.0})'
+        )
     theta = torch.zeros(NUM_PARAMETERS, dtype=dtype)
     for name, value in values.items():
-        if name not in CHANNEL_INDEX:
+        if not isinstance(name, str) or name not in CHANNEL_INDEX:
+            name = str(name)
             close = [c for c in CHANNEL_INDEX if c.split(".")[0] == name.split(".")[0]]
             hint = f"; {name.split('.')[0]} has {', '.join(close)}" if close else ""
             raise ParameterError(f"unknown rig parameter {name!r}{hint}")

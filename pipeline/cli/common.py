@@ -123,15 +123,13 @@ def fit_photo_overrides(args: argparse.Namespace) -> dict:
     photometric = getattr(args, "photometric", False)
     if args.landmarks_only and photometric:
         raise CliError("--landmarks-only and --photometric contradict each other; give one")
+    # dotted keys, applied after any group (a whole group here would replace the user's --set group.key)
     if args.landmarks_only or photometric:
-        group = overrides.get("photometric")
-        value = bool(photometric)
-        overrides["photometric"] = {**group, "enabled": value} if isinstance(group, dict) else {"enabled": value}
+        overrides["photometric.enabled"] = bool(photometric)
     for option, key in (("units", "units"), ("outputs", "files"), ("ply_up", "ply_up")):  # outputs.<key>
         value = getattr(args, option, None)
         if value is not None:
-            group = overrides.get("outputs")
-            overrides["outputs"] = {**group, key: value} if isinstance(group, dict) else {key: value}
+            overrides[f"outputs.{key}"] = value
     return overrides
 
 

@@ -119,4 +119,6 @@ def load_params_file(path: str | Path) -> FitParams:
         raise ParamsFileError(f"{path} not found") from None
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise ParamsFileError(f"{path} is not a readable JSON file ({exc})") from None
+    except RecursionError:
+        raise ParamsFileError(f"{path} is nested too deeply to be a jnr parameter file") from None
     return read_params(data, path)

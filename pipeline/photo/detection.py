@@ -74,12 +74,23 @@ class DetectedFaces:
         return None if points is None else np.array(points[:, :2], np.float64)
 
 
+MIN_DETECTION_SIDE = 32
+"""Photos with a side shorter than this (pixels) are not given to a detector (dlib's CNN crashes on a
+1-2 px side; no detector finds a face in so few pixels)."""
+
+
 def detect_photo_faces(photo: LoadedImage, detector: str) -> DetectedFaces:
     """Every face in the working image of ``photo``, found by the registered detector ``detector``.
 
     Raises:
         NoFaceError: there is none (the message names the detector); DetectionError: an unknown detector.
     """
+    height, width = photo.image.shape[:2]
+    if min(height, width) < MIN_DETECTION_SIDE:
+        raise NoFaceError(
+            f"the photo is {width}x{height} pixels: too small to find a face in (at least {MIN_DETECTION_SIDE} "
+            "a side); pass --landmarks FILE to give the landmarks yourself"
+        )
     t0 = time.perf_counter()
     found_by = create_detector(detector)
     faces = detect_faces(photo.image, found_by)

@@ -43,6 +43,8 @@ def load_params_json(path: str | Path, *, clamp: bool = False) -> torch.Tensor:
         data = json.loads(path.read_text())
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise ParameterError(f"{path}: not valid JSON ({exc})") from None
+    except RecursionError:
+        raise ParameterError(f"{path}: nested too deeply to be a parameter file") from None
     if isinstance(data, dict) and isinstance(data.get("joints"), dict):
         data = data["joints"]
     if not isinstance(data, dict):

@@ -133,3 +133,96 @@ def test_a_scan_fit_writes_joint_values_its_readers_accept(tmp_path):
     assert clamped["bottom_lip.scale_z"] == pytest.approx([1.505, 1.5])
     values = {c.name: c.from_theta(float(t)) for c, t in zip(CHANNELS, state.theta.detach().double(), strict=True)}
     params_to_theta(values)  # inside every limit: no ParameterError
+
+
+@pytest.mark.parametrize("size", [(1, 1), (1, 400), (31, 200)])
+def test_a_photo_too_small_for_a_detector_is_one_line(capsys, tmp_path, size):
+    """D7: a 1x1 PNG aborted inside dlib's CNN (exit -7, a C++ assertion), a 1 x 4000 one segfaulted: now a
+    photo with a side under 32 px is refused before any detector sees it."""
+    from PIL import Image
+
+    photo = tmp_path / "tiny.png"
+    Image.new("RGB", size, (128, 100, 90)).save(photo)
+    code = main(["fit", str(photo), "--out", str(tmp_path / "o"), "--quiet"])
+    err = capsys.readouterr().err
+    assert code == 2 and "too small to find a face" in err and len(err.strip().splitlines()) == 1, err
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("joints", [[1, 2], "nose", 3])
+def test_a_fit_whose_joints_are_not_an_object_is_one_line(capsys, tmp_path, joints):
+    """D8: a params.json whose joints is a list or a string was an AttributeError traceback."""
+    path = tmp_path / "params.json"
+    path.write_text(json.dumps({"format": "jnr-params/2", "fit": "photo", "model": "jnr", "joints": joints}))
+    code = main(["rig", "edit", str(path), "--out", str(tmp_path / "e.obj")])
+    err = capsys.readouterr().err
+    assert code == 2 and len(err.strip().splitlines()) == 1 and "Traceback" not in err, err
+    assert not (tmp_path / "e.obj").exists()
+
+
+def test_deeply_nested_files_are_one_line(capsys, tmp_path):
+    """D9: nested JSON in a parameter file and nested YAML in --config were RecursionError tracebacks."""
+    deep_json = tmp_path / "p.json"
+    deep_json.write_text("[" * 100_000 + "]" * 100_000)
+    code = main(["rig", "edit", str(deep_json), "--out", str(tmp_path / "e.obj")])
+    err = capsys.readouterr().err
+    assert code == 2 and len(err.strip().splitlines()) == 1 and "Traceback" not in err, err
+    deep_yaml = tmp_path / "deep.yaml"
+    deep_yaml.write_text("a: " + "[" * 100_000 + "]" * 100_000 + "\n")
+    from PIL import Image
+
+    Image.new("RGB", (64, 64), (120, 100, 90)).save(tmp_path / "p.png")
+    code = main(["fit", str(tmp_path / "p.png"), "--config", str(deep_yaml), "--out", str(tmp_path / "o")])
+    err = capsys.readouterr().err
+    assert code == 2 and "nested too deeply" in err and len(err.strip().splitlines()) == 1, err
+
+
+def test_photometric_and_outputs_options_keep_the_users_settings(capsys, tmp_path):
+    """D18: --photometric replaced the whole photometric group, dropping every --set photometric.* (an invalid
+    one was silently ignored); --outputs/--units did the same to --set outputs.*."""
+    from pipeline.cli import build_parser
+    from pipeline.cli.common import CliError, load_fit_photo_config
+
+    def config(*extra):
+        return load_fit_photo_config(build_parser().parse_args(["fit", "p.png", "--out", "o", *extra]))
+
+    c = config("--photometric", "--set", "photometric.spp=7", "--outputs", "mesh", "--set", "outputs.units=m")
+    assert c.photometric.enabled and c.photometric.spp == 7
+    assert c.outputs.files == "mesh" and c.outputs.units == "m"
+    with pytest.raises(CliError, match="render_size"):
+        config("--photometric", "--set", "photometric.render_size=0")
+
+
+def test_a_newline_in_the_command_keeps_config_yaml_readable(tmp_path):
+    """D4: a photo named 'a\\nlandmarks: 5\\n.jpg' put live YAML into config.yaml's header comment."""
+    from pipeline.config import dump_config, load_config
+    from pipeline.photo.fit_config import FitPhotoConfig
+
+    path = tmp_path / "config.yaml"
+    dump_config(FitPhotoConfig(), path, command="jnr fit 'a\nlandmarks: 5\n.jpg' --out o")
+    assert load_config(FitPhotoConfig, path) == FitPhotoConfig()
+    assert "# Made by: jnr fit 'a\\nlandmarks: 5\\n.jpg' --out o" in path.read_text()
+
+
+@pytest.mark.parametrize("kind", ["uint16", "int32", "float01"])
+def test_wide_greyscale_photos_are_read_as_they_mean(tmp_path, kind):
+    """D19: a 16-bit greyscale PNG came out almost white (Pillow clips at 255), a float TIFF in [0, 1] black:
+    now both read as the 8-bit picture they hold."""
+    import numpy as np
+    from PIL import Image
+
+    from landmarks.images import load_working_image
+
+    grey = np.tile(np.arange(0, 256, 1, dtype=np.uint8), (32, 1))
+    if kind == "uint16":
+        Image.fromarray(grey.astype(np.uint16) * 257).save(tmp_path / "g.png")
+        path = tmp_path / "g.png"
+    elif kind == "int32":
+        Image.fromarray(grey.astype(np.int32) * 257, "I").save(tmp_path / "g.tif")
+        path = tmp_path / "g.tif"
+    else:
+        Image.fromarray(grey.astype(np.float32) / 255.0, "F").save(tmp_path / "g.tif")
+        path = tmp_path / "g.tif"
+    image = load_working_image(path).image
+    assert image.shape == (32, 256, 3)
+    assert np.abs(image[..., 0].astype(int) - grey).max() <= 1

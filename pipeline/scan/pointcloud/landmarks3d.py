@@ -40,6 +40,8 @@ def read_landmarks3d(path) -> dict[str, np.ndarray]:
             data = json.load(fh)
     except (ValueError, UnicodeDecodeError) as exc:
         raise CloudError(f"{path}: not valid JSON ({exc})") from exc
+    except RecursionError:
+        raise CloudError(f"{path}: JSON nested too deeply to be a landmark file") from None
     if isinstance(data, dict) and isinstance(data.get("landmarks"), dict):
         data = data["landmarks"]
     if not isinstance(data, dict) or not data:
