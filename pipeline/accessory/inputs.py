@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import io
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -14,6 +15,7 @@ from rig.accessory import (
 from rig.asset import load_asset
 from rig.errors import InputError
 from rig.geometry import closest_surface_points
+from rig.io.inputs import regular_file
 
 ACCESSORY_DIR = Path(__file__).resolve().parents[1] / "assets" / "accessories"
 """The shipped example accessories (``<name>.obj``)."""
@@ -49,6 +51,10 @@ class Accessory:
     faces: np.ndarray
 
 
+MAX_ACCESSORY_BYTES = 256 << 20
+"""The largest accessory OBJ read (256 MiB)."""
+
+
 def accessory_path(accessory: str | Path) -> Path:
     """The file of an accessory argument: an existing file as it is, else a shipped example's name."""
     path = Path(accessory)
@@ -77,7 +83,13 @@ def read_accessory(accessory: str | Path, asset=None) -> Accessory:
     if path.suffix.lower() != ".obj":
         raise AccessoryInputError(f"accessory {path} must be a Wavefront .obj file")
     try:
-        mesh = trimesh.load(str(path), file_type="obj", force="mesh", process=False)
+        data = regular_file(path, "accessory", MAX_ACCESSORY_BYTES).read_bytes()
+    except InputError as exc:
+        raise AccessoryInputError(str(exc)) from None
+    # the material is optional: a file an OBJ names (mtllib, possibly a FIFO or a device) is never opened
+    data = b"\n".join(line for line in data.splitlines() if not line.lstrip().startswith(b"mtllib"))
+    try:
+        mesh = trimesh.load(io.BytesIO(data), file_type="obj", force="mesh", process=False)
         vertices = np.asarray(mesh.vertices, dtype=np.float64)
         faces = np.asarray(mesh.faces, dtype=np.int64)
     except Exception as exc:  # trimesh's OBJ parser raises many types

@@ -69,9 +69,26 @@ def _joint_index(name: str) -> int:
     return JOINT_INDEX[name]
 
 
+MAX_PREVIEW_FRAMES = 1800
+"""The most frames a preview renders (a minute at 30 fps): a longer take is shown by frames spread evenly over
+it (logged), not by a clock that would need more frames than memory holds."""
+
+
 def _frame_indices(times: np.ndarray, fps: float) -> np.ndarray:
-    """Rows of the curves nearest to a ``fps`` clock from the first to the last time (no repeats)."""
-    clock = np.arange(0.0, times[-1] + 1e-9, 1.0 / fps)
+    """Rows of the curves nearest to a ``fps`` clock from the first to the last time (no repeats), at most
+    :data:`MAX_PREVIEW_FRAMES` (then spread evenly over the take)."""
+    frames = int(min(float(times[-1]) * fps, MAX_PREVIEW_FRAMES * 4)) + 1
+    if frames > MAX_PREVIEW_FRAMES:
+        log.warning(
+            "animate: the preview shows %d frames spread over the %.0f s take (at most %d; the glTF has every row)",
+            MAX_PREVIEW_FRAMES,
+            float(times[-1]),
+            MAX_PREVIEW_FRAMES,
+        )
+        frames = MAX_PREVIEW_FRAMES
+        clock = np.linspace(0.0, float(times[-1]), frames)
+    else:
+        clock = np.arange(frames) / fps
     return np.unique(np.clip(np.searchsorted(times, clock), 0, len(times) - 1))
 
 

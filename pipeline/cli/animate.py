@@ -22,13 +22,16 @@ def _track_fps(fit_dir: str, curves_path: Path) -> float | None:
     ``fit_dir``; None otherwise (the layout's default rate)."""
     import json
 
+    from rig.errors import InputError
+    from rig.io.inputs import regular_file
+
     try:
         if Path(curves_path).resolve().parent != Path(fit_dir).resolve():
             return None
-        data = json.loads((Path(fit_dir) / "params.json").read_text(encoding="utf-8"))
+        data = json.loads(regular_file(Path(fit_dir) / "params.json", "parameter file", 1 << 26).read_text())
         fps = data.get("track", {}).get("fps") if data.get("fit") == "track" else None
         return float(fps) if isinstance(fps, int | float) and 0.1 <= fps <= 1000 else None
-    except (OSError, ValueError, AttributeError):
+    except (OSError, ValueError, AttributeError, InputError, RecursionError):
         return None
 
 
@@ -38,8 +41,8 @@ def cmd_animate(args: argparse.Namespace) -> int:
     out = Path(args.out)
     if out.suffix.lower() not in (".glb", ".gltf"):
         raise CliError(f"--out {out}: the animation is glTF; use a .glb or .gltf name")
-    if args.preview_fps <= 0:
-        raise CliError(f"--preview-fps must be positive, got {args.preview_fps}")
+    if not 0 < args.preview_fps <= 60:  # NaN and inf too
+        raise CliError(f"--preview-fps must be a number of frames per second in (0, 60], got {args.preview_fps}")
     preview = None if args.no_preview else Path(args.preview) if args.preview else out.with_suffix(".gif")
     if preview is not None and preview.suffix.lower() != ".gif":
         raise CliError(f"--preview {preview}: the preview is a GIF; use a .gif name")

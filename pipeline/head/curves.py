@@ -17,6 +17,7 @@ import numpy as np
 from rig.errors import InputError
 from rig.expressions import EXPRESSION_NAMES, expression_limits
 from rig.io.atomic import write_bytes_atomic
+from rig.io.inputs import regular_file
 
 log = logging.getLogger("jnr")
 
@@ -26,6 +27,8 @@ LIVE_LINK_HEAD = ("HeadYaw", "HeadPitch", "HeadRoll")
 LIVE_LINK_EYES = ("LeftEyeYaw", "LeftEyePitch", "LeftEyeRoll", "RightEyeYaw", "RightEyePitch", "RightEyeRoll")
 LIVE_LINK_FPS = 60.0
 """Live Link Face's recording rate, the default frame rate of its timecodes."""
+MAX_CURVES_BYTES = 512 << 20
+"""The largest curves file read (512 MiB: millions of rows)."""
 PLAIN_FPS = 30.0
 """The default frame rate of a plain CSV without a ``time`` column."""
 HEAD_JOINT = "skull_root"
@@ -128,9 +131,12 @@ def read_curves(path: str | Path, *, fps: float | None = None, head_units: str |
     if head_units not in (None, "rad", "deg"):
         raise CurvesError(f"head units must be 'rad' or 'deg', got {head_units!r}")
     try:
+        regular_file(path, "curves", MAX_CURVES_BYTES)
         text = path.read_text(encoding="utf-8-sig")
     except UnicodeDecodeError:
         raise CurvesError(f"{path}: not a text CSV file") from None
+    except InputError as exc:
+        raise CurvesError(str(exc)) from None
     rows = [r for r in csv.reader(io.StringIO(text)) if any(cell.strip() for cell in r)]
     if not rows:
         raise CurvesError(f"{path}: empty curves file")

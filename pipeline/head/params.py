@@ -25,8 +25,11 @@ from pathlib import Path
 
 from rig.errors import InputError
 from rig.head_model import HeadModel, HeadParams
+from rig.io.inputs import regular_file
 
 PARAMS_FILE = "params.json"
+MAX_PARAMS_BYTES = 64 << 20
+"""The largest parameter file read (64 MiB; a fit's is a few kB, an ASM fit's < 1 MB)."""
 PARAMS_FORMAT = "jnr-params/2"
 FIT_KINDS = ("photo", "views", "scan", "track")
 """What may write a ``params.json``: ``jnr fit PHOTO``, ``jnr fit --views``, ``jnr fit-scan``, ``jnr track``."""
@@ -114,9 +117,12 @@ def load_params_file(path: str | Path) -> FitParams:
     """
     path = Path(path)
     try:
+        regular_file(path, "parameter file", MAX_PARAMS_BYTES)
         data = json.loads(path.read_text(encoding="utf-8"))
     except FileNotFoundError:
         raise ParamsFileError(f"{path} not found") from None
+    except InputError as exc:
+        raise ParamsFileError(str(exc)) from None
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise ParamsFileError(f"{path} is not a readable JSON file ({exc})") from None
     except RecursionError:

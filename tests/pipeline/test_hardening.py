@@ -226,3 +226,82 @@ def test_wide_greyscale_photos_are_read_as_they_mean(tmp_path, kind):
     image = load_working_image(path).image
     assert image.shape == (32, 256, 3)
     assert np.abs(image[..., 0].astype(int) - grey).max() <= 1
+
+
+def _fifo(path):
+    os.mkfifo(path)
+    return path
+
+
+def test_pipes_and_devices_are_refused_before_they_are_read(capsys, tmp_path):
+    """D14, D15: a FIFO named x.ply blocked fit-scan forever, x.xyz -> /dev/zero grew until the memory was
+    gone, a FIFO as curves blocked animate: each is one line, exit 2, nothing written."""
+    cloud = _fifo(tmp_path / "x.ply")
+    zero = tmp_path / "z.xyz"
+    zero.symlink_to("/dev/zero")
+    for clip in (cloud, zero):
+        code = main(["fit-scan", str(clip), "--out", str(tmp_path / "o"), "--quiet"])
+        err = capsys.readouterr().err
+        assert code == 2 and "not a regular file" in err and len(err.strip().splitlines()) == 1, err
+    from pipeline.head.curves import CurvesError, read_curves
+
+    with pytest.raises(CurvesError, match="not a regular file"):
+        read_curves(_fifo(tmp_path / "c.csv"))
+    from pipeline.head.params import ParamsFileError, load_params_file
+
+    with pytest.raises(ParamsFileError, match="not a regular file"):
+        load_params_file(_fifo(tmp_path / "params.json"))
+    assert not (tmp_path / "o").exists()
+
+
+def test_files_an_input_names_are_not_opened(tmp_path, caplog):
+    """D13, D14: a PLY cloud whose header names TextureFile /dev/zero was opened (and a traceback logged);
+    an accessory OBJ whose mtllib names a FIFO hung: a cloud needs no texture, an accessory's material is
+    optional, neither is opened."""
+    import numpy as np
+
+    from pipeline.accessory.inputs import read_accessory
+    from pipeline.scan.pointcloud.read import read_point_cloud
+    from rig.asset import load_asset
+
+    rng = np.random.default_rng(0)
+    points = rng.normal(0, 60, (500, 3))
+    header = "ply\nformat ascii 1.0\ncomment TextureFile /dev/zero\nelement vertex 500\n"
+    header += "property float x\nproperty float y\nproperty float z\nend_header\n"
+    (tmp_path / "c.ply").write_text(header + "\n".join(" ".join(f"{v:.3f}" for v in p) for p in points) + "\n")
+    import logging
+
+    with caplog.at_level(logging.DEBUG):
+        cloud = read_point_cloud(tmp_path / "c.ply", units="mm")
+    assert len(cloud.points) == 500
+    assert not [r for r in caplog.records if "image" in r.getMessage()], caplog.text
+    asset = load_asset()
+    _fifo(tmp_path / "hang.mtl")
+    eye = np.asarray(asset.vertices)[np.asarray(asset.vertices)[:, 2].argmax()]  # the nose tip: on the skin
+    v = eye + np.array([[0.0, 0, 2], [10, 0, 2], [0, 10, 2]])
+    text = "mtllib hang.mtl\n" + "".join(f"v {a:.3f} {b:.3f} {c:.3f}\n" for a, b, c in v) + "f 1 2 3\n"
+    (tmp_path / "acc.obj").write_text(text)
+    accessory = read_accessory(tmp_path / "acc.obj", asset)
+    assert accessory.faces.shape == (1, 3)
+
+
+def test_preview_frame_counts_are_bounded():
+    """D11, D16: a curve spanning 0 to 1e9 s asked numpy for 89 GiB of clock, 1e6 rows at 12 fps rendered for
+    hours: the preview renders at most MAX_PREVIEW_FRAMES, spread over the take."""
+    import numpy as np
+
+    from pipeline.animation.keyframes import MAX_PREVIEW_FRAMES, _frame_indices
+
+    rows = _frame_indices(np.array([0.0, 1e9]), 12.0)
+    assert rows.tolist() == [0, 1]
+    long = _frame_indices(np.arange(1_000_000) / 30.0, 12.0)
+    assert len(long) == MAX_PREVIEW_FRAMES and long[0] == 0 and long[-1] == 999_999
+    short = _frame_indices(np.arange(60) / 30.0, 12.0)  # 2 s at 12 fps: the clock as before
+    assert len(short) == 24
+
+
+@pytest.mark.parametrize("fps", ["inf", "nan", "0", "1000"])
+def test_preview_fps_out_of_range_is_one_line(capsys, tmp_path, fps):
+    code = main(["animate", str(tmp_path), "example", "--out", str(tmp_path / "a.glb"), "--preview-fps", fps])
+    err = capsys.readouterr().err
+    assert code == 2 and "--preview-fps" in err and len(err.strip().splitlines()) == 1, err

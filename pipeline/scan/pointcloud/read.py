@@ -10,8 +10,14 @@ import numpy as np
 
 from pipeline.scan.pointcloud.cloud import CloudError, PointCloud
 from pipeline.scan.pointcloud.validate import LARGE_CLOUD_POINTS, SUBSAMPLE_POINTS, validate_points
+from rig.errors import InputError
+from rig.io.inputs import regular_file
 
 SUPPORTED_EXTENSIONS = (".ply", ".obj", ".xyz", ".txt", ".csv", ".npy")
+
+
+MAX_CLOUD_BYTES = 4 << 30
+"""The largest point-cloud file read (4 GiB)."""
 
 
 def read_point_cloud(
@@ -52,10 +58,10 @@ def read_point_cloud(
         raise CloudError(
             f"{path}: unknown point-cloud extension {ext or '(none)'!r}; supported: {', '.join(SUPPORTED_EXTENSIONS)}"
         )
-    if not os.path.exists(path):
-        raise FileNotFoundError(f"point cloud not found: {path}")
-    if os.path.isdir(path):
-        raise CloudError(f"{path}: is a folder, expected a point-cloud file")
+    try:
+        regular_file(path, "point cloud", MAX_CLOUD_BYTES)
+    except InputError as exc:
+        raise CloudError(str(exc)) from None
     reader = {".ply": _read_ply, ".obj": _read_obj, ".npy": _read_npy}.get(ext, _read_table)
     try:
         points, normals = reader(path)
@@ -82,8 +88,8 @@ def _read_ply(path: str) -> tuple[np.ndarray, np.ndarray | None]:
     # (metadata['_ply_raw']), so take x y z and nx ny nz from there, which also works for meshes.
     from trimesh.exchange.ply import load_ply
 
-    with open(path, "rb") as fh:
-        loaded = load_ply(fh)
+    with open(path, "rb") as fh:  # a point cloud needs no texture: a TextureFile the header names is not opened
+        loaded = load_ply(fh, skip_materials=True)
     raw = loaded.get("metadata", {}).get("_ply_raw", {}).get("vertex")
     if raw is None:
         vertices = loaded.get("vertices")
