@@ -27,8 +27,8 @@ def cmd_accessory(args: argparse.Namespace) -> int:
     from pipeline.accessory import accessory_path, run_accessory
 
     check_output(args.out, args.force, inputs=[args.fit_dir, accessory_path(args.accessory)], kind="folder")
-    if args.spp < 1:
-        raise CliError(f"--spp must be at least 1, got {args.spp}")
+    if not 1 <= args.spp <= 1024:
+        raise CliError(f"--spp must be within [1, 1024], got {args.spp}")
     result = run_accessory(
         args.fit_dir,
         args.accessory,

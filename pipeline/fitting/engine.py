@@ -34,6 +34,10 @@ import torch
 from pipeline.fitting.state import FREE_GROUPS, GroupedParameters
 from rig.optim import Progress, frozen
 
+MAX_STAGE_ITERATIONS = 100_000
+"""The most steps a stage may take (the shipped schedules take at most a few hundred): a typo such as 10^9
+would run for days."""
+
 
 @dataclass(frozen=True)
 class Stage:
@@ -55,8 +59,11 @@ class Stage:
             raise ValueError(
                 f"stage {self.name!r}: free must be a non-empty subset of {list(self.groups)}, got {list(self.free)}"
             )
-        if self.iterations < 0:
-            raise ValueError(f"stage {self.name!r}: iterations must be >= 0, got {self.iterations}")
+        if not (isinstance(self.iterations, int) and 0 <= self.iterations <= MAX_STAGE_ITERATIONS):
+            raise ValueError(
+                f"stage {self.name!r}: iterations must be an integer within [0, {MAX_STAGE_ITERATIONS}], "
+                f"got {self.iterations!r}"
+            )
 
 
 @dataclass(frozen=True)

@@ -33,6 +33,10 @@ PHOTO_PRIOR = PriorWeights(lambda_m=0.0, lambda_identity=PHOTO_LAMBDA_IDENTITY)
 :class:`~pipeline.fitting.priors.PriorWeights`."""
 
 
+MAX_SPP = 1024
+"""The most samples per pixel a render may take (the defaults take 2-32)."""
+
+
 @dataclass(frozen=True)
 class PhotoStage(Stage):
     """One stage of the photometric schedule: ``free`` is a subset of ``pose``, ``joints``, ``latent``,
@@ -135,8 +139,8 @@ class PhotometricConfig:
     def __post_init__(self) -> None:
         if self.render_size < 16:
             raise ValueError(f"render_size must be >= 16 pixels, got {self.render_size}")
-        if self.spp < 1:
-            raise ValueError(f"spp must be >= 1, got {self.spp}")
+        if not 1 <= self.spp <= MAX_SPP:
+            raise ValueError(f"spp must be within [1, {MAX_SPP}], got {self.spp}")
         if not self.crop_margin >= 0:
             raise ValueError(f"crop_margin must be >= 0, got {self.crop_margin}")
         if self.light_model not in LIGHT_MODELS:

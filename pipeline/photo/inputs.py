@@ -8,10 +8,14 @@ Example:
 
 from __future__ import annotations
 
+import logging
+import os
 from collections.abc import Iterable
 from pathlib import Path
 
 from rig.errors import InputError
+
+_log = logging.getLogger(__name__)
 
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp", ".gif", ".tif", ".tiff", ".webp", ".ppm", ".pgm", ".pnm")
 """What ``jnr fit`` reads as photos, named directly or found in a folder (the same rule for both)."""
@@ -43,7 +47,25 @@ def photo_inputs(items: Iterable[str | Path]) -> tuple[list[Path], list[Path]]:
             photos.append(path)
         else:
             raise InputError(f"image file not found: {path}")
-    return photos, folders
+    return _unique(photos), folders
+
+
+def _unique(photos: list[Path]) -> list[Path]:
+    """The photos with each file once, by its real path (the same photo named twice, or named and found in a
+    named folder, was fitted twice); the first name given is kept, and the repeats are said in one line."""
+    seen: set[str] = set()
+    kept: list[Path] = []
+    repeats = 0
+    for photo in photos:
+        key = os.path.realpath(photo)
+        if key in seen:
+            repeats += 1
+            continue
+        seen.add(key)
+        kept.append(photo)
+    if repeats:
+        _log.warning("%d photo(s) named more than once (or also found in a named folder): each is fitted once", repeats)
+    return kept
 
 
 def sidecar_landmarks(photo: str | Path) -> Path:

@@ -103,6 +103,7 @@ def test_clamp_option_warns_and_clamps(capsys, tmp_path):
     assert code == 0, err
 
 
+@pytest.mark.slow  # three rig builds (18 s): in `make test-slow`, which CI runs, so the suite stays under 8 min
 def test_rig_build_check_matches_committed_asset(capsys, tmp_path):
     code, out, _ = run(capsys, "rig", "build", "--check")
     assert code == 0 and "identical" in out

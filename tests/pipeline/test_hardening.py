@@ -305,3 +305,23 @@ def test_preview_fps_out_of_range_is_one_line(capsys, tmp_path, fps):
     code = main(["animate", str(tmp_path), "example", "--out", str(tmp_path / "a.glb"), "--preview-fps", fps])
     err = capsys.readouterr().err
     assert code == 2 and "--preview-fps" in err and len(err.strip().splitlines()) == 1, err
+
+
+def test_a_photo_named_twice_is_fitted_once(tmp_path, caplog):
+    """D33: the same photo twice on the command line, or a folder plus a photo inside it, was fitted twice
+    (and left workers behind): inputs are taken once by their real path, with one log line."""
+    import logging
+
+    from PIL import Image
+
+    from pipeline.photo.inputs import photo_inputs
+
+    folder = tmp_path / "ph"
+    folder.mkdir()
+    for name in ("a.png", "b.png"):
+        Image.new("RGB", (40, 40)).save(folder / name)
+    (tmp_path / "link.png").symlink_to(folder / "a.png")
+    with caplog.at_level(logging.WARNING):
+        photos, folders = photo_inputs([folder / "a.png", folder, folder / "a.png", tmp_path / "link.png"])
+    assert photos == [folder / "a.png", folder / "b.png"] and folders == [folder]
+    assert "3 photo(s) named more than once" in caplog.text

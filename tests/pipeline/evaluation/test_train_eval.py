@@ -34,6 +34,7 @@ def test_config_rejects_unknown_keys(tmp_path):
     assert load_config(tmp_path / "c.yaml", {"seed": 3}) == TrainConfig(cycles=2, seed=3)
 
 
+@pytest.mark.slow  # a training run (11 s): in `make test-slow`, which CI runs
 def test_tiny_training_run_through_the_cli(tmp_path, capsys):
     out = tmp_path / "skinning.npz"
     code = main(
