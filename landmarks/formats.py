@@ -182,7 +182,10 @@ def read_landmarks(path: str | Path, n_points: int | tuple[int, ...] = NUM_LANDM
     fmt = _format(path)
     if not path.is_file():
         raise FileNotFoundError(f"landmark file not found: {path}")
-    text = path.read_text(encoding="utf-8")
+    try:
+        text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError:
+        raise _error(path, None, "not a text file (UTF-8): a landmark file is .pts, .json or .csv text") from None
     reader = {".pts": _read_pts, ".json": _read_json, ".csv": _read_csv}[fmt]
     return reader(path, text, n_points)
 

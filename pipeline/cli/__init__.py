@@ -41,9 +41,17 @@ COMMAND_GROUPS = (demo, fit, fit_scan, track, animate, accessory, rig, data, tra
 """The modules whose ``add_commands(subparsers)`` make the sub-commands, in the order ``--help`` lists them."""
 
 
+class JnrArgumentParser(argparse.ArgumentParser):
+    """argparse with jnr's errors: one line ``jnr: error: <command>: <what>`` and exit status 2, not a usage
+    block (the sub-commands' parsers are of this class too: argparse makes them with their parent's)."""
+
+    def error(self, message: str):
+        self.exit(EXIT_USAGE, f"jnr: error: {self.prog}: {message} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The ``jnr`` parser: every command's parser, made by its module."""
-    parser = argparse.ArgumentParser(
+    parser = JnrArgumentParser(
         prog="jnr",
         description="Joint-based Neural Rig: a 52-joint face rig, fitted to photos and point clouds.",
         formatter_class=argparse.RawDescriptionHelpFormatter,

@@ -325,3 +325,30 @@ def test_a_photo_named_twice_is_fitted_once(tmp_path, caplog):
         photos, folders = photo_inputs([folder / "a.png", folder, folder / "a.png", tmp_path / "link.png"])
     assert photos == [folder / "a.png", folder / "b.png"] and folders == [folder]
     assert "3 photo(s) named more than once" in caplog.text
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["fit", "x.jpg", "--focal", "abc", "--out", "o"], "jnr fit: argument --focal: invalid float value: 'abc'"),
+        (["fitt"], "invalid choice: 'fitt'"),
+        (["fit", "x.jpg"], "the following arguments are required: --out"),
+    ],
+)
+def test_argument_errors_are_one_line(capsys, args, message):
+    """D28: argparse printed a usage block before its error: now one ``jnr: error:`` line, exit 2."""
+    with pytest.raises(SystemExit) as exit_info:
+        main(args)
+    err = capsys.readouterr().err
+    assert exit_info.value.code == 2 and err.startswith("jnr: error: ") and message in err, err
+    assert len(err.strip().splitlines()) == 1
+
+
+def test_a_binary_landmarks_file_is_named_in_one_line(tmp_path):
+    """D26: a landmarks file that is not UTF-8 text exited 1 with a codec message that did not name it."""
+    from landmarks.formats import read_landmarks
+
+    path = tmp_path / "bin.pts"
+    path.write_bytes(b"\xff\xd8\xff\xe0" + bytes(range(256)))
+    with pytest.raises(ValueError, match=r"bin\.pts.*not a text file"):
+        read_landmarks(path)
