@@ -35,7 +35,7 @@ import logging
 import sys
 
 from pipeline.cli import accessory, animate, data, demo, evaluate, fit, fit_scan, rig, track, train
-from pipeline.cli.common import EXIT_FAILURE, EXIT_OK, EXIT_USAGE, CliError
+from pipeline.cli.common import EXIT_FAILURE, EXIT_OK, EXIT_USAGE, CliError, printable
 
 COMMAND_GROUPS = (demo, fit, fit_scan, track, animate, accessory, rig, data, train, evaluate)
 """The modules whose ``add_commands(subparsers)`` make the sub-commands, in the order ``--help`` lists them."""
@@ -111,7 +111,7 @@ def _one_line(exc: BaseException) -> str:
     """An exception's message on one line (OSError: strerror and the file)."""
     if isinstance(exc, OSError) and exc.strerror and exc.filename:
         return f"{exc.filename}: {exc.strerror}"
-    text = " ".join(str(exc).split())
+    text = " ".join(printable(str(exc)).split())
     return text or type(exc).__name__
 
 

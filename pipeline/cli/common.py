@@ -16,6 +16,14 @@ log = logging.getLogger("jnr")
 EXIT_OK, EXIT_FAILURE, EXIT_USAGE = 0, 1, 2
 
 
+def printable(text: str) -> str:
+    """``text`` with its control characters (an escape sequence, a bell) written as ``\\xNN`` and line breaks
+    as spaces, so a name cannot clear or recolour the terminal or break a one-line message."""
+    return "".join(
+        " " if c in "\n\r\t" else c if c.isprintable() else c.encode("unicode_escape").decode("ascii") for c in text
+    )
+
+
 class CliError(JnrError):
     """An error to report to the user in one line (exit status ``code``)."""
 

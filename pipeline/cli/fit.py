@@ -22,6 +22,7 @@ from pipeline.cli.common import (
     StageBars,
     command_line,
     load_fit_photo_config,
+    printable,
     progress_bars_wanted,
 )
 from pipeline.head.folders import PHOTO_FOLDER, PHOTO_OUTPUT_SETS, VIEWS_FOLDER
@@ -128,11 +129,11 @@ def _print_results(results) -> list:
         if r.summary is not None and not r.kept:
             face = "" if r.face is None or r.faces_found is None else f" face {r.face} of {r.faces_found}"
             print(
-                f"{r.photo}{face}: {r.summary['mean_error_px']:.2f} px (NME {r.summary['nme']:.4f}), "
-                f"{r.summary['fit_seconds']:.1f} s -> {r.summary['output']}"
+                f"{printable(str(r.photo))}{face}: {r.summary['mean_error_px']:.2f} px (NME {r.summary['nme']:.4f}), "
+                f"{r.summary['fit_seconds']:.1f} s -> {printable(str(r.summary['output']))}"
             )
     for r in failed:
-        print(f"jnr: error: {r.error}", file=sys.stderr)
+        print(f"jnr: error: {printable(r.error)}", file=sys.stderr)
     return failed
 
 

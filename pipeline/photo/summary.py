@@ -94,6 +94,23 @@ def _number(value, digits: int) -> str:
     return "" if value is None else f"{float(value):.{digits}f}"
 
 
+FORMULA_STARTS = ("=", "+", "-", "@", "\t", "\r")
+"""What makes a spreadsheet take a cell for a formula (a photo named ``=1+2.jpg``)."""
+TEXT_COLUMNS = ("photo", "error", "output")
+"""The columns holding names and messages (:func:`text_cell`)."""
+
+
+def text_cell(text: str) -> str:
+    """A name or a message as a CSV cell no spreadsheet runs: one starting like a formula gets a leading
+    ``'`` (:func:`read_text_cell` takes it off)."""
+    return "'" + text if text.startswith(FORMULA_STARTS) else text
+
+
+def read_text_cell(text: str) -> str:
+    """The name or message :func:`text_cell` wrote."""
+    return text[1:] if text.startswith("'") and text[1:].startswith(FORMULA_STARTS) else text
+
+
 def summary_csv(results: Iterable[PhotoFileResult]) -> str:
     """The text of :data:`SUMMARY_FILE`: a header of :data:`SUMMARY_COLUMNS` and one row per result (empty
     cells for what is not known; pixels with 3 decimals, NME with 5, seconds with 2)."""
@@ -105,11 +122,11 @@ def summary_csv(results: Iterable[PhotoFileResult]) -> str:
         box = r.face_box or ("",) * 4
         writer.writerow(
             [
-                r.photo,
+                text_cell(r.photo),
                 "" if r.face is None else r.face,
                 "error" if r.error else "ok",
-                r.error or "",
-                r.output or "",
+                text_cell(r.error or ""),
+                text_cell(r.output or ""),
                 _number(fitted.get("mean_error_px"), 3),
                 _number(fitted.get("nme"), 5),
                 _number(r.seconds, 2),
@@ -138,7 +155,8 @@ def read_summary(path: str | Path) -> list[dict[str, str]] | None:
         return None
     if not _jnr_header(text.split("\n", 1)[0].rstrip("\r")):
         return None
-    return list(csv.DictReader(io.StringIO(text, newline="")))
+    rows = list(csv.DictReader(io.StringIO(text, newline="")))
+    return [{k: read_text_cell(v) if k in TEXT_COLUMNS else v for k, v in row.items()} for row in rows]
 
 
 def check_summary(path: Path, force: bool, inputs: Iterable[str | Path]) -> None:

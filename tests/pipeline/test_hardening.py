@@ -352,3 +352,20 @@ def test_a_binary_landmarks_file_is_named_in_one_line(tmp_path):
     path.write_bytes(b"\xff\xd8\xff\xe0" + bytes(range(256)))
     with pytest.raises(ValueError, match=r"bin\.pts.*not a text file"):
         read_landmarks(path)
+
+
+def test_names_reach_terminals_and_spreadsheets_inert(capsys, tmp_path):
+    """D5: a photo name with an escape sequence was printed raw (it could clear the terminal), and one named
+    ``=1+2.jpg`` became a formula cell of summary.csv: escapes are printed as text, formula-like cells get a
+    leading ``'`` that jnr's own reader takes off again."""
+    from pipeline.cli.common import printable
+    from pipeline.photo.summary import PhotoFileResult, read_summary, summary_csv
+
+    assert printable("x\x1b[2J.jpg") == "x\\x1b[2J.jpg" and printable("a\nb") == "a b"
+    rows = [PhotoFileResult("=1+2.jpg", error="=1+2.jpg: no face found", seconds=1.0, bad_input=True)]
+    text = summary_csv(rows)
+    assert "'=1+2.jpg" in text and "\n=" not in text and ",=" not in text
+    path = tmp_path / "summary.csv"
+    path.write_text(text)
+    row = read_summary(path)[0]
+    assert row["photo"] == "=1+2.jpg" and row["error"] == "=1+2.jpg: no face found"
