@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from pipeline.animation.keyframes import curve_keyframes
 from pipeline.config import CONFIG_FILE, config_to_dict, dump_config
 from pipeline.files import staged_folder
 from pipeline.head.curves import Curves, write_curves
@@ -107,8 +108,6 @@ def write_track_outputs(
     with staged_folder(out, force, inputs=inputs, marker={"command": command}) as tmp:
         write_curves(tmp / "livelink.csv", curves, layout="live-link-face", fps=result.fps)
         write_curves(tmp / "curves.csv", curves, layout="plain")
-        from pipeline.animation.keyframes import curve_keyframes
-
         write_skinned_head(
             tmp / "track.glb",
             head.asset,

@@ -13,13 +13,12 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-import torch
 
+from pipeline.animation.keyframes import posed_frames
 from pipeline.camera import RIG_TO_OPENCV
 from pipeline.track.tracker import TrackResult
 from pipeline.track.video import Clip
 from rig.errors import InputError
-from rig.lbs import joint_world_transforms, skin_vertices
 
 LIGHT = np.array([-0.4, -0.5, -0.75])
 """The direction towards the light in the camera frame (OpenCV axes: up, left, towards the camera)."""
@@ -28,15 +27,11 @@ CHUNK = 32
 
 
 def posed_camera_vertices(result: TrackResult, frames: np.ndarray) -> np.ndarray:
-    """``(F, V, 3)`` the fitted head of ``frames`` in the camera frame (OpenCV), mm."""
+    """``(F, V, 3)`` the fitted head of ``frames`` in the camera frame (OpenCV), mm (the identity's joints,
+    each frame's coefficients: :func:`pipeline.animation.keyframes.posed_frames`, then the frame's pose)."""
     head = result.head
-    rig = head.model.rig
-    coefficients = torch.as_tensor(result.coefficients[frames], dtype=torch.float64)
-    with torch.no_grad():
-        rest = head.model.expression_model.vertices(coefficients.to(head.model.expression_model.template.dtype))
-        taus = torch.as_tensor(np.repeat(head.tau[None], len(frames), axis=0))
-        _, skinning = joint_world_transforms(taus, rig.bind_positions.double(), rig.parents, rig.levels)
-        posed = skin_vertices(rest.double(), torch.as_tensor(head.weights), skinning).numpy()
+    taus = np.repeat(head.tau[None], len(frames), axis=0)
+    posed = posed_frames(head, result.coefficients[frames], taus)
     rotation = np.einsum("ij,fjk->fik", RIG_TO_OPENCV, result.rotations[frames])
     return np.einsum("fvk,fik->fvi", posed, rotation) + result.translations[frames][:, None, :]
 

@@ -10,13 +10,13 @@ landmarks lie on (the static points' triangles and the contour's candidates), so
 The unknowns are ``x = [rotation vector (3, rad, an increment on the current rotation), translation (3, mm),
 coefficients (52)]``; :func:`solve_frame` runs a few projected Gauss-Newton (Levenberg-Marquardt) steps on
 
-    sum_i w_i |proj_i(x) - obs_i|^2 / sigma^2                       (reprojection, px over sigma)
-    + lambda_expressions |c|^2                                      (coefficients towards rest)
+    sum_i (w_i / sum_j w_j) huber(|proj_i(x) - obs_i|)              (reprojection, px: the photo fit's term)
+    + lambda_expressions |c|^2 + lambda_sparse sum_i c_i            (coefficients towards rest; c >= 0)
     + lambda_velocity |c - c_1|^2 + lambda_acceleration |c - 2 c_1 + c_2|^2       (the last two frames)
     + the same two on the pose (rotation vector in degrees, translation in mm, own weights)
 
-with the coefficients kept inside their limits. The acceleration term damps jitter without lag on a
-steady motion (it is zero along a constant velocity); the velocity term is small.
+with the coefficients kept inside their limits. The temporal terms are light (a steady warm start); the
+smoothing is :mod:`pipeline.track.smooth`'s, over the whole track.
 
 Example::
 
@@ -39,6 +39,8 @@ from rig.model import JointRig
 
 NUM_EXPRESSIONS = len(EXPRESSION_NAMES)
 JAW_RADIANS = math.radians(JAW_ANGLE_DEG)
+OPENCV = np.asarray(RIG_TO_OPENCV, np.float64)
+"""Rig axes to OpenCV's (:data:`pipeline.camera.RIG_TO_OPENCV`), float64."""
 GAZE_MASK = np.array([n.startswith("eyeLook") for n in EXPRESSION_NAMES])
 """The eight gaze coefficients (eyeLook*)."""
 
@@ -169,21 +171,20 @@ class FrameModel:
         lookup = np.full(len(asset.vertices), -1, np.int64)
         lookup[self.vertex_ids] = np.arange(len(self.vertex_ids))
         self._lookup = lookup
-        self._corners = torch.as_tensor(lookup[corner_ids])
-        self._bary = torch.as_tensor(np.asarray(layout.embedding.barycentric, np.float64))
+        corners = lookup[corner_ids]
+        bary = np.asarray(layout.embedding.barycentric, np.float64)
         self._contour = np.asarray(layout.contour, np.int64)
         self._num_vertices = len(asset.vertices)
         with torch.no_grad():
-            rig64 = rig.double() if rig.template.dtype != torch.float64 else rig
+            rig64 = rig if rig.template.dtype == torch.float64 else JointRig(asset, dtype=torch.float64)
             theta_t = torch.as_tensor(np.asarray(theta, np.float64))[None]
             _, skinning = rig64.joint_transforms(theta_t)  # (1, K, 4, 4)
             w = rig64.dense_weights() if weights is None else torch.as_tensor(np.asarray(weights, np.float64))
             w = w[torch.as_tensor(self.vertex_ids)]
-            self._m = torch.einsum("vk,kij->vij", w, skinning[0])[:, :3, :]  # (U, 3, 4)
+            m = torch.einsum("vk,kij->vij", w, skinning[0])[:, :3, :].double().numpy()  # (U, 3, 4)
         model = expression_model or ExpressionModel(asset, dtype=torch.float64)
         ids = torch.as_tensor(self.vertex_ids)
         with torch.no_grad():
-            m = self._m.double().numpy()  # (U, 3, 4)
             basis = model.basis[:, ids].double().numpy()  # (E, U, 3)
             template = model.template[ids].double().numpy()
             jaw_weight = model.jaw_weight[ids].double().numpy()
@@ -195,8 +196,6 @@ class FrameModel:
         zeros = np.zeros(len(q))
         self._ycos = np.einsum("vij,vj->vi", linear, np.stack([zeros, q[:, 1], q[:, 2]], 1) * jaw_weight[:, None])
         self._ysin = np.einsum("vij,vj->vi", linear, np.stack([zeros, -q[:, 2], q[:, 1]], 1) * jaw_weight[:, None])
-        corners = self._corners.numpy()
-        bary = self._bary.numpy()
 
         def combine(per_vertex: np.ndarray) -> np.ndarray:
             return np.einsum("nk,nk...->n...", bary, per_vertex[corners])
@@ -205,7 +204,6 @@ class FrameModel:
         self._point_arrays = self._static
         low, high = expression_limits(torch.float64)
         self.low, self.high = low.numpy(), high.numpy()
-        self._opencv = np.array(RIG_TO_OPENCV, np.float64)
 
     # -- the model ---------------------------------------------------------------------------------------
 
@@ -244,7 +242,7 @@ class FrameModel:
 
     def camera_points(self, state: FrameState, points: np.ndarray) -> np.ndarray:
         """``(N, 3)`` rig-space ``points`` in the camera frame (OpenCV) under ``state``'s head pose."""
-        return points @ (self._opencv @ state.rotation).T + state.translation
+        return points @ (OPENCV @ state.rotation).T + state.translation
 
     def project(self, camera: np.ndarray) -> np.ndarray:
         """``(N, 2)`` pixels of camera-frame points ``(N, 3)``."""
@@ -301,7 +299,7 @@ def solve_frame(
         out = model.points(c, jacobian)
         points, dpoints = out if jacobian else (out, None)
         rotated = points @ state.rotation.T  # R p, rig space
-        camera = rotated @ model._opencv.T + state.translation
+        camera = rotated @ OPENCV.T + state.translation
         z = np.maximum(camera[:, 2], 1.0)
         uv = camera[:, :2] / z[:, None] * model.focal + model.principal
         res = [((uv - obs) * sw[:, None]).ravel(), prior * c]
@@ -314,8 +312,8 @@ def solve_frame(
             duv[:, 0, 2] = -model.focal * camera[:, 0] / z**2
             duv[:, 1, 2] = -model.focal * camera[:, 1] / z**2
             duv *= sw[:, None, None]
-            d_cam_omega = np.einsum("ij,njk->nik", model._opencv, -_skew(rotated))  # (N, 3, 3)
-            d_cam_c = np.einsum("ij,njk->nik", model._opencv @ state.rotation, dpoints)  # (N, 3, E)
+            d_cam_omega = np.einsum("ij,njk->nik", OPENCV, -_skew(rotated))  # (N, 3, 3)
+            d_cam_c = np.einsum("ij,njk->nik", OPENCV @ state.rotation, dpoints)  # (N, 3, E)
             j = np.concatenate(
                 [
                     np.einsum("nij,njk->nik", duv, d_cam_omega),

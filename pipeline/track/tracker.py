@@ -17,7 +17,7 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import torch
@@ -271,7 +271,7 @@ def track_clip(
     }
     previous: list[FrameState | None] = [None, None]
     settings = config.frame
-    cold = TrackSettings(**{**settings.__dict__, "iterations": config.cold_iterations})
+    cold = replace(settings, iterations=config.cold_iterations)
     for index in range(count):
         tf = time.perf_counter()
         if not observed[index]:

@@ -15,7 +15,6 @@ Example:
 from __future__ import annotations
 
 import re
-import stat
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -23,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from rig.errors import InputError
+from rig.io.inputs import regular_file
 
 VIDEO_SUFFIXES = (".mp4", ".m4v", ".mov", ".avi", ".webm", ".mkv", ".mpg", ".mpeg", ".wmv")
 """Files read as videos (by name; OpenCV decides whether it can decode one)."""
@@ -32,6 +32,8 @@ DEFAULT_FOLDER_FPS = 30.0
 """The frame rate of a folder of images unless ``--fps`` says otherwise."""
 MAX_FRAMES = 108_000
 """The longest clip read (an hour at 30 fps): ``--max-frames`` lowers it; longer clips are cut with a warning."""
+MAX_VIDEO_BYTES = 64 << 30
+"""The largest video file read (64 GiB)."""
 MAX_SIDE = 4096
 """Frames larger than this (either side, pixels) are refused: tracking needs no more."""
 
@@ -121,15 +123,6 @@ def _natural_key(path: Path) -> tuple:
     return tuple(int(part) if part.isdigit() else part.lower() for part in re.split(r"(\d+)", path.name))
 
 
-def _regular_file(path: Path) -> None:
-    try:
-        mode = path.stat().st_mode
-    except OSError as exc:
-        raise VideoError(f"{path}: cannot read it ({exc.strerror or exc})") from None
-    if not stat.S_ISREG(mode):
-        raise VideoError(f"{path}: not a regular file (a video must be a file, not a pipe or a device)")
-
-
 def open_clip(path: str | Path, fps: float | None = None) -> Clip:
     """Open a video file or a folder of numbered images and read its first frame (to know it decodes).
 
@@ -154,7 +147,10 @@ def open_clip(path: str | Path, fps: float | None = None) -> Clip:
         return Clip(path, float(fps or DEFAULT_FOLDER_FPS), size, len(files), files)
     if not path.exists():
         raise VideoError(f"{path}: no such file or folder")
-    _regular_file(path)
+    try:
+        regular_file(path, "video", MAX_VIDEO_BYTES)
+    except InputError as exc:
+        raise VideoError(str(exc)) from None
     if path.stat().st_size == 0:
         raise VideoError(f"{path}: an empty file, not a video")
     import cv2
