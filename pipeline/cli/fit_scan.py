@@ -56,9 +56,14 @@ def cmd_fit_scan(args: argparse.Namespace) -> int:
 FIT_SCAN_EPILOG = (
     "Clouds: .ply, .obj, .xyz/.txt/.csv (x y z [nx ny nz]), .npy ((N,3) or (N,6)); normals are "
     "estimated when absent.\nUnits: detected from the cloud's size (a head is 80-450 mm across) "
-    "unless --units is given; metres and centimetres are converted with a warning.\nFrame: +Y up "
+    "unless --units is given; metres and centimetres are converted with a warning; inches (--units in) "
+    "are never guessed, but a cloud the head fits far better in other units than those detected is "
+    "refused with both figures.\nFrame: +Y up "
     "(any position, any yaw; pitch/roll within ~30 deg), or --frame opencv for camera coordinates "
-    '(x right, y down, z forward).\nLandmarks (optional): JSON {"nose_tip": [x, y, z], ...} in the '
+    "(x right, y down, z forward); a cloud the head fits far better turned over is refused.\n"
+    "Far from the origin (georeferenced) is fine in float64; float32 coordinates that resolve less than "
+    "0.1 mm where they lie are refused.\n"
+    'Landmarks (optional): JSON {"nose_tip": [x, y, z], ...} in the '
     "cloud's units and frame; names: left_eye_outer, left_eye_inner, right_eye_inner, right_eye_outer, "
     "nose_tip, mouth_left, mouth_right, chin (at least 3).\n"
     f"Outputs in --out: {SCAN_FOLDER.help_text()}.\n"
@@ -85,7 +90,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     fs.add_argument("cloud", help="point-cloud file")
     fs.add_argument("--out", required=True, help="output folder (must not exist unless --force)")
     fs.add_argument(
-        "--units", default="auto", choices=["auto", "mm", "cm", "m"], help="units of the cloud (default: auto)"
+        "--units", default="auto", choices=["auto", "mm", "cm", "m", "in"], help="units of the cloud (default: auto)"
     )
     fs.add_argument("--frame", default="y-up", choices=["y-up", "opencv"], help="frame of the cloud (default: y-up)")
     fs.add_argument("--landmarks", help="3D landmarks JSON (see below)")

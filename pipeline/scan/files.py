@@ -65,7 +65,7 @@ def fit_scan_file(
         config: :class:`pipeline.scan.fit.FitScanConfig` (default: its defaults).
         landmarks: optional JSON of named 3D landmarks in the cloud's units and frame
             (:func:`read_cloud_landmarks`).
-        units: ``"auto"``, ``"mm"``, ``"cm"`` or ``"m"``, the cloud's units; frame: ``"y-up"`` or
+        units: ``"auto"``, ``"mm"``, ``"cm"``, ``"m"`` or ``"in"``, the cloud's units; frame: ``"y-up"`` or
             ``"opencv"`` (x right, y down, z forward).
         progress: ``progress(stage, iteration, iterations)`` during the fit.
         rig, neural: the models (default: the committed rig and learned skinning, float32).
@@ -93,7 +93,8 @@ def fit_scan_file(
         cloud, config, landmarks=points, rig=rig, neural=neural, progress=progress, landmarks_source=str(landmarks)
     )
     faces = rig.asset.faces if rig is not None else load_asset().faces
-    distances = scan_to_mesh_distances(cloud.points, fit.vertices, faces)
+    centre = cloud.points.mean(0)  # a georeferenced cloud's distances without the cancellation of 1e8 mm
+    distances = scan_to_mesh_distances(cloud.points - centre, fit.vertices - centre, faces)
     write_scan_outputs(
         out,
         cloud,

@@ -38,6 +38,7 @@ projected back into their limits after each step.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
 from collections.abc import Mapping
@@ -53,8 +54,12 @@ from pipeline.scan.fit_config import FitScanConfig
 from pipeline.scan.objective import ScanObjective
 from pipeline.scan.pointcloud.cloud import CloudError, PointCloud
 from pipeline.scan.pointcloud.normals import boundary_mask, estimate_normals
+from pipeline.scan.pointcloud.units import UNIT_NAMES, UNIT_SCALE_TO_MM, cloud_extent, plausible_units
 from pipeline.scan.registration import (
+    INLIER_MM,
+    SCALE_BOUNDS,
     RigidAlignment,
+    face_coverage,
     rigid_prealign,
 )
 from rig.expressions import ExpressionModel
@@ -179,8 +184,14 @@ def _fit_scan(
     progress: Progress | None,
     landmarks_source: str,
 ) -> ScanFit:
-    """:func:`fit_scan` with its arguments, ``config`` given."""
+    """:func:`fit_scan` with its arguments, ``config`` given. The fit runs on the cloud moved to the origin
+    (float32 keeps 24 bits: a georeferenced cloud 1e8 mm away would be an 8 mm grid); the result is moved
+    back in float64."""
     t_start = time.perf_counter()
+    origin = 0.5 * (cloud.points.min(0) + cloud.points.max(0))
+    cloud = dataclasses.replace(cloud, points=cloud.points - origin)
+    if landmarks:
+        landmarks = {name: np.asarray(xyz, np.float64) - origin for name, xyz in landmarks.items()}
     rig = rig or JointRig()
     asm_model, neural = _head_models(config, rig, neural)
     expressions = expressions or ExpressionModel(rig.asset, dtype=rig.template.dtype)
@@ -221,11 +232,11 @@ def _fit_scan(
         z=values["z"],
         expressions=values["expressions"],
         rotation=values["rotation"],
-        translation=state.translation.detach().double().numpy(),
+        translation=state.translation.detach().double().numpy() + origin,
         scale=state.scale,
-        vertices=v_cloud.double().numpy(),
+        vertices=v_cloud.double().numpy() + origin,
         rig_vertices=v_rig.double().numpy(),
-        prealign=align,
+        prealign=dataclasses.replace(align, translation=align.translation + origin),
         stages=stages,
         timings={"prealign": t_prealign, "fit": t_end - t_fit, "total": t_end - t_start},
         asm=None if asm_model is None else asm_params_to_dict(state.asm_parameters(()), rig.asset.joint_names),
@@ -309,11 +320,93 @@ def _prealign(
         with_scale=config.prealign.scale,
         landmarks=None if marks is None else (start_vertices[marks[0]], marks[1]),
     )
+    where = f"{cloud.path}: " if cloud.path else ""
     if align.inlier_fraction < config.prealign.min_inlier_fraction:
         sampled = f" (a random {len(points)} of its {cloud.input_points})" if cloud.input_points > len(points) else ""
         raise CloudError(
-            f"the cloud does not look like a head: after the best rigid alignment only "
-            f"{100 * align.inlier_fraction:.0f} % of its points{sampled} lie within 8 mm of the head "
+            f"{where}the cloud does not look like a head: after the best rigid alignment only "
+            f"{100 * align.inlier_fraction:.0f} % of its points{sampled} lie within {INLIER_MM:g} mm of the head "
             f"model (need {100 * config.prealign.min_inlier_fraction:.0f} %)"
         )
+    if marks is None:
+        _check_frame_and_units(cloud, normals, view_dir, align, config, start_vertices, asset, where)
     return align, marks
+
+
+FRAME_CHECK_INLIERS = 0.9
+"""A cloud whose pre-alignment puts fewer of its points near the head than this is also tried turned over
+(:func:`_check_frame_and_units`); right-side-up synthetic scans score 0.93-0.98, turned over 0.67-0.79."""
+UNITS_CHECK_COVERAGE = 0.6
+"""A cloud with detected units that covers less of the aligned head's face than this (or needs a bound of
+:data:`pipeline.scan.registration.SCALE_BOUNDS`) is also tried in its other plausible units; synthetic scans
+cover 0.81-0.99, the same scans shrunk by inches read as cm 0.07-0.53."""
+
+
+def _check_frame_and_units(
+    cloud: PointCloud,
+    normals: np.ndarray,
+    view_dir: np.ndarray | None,
+    align: RigidAlignment,
+    config: FitScanConfig,
+    model_vertices: np.ndarray,
+    asset,
+    where: str,
+) -> None:
+    """Refuse, with the evidence, a cloud the head fits far better turned over (a wrong ``--frame``) or in
+    other units (inches detected as cm). Only doubtful alignments are checked (:data:`FRAME_CHECK_INLIERS`,
+    :data:`UNITS_CHECK_COVERAGE`): a good scan costs nothing; a doubtful one one more pre-alignment per
+    alternative (about 1.5 s). The thresholds were chosen on synthetic scans (``docs/fit_scan.md``)."""
+    from scipy.spatial import cKDTree
+
+    mask = asset.region_mask(*FACE_REGIONS)
+
+    def aligned(points: np.ndarray, point_normals: np.ndarray) -> tuple[RigidAlignment, float]:
+        mean = point_normals.mean(0)
+        direction = mean / np.linalg.norm(mean) if np.linalg.norm(mean) > 0.3 else None
+        fit = rigid_prealign(
+            points,
+            point_normals,
+            model_vertices,
+            asset.faces,
+            face_mask=mask,
+            seed=config.seed,
+            yaw_step_deg=config.prealign.yaw_step_deg,
+            with_scale=config.prealign.scale,
+        )
+        return fit, face_coverage(cKDTree(points), fit, model_vertices, asset.faces, mask, direction)
+
+    def pinned(fit: RigidAlignment) -> bool:
+        return config.prealign.scale and min(abs(fit.scale - b) for b in SCALE_BOUNDS) < 0.01
+
+    coverage = face_coverage(cKDTree(cloud.points), align, model_vertices, asset.faces, mask, view_dir)
+    _log.info(
+        "fit-scan: pre-alignment inliers %.2f, face covered %.2f, scale %.3f",
+        align.inlier_fraction,
+        coverage,
+        align.scale,
+    )
+    if align.inlier_fraction < FRAME_CHECK_INLIERS:
+        turn = np.array([1.0, -1.0, -1.0])
+        other, other_coverage = aligned(cloud.points * turn, normals * turn)
+        if other.inlier_fraction >= align.inlier_fraction + 0.1 and other_coverage > coverage:
+            raise CloudError(
+                f"{where}the cloud looks upside down in the frame given: turned over (y and z negated), "
+                f"{100 * other.inlier_fraction:.0f} % of its points lie within {INLIER_MM:g} mm of the head "
+                f"against {100 * align.inlier_fraction:.0f} % as given; check --frame (y-up: +Y up, +Z out of "
+                f"the face; opencv: x right, y down, z forward)"
+            )
+    if not cloud.units_detected or not (pinned(align) or coverage < UNITS_CHECK_COVERAGE):
+        return
+    extent = cloud_extent(cloud.points)  # mm
+    for unit in plausible_units(extent / cloud.scale_to_mm):
+        if unit == cloud.units:
+            continue
+        factor = UNIT_SCALE_TO_MM[unit] / cloud.scale_to_mm
+        other, other_coverage = aligned(cloud.points * factor, normals)
+        if other_coverage >= coverage + 0.2 and not pinned(other):
+            raise CloudError(
+                f"{where}read as {UNIT_NAMES[cloud.units]} (detected) the cloud is a head {extent:.0f} mm across: "
+                f"the head model fits it at scale {align.scale:.2f} and covers {100 * coverage:.0f} % of its "
+                f"face; read as {UNIT_NAMES[unit]} ({extent * factor:.0f} mm) it covers "
+                f"{100 * other_coverage:.0f} %: pass --units {unit} (or --units {cloud.units} to fit it as it is)"
+            )

@@ -14,6 +14,7 @@ from pipeline.fitting.engine import Loss, Stage
 from pipeline.fitting.state import ScanState
 from pipeline.fitting.terms import Inputs, Term, Value, term_values
 from pipeline.scan.fit_config import FitScanConfig
+from pipeline.scan.pointcloud.cloud import CloudError
 from pipeline.scan.registration import (
     closest_on_one_ring,
     incident_faces,
@@ -133,6 +134,11 @@ class ScanObjective:
         lowers L_m's weight by how far the model moved since the last rebuild."""
         c, p, faces, dtype = self.c, self.config.prior, self.state.rig.asset.faces, self.state.dtype
         (f1, b1, n1, ok1), (k2, ok2), r = self._candidates(v_cloud)
+        if r.size == 0:
+            raise CloudError(
+                "no point of the cloud lies near the head model any more (no correspondences); "
+                "check the cloud's units (--units) and frame (--frame)"
+            )
         sigma = max(c.robust_sigma_min_mm, float(np.quantile(r, c.robust_sigma_quantile)))
         inlier_rms = float(np.sqrt(np.mean(np.minimum(r, sigma * 3) ** 2)))
         self.max_d = float(np.clip(3.0 * max(inlier_rms, sigma), c.min_distance_mm, c.max_distance_mm))

@@ -71,6 +71,12 @@ def closest_on_one_ring(
 # ----------------------------------------------------------------------------------------------------
 
 
+SCALE_BOUNDS = (0.85, 1.2)
+"""The scales :func:`rigid_prealign` allows the head model (a head 15 % smaller to 20 % larger than the rig's)."""
+INLIER_MM = 8.0
+"""A cloud point within this distance (mm) of the aligned head model is an inlier."""
+
+
 @dataclass(frozen=True)
 class RigidAlignment:
     """Result of :func:`rigid_prealign`: rig space -> cloud frame, ``x = scale * R @ x_rig + t``.
@@ -192,8 +198,8 @@ def rigid_prealign(
     fine_iterations: int = 40,
     trim: float = 0.8,
     with_scale: bool = True,
-    scale_bounds: tuple[float, float] = (0.85, 1.2),
-    inlier_mm: float = 8.0,
+    scale_bounds: tuple[float, float] = SCALE_BOUNDS,
+    inlier_mm: float = INLIER_MM,
     landmarks: tuple[np.ndarray, np.ndarray] | None = None,
     vertical_shifts_mm: tuple[float, ...] = (0.0, -30.0, 30.0),
     facing_min: float = 0.3,
@@ -308,3 +314,37 @@ def rigid_prealign(
     inl = d <= inlier_mm
     rms = float(np.sqrt(np.mean(d[inl] ** 2))) if inl.any() else float("inf")
     return RigidAlignment(rot, t, float(s), rms, float(inl.mean()), len(candidates), float(score))
+
+
+def face_coverage(
+    cloud_tree,
+    alignment: RigidAlignment,
+    model_vertices: np.ndarray,
+    model_faces: np.ndarray,
+    face_mask: np.ndarray,
+    view_dir: np.ndarray | None,
+    radius_mm: float = INLIER_MM,
+) -> float:
+    """The share of the aligned head model's face that the cloud covers: the face vertices (``face_mask``)
+    facing the sensor (``view_dir``, all of them for None) with a cloud point within ``radius_mm``.
+
+    The inlier fraction of :class:`RigidAlignment` asks the opposite question (how much of the cloud lies
+    on the head): a cloud shrunk by wrong units lies on a patch of the head and scores well there, but
+    covers half of the face or less (``docs/fit_scan.md``, "Checks of the frame and units").
+
+    Args:
+        cloud_tree: a ``scipy.spatial.cKDTree`` of the ``(N, 3)`` cloud, mm.
+        alignment: rig space -> cloud frame; model_vertices: ``(V, 3)`` rig space, mm; model_faces: ``(F, 3)``.
+        face_mask: ``(V,)`` bool; view_dir: ``(3,)`` unit direction towards the sensor, or None.
+
+    Returns:
+        A fraction in [0, 1] (0 when no face vertex faces the sensor).
+    """
+    v = alignment.transform.apply(np.asarray(model_vertices, float))
+    keep = np.asarray(face_mask, bool).copy()
+    if view_dir is not None:
+        keep &= vertex_normals(v, model_faces) @ view_dir > 0.3
+    if not keep.any():
+        return 0.0
+    d, _ = cloud_tree.query(v[keep])
+    return float((d <= radius_mm).mean())

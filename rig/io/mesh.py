@@ -32,6 +32,7 @@ import trimesh
 
 from rig.errors import shape_error
 from rig.io.atomic import write_bytes_atomic
+from rig.io.ply import binary_ply, position_dtype
 
 __all__ = [
     "OBJ_DIGITS",
@@ -384,7 +385,8 @@ def export_mesh(
     Notes
     -----
     OBJ coordinates are written with ``OBJ_DIGITS`` (10) decimal places. PLY stores positions as
-    float32 (about 1e-5 mm resolution at 100 mm). Vertices that no face uses are written, but
+    float32 (about 1e-5 mm resolution at 100 mm), or as float64 where float32 would lose them
+    (:func:`rig.io.ply.position_dtype`: a mesh far from the origin). Vertices that no face uses are written, but
     trimesh's OBJ loader drops them on reading.
     """
     func = "export_mesh"
@@ -419,9 +421,23 @@ def export_mesh(
         if mtllib is not None:
             text = _with_material(text, mtllib, material)
         data = text.encode("utf-8")
+    elif position_dtype(v) == "<f8":  # far from the origin: float32 would lose the positions
+        data = _ply_bytes_float64(v, f, uvs, colors, header)
     else:
         data = _with_ply_comment(_ply_bytes(v, f, uvs, colors), header)
     write_bytes_atomic(path, data)
+
+
+def _ply_bytes_float64(vertices, faces, uvs, colors, comment: str) -> bytes:
+    """A PLY mesh with float64 ``x y z`` (:func:`rig.io.ply.position_dtype`), the same other properties as
+    :func:`_ply_bytes` (``s t`` texture coordinates, ``red green blue``)."""
+    fields = [(c, "<f8", vertices[:, i]) for i, c in enumerate("xyz")]
+    if uvs is not None:
+        fields += [(c, "<f4", uvs[:, i]) for i, c in enumerate("st")]
+    if colors is not None:
+        c8 = _colors_uint8(colors)
+        fields += [(c, "u1", c8[:, i]) for i, c in enumerate(("red", "green", "blue"))]
+    return binary_ply(fields, faces, comments=(comment,))
 
 
 def _with_ply_comment(data: bytes, comment: str) -> bytes:

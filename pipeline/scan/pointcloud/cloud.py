@@ -24,13 +24,16 @@ class PointCloud:
     path: str
     """The source file ('' when built in memory)."""
     units: str
-    """The units the source was in: 'mm', 'cm' or 'm'."""
+    """The units the source was in: 'mm', 'cm', 'm' or 'in'."""
     scale_to_mm: float
-    """The factor that was applied to reach mm (1, 10 or 1000)."""
+    """The factor that was applied to reach mm (1, 10, 1000 or 25.4)."""
     input_points: int | None = None
     """Points in the source; more than ``len(points)`` only when the cloud was larger than
     :data:`~pipeline.scan.pointcloud.validate.LARGE_CLOUD_POINTS` and ``points`` is a random subsample of
     it (None given: ``len(points)``)."""
+
+    units_detected: bool = False
+    """True when ``units`` was detected from the cloud's size (``units="auto"``), False when given."""
 
     def __post_init__(self) -> None:
         if self.input_points is None:

@@ -34,7 +34,7 @@ def read_point_cloud(
     Args:
         path: a ``.ply``, ``.obj``, ``.xyz``, ``.txt``, ``.csv`` or ``.npy`` file (see :mod:`pipeline.scan.pointcloud`).
             PLY/OBJ meshes are fine: their vertices are used, and their vertex normals only if stored.
-        units: ``"auto"`` (detect mm, cm or m from the cloud's size), ``"mm"``, ``"cm"`` or ``"m"``.
+        units: ``"auto"`` (detect mm, cm or m from the cloud's size), ``"mm"``, ``"cm"``, ``"m"`` or ``"in"``.
         frame: ``"y-up"`` (the file is in the rig frame) or ``"opencv"`` (x right, y down, z forward).
         min_points: fewest distinct points accepted.
         large_cloud_points, subsample_points: clouds of more points than the first are replaced by a
@@ -64,7 +64,7 @@ def read_point_cloud(
         raise CloudError(str(exc)) from None
     reader = {".ply": _read_ply, ".obj": _read_obj, ".npy": _read_npy}.get(ext, _read_table)
     try:
-        points, normals = reader(path)
+        points, normals, stored = reader(path)
     except CloudError:
         raise
     except (ValueError, TypeError, KeyError, IndexError, EOFError) as exc:  # parser errors, not I/O errors
@@ -80,10 +80,11 @@ def read_point_cloud(
         path=path,
         large_cloud_points=large_cloud_points,
         subsample_points=subsample_points,
+        stored_dtype=stored,
     )
 
 
-def _read_ply(path: str) -> tuple[np.ndarray, np.ndarray | None]:
+def _read_ply(path: str) -> tuple[np.ndarray, np.ndarray | None, np.dtype | None]:
     # trimesh parses both encodings; for a point cloud it returns normals only in the raw vertex data
     # (metadata['_ply_raw']), so take x y z and nx ny nz from there, which also works for meshes.
     from trimesh.exchange.ply import load_ply
@@ -95,14 +96,14 @@ def _read_ply(path: str) -> tuple[np.ndarray, np.ndarray | None]:
         vertices = loaded.get("vertices")
         if vertices is None:
             raise CloudError(f"{path}: the PLY file has no 'vertex' element; is it a point cloud or mesh?")
-        return np.asarray(vertices, dtype=np.float64), None
+        return np.asarray(vertices, dtype=np.float64), None, np.asarray(vertices).dtype
     data = raw["data"]
     names = set(data.keys()) if isinstance(data, dict) else set(data.dtype.names or ())
     if not {"x", "y", "z"} <= names:
         raise CloudError(f"{path}: the PLY vertices have no x y z properties (found {sorted(names)})")
     points = _columns(data, ("x", "y", "z"))
     normals = _columns(data, ("nx", "ny", "nz")) if {"nx", "ny", "nz"} <= names else None
-    return points, normals
+    return points, normals, np.asarray(data["x"]).dtype
 
 
 def _columns(data, names: tuple[str, str, str]) -> np.ndarray:
@@ -115,7 +116,7 @@ def _columns(data, names: tuple[str, str, str]) -> np.ndarray:
     return out
 
 
-def _read_obj(path: str) -> tuple[np.ndarray, np.ndarray | None]:
+def _read_obj(path: str) -> tuple[np.ndarray, np.ndarray | None, None]:
     # A line scan is enough: trimesh re-indexes OBJ vertices by face corners, which would break the
     # one-normal-per-vertex pairing we need, and drops vertices of point-only OBJ files.
     vertices, vertex_normals = [], []
@@ -134,19 +135,19 @@ def _read_obj(path: str) -> tuple[np.ndarray, np.ndarray | None]:
     points = np.array(vertices, dtype=np.float64).reshape(-1, 3)
     if vertex_normals and len(vertex_normals) != len(vertices):
         # vn indexed per face corner cannot be paired with vertices; estimate normals later instead.
-        return points, None
-    return points, (np.array(vertex_normals, dtype=np.float64).reshape(-1, 3) if vertex_normals else None)
+        return points, None, None
+    return points, (np.array(vertex_normals, dtype=np.float64).reshape(-1, 3) if vertex_normals else None), None
 
 
-def _read_table(path: str) -> tuple[np.ndarray, np.ndarray | None]:
+def _read_table(path: str) -> tuple[np.ndarray, np.ndarray | None, None]:
     with open(path, encoding="utf-8") as fh:
         lines = [line for line in fh.read().splitlines() if line.strip() and not line.lstrip().startswith("#")]
     if lines and not _is_numeric_row(lines[0]):
         lines = lines[1:]  # a single header line (e.g. "x,y,z,nx,ny,nz")
     if not lines:
-        return np.zeros((0, 3)), None
+        return np.zeros((0, 3)), None, None
     table = np.loadtxt(io.StringIO("\n".join(lines).replace(",", " ")), dtype=np.float64, comments="#", ndmin=2)
-    return _split_columns(table, path)
+    return (*_split_columns(table, path), None)
 
 
 def _is_numeric_row(line: str) -> bool:
@@ -157,13 +158,13 @@ def _is_numeric_row(line: str) -> bool:
     return True
 
 
-def _read_npy(path: str) -> tuple[np.ndarray, np.ndarray | None]:
+def _read_npy(path: str) -> tuple[np.ndarray, np.ndarray | None, np.dtype]:
     array = np.load(path, allow_pickle=False)
     if not isinstance(array, np.ndarray) or not (
         np.issubdtype(array.dtype, np.integer) or np.issubdtype(array.dtype, np.floating)
     ):
         raise CloudError(f"{path}: expected a numeric (N, 3) or (N, 6) array, got dtype {array.dtype}")
-    return _split_columns(array.astype(np.float64), path)
+    return (*_split_columns(array.astype(np.float64), path), array.dtype)
 
 
 def _split_columns(table: np.ndarray, path: str) -> tuple[np.ndarray, np.ndarray | None]:

@@ -18,6 +18,9 @@ SUBSAMPLE_POINTS = 50_000
 subsample (``FitScanConfig.correspondences.max_cloud_points``, 8000)."""
 SUBSAMPLE_SEED = 0
 """Seed of that subsample (the same file always gives the same cloud)."""
+MAX_RESOLUTION_MM = 0.1
+"""The coarsest coordinate resolution accepted (mm): a cloud stored as float32 far from the origin (e.g.
+georeferenced, 1e8 mm away: an 8 mm grid) has lost its detail in the file and is refused."""
 
 
 def validate_points(
@@ -30,6 +33,7 @@ def validate_points(
     path: str = "",
     large_cloud_points: int = LARGE_CLOUD_POINTS,
     subsample_points: int = SUBSAMPLE_POINTS,
+    stored_dtype=None,
 ) -> PointCloud:
     """Check a cloud, bring it to mm and the rig frame, subsample it if large, and wrap it in a :class:`PointCloud`.
 
@@ -42,21 +46,24 @@ def validate_points(
     Args:
         points: ``(N, 3)`` positions in ``units`` and ``frame``.
         normals: ``(N, 3)`` normals in ``frame`` (any positive length), or None.
-        units: ``"auto"``, ``"mm"``, ``"cm"`` or ``"m"``. Auto accepts a cloud whose largest side (1st-99th
-            percentile box) is 80-450 mm, 8-45 cm or 0.08-0.45 m, and warns when it converts cm or m.
-            Explicit units are applied and the result must be 30-1000 mm across.
+        units: ``"auto"``, ``"mm"``, ``"cm"``, ``"m"`` or ``"in"``. Auto accepts a cloud whose largest side
+            (1st-99th percentile box) is 80-450 mm, 8-45 cm or 0.08-0.45 m, and warns when it converts cm or
+            m (inches are never guessed). Explicit units are applied and the result must be 30-1000 mm across.
         frame: ``"y-up"`` (rig frame) or ``"opencv"`` (x right, y down, z forward; converted by ``(x, -y, -z)``).
         min_points: fewest distinct points accepted (in the subsample, for a large cloud).
         path: source file, used in messages and stored in the result.
         large_cloud_points: clouds with more points are subsampled (:data:`LARGE_CLOUD_POINTS`).
         subsample_points: points kept of such a cloud (:data:`SUBSAMPLE_POINTS`).
+        stored_dtype: the floating dtype the file stored the coordinates in (e.g. ``np.float32``), or None
+            (float64 or text): a cloud whose coordinates it resolves more coarsely than
+            :data:`MAX_RESOLUTION_MM` where they lie is refused.
 
     Returns:
         A :class:`PointCloud` (points in mm, rig frame; float64 copies) with ``input_points = N``.
 
     Raises:
         CloudError: wrong shape, empty, non-finite, too few points, bad normals, unknown units/frame,
-            or a cloud that is not head-sized.
+            a cloud that is not head-sized, or coordinates stored too coarsely.
 
     Example:
         >>> cloud = validate_points(np.random.default_rng(0).uniform(-0.1, 0.1, (1000, 3)))  # metres: warns
@@ -75,6 +82,7 @@ def validate_points(
         normals = _checked_normals(normals, points.shape, where)
 
     unit, scale = detect_units(points, units, where)
+    _check_resolution(points, stored_dtype, scale, where)
     if keep is not None:
         points, normals = points[keep], (None if normals is None else normals[keep])
         warnings.warn(
@@ -85,8 +93,29 @@ def validate_points(
     points = points * scale
     points, normals = to_rig_frame(points, frame), (None if normals is None else to_rig_frame(normals, frame))
     return PointCloud(
-        points=points, normals=normals, path=path, units=unit, scale_to_mm=scale, input_points=input_points
+        points=points,
+        normals=normals,
+        path=path,
+        units=unit,
+        scale_to_mm=scale,
+        input_points=input_points,
+        units_detected=units == "auto",
     )
+
+
+def _check_resolution(points: np.ndarray, stored_dtype, scale: float, where: str) -> None:
+    """Refuse a cloud whose stored floating type resolves its coordinates more coarsely than
+    :data:`MAX_RESOLUTION_MM` where they lie (float32 keeps 24 bits: 8 mm at 1e8 mm from the origin)."""
+    if stored_dtype is None or not np.issubdtype(np.dtype(stored_dtype), np.floating):
+        return
+    far = float(np.abs(points).max())
+    resolution = float(np.spacing(np.asarray(far, dtype=stored_dtype))) * scale
+    if resolution > MAX_RESOLUTION_MM:
+        raise CloudError(
+            f"{where}the coordinates are stored as {np.dtype(stored_dtype).name} up to {far * scale:.3g} mm from "
+            f"the origin, where that type resolves only {resolution:.3g} mm (jnr needs {MAX_RESOLUTION_MM:g} mm): "
+            f"the file has lost the scan's detail; export it centred near the origin, or as float64"
+        )
 
 
 def _checked_points(points, where: str) -> np.ndarray:
@@ -177,4 +206,11 @@ def _checked_normals(normals, shape: tuple[int, ...], where: str) -> np.ndarray 
     return normals / length
 
 
-__all__ = ["LARGE_CLOUD_POINTS", "SUBSAMPLE_POINTS", "SUBSAMPLE_SEED", "count_distinct", "validate_points"]
+__all__ = [
+    "LARGE_CLOUD_POINTS",
+    "MAX_RESOLUTION_MM",
+    "SUBSAMPLE_POINTS",
+    "SUBSAMPLE_SEED",
+    "count_distinct",
+    "validate_points",
+]

@@ -8,6 +8,7 @@ import os
 import numpy as np
 
 from rig.io.atomic import write_bytes_atomic
+from rig.io.ply import binary_ply, position_dtype
 
 
 def write_point_cloud_ply(
@@ -15,7 +16,8 @@ def write_point_cloud_ply(
 ) -> None:
     """Write a binary little-endian PLY point cloud, atomically (:func:`rig.io.atomic.write_bytes_atomic`).
 
-    Vertex properties, in order: float32 ``x y z``, float32 ``nx ny nz`` (if ``normals``), uint8
+    Vertex properties, in order: float32 ``x y z`` (float64 far from the origin, where float32 would lose
+    them: :func:`rig.io.ply.position_dtype`), float32 ``nx ny nz`` (if ``normals``), uint8
     ``red green blue`` (if ``colors``), then one float32 property per entry of ``scalars``.
 
     Args:
@@ -39,7 +41,7 @@ def write_point_cloud_ply(
     if points.ndim != 2 or points.shape[1] != 3:
         raise ValueError(f"{func}: points must have shape (N, 3), got {points.shape}")
     n = len(points)
-    fields = [(c, "<f4", points[:, i]) for i, c in enumerate("xyz")]
+    fields = [(c, position_dtype(points), points[:, i]) for i, c in enumerate("xyz")]
     if normals is not None:
         normals = np.asarray(normals)
         if normals.shape != (n, 3):
@@ -62,18 +64,8 @@ def write_point_cloud_ply(
             raise ValueError(f"{func}: scalars[{name!r}] must have shape ({n},), got {values.shape}")
         fields.append((name, "<f4", values))
 
-    vertex = np.empty(n, dtype=[(name, dtype) for name, dtype, _ in fields])
-    for name, _, values in fields:
-        vertex[name] = values
-    ply_type = {"<f4": "float", "u1": "uchar"}
-    header = [
-        "ply",
-        "format binary_little_endian 1.0",
-        "comment written by jnr (pipeline.scan.pointcloud)",
-        f"element vertex {n}",
-    ] + [f"property {ply_type[dtype]} {name}" for name, dtype, _ in fields]
-    header = ("\n".join(header + ["end_header"]) + "\n").encode("ascii")
-    write_bytes_atomic(os.fspath(path), header + vertex.tobytes(), make_parents=True)
+    data = binary_ply(fields, comments=("written by jnr (pipeline.scan.pointcloud)",))
+    write_bytes_atomic(os.fspath(path), data, make_parents=True)
 
 
 __all__ = ["write_point_cloud_ply"]
