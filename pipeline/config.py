@@ -1,8 +1,10 @@
 """Typed configuration: frozen dataclasses as defaults, YAML files and ``--set key=value`` as overrides.
 
-Unknown keys are errors everywhere (a mistyped key must not be silently ignored). A field whose type is
-a tuple of dataclasses (a schedule of stages) is given in YAML as a list of mappings, each checked the
-same way.
+Unknown keys are errors everywhere (a mistyped key must not be silently ignored), and so is a key given
+twice in one YAML mapping. Numbers are finite and never negative (weights, rates, iteration counts,
+distances, sizes), except in fields marked ``metadata=SIGNED`` (cosine thresholds). A field whose type is a
+tuple of dataclasses (a schedule of stages) is given in YAML as a list of mappings, each checked the same
+way.
 """
 
 from __future__ import annotations
@@ -22,6 +24,20 @@ class ConfigError(InputError):
     """A configuration file or override that does not match the typed defaults."""
 
 
+SIGNED = {"signed": True}
+"""``dataclasses.field(metadata=SIGNED)``: a numeric setting that may be negative (e.g. a cosine threshold)."""
+
+
+def _negative(value) -> bool:
+    if isinstance(value, bool):
+        return False
+    if isinstance(value, int | float):
+        return value < 0
+    if isinstance(value, tuple):
+        return any(_negative(v) for v in value)
+    return False
+
+
 def _build(cls: type[T], values: dict, where: str) -> T:
     if not isinstance(values, dict):
         raise ConfigError(f"{where}: expected a mapping of {cls.__name__} fields, got {type(values).__name__}")
@@ -38,6 +54,8 @@ def _build(cls: type[T], values: dict, where: str) -> T:
             # a partial mapping for a nested config overrides that field's own default, not its class's
             value = {**{f.name: getattr(base, f.name) for f in dataclasses.fields(base)}, **value}
         out[name] = _coerce(hints[name], value, f"{where}.{name}")
+        if _negative(out[name]) and not fields[name].metadata.get("signed"):
+            raise ConfigError(f"{where}.{name}: must not be negative, got {value!r}")
     try:
         return cls(**out)
     except (TypeError, ValueError) as exc:
@@ -121,7 +139,9 @@ def load_config(cls: type[T], path: str | Path | None = None, overrides: dict | 
         if not path.is_file():
             raise FileNotFoundError(f"config file not found: {path}")
         try:
-            data = yaml.safe_load(path.read_text())
+            data = yaml.load(path.read_text(), Loader=_unique_key_loader())  # a SafeLoader
+        except _DuplicateKey as exc:
+            raise ConfigError(f"{path}: {exc}") from None
         except yaml.YAMLError as exc:
             raise ConfigError(f"{path}: not valid YAML ({_yaml_problem(exc)})") from None
         except UnicodeDecodeError:
@@ -144,6 +164,31 @@ def load_config(cls: type[T], path: str | Path | None = None, overrides: dict | 
             node = child
         node[leaf] = value
     return _build(cls, values, cls.__name__ if path is None else str(path))
+
+
+class _DuplicateKey(Exception):
+    pass
+
+
+def _unique_key_loader():
+    """yaml's SafeLoader, refusing a key given twice in one mapping (the last would win silently)."""
+    import yaml
+
+    class Loader(yaml.SafeLoader):
+        def construct_mapping(self, node, deep=False):
+            seen = set()
+            for key_node, _ in node.value:
+                key = self.construct_object(key_node, deep=True)
+                if key in seen:
+                    line = key_node.start_mark.line + 1
+                    raise _DuplicateKey(f"the key {key!r} is given twice (again on line {line})")
+                try:
+                    seen.add(key)
+                except TypeError:
+                    pass  # an unhashable key: SafeLoader reports it
+            return super().construct_mapping(node, deep=deep)
+
+    return Loader
 
 
 def _yaml_problem(exc) -> str:

@@ -51,3 +51,16 @@ def check_shape(ok: bool, func: str, arg: str, expected: str, got: object) -> No
 
 
 __all__ = ["InputError", "JnrError", "SetupError", "ShapeError", "check_shape", "shape_error"]
+
+
+def is_number(value: object) -> bool:
+    """Whether a value read from a file is a real number: an int or float (Python's or NumPy's), never a
+    boolean or a string (``true`` and ``"1.0"`` in a JSON parameter file are refused, not read as 1).
+
+    Example:
+        >>> is_number(1.5), is_number(2), is_number(True), is_number("1.0")
+        (True, True, False, False)
+    """
+    import numbers
+
+    return isinstance(value, numbers.Real) and not isinstance(value, bool)

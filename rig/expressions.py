@@ -53,7 +53,7 @@ from torch import nn
 
 from rig.asset import RigAsset, cached_per_asset, load_asset
 from rig.disk_cache import disk_cached
-from rig.errors import InputError
+from rig.errors import InputError, is_number
 from rig.geometry import deformation_transfer, mesh_edges
 from rig.makehuman.face_units import ARKIT_NAMES, arkit_offsets
 from rig.template import makehuman_vertices, rim_halves
@@ -372,7 +372,8 @@ def coefficients_from_dict(
 ) -> torch.Tensor:
     """``(E,)`` coefficients from ``{name: value}`` (ARKit names; missing names are 0).
 
-    Raises :class:`ExpressionError` (a ``ValueError``) for unknown names, non-finite values, or values
+    Raises :class:`ExpressionError` (a ``ValueError``) for unknown names, values that are not numbers (booleans,
+    strings), non-finite values, or values
     outside a shape's limits; with ``clamp=True`` out-of-limit values are clamped with a warning.
     """
     unknown = [k for k in values if k not in _INDEX]
@@ -382,6 +383,8 @@ def coefficients_from_dict(
         )
     out = np.zeros(len(EXPRESSION_NAMES))
     for name, value in values.items():
+        if not is_number(value):  # true and "1.0" are refused, not read as numbers
+            raise ExpressionError(f"expression {name!r}: value must be a number, got {value!r}")
         value = float(value)
         spec = EXPRESSIONS[_INDEX[name]]
         if not math.isfinite(value):

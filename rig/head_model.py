@@ -33,7 +33,7 @@ import numpy as np
 import torch
 
 from rig.asset import RigAsset, load_asset
-from rig.errors import InputError
+from rig.errors import InputError, is_number
 from rig.expressions import EXPRESSION_NAMES, ExpressionModel, coefficients_from_dict, expression_limits
 from rig.model import JointRig
 from rig.parameters import CHANNELS, params_to_theta, theta_limits, theta_to_params
@@ -44,7 +44,7 @@ from rig.skinning.asm import (
     asm_params_from_dict,
     asm_params_to_dict,
 )
-from rig.skinning.neural import LATENT, NeuralSkinning, load_neural
+from rig.skinning.neural import LATENT, LATENT_LIMIT, NeuralSkinning, load_neural
 
 __all__ = [
     "AsmHead",
@@ -59,6 +59,7 @@ __all__ = [
     "create_from_dict",
     "head_model_kinds",
     "is_posable",
+    "model_entries",
     "register_head_model",
 ]
 
@@ -233,6 +234,35 @@ def _vector(values, size: int, what: str) -> np.ndarray:
     return v
 
 
+def _latent(values) -> np.ndarray:
+    """``(50,)`` float64 latent Z from a parameter file's list: numbers only, within
+    :data:`rig.skinning.neural.LATENT_LIMIT` (the range the decoder was trained on)."""
+    if not isinstance(values, list | tuple) or len(values) != LATENT:
+        raise HeadModelError(f"latent_z must be a list of {LATENT} numbers, got {type(values).__name__}")
+    for i, value in enumerate(values):
+        if not is_number(value) or not np.isfinite(value):
+            raise HeadModelError(f"latent_z[{i}] must be a finite number, got {value!r}")
+        if abs(value) > LATENT_LIMIT:
+            raise HeadModelError(
+                f"latent_z[{i}] = {value:.6g} is outside [-{LATENT_LIMIT:g}, {LATENT_LIMIT:g}], the range the "
+                f"skinning decoder was trained on (Z ~ N(0, I))"
+            )
+    return np.asarray(values, np.float64)
+
+
+def model_entries(kind: str) -> tuple[str, ...] | None:
+    """The ``params.json`` keys of head model ``kind`` (its optional ``entries``; None for a model that does
+    not declare them), without building the model.
+
+    Raises:
+        HeadModelError: an unknown kind.
+    """
+    if kind not in _REGISTRY:
+        raise HeadModelError(f"unknown head model {kind!r}; known: {', '.join(_REGISTRY)}")
+    entries = getattr(_REGISTRY[kind], "entries", None)
+    return None if entries is None else tuple(entries)
+
+
 def _require(data: Mapping, keys: tuple[str, ...]) -> None:
     missing = [k for k in keys if k not in data]
     if missing:
@@ -252,6 +282,8 @@ class JnrHead:
 
     kind: ClassVar[str] = "jnr"
     posable: ClassVar[bool] = True
+    entries: ClassVar[tuple[str, ...]] = ("joints", "latent_z", "expressions")
+    """The keys of a ``params.json`` this model reads (:meth:`to_dict`)."""
 
     def __init__(
         self, asset: RigAsset | None = None, *, rig: JointRig | None = None, neural: NeuralSkinning | None = None
@@ -345,12 +377,13 @@ class JnrHead:
         }
 
     def from_dict(self, data: Mapping) -> HeadParams:
-        """Raises: HeadModelError (missing keys, a latent of the wrong length), ParameterError /
-        ExpressionError (unknown names, values outside limits)."""
+        """Raises: HeadModelError (missing keys, a latent of the wrong length, with a value that is not a
+        number or beyond :data:`rig.skinning.neural.LATENT_LIMIT`), ParameterError / ExpressionError
+        (unknown names, values that are not numbers or outside limits)."""
         _require(data, ("joints", "expressions", "latent_z"))
         theta = params_to_theta(data["joints"], dtype=torch.float64).numpy()
         c = coefficients_from_dict(data["expressions"], dtype=torch.float64).numpy()
-        return self.params(theta, data["latent_z"], c)
+        return self.params(theta, _latent(data["latent_z"]), c)
 
     @staticmethod
     def options_from_dict(data: Mapping) -> dict:
@@ -376,6 +409,8 @@ class AsmHead:
 
     kind: ClassVar[str] = "asm"
     posable: ClassVar[bool] = False
+    entries: ClassVar[tuple[str, ...]] = ("asm", "expressions")
+    """The keys of a ``params.json`` this model reads (:meth:`to_dict`)."""
 
     def __init__(self, asset: RigAsset | None = None, *, components: int | None = None, rig=None) -> None:
         if rig is None or rig.template.dtype != torch.float64:

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import torch
 
-from rig.errors import InputError
+from rig.errors import InputError, is_number
 from rig.joints import JOINT_INDEX, JOINT_MIRROR, JOINTS, mirror_joint_name
 
 
@@ -124,7 +124,8 @@ def params_to_theta(
         clamp: clamp out-of-limit values to the limits with a warning instead of raising.
 
     Raises:
-        ParameterError: an unknown name, a non-finite value, or (without ``clamp``) a value outside limits.
+        ParameterError: an unknown name, a value that is not a number (a boolean, a string), a non-finite
+            value, or (without ``clamp``) a value outside limits.
     """
     if not isinstance(values, Mapping):
         raise ParameterError(
@@ -138,10 +139,9 @@ def params_to_theta(
             close = [c for c in CHANNEL_INDEX if c.split(".")[0] == name.split(".")[0]]
             hint = f"; {name.split('.')[0]} has {', '.join(close)}" if close else ""
             raise ParameterError(f"unknown rig parameter {name!r}{hint}")
-        try:
-            value = float(value)
-        except (TypeError, ValueError):
-            raise ParameterError(f"rig parameter {name!r} must be a number, got {value!r}") from None
+        if not is_number(value):  # true and "1.0" are refused, not read as numbers
+            raise ParameterError(f"rig parameter {name!r} must be a number, got {value!r}")
+        value = float(value)
         if not math.isfinite(value):
             raise ParameterError(f"rig parameter {name!r} must be finite, got {value}")
         c = CHANNELS[CHANNEL_INDEX[name]]

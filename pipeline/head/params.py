@@ -24,7 +24,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from rig.errors import InputError
-from rig.head_model import HeadModel, HeadParams
+from rig.head_model import HeadModel, HeadModelError, HeadParams, model_entries
 from rig.io.inputs import regular_file
 
 PARAMS_FILE = "params.json"
@@ -37,8 +37,18 @@ LEGACY_FORMATS = {"jnr-photo-params/1": "photo", "jnr-multiview-params/1": "view
 """The formats of earlier versions and the fit each was written by."""
 UNITS = {"rotate": "deg", "translate": "mm", "scale": "factor"}
 """The ``units`` entry of every file (a photo fit adds its pixel convention)."""
-SCHEMA_KEYS = ("format", "fit", "model", "skinning", "units")
-"""The keys that are the schema's own, neither the model's nor the fit's."""
+SCHEMA_KEYS = ("format", "fit", "model", "skinning", "units", "retargeted_from")
+"""The keys that are the schema's own, neither the model's nor the fit's (``retargeted_from``: what
+``jnr retarget`` adds to the target fit's file)."""
+FIT_ENTRIES = {
+    "photo": ("camera", "pose", "light", "albedo"),
+    "views": ("pose_description", "views"),
+    "scan": ("pose", "input"),
+    "track": ("track",),
+    None: (),
+}
+"""The keys each fit adds to its ``params.json`` (a bare head, fit None, has the model's only); a file of this
+format with any other key is refused (a misspelt key must not be silently ignored)."""
 
 
 class ParamsFileError(InputError):
@@ -97,16 +107,37 @@ def read_params(data: object, source: str | Path = PARAMS_FILE) -> FitParams:
         fit, model = data.get("fit"), data.get("model")
         if fit not in FIT_KINDS or not isinstance(model, str):
             raise ParamsFileError(f"{source}: format {PARAMS_FORMAT} needs 'fit' in {list(FIT_KINDS)} and 'model'")
+        _check_keys(data, fit, model, source)
         return FitParams(fit, model, data)
     if fmt in LEGACY_FORMATS:
         return FitParams(LEGACY_FORMATS[fmt], str(data.get("skinning", "jnr")), data)
     if fmt is None and ("model" in data or "skinning" in data or {"joints", "latent_z", "expressions"} <= set(data)):
-        # a bare head (a notebook's or a test's dict, no fit around it)
-        return FitParams(None, str(data.get("model", data.get("skinning", "jnr"))), data)
+        # a bare head (a notebook's or a test's dict, or the viewer's "Save pose"; no fit around it)
+        model = str(data.get("model", data.get("skinning", "jnr")))
+        _check_keys(data, None, model, source)
+        return FitParams(None, model, data)
     raise ParamsFileError(
         f"{source} is not a jnr fit's parameter file (format {fmt!r}; expected {PARAMS_FORMAT!r} "
         f"or one of {sorted(LEGACY_FORMATS)})"
     )
+
+
+def _check_keys(data: Mapping, fit: str | None, model: str, source) -> None:
+    """Refuse keys neither the schema, the head model nor the fit writes (:data:`FIT_ENTRIES`; a head model
+    that does not declare its ``entries`` is not checked)."""
+    try:
+        entries = model_entries(model)
+    except HeadModelError as exc:
+        raise ParamsFileError(f"{source}: {exc}") from None
+    if entries is None:
+        return
+    known = {*SCHEMA_KEYS, *entries, *FIT_ENTRIES[fit]}
+    unknown = sorted(str(k) for k in set(data) - known)
+    if unknown:
+        raise ParamsFileError(
+            f"{source}: unknown key(s) {unknown} in a {fit or 'head'} parameter file of model {model!r}; "
+            f"known: {sorted(known)}"
+        )
 
 
 def load_params_file(path: str | Path) -> FitParams:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from pipeline.config import SIGNED
 from pipeline.fitting.least_squares import LMSettings
 from pipeline.photo.fit_config import PHOTO_PRIOR, OutputsConfig
 from pipeline.photo.landmark_fit import LandmarkFitConfig
@@ -43,7 +44,7 @@ class PhotoConsistencyConfig:
     """The patch around each vertex: ``1-ring`` (the only one)."""
     regions: tuple[str, ...] = FACE_REGIONS
     """Rig regions whose vertices are scored."""
-    visible_cos: float = 0.3
+    visible_cos: float = field(default=0.3, metadata=SIGNED)  # a cosine: may be negative
     """Facing test: cosine between the vertex normal and the direction to the camera at least this."""
     depth_tolerance_mm: float = 2.0
     """A vertex is hidden when the z-buffer holds a surface more than this much in front of it."""

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from pipeline.config import SIGNED
 from pipeline.fitting.engine import LearningRates, Stage
 from pipeline.fitting.priors import PriorWeights
 
@@ -82,7 +83,7 @@ class CorrespondenceConfig:
     min_distance_mm: float = 8.0
     normal_angle_deg: float = 60.0
     """Pairs whose normals differ by more are rejected."""
-    min_facing: float = 0.2
+    min_facing: float = field(default=0.2, metadata=SIGNED)  # a cosine: may be negative
     """Model -> cloud pairs need ``n_vertex . view_direction`` above this (the vertex faces the sensor;
     the view direction is the mean cloud normal of a single-view scan)."""
     robust_sigma_min_mm: float = 1.5

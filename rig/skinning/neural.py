@@ -30,6 +30,10 @@ from rig.skinning.joint_fit import fit_joints
 from rig.skinning.linear import valid_weights
 
 LATENT = 50
+LATENT_LIMIT = 6.0
+"""The largest ``|Z_i|`` a head may have: the decoder was trained on ``Z`` drawn from the standard normal
+(``train_wgan``), and a coordinate beyond 6 standard deviations (probability 2e-9) lies outside what it
+has seen (fits keep ``|Z|`` far smaller by their prior: 0.14-0.15 on simulated scans)."""
 LAMBDA_SPARSE = 0.05
 LAMBDA_ADV = 0.1
 

@@ -369,3 +369,64 @@ def test_names_reach_terminals_and_spreadsheets_inert(capsys, tmp_path):
     path.write_text(text)
     row = read_summary(path)[0]
     assert row["photo"] == "=1+2.jpg" and row["error"] == "=1+2.jpg: no face found"
+
+
+def _rest_fit_params() -> dict:
+    """A scan fit's params.json of the rest head (what jnr fit-scan writes, without running a fit)."""
+    import numpy as np
+
+    from pipeline.head.params import params_payload
+    from rig.head_model import create
+
+    model = create("jnr")
+    params = model.params(np.zeros(107), np.zeros(50), np.zeros(52))
+    pose = {"rotation_matrix": np.eye(3).tolist(), "translation_mm": [0.0, 0.0, 0.0], "scale": 1.0}
+    return params_payload(model, params, fit="scan", pose=pose, input={"units": "mm", "scale_to_mm": 1.0})
+
+
+@pytest.mark.parametrize(
+    "change, culprit",
+    [
+        (lambda d: d["joints"].update({"nose_tip.translate_z": True}), "'nose_tip.translate_z' must be a number"),
+        (lambda d: d["joints"].update({"nose_tip.translate_z": "1.0"}), "'nose_tip.translate_z' must be a number"),
+        (lambda d: d["expressions"].update({"jawOpen": "0.5"}), "'jawOpen': value must be a number"),
+        (lambda d: d["latent_z"].__setitem__(3, 1e30), "latent_z[3] = 1e+30 is outside [-6, 6]"),
+        (lambda d: d["latent_z"].__setitem__(0, True), "latent_z[0] must be a finite number"),
+        (lambda d: d["latent_z"].__setitem__(7, "nan"), "latent_z[7] must be a finite number"),
+        (lambda d: d.update({"foo": 1}), "unknown key(s) ['foo']"),
+    ],
+)
+def test_a_fits_parameters_are_numbers_of_the_right_kind_and_range(capsys, tmp_path, change, culprit):
+    """D23: true, "1.0", a latent of 1e30 and unknown keys were accepted (exit 0, a head far from the fit's)."""
+    data = _rest_fit_params()
+    path = tmp_path / "params.json"
+    path.write_text(json.dumps(data))
+    assert main(["rig", "edit", str(path), "--out", str(tmp_path / "ok.obj")]) == 0  # the file as written
+    capsys.readouterr()
+    change(data)
+    path.write_text(json.dumps(data))
+    code = main(["rig", "edit", str(path), "--out", str(tmp_path / "e.obj")])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1 and culprit in err and str(path) in err, err
+    assert not (tmp_path / "e.obj").exists()
+
+
+def test_settings_are_never_negative_and_never_given_twice(capsys, tmp_path):
+    """D23: negative weights and iteration counts, and a YAML key given twice (the last won), were accepted."""
+    from pipeline.config import ConfigError, load_config
+    from pipeline.photo.fit_config import FitPhotoConfig
+    from pipeline.scan.fit_config import FitScanConfig
+
+    for key in ("landmarks.prior.lambda_identity", "landmarks.lm.max_iterations", "photometric.spp"):
+        with pytest.raises(ConfigError, match=rf"{key.split('.')[-1]}: must not be negative, got -5"):
+            load_config(FitPhotoConfig, None, {key: -5})
+    with pytest.raises(ConfigError, match=r"stages\[0\]\.iterations: must not be negative"):
+        load_config(FitScanConfig, None, {"stages": [{"name": "a", "free": ["pose"], "iterations": -1}]})
+    assert load_config(FitScanConfig, None, {"correspondences.min_facing": -0.1}).correspondences.min_facing == -0.1
+    dup = tmp_path / "dup.yaml"
+    dup.write_text("seed: 1\nprior:\n  lambda_m_end: 0.1\n  lambda_m_end: 0.2\n")
+    with pytest.raises(ConfigError, match=r"'lambda_m_end' is given twice \(again on line 4\)"):
+        load_config(FitScanConfig, dup)
+    code = main(["fit-scan", "x.ply", "--set", "prior.lambda_m_end=-1", "--out", str(tmp_path / "o")])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and err == "jnr: error: FitScanConfig.prior.lambda_m_end: must not be negative, got -1"
