@@ -159,8 +159,19 @@ def _inside(child: Path, parent: Path) -> bool:
     return child == parent or parent in child.parents
 
 
+MAX_NAME_BYTES = 255
+"""The longest file or folder name (bytes) of Linux's file systems; the temporaries' names stay shorter
+(:data:`rig.io.atomic.STAGING_TAG`)."""
+
+
 def _check_paths(out: Path, inputs: Iterable[str | Path], option: str) -> None:
-    """Refuse an output that is, contains or lies inside an input, or is/contains the working directory."""
+    """Refuse an output that is, contains or lies inside an input, or is/contains the working directory, and a
+    name longer than a file name may be (255 bytes)."""
+    size = len(os.fsencode(out.name))
+    if size > MAX_NAME_BYTES:
+        raise OutputError(
+            f"{option} {out}: the name is {size} bytes long; a file or folder name holds at most {MAX_NAME_BYTES}"
+        )
     real = _resolved(out)
     cwd = _resolved(Path.cwd())
     if _inside(cwd, real):

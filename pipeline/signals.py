@@ -1,8 +1,10 @@
-"""SIGTERM handled like Ctrl-C, and worker processes that die with their parent.
+"""SIGTERM, SIGHUP and SIGQUIT handled like Ctrl-C, and worker processes that die with their parent.
 
-SIGINT raises :class:`KeyboardInterrupt`; :func:`terminate_as_exception` makes SIGTERM raise
-:class:`Terminated`, so the same ``try/finally`` blocks (the staged output folders of
-:mod:`pipeline.files`) clean up in both cases. Worker processes (``jnr fit FOLDER --jobs N``) call
+SIGINT raises :class:`KeyboardInterrupt`; :func:`terminate_as_exception` makes SIGTERM, SIGHUP (a closed
+terminal, a dropped ssh session) and SIGQUIT raise :class:`Terminated`, so the same ``try/finally`` blocks
+(the staged output folders of :mod:`pipeline.files`) clean up in every case (SIGKILL cannot be caught: what
+it leaves, the next run of the command removes, :func:`rig.io.atomic.remove_stale_temporaries`).
+Worker processes (``jnr fit FOLDER --jobs N``) call
 :func:`worker_init`: they get SIGTERM when their parent dies (Linux ``PR_SET_PDEATHSIG``), and the
 parent terminates them when it is interrupted (:func:`stop_children`).
 """
@@ -20,19 +22,46 @@ from contextlib import contextmanager
 _PR_SET_PDEATHSIG = 1
 
 
+TERMINATING = tuple(getattr(signal, name) for name in ("SIGTERM", "SIGHUP", "SIGQUIT") if hasattr(signal, name))
+"""The signals that raise :class:`Terminated` (SIGINT raises KeyboardInterrupt)."""
+
+
 class Terminated(BaseException):
-    """Raised in the main thread by SIGTERM (a BaseException, so ``except Exception`` does not swallow it)."""
+    """Raised in the main thread by SIGTERM, SIGHUP or SIGQUIT (a BaseException, so ``except Exception`` does
+    not swallow it); ``signum`` is the signal's number (the exit status is ``128 + signum``)."""
+
+    def __init__(self, message: str = "terminated", signum: int = signal.SIGTERM) -> None:
+        super().__init__(message)
+        self.signum = int(signum)
+
+    @property
+    def name(self) -> str:
+        """The signal's name, e.g. ``SIGHUP``."""
+        try:
+            return signal.Signals(self.signum).name
+        except ValueError:
+            return f"signal {self.signum}"
 
 
 def _raise_terminated(signum, frame) -> None:
-    # A second SIGTERM must not interrupt the clean-up the first one started.
-    signal.signal(signal.SIGTERM, signal.SIG_IGN)
-    raise Terminated(f"terminated by signal {signum}")
+    # A second signal must not interrupt the clean-up the first one started.
+    ignore_termination()
+    raise Terminated(f"terminated by signal {signum}", signum)
 
 
 def terminate_as_exception() -> None:
-    """Make SIGTERM raise :class:`Terminated` in the main thread (call from the main thread)."""
-    signal.signal(signal.SIGTERM, _raise_terminated)
+    """Make SIGTERM, SIGHUP and SIGQUIT raise :class:`Terminated` in the main thread (call from the main
+    thread)."""
+    for signum in TERMINATING:
+        signal.signal(signum, _raise_terminated)
+
+
+def ignore_termination() -> None:
+    """Ignore SIGINT, SIGTERM, SIGHUP and SIGQUIT from now on (the clean-up has started, or the command's work
+    is done and written: a signal then must neither interrupt the clean-up nor turn a finished command
+    into a failed one)."""
+    for signum in (signal.SIGINT, *TERMINATING):
+        signal.signal(signum, signal.SIG_IGN)
 
 
 _in_task = False
@@ -69,7 +98,8 @@ def worker_init(parent_pid: int) -> None:
     soon as its parent dies, even by SIGKILL (Linux)."""
     global _is_worker
     _is_worker = True
-    signal.signal(signal.SIGTERM, _worker_sigterm)
+    for signum in TERMINATING:
+        signal.signal(signum, _worker_sigterm)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     if sys.platform.startswith("linux"):
         try:

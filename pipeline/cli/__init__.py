@@ -124,7 +124,18 @@ def run() -> None:
     import os
     import threading
 
-    code = main()
+    from pipeline.signals import Terminated, ignore_termination, terminate_as_exception
+
+    terminate_as_exception()  # from the first moment: a signal during start-up is one line too
+    try:
+        code = main(restore_signals=False)
+    except KeyboardInterrupt:  # before main's own handling began (reading the arguments)
+        print("jnr: interrupted", file=sys.stderr)
+        code = 130
+    except Terminated as exc:
+        print(f"jnr: terminated ({exc.name})", file=sys.stderr)
+        code = 128 + exc.signum
+    ignore_termination()  # the command is over: a late signal must not turn it into a failure
     try:
         sys.stdout.flush()
         sys.stderr.flush()
@@ -137,17 +148,20 @@ def run() -> None:
     sys.exit(code)
 
 
-def main(argv: list[str] | None = None) -> int:
+def main(argv: list[str] | None = None, *, restore_signals: bool = True) -> int:
     """Run ``jnr`` with ``argv`` (default: ``sys.argv[1:]``); returns the exit status: 0, 2 for bad input
     (:class:`rig.errors.InputError`, a missing or refused file), 1 for other failures
-    (:class:`rig.errors.JnrError`, render's ``LLVMError``, OSError, ValueError), 130 on Ctrl-C, 143 on
-    SIGTERM, 141 when the reader of its output goes away (``| head``); errors are one line on stderr."""
+    (:class:`rig.errors.JnrError`, render's ``LLVMError``, OSError, ValueError), 130 on Ctrl-C, 128 + the
+    signal's number on SIGTERM (143), SIGHUP (129) or SIGQUIT (131), 141 when the reader of its output goes
+    away (``| head``); errors are one line on stderr. Once the command's work is done, signals are ignored
+    (a finished output is never reported as a failure); ``restore_signals`` puts the caller's handlers back
+    at the end (the console command, :func:`run`, leaves them ignored until it exits)."""
     import os
     import signal
     import threading
     import warnings
 
-    from pipeline.signals import Terminated, terminate_as_exception
+    from pipeline.signals import TERMINATING, Terminated, ignore_termination, terminate_as_exception
 
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -158,11 +172,22 @@ def main(argv: list[str] | None = None) -> int:
     from rig.errors import InputError, JnrError
 
     main_thread = threading.current_thread() is threading.main_thread()
-    previous = signal.getsignal(signal.SIGTERM) if main_thread else None
+    saved = {n: signal.getsignal(n) for n in (signal.SIGINT, *TERMINATING)} if main_thread else {}
     if main_thread:
         terminate_as_exception()
     try:
-        return args.func(args)
+        try:
+            code = args.func(args)
+        except Exception as exc:
+            # a signal that arrived inside an import or a class body comes wrapped (RuntimeError from
+            # __set_name__): handle it as the signal it is
+            cause = _interruption(exc)
+            if cause is None:
+                raise
+            raise cause from None
+        if main_thread:
+            ignore_termination()  # the work is done and written
+        return code
     except CliError as exc:
         print(f"jnr: error: {exc}", file=sys.stderr)
         return exc.code
@@ -184,15 +209,32 @@ def main(argv: list[str] | None = None) -> int:
         print(f"jnr: error: {_one_line(exc)}", file=sys.stderr)
         return EXIT_FAILURE
     except KeyboardInterrupt:
+        if main_thread:
+            ignore_termination()
         print("jnr: interrupted; nothing half-written was left behind", file=sys.stderr)
         return 130
-    except Terminated:
-        print("jnr: terminated (SIGTERM); nothing half-written was left behind", file=sys.stderr)
-        return 143
+    except Terminated as exc:
+        print(f"jnr: terminated ({exc.name}); nothing half-written was left behind", file=sys.stderr)
+        return 128 + exc.signum
     finally:
         warnings.formatwarning = saved_format
-        if main_thread:
-            signal.signal(signal.SIGTERM, previous if previous is not None else signal.SIG_DFL)
+        if restore_signals:
+            for signum, handler in saved.items():
+                signal.signal(signum, handler if handler is not None else signal.SIG_DFL)
+
+
+def _interruption(exc: BaseException) -> BaseException | None:
+    """The KeyboardInterrupt or :class:`pipeline.signals.Terminated` an exception was raised from or during
+    (its ``__cause__``/``__context__`` chain), or None."""
+    from pipeline.signals import Terminated
+
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        seen.add(id(exc))
+        if isinstance(exc, KeyboardInterrupt | Terminated):
+            return exc
+        exc = exc.__cause__ or exc.__context__
+    return None
 
 
 __all__ = ["EXIT_FAILURE", "EXIT_OK", "EXIT_USAGE", "CliError", "build_parser", "main", "run"]

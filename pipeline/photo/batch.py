@@ -17,6 +17,7 @@ Example:
 from __future__ import annotations
 
 import logging
+import os
 import re
 import shutil
 import warnings
@@ -148,7 +149,21 @@ def _fit_all(todo: list[PhotoTask], run, results: list[PhotoFileResult], out: Pa
     finally:
         getattr(finished, "close", lambda: None)()  # a generator's clean-up runs now, not when collected
         if created and not any(r.summary for r in results):
-            shutil.rmtree(out, ignore_errors=True)  # nothing of ours in it
+            _remove_if_nothing_finished(out)
+
+
+def _remove_if_nothing_finished(out: Path) -> None:
+    """Remove the ``out`` this run created when nothing finished in it: only the shared three.js file and
+    hidden temporaries may be there. An output a worker finished but the run had not yet collected (Ctrl-C
+    just after it was moved into place) keeps the folder and everything in it."""
+    try:
+        entries = [e.name for e in os.scandir(out)]
+    except OSError:
+        return
+    if any(name != SHARED_THREE_FILE and not name.startswith(".") for name in entries):
+        _log.info("kept %s: it holds outputs that finished (%s)", out, ", ".join(sorted(entries)[:5]))
+        return
+    shutil.rmtree(out, ignore_errors=True)
 
 
 def fit_photo_files(

@@ -23,6 +23,7 @@ from pathlib import Path
 
 from pipeline.files import OutputError
 from pipeline.photo.summary import SUMMARY_FILE
+from rig.io.atomic import remove_stale_temporaries
 
 _log = logging.getLogger(__name__)
 
@@ -32,7 +33,8 @@ _RANDOM = "[a-z0-9_]{8}"
 
 def remove_leftovers(out: str | Path, folders: Iterable[str], files: Iterable[str] = (SUMMARY_FILE,)) -> list[Path]:
     """Remove what a killed run left in the batch folder ``out``: the hidden temporaries of
-    :mod:`rig.io.atomic` for the output folders named ``folders`` (``.<name>.<random>.tmp``, and
+    :mod:`rig.io.atomic` (:func:`rig.io.atomic.remove_stale_temporaries`), and those of earlier versions
+    for the output folders named ``folders`` (``.<name>.<random>.tmp``, and
     ``.<name>.old.<random>`` where ``renameat2`` is missing) and for the files named ``files``
     (``.<stem>.<random>.tmp<suffix>``). Nothing else is touched (a symbolic link with such a name
     neither). Call it only while no other process writes these outputs
@@ -46,7 +48,7 @@ def remove_leftovers(out: str | Path, folders: Iterable[str], files: Iterable[st
     patterns += [
         (re.compile(rf"\.{re.escape(Path(n).stem)}\.{_RANDOM}\.tmp{re.escape(Path(n).suffix)}"), False) for n in files
     ]
-    removed = []
+    removed = remove_stale_temporaries(out)  # this version's names: a dead writer's, unlocked
     try:
         entries = [p for p in out.iterdir() if p.name.startswith(".")]
     except OSError:

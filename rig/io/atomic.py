@@ -17,6 +17,10 @@ moves the old one aside first. On any error, signal (a ``BaseException``) or int
 removed and an existing destination is left as it was. What is written gets the usual (umask)
 permissions, unlike the 0600/0700 of :func:`tempfile.mkstemp`/:func:`tempfile.mkdtemp`.
 
+The temporaries are named ``.<name>.jnr<pid>-<random>.tmp`` (the output's name cut to 48 characters, so a
+long ``--out`` stays legal) and locked while written; each staging first removes the ones of its output that
+a killed process left (:func:`remove_stale_temporaries`), so no command leaves debris past its next run.
+
 :func:`staged_file` and :func:`staged_folder` yield the temporary path to write into;
 :func:`write_bytes_atomic` writes bytes that are already in memory. The policy of what the ``jnr``
 commands may replace (``--force``, the ``.jnr-output`` marker, messages naming the user's path) is in
@@ -29,6 +33,7 @@ import ctypes
 import ctypes.util
 import errno
 import os
+import re
 import shutil
 import tempfile
 from collections.abc import Callable, Iterator
@@ -38,6 +43,7 @@ from pathlib import Path
 __all__ = [
     "TargetExistsError",
     "move_into_place",
+    "remove_stale_temporaries",
     "rename_exchange",
     "rename_noreplace",
     "staged_file",
@@ -112,6 +118,82 @@ def _remove(path: Path) -> None:
         path.unlink(missing_ok=True)
 
 
+STAGING_TAG = 48
+"""How many characters of the output's name a temporary's name keeps (a 250-byte ``--out`` name stays
+legal: the temporary's name is at most about 80 bytes)."""
+_STAGING = re.compile(r"\.(?P<tag>.*)\.jnr(?P<pid>[0-9]+)-(?:old-)?[a-z0-9_]{8}(?:\.tmp.*)?", re.S)
+"""The names of this module's temporaries: ``.<tag>.jnr<pid>-<random>.tmp[<suffix>]`` (and
+``.<tag>.jnr<pid>-old-<random>`` for an old folder moved aside): the writing process's id in the name, and a
+lock on it while it is written (:func:`remove_stale_temporaries`)."""
+
+
+def _prefix(name: str) -> str:
+    return f".{name[:STAGING_TAG]}.jnr{os.getpid()}-"
+
+
+def _lock(path: Path) -> int | None:
+    """An exclusive ``flock`` on ``path`` (a folder or a file) held by the returned descriptor; None where the
+    file system has no locks or the lock is taken."""
+    try:
+        import fcntl
+
+        fd = os.open(path, os.O_RDONLY | (os.O_DIRECTORY if path.is_dir() else 0) | getattr(os, "O_NOFOLLOW", 0))
+    except (ImportError, OSError):
+        return None
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        os.close(fd)
+        return None
+    return fd
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OverflowError):
+        return True
+    return True
+
+
+def remove_stale_temporaries(folder: str | os.PathLike, names: tuple[str, ...] | None = None) -> list[Path]:
+    """Remove the temporaries of this module in ``folder`` that a killed process left (SIGKILL, a lost
+    terminal, a power cut): those whose writing process no longer exists and that no process holds locked;
+    with ``names``, only those of the outputs so named. Every staging calls it for its own output, so the
+    next run of any command cleans what a killed run of it left. Nothing else is touched (a symbolic link
+    with such a name neither).
+
+    Returns:
+        The paths removed.
+    """
+    folder = Path(folder)
+    tags = None if names is None else {n[:STAGING_TAG] for n in names}
+    removed = []
+    try:
+        entries = [e for e in os.scandir(folder) if e.name.startswith(".") and ".jnr" in e.name]
+    except OSError:
+        return removed
+    for entry in entries:
+        match = _STAGING.fullmatch(entry.name)
+        if match is None or entry.is_symlink() or (tags is not None and match["tag"] not in tags):
+            continue
+        pid = int(match["pid"])
+        if pid == os.getpid() or _alive(pid):
+            continue
+        path = Path(entry.path)
+        fd = _lock(path)
+        if fd is None:  # in use (a process of another PID namespace?) or no locks here: leave it
+            continue
+        try:
+            _remove(path)
+        finally:
+            os.close(fd)
+        removed.append(path)
+    return removed
+
+
 def _umask() -> int:
     mask = os.umask(0)
     os.umask(mask)
@@ -141,7 +223,7 @@ def _replace(tmp: Path, out: Path, kind: str) -> bool:
             os.replace(tmp, out)
             return True
         # No exchange here: move the old folder aside, then the new one in.
-        aside = Path(tempfile.mkdtemp(prefix=f".{out.name}.old.", dir=out.parent))
+        aside = Path(tempfile.mkdtemp(prefix=_prefix(out.name) + "old-", dir=out.parent))
         os.rename(out, aside / "old")
         try:
             os.rename(tmp, out)
@@ -224,14 +306,18 @@ def move_into_place(
 
 
 @contextmanager
-def _staged(tmp: Path, finish: Callable[[Path], None]) -> Iterator[Path]:
-    """Yield ``tmp``, then ``finish(tmp)``; any error, signal or interrupt removes ``tmp``."""
+def _staged(tmp: Path, finish: Callable[[Path], None], lock: int | None) -> Iterator[Path]:
+    """Yield ``tmp``, then ``finish(tmp)``; any error, signal or interrupt removes ``tmp``. ``lock`` (a
+    descriptor holding ``tmp`` locked, or None) is released at the end."""
     try:
         yield tmp
         finish(tmp)
     except BaseException:
         _remove(tmp)
         raise
+    finally:
+        if lock is not None:
+            os.close(lock)
 
 
 @contextmanager
@@ -257,7 +343,8 @@ def staged_folder(
         OSError: the temporary folder cannot be made or moved (``out`` is unchanged).
     """
     out = Path(out)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent))
+    remove_stale_temporaries(out.parent, (out.name,))
+    tmp = Path(tempfile.mkdtemp(prefix=_prefix(out.name), suffix=".tmp", dir=out.parent))
 
     def finish(tmp: Path) -> None:
         if before_move is not None:
@@ -265,7 +352,7 @@ def staged_folder(
         os.chmod(tmp, 0o777 & ~_umask())
         move_into_place(tmp, out, replace=replace, kind="folder", check_replace=check_replace)
 
-    with _staged(tmp, finish) as staged:
+    with _staged(tmp, finish, _lock(tmp)) as staged:
         yield staged
 
 
@@ -287,14 +374,16 @@ def staged_file(
         OSError: the temporary file cannot be made or moved (``out`` is unchanged).
     """
     out = Path(out)
-    fd, name = tempfile.mkstemp(prefix=f".{out.stem}.", suffix=f".tmp{out.suffix}", dir=out.parent)
+    remove_stale_temporaries(out.parent, (out.stem,))
+    suffix = out.suffix if len(out.suffix) <= 16 else ""  # writers pick the format from it
+    fd, name = tempfile.mkstemp(prefix=_prefix(out.stem), suffix=f".tmp{suffix}", dir=out.parent)
     os.close(fd)
 
     def finish(tmp: Path) -> None:
         os.chmod(tmp, 0o666 & ~_umask())
         move_into_place(tmp, out, replace=replace, kind="file", check_replace=check_replace)
 
-    with _staged(Path(name), finish) as staged:
+    with _staged(Path(name), finish, _lock(Path(name))) as staged:
         yield staged
 
 

@@ -430,3 +430,133 @@ def test_settings_are_never_negative_and_never_given_twice(capsys, tmp_path):
     code = main(["fit-scan", "x.ply", "--set", "prior.lambda_m_end=-1", "--out", str(tmp_path / "o")])
     err = capsys.readouterr().err.strip()
     assert code == 2 and err == "jnr: error: FitScanConfig.prior.lambda_m_end: must not be negative, got -1"
+
+
+# --------------------------------------------------------------------- signals, debris, long names (D12, D27, D29, D31)
+
+_SLOW_EXPORT = """
+import sys, time
+from pathlib import Path
+import pipeline.edit
+def slow_mesh(path, *a, **k):
+    Path(path).write_text("partial")
+    print("WRITING", flush=True)
+    time.sleep(120)
+pipeline.edit.export_mesh = slow_mesh
+import pipeline.cli as cli
+sys.argv = ["jnr", *sys.argv[1:]]
+cli.run()
+"""
+
+
+def _slow_export(tmp_path, name="out.obj"):
+    import subprocess
+    import sys
+
+    from tests.pipeline.test_bad_input import REPO
+
+    argv = ["rig", "export", "--format", "obj", "--out", str(tmp_path / name)]
+    proc = subprocess.Popen(
+        [sys.executable, "-c", _SLOW_EXPORT, *argv], cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
+    assert proc.stdout.readline().strip() == "WRITING"
+    return proc
+
+
+@pytest.mark.parametrize("sig", ["SIGHUP", "SIGQUIT"])
+def test_a_closed_terminal_or_sigquit_leaves_nothing_behind(tmp_path, sig):
+    """D27: SIGHUP and SIGQUIT killed jnr while writing and left the hidden staging folder."""
+    import signal
+
+    proc = _slow_export(tmp_path)
+    assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".out.jnr")]  # staged now
+    proc.send_signal(getattr(signal, sig))
+    assert proc.wait(30) == 128 + getattr(signal, sig)
+    err = proc.stderr.read().strip()
+    assert err == f"jnr: terminated ({sig}); nothing half-written was left behind", err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_what_a_killed_command_left_the_next_run_removes(tmp_path, capsys):
+    """D27: after SIGKILL the staging file stayed for ever (only folder runs cleaned theirs); now every staging
+    removes its output's temporaries whose process is gone and that no process holds locked."""
+    import signal
+
+    proc = _slow_export(tmp_path)
+    left = [p for p in tmp_path.iterdir() if p.name.startswith(".out.jnr")]
+    proc.send_signal(signal.SIGKILL)
+    proc.wait(30)
+    assert left and all(p.exists() for p in left)  # SIGKILL cannot be caught
+    other = tmp_path / ".other.jnr999999-abcdefgh.tmp.obj"  # another output's: not touched
+    other.write_text("x")
+    assert main(["rig", "export", "--format", "obj", "--out", str(tmp_path / "out.obj")]) == 0
+    assert sorted(p.name for p in tmp_path.iterdir()) == [other.name, "out.obj"]
+
+
+def test_a_temporary_a_live_process_holds_is_kept(tmp_path):
+    from rig.io import atomic
+
+    with atomic.staged_folder(tmp_path / "o") as tmp:
+        fake = tmp_path / tmp.name.replace(f".jnr{os.getpid()}-", ".jnr999999-")
+        tmp.rename(fake)  # as if a process of another PID namespace wrote it, still locked by us
+        assert atomic.remove_stale_temporaries(tmp_path) == [] and fake.exists()
+        fake.rename(tmp)
+    assert (tmp_path / "o").is_dir() and [p.name for p in tmp_path.iterdir()] == ["o"]
+
+
+def test_a_signal_wrapped_by_python_is_still_the_signal(capsys, monkeypatch, tmp_path):
+    """D12: SIGTERM inside a class body (a lazy import) surfaced as RuntimeError('Error calling __set_name__')."""
+    from pipeline.signals import Terminated
+
+    def wrapped(args):
+        try:
+            raise Terminated("terminated by signal 15", 15)
+        except Terminated as exc:
+            raise RuntimeError("Error calling __set_name__ on 'Field' instance") from exc
+
+    import pipeline.cli.rig as rig_cli
+
+    monkeypatch.setattr(rig_cli, "cmd_rig_export", wrapped)  # the parser takes it when main builds it
+    assert main(["rig", "export", "--format", "obj", "--out", str(tmp_path / "x.obj")]) == 143
+    assert capsys.readouterr().err.strip() == "jnr: terminated (SIGTERM); nothing half-written was left behind"
+
+
+def test_ctrl_c_before_the_command_starts_is_one_line(tmp_path):
+    """D12: Ctrl-C in the first seconds printed a KeyboardInterrupt traceback."""
+    import subprocess
+    import sys
+
+    from tests.pipeline.test_bad_input import REPO
+
+    code = "import pipeline.cli as c\ndef boom(**k): raise KeyboardInterrupt\nc.main = boom\nc.run()"
+    proc = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 130 and proc.stderr.strip() == "jnr: interrupted", proc.stderr
+
+
+def test_a_long_out_name_is_staged_under_a_short_one(tmp_path, capsys):
+    """D29: a 250-byte --out was refused after the fit ('File name too long': the staging name added
+    characters); a 256-byte one ended with exit 1."""
+    name = "o" * 246 + ".obj"
+    assert main(["rig", "export", "--format", "obj", "--out", str(tmp_path / name)]) == 0
+    assert [p.name for p in tmp_path.iterdir()] == [name]
+    capsys.readouterr()
+    too_long = "o" * 252 + ".obj"
+    assert main(["rig", "export", "--format", "obj", "--out", str(tmp_path / too_long)]) == 2
+    assert "256 bytes long" in capsys.readouterr().err
+
+
+def test_ctrl_c_keeps_an_output_a_worker_finished(tmp_path):
+    """D31: Ctrl-C just after a worker moved o/a into place removed o/ (and o/a) as 'nothing of ours'."""
+    from pipeline.photo.batch import _remove_if_nothing_finished
+
+    out = tmp_path / "o"
+    (out / "a").mkdir(parents=True)
+    (out / "a" / "report.json").write_text("{}")
+    (out / "three.jnr.js").write_text("x")
+    _remove_if_nothing_finished(out)
+    assert (out / "a" / "report.json").exists()
+    (out / "a" / "report.json").unlink()
+    (out / "a").rmdir()
+    (out / ".b.jnr1-abcdefgh.tmp").mkdir()
+    _remove_if_nothing_finished(out)
+    assert not out.exists()
