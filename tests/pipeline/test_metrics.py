@@ -228,7 +228,7 @@ def test_committed_scan_records_give_the_committed_summary():
             assert new[m] == pytest.approx(old[m], rel=1e-12)
             assert new[m + "_std"] == pytest.approx(old[m + "_std"], rel=1e-12)
         assert new["seconds_median"] == pytest.approx(old["seconds_median"], rel=1e-12)
-    assert "| jnr | neutral | 5 | 0.87 ± 0.04 |" in ev.table_markdown()
+    assert "| jnr | neutral | 5 | 0.87 ± 0.03 |" in ev.table_markdown()
 
 
 def test_committed_photo_records_give_the_committed_summary_with_sample_stds():
