@@ -37,6 +37,10 @@ from rig.io.atomic import TargetExistsError
 OUTPUT_MARKER = ".jnr-output"
 """The file that marks a folder written by jnr; ``--force`` replaces only folders that hold it."""
 MIN_FREE_BYTES = 64 * 1024 * 1024
+SMALL_FILE_FREE_BYTES = 1024 * 1024
+"""The free space a small report (a folder run's ``summary.csv``) needs: it is still written when a disk that
+filled during the run refuses the next photo's output (which needs :data:`MIN_FREE_BYTES`), so the run says
+which photos were fitted and which were not."""
 """An output's folder must have this much free space before a fit starts (its outputs are a few MB)."""
 
 
@@ -194,6 +198,7 @@ def check_output(
     inputs: Iterable[str | Path] = (),
     kind: str = "folder",
     option: str = "--out",
+    free_bytes: int = MIN_FREE_BYTES,
 ) -> Path:
     """Check an output path before any work is done (module docstring); returns it as given.
 
@@ -202,6 +207,8 @@ def check_output(
         force: an existing output may be replaced (a folder only if jnr wrote it).
         inputs: the command's input files and folders.
         option: how the user named the output, for messages.
+        free_bytes: the free space its folder must have (:data:`MIN_FREE_BYTES`; a small report:
+            :data:`SMALL_FILE_FREE_BYTES`).
 
     Raises:
         OutputError: the output is refused (one line that says why).
@@ -225,15 +232,15 @@ def check_output(
             _refuse_foreign(out, option)
         elif out.is_dir() or not out.is_file():
             raise OutputError(f"{option} {out} exists and is not a regular file; jnr will not replace it")
-    _check_parent(out, option)
+    _check_parent(out, option, free_bytes)
     return out
 
 
-def _check_parent(out: Path, option: str) -> None:
+def _check_parent(out: Path, option: str, free_bytes: int = MIN_FREE_BYTES) -> None:
     """The folder that will hold ``out`` exists and is writable (:func:`check_writable`)."""
     if not out.parent.is_dir():
         raise OutputError(f"the folder of {option} {out} does not exist ({out.parent})")
-    check_writable(out.parent, what=f"{option} {out}")
+    check_writable(out.parent, what=f"{option} {out}", free_bytes=free_bytes)
 
 
 def check_writable(folder: str | Path, *, what: str | None = None, free_bytes: int = MIN_FREE_BYTES) -> None:
@@ -333,7 +340,9 @@ def staged_folder(
 
 
 @contextmanager
-def staged_file(out: str | Path, force: bool = False, *, inputs: Iterable[str | Path] = ()) -> Iterator[Path]:
+def staged_file(
+    out: str | Path, force: bool = False, *, inputs: Iterable[str | Path] = (), free_bytes: int = MIN_FREE_BYTES
+) -> Iterator[Path]:
     """Write one output file atomically (:func:`rig.io.atomic.staged_file`): yields a hidden temporary
     path beside ``out`` with the same suffix (writers pick the format from it); moved into place when the
     block succeeds (refusing a file that appeared meanwhile unless ``force``), removed otherwise.
@@ -342,7 +351,7 @@ def staged_file(out: str | Path, force: bool = False, *, inputs: Iterable[str | 
         OutputError: as :func:`staged_folder`.
     """
     out = Path(out)
-    check_output(out, force=force, inputs=inputs, kind="file")
+    check_output(out, force=force, inputs=inputs, kind="file", free_bytes=free_bytes)
     with _output_errors(out), atomic.staged_file(out, replace=force) as tmp:
         yield tmp
 

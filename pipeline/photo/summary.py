@@ -15,7 +15,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
-from pipeline.files import OutputError, check_output, staged_file
+from pipeline.files import SMALL_FILE_FREE_BYTES, OutputError, check_output, staged_file
 
 SUMMARY_FILE = "summary.csv"
 """The table of a run over several photos or faces, one row per photo (per face with ``--face all``)."""
@@ -166,7 +166,7 @@ def check_summary(path: Path, force: bool, inputs: Iterable[str | Path]) -> None
     Raises:
         pipeline.files.OutputError: it may not.
     """
-    check_output(path, force=force, inputs=inputs, kind="file")
+    check_output(path, force=force, inputs=inputs, kind="file", free_bytes=SMALL_FILE_FREE_BYTES)
     if path.is_file():
         try:
             with open(path, newline="", encoding="utf-8") as handle:
@@ -191,7 +191,7 @@ def write_summary(
     """
     path = Path(path)
     check_summary(path, force, inputs)
-    with staged_file(path, force, inputs=inputs) as tmp:
+    with staged_file(path, force, inputs=inputs, free_bytes=SMALL_FILE_FREE_BYTES) as tmp:
         tmp.write_text(summary_csv(results), encoding="utf-8")
     return path
 

@@ -560,3 +560,32 @@ def test_ctrl_c_keeps_an_output_a_worker_finished(tmp_path):
     (out / ".b.jnr1-abcdefgh.tmp").mkdir()
     _remove_if_nothing_finished(out)
     assert not out.exists()
+
+
+def test_a_disk_that_fills_during_a_folder_run_still_gets_its_summary(capsys, tmp_path, photo_dir, monkeypatch):
+    """D25: when the disk filled, every later photo was refused (64 MB check) and so was summary.csv: the run
+    ended with one line and no record of which photos were fitted. The summary needs 1 MB."""
+    import csv
+    import shutil
+    from collections import namedtuple
+
+    out = tmp_path / "o"
+    usage = namedtuple("usage", "total used free")
+    real = shutil.disk_usage
+
+    def filling(path):
+        first_done = any((out / name / "report.json").exists() for name in ("face0", "face1"))
+        return usage(real(path).total, 0, (10 if first_done else 500) * 2**20)
+
+    monkeypatch.setattr(shutil, "disk_usage", filling)
+    code = main(["fit", str(photo_dir), "--jobs", "1", "--out", str(out), *fast_fit_args()])
+    err = capsys.readouterr().err
+    assert code != 0
+    with open(out / "summary.csv", newline="", encoding="utf-8") as handle:
+        rows = list(csv.DictReader(handle))
+    assert len(rows) == 2, rows
+    done = [r for r in rows if not r.get("error")]
+    refused = [r for r in rows if r.get("error")]
+    assert len(done) == 1 and len(refused) == 1, rows
+    assert "only 10 MB free" in refused[0]["error"] and "jnr needs 64 MB" in refused[0]["error"]
+    assert "Traceback" not in err
