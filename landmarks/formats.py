@@ -30,6 +30,10 @@ import numpy as np
 
 from rig.errors import InputError
 from rig.io.atomic import write_bytes_atomic
+from rig.io.inputs import regular_file
+
+MAX_LANDMARK_FILE_BYTES = 64 << 20
+"""The largest landmark file read (64 MiB; 68 or 478 points are a few kB)."""
 
 NUM_LANDMARKS = 68
 MEDIAPIPE_COUNTS = (468, 478)
@@ -180,8 +184,7 @@ def read_landmarks(path: str | Path, n_points: int | tuple[int, ...] = NUM_LANDM
     """
     path = Path(path)
     fmt = _format(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"landmark file not found: {path}")
+    regular_file(path, "landmark file", MAX_LANDMARK_FILE_BYTES)  # a FIFO or a device is not "not found"
     try:
         text = path.read_text(encoding="utf-8")
     except UnicodeDecodeError:

@@ -22,7 +22,10 @@ import numpy as np
 
 from landmarks.detector import DetectionError
 from rig.errors import InputError
+from rig.io.inputs import regular_file
 
+MAX_IMAGE_FILE_BYTES = 4 << 30
+"""The largest image file read (4 GiB; a 120-megapixel 16-bit PNG is under 1 GiB)."""
 MAX_IMAGE_PIXELS = 120_000_000
 """Larger images (width x height) are refused with one line before they are decoded (a 10000 x 12000
 photo is accepted). Pillow's own guard would raise a multi-line ``DecompressionBombError``."""
@@ -132,9 +135,7 @@ def load_working_image(
     """
     from PIL import ImageOps, UnidentifiedImageError
 
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"image file not found: {path}")
+    path = regular_file(path, "image file", MAX_IMAGE_FILE_BYTES)  # a FIFO or a device is not "not found"
     try:
         with _open_unguarded(path) as img:
             width, height = img.size
@@ -184,6 +185,7 @@ def load_image(path: str | Path) -> np.ndarray:
 
 
 __all__ = [
+    "MAX_IMAGE_FILE_BYTES",
     "MAX_IMAGE_PIXELS",
     "WORKING_MAX_SIDE",
     "ImageError",

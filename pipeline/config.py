@@ -16,8 +16,11 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 from rig.errors import InputError
+from rig.io.inputs import regular_file
 
 T = TypeVar("T")
+MAX_CONFIG_BYTES = 16 << 20
+"""The largest configuration file read (16 MiB; jnr's own are a few kB)."""
 
 
 class ConfigError(InputError):
@@ -135,9 +138,7 @@ def load_config(cls: type[T], path: str | Path | None = None, overrides: dict | 
     if path is not None:
         import yaml
 
-        path = Path(path)
-        if not path.is_file():
-            raise FileNotFoundError(f"config file not found: {path}")
+        path = regular_file(path, "config file", MAX_CONFIG_BYTES)  # a FIFO or a device is not "not found"
         try:
             data = yaml.load(path.read_text(), Loader=_unique_key_loader())  # a SafeLoader
         except _DuplicateKey as exc:

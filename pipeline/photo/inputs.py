@@ -13,7 +13,9 @@ import os
 from collections.abc import Iterable
 from pathlib import Path
 
+from landmarks.images import MAX_IMAGE_FILE_BYTES
 from rig.errors import InputError
+from rig.io.inputs import regular_file
 
 _log = logging.getLogger(__name__)
 
@@ -45,8 +47,9 @@ def photo_inputs(items: Iterable[str | Path]) -> tuple[list[Path], list[Path]]:
             if path.suffix.lower() not in IMAGE_SUFFIXES:
                 raise InputError(f"{path} is not a photo jnr reads (the file name must end in one of {supported})")
             photos.append(path)
-        else:
-            raise InputError(f"image file not found: {path}")
+        else:  # missing, or a FIFO, a device, a loop of links: say which
+            regular_file(path, "image file", MAX_IMAGE_FILE_BYTES)
+            raise InputError(f"{path}: cannot read this image file")
     return _unique(photos), folders
 
 

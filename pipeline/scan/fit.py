@@ -47,7 +47,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from landmarks.points3d import check_landmarks_3d, match_landmarks
+from landmarks.points3d import LandmarkError, check_landmarks_3d, match_landmarks
 from pipeline.fitting.engine import StageLog, run_schedule
 from pipeline.fitting.state import AsmScanState, ScanState
 from pipeline.scan.fit_config import FitScanConfig
@@ -297,7 +297,10 @@ def _prealign(
         )
     marks = None
     if landmarks:
-        lm_ids, lm_pos, lm_names = match_landmarks(landmarks, asset)
+        try:
+            lm_ids, lm_pos, lm_names = match_landmarks(landmarks, asset)
+        except LandmarkError as exc:
+            raise LandmarkError(f"{landmarks_source}: {exc}") from None
         check_landmarks_3d(
             lm_pos,
             lm_names,

@@ -31,13 +31,11 @@ def regular_file(path: str | os.PathLike, what: str, max_bytes: int) -> Path:
     except OSError as exc:
         raise InputError(f"{path}: cannot read this {what} ({exc.strerror or exc})") from None
     if stat.S_ISDIR(info.st_mode):
-        raise InputError(f"{path}: is a folder, expected a {what} file")
+        raise InputError(f"{path}: is a folder; expected the {what}")
     if not stat.S_ISREG(info.st_mode):
-        raise InputError(f"{path}: not a regular file (a pipe or a device?); jnr reads a {what} only from a file")
+        raise InputError(f"{path}: not a regular file (a pipe or a device?); jnr reads the {what} only from a file")
     if info.st_size > max_bytes:
-        raise InputError(
-            f"{path}: {info.st_size / 2**20:.0f} MB; jnr reads a {what} of at most {max_bytes / 2**20:.0f} MB"
-        )
+        raise InputError(f"{path}: {info.st_size / 2**20:.0f} MB; the {what} may be at most {max_bytes / 2**20:.0f} MB")
     return path
 
 

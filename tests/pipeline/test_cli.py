@@ -286,6 +286,14 @@ def test_fit_a_folder_in_parallel_with_sidecar_landmarks(capsys, tmp_path, photo
         report = json.loads((out / name / "report.json").read_text())
         assert report["input"]["landmarks"].endswith(f"{name}.pts")
     assert "fitted 2 of 3 photos with 2 process(es)" in stdout
+    import multiprocessing
+
+    import psutil
+
+    # no worker outlives the command (multiprocessing's resource tracker, a helper that ends with this process,
+    # may be running)
+    helpers = [c for c in psutil.Process().children() if "resource_tracker" not in " ".join(c.cmdline())]
+    assert multiprocessing.active_children() == [] and helpers == []
     # summary.csv: a row per photo, the broken one with its error
     rows = _summary_rows(out / "summary.csv")
     assert [(Path(r["photo"]).name, r["status"]) for r in rows] == [

@@ -393,6 +393,7 @@ def _rest_fit_params() -> dict:
         (lambda d: d["latent_z"].__setitem__(3, 1e30), "latent_z[3] = 1e+30 is outside [-6, 6]"),
         (lambda d: d["latent_z"].__setitem__(0, True), "latent_z[0] must be a finite number"),
         (lambda d: d["latent_z"].__setitem__(7, "nan"), "latent_z[7] must be a finite number"),
+        (lambda d: d["latent_z"].__setitem__(2, float("nan")), "latent_z[2] must be a finite number"),
         (lambda d: d.update({"foo": 1}), "unknown key(s) ['foo']"),
     ],
 )
@@ -589,3 +590,41 @@ def test_a_disk_that_fills_during_a_folder_run_still_gets_its_summary(capsys, tm
     assert len(done) == 1 and len(refused) == 1, rows
     assert "only 10 MB free" in refused[0]["error"] and "jnr needs 64 MB" in refused[0]["error"]
     assert "Traceback" not in err
+
+
+def test_a_pipe_a_device_or_a_folder_is_named_as_such_not_as_missing(capsys, tmp_path):
+    """D30: a FIFO, a device or a folder given as a photo, --config or --landmarks was "... not found"."""
+    from PIL import Image
+
+    Image.new("RGB", (64, 64), (120, 100, 90)).save(tmp_path / "p.png")
+    (tmp_path / "folder.pts").mkdir()
+    zero = tmp_path / "zero.yaml"
+    zero.symlink_to("/dev/zero")
+    photo = str(tmp_path / "p.png")
+    cases = [
+        (["fit", str(_fifo(tmp_path / "f.jpg"))], "f.jpg: not a regular file (a pipe or a device?)"),
+        (["fit", photo, "--config", str(zero)], "zero.yaml: not a regular file (a pipe or a device?)"),
+        (["fit", photo, "--landmarks", str(_fifo(tmp_path / "f.pts"))], "f.pts: not a regular file"),
+        (["fit", photo, "--landmarks", str(tmp_path / "folder.pts")], "folder.pts: is a folder; expected the landmark"),
+        (["fit", str(tmp_path / "missing.jpg")], "image file not found"),
+    ]
+    for argv, message in cases:
+        code = main([*argv, "--out", str(tmp_path / "o")])
+        err = capsys.readouterr().err.strip()
+        assert code == 2 and len(err.splitlines()) == 1 and message in err, (argv, err)
+    assert not (tmp_path / "o").exists()
+
+
+def test_unknown_3d_landmark_names_name_the_file(capsys, tmp_path):
+    """D30: "unknown 3D landmark name(s)" did not say which file."""
+    import numpy as np
+
+    from rig.asset import load_asset
+
+    head = load_asset().vertices
+    np.save(tmp_path / "head.npy", head[head[:, 2] > 0])
+    marks = tmp_path / "marks.json"
+    marks.write_text(json.dumps({"nose_tipp": [0, 0, 100], "chin": [0, -80, 80], "mouth_left": [20, -50, 90]}))
+    code = main(["fit-scan", str(tmp_path / "head.npy"), "--landmarks", str(marks), "--out", str(tmp_path / "o")])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and err.startswith(f"jnr: error: {marks}: unknown 3D landmark name(s) ['nose_tipp']"), err

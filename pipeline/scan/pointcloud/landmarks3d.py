@@ -8,6 +8,7 @@ import os
 import numpy as np
 
 from pipeline.scan.pointcloud.cloud import CloudError
+from rig.io.inputs import regular_file
 
 
 def read_landmarks3d(path) -> dict[str, np.ndarray]:
@@ -33,8 +34,7 @@ def read_landmarks3d(path) -> dict[str, np.ndarray]:
         array([  1.2,  10.5, 112. ])
     """
     path = os.fspath(path)
-    if not os.path.isfile(path):
-        raise FileNotFoundError(f"landmark file not found: {path}")
+    regular_file(path, "landmark file", 64 << 20)  # a FIFO or a device is not "not found"
     try:
         with open(path, encoding="utf-8") as fh:
             data = json.load(fh)
