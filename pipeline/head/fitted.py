@@ -203,6 +203,22 @@ def fitted_head_from_params(
     return FittedHead(model, params, model.forward(params), colours=colours)
 
 
+def _decodable_png(data: bytes) -> bool:
+    """A PNG's signature and a file Pillow decodes (a signature followed by garbage is not a texture)."""
+    if not is_png(data):
+        return False
+    import io
+
+    from PIL import Image
+
+    try:
+        with Image.open(io.BytesIO(data)) as image:
+            image.load()
+    except (OSError, ValueError, Image.DecompressionBombError):
+        return False
+    return True
+
+
 def read_fit_folder(
     folder: str | Path, *, model: HeadModel | None = None, posable_for: str | None = None
 ) -> FittedHead:
@@ -226,7 +242,7 @@ def read_fit_folder(
     fit = load_params_file(path)
     texture_path = folder / TEXTURE_FILE
     texture = texture_path.read_bytes() if texture_path.is_file() else None
-    if texture is not None and not is_png(texture):
+    if texture is not None and not _decodable_png(texture):
         warnings.warn(f"{texture_path} is not a PNG file; the head's files are written untextured", stacklevel=2)
         texture = None
     return fitted_head(fit, model=model, folder=folder, texture=texture, source=path, posable_for=posable_for)

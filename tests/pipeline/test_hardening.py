@@ -628,3 +628,23 @@ def test_unknown_3d_landmark_names_name_the_file(capsys, tmp_path):
     code = main(["fit-scan", str(tmp_path / "head.npy"), "--landmarks", str(marks), "--out", str(tmp_path / "o")])
     err = capsys.readouterr().err.strip()
     assert code == 2 and err.startswith(f"jnr: error: {marks}: unknown 3D landmark name(s) ['nose_tipp']"), err
+
+
+def test_a_fit_folders_broken_texture_is_left_out_with_a_warning(tmp_path):
+    """D30: a texture.png that was not a PNG (or a PNG signature before garbage) ended in exit 1 from the
+    glTF writer, not naming the file; now the head is written untextured and the warning names it."""
+    import io
+
+    from PIL import Image
+
+    from pipeline.head.fitted import read_fit_folder
+
+    (tmp_path / "params.json").write_text(json.dumps(_rest_fit_params()))
+    buffer = io.BytesIO()
+    Image.new("RGB", (8, 8), (200, 150, 120)).save(buffer, format="PNG")
+    (tmp_path / "texture.png").write_bytes(buffer.getvalue())
+    assert read_fit_folder(tmp_path).texture == buffer.getvalue()
+    for broken in (b"hello", b"\x89PNG\r\n\x1a\ngarbage", buffer.getvalue()[:40]):
+        (tmp_path / "texture.png").write_bytes(broken)
+        with pytest.warns(UserWarning, match=r"texture.png is not a PNG file"):
+            assert read_fit_folder(tmp_path).texture is None
