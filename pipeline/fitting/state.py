@@ -34,7 +34,7 @@ from rig.lbs import skin_vertices, skin_with_basis, skinning_basis
 from rig.model import JointRig
 from rig.parameters import NUM_PARAMETERS, theta_limits
 from rig.skinning.asm import TAU_UNITS, UV_UNIT, AdaptiveSkinning, AsmParameters
-from rig.skinning.neural import LATENT, NeuralSkinning
+from rig.skinning.neural import LATENT, LATENT_LIMIT, NeuralSkinning
 
 FREE_GROUPS = ("pose", "joints", "latent", "expressions")
 """The groups of the geometry: head pose, joint channels, latent Z, expression coefficients."""
@@ -158,20 +158,27 @@ class FitState(GroupedParameters):
 
     def limits(self, name: str) -> tuple[torch.Tensor, torch.Tensor] | None:
         """The box limits of parameter ``name`` (what a least-squares solver keeps it in): the joint channels
-        ``theta_n`` within their limits over their span, the expression coefficients ``c`` within theirs;
+        ``theta_n`` within their limits over their span, the expression coefficients ``c`` within theirs, the
+        latent ``z`` within ±LATENT_LIMIT;
         None for the others."""
         if name == "theta_n":
             return self.low / self.span, self.high / self.span
         if name == "c":
             return self.c_low, self.c_high
+        if name == "z":
+            limit = torch.full_like(self.z, LATENT_LIMIT)
+            return -limit, limit
         return None
 
     def project(self, free: tuple[str, ...]) -> None:
-        """After a step: project what ``free`` moved back into its limits (expressions always; joints
-        with ``hard_joint_limits``). Only freed groups are written: a write to ``c`` invalidates the
-        cached skinning basis."""
+        """After a step: project what ``free`` moved back into its limits (expressions and the latent Z,
+        within ±:data:`rig.skinning.neural.LATENT_LIMIT`, always; joints with ``hard_joint_limits``). Only
+        freed groups are written: a write to ``c`` or ``z`` invalidates the cached skinning basis."""
         if "expressions" in free:
             self.clamp_expressions()
+        if "latent" in free and self.neural is not None:
+            with torch.no_grad():
+                self.z.clamp_(-LATENT_LIMIT, LATENT_LIMIT)
         if "joints" in free and self.hard_joint_limits:
             self.clamp_joints()
 

@@ -648,3 +648,24 @@ def test_a_fit_folders_broken_texture_is_left_out_with_a_warning(tmp_path):
         (tmp_path / "texture.png").write_bytes(broken)
         with pytest.warns(UserWarning, match=r"texture.png is not a PNG file"):
             assert read_fit_folder(tmp_path).texture is None
+
+
+def test_fits_keep_the_latent_within_what_its_readers_accept(rig32):
+    """D23's other side: a fit's latent Z is projected into ±LATENT_LIMIT after every step (Adam) and bounded
+    in the least-squares solver, so every fit writes a latent its readers accept."""
+    import torch
+
+    from pipeline.fitting.state import FitState
+    from rig.expressions import ExpressionModel
+    from rig.skinning.neural import LATENT_LIMIT, load_neural
+
+    neural, _ = load_neural(rig32)
+    state = FitState(rig32, neural, ExpressionModel(rig32.asset), torch.eye(3).numpy())
+    low, high = state.limits("z")
+    assert torch.all(low == -LATENT_LIMIT) and torch.all(high == LATENT_LIMIT)
+    with torch.no_grad():
+        state.z.copy_(torch.linspace(-20.0, 20.0, state.z.numel()))
+    state.project(("pose",))
+    assert state.z.abs().max() == 20.0  # only what a stage frees is projected
+    state.project(("latent",))
+    assert state.z.abs().max() == LATENT_LIMIT and state.z[25] == torch.linspace(-20.0, 20.0, 50)[25]
