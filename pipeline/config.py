@@ -10,6 +10,7 @@ way.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import typing
 from pathlib import Path
@@ -171,8 +172,10 @@ class _DuplicateKey(Exception):
     pass
 
 
+@functools.cache
 def _unique_key_loader():
-    """yaml's SafeLoader, refusing a key given twice in one mapping (the last would win silently)."""
+    """yaml's SafeLoader, refusing a key given twice in one mapping (the last would win silently); the class is
+    made once (yaml is imported lazily)."""
     import yaml
 
     class Loader(yaml.SafeLoader):

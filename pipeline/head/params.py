@@ -76,7 +76,8 @@ def params_payload(model: HeadModel, params: HeadParams, *, fit: str, units: Map
     (the fit's own: ``camera``, ``pose``, ``light``, ``input``, ``views``, ...).
 
     Raises:
-        ValueError: an unknown ``fit``, or an entry that would overwrite the schema's or the model's keys.
+        ValueError: an unknown ``fit``, an entry that would overwrite the schema's or the model's keys, or one
+            :data:`FIT_ENTRIES` does not list for ``fit`` (its readers would refuse the file).
     """
     if fit not in FIT_KINDS:
         raise ValueError(f"params_payload: fit must be one of {FIT_KINDS}, got {fit!r}")
@@ -84,6 +85,9 @@ def params_payload(model: HeadModel, params: HeadParams, *, fit: str, units: Map
     clash = sorted(set(entries) & (set(head) | set(SCHEMA_KEYS)))
     if clash:
         raise ValueError(f"params_payload: entries {clash} are the schema's or the model's")
+    undeclared = sorted(set(entries) - set(FIT_ENTRIES[fit]))
+    if undeclared:  # the readers refuse keys FIT_ENTRIES does not list: declare them there first
+        raise ValueError(f"params_payload: entries {undeclared} of a {fit} fit are not in FIT_ENTRIES")
     return {
         "format": PARAMS_FORMAT,
         "fit": fit,

@@ -13,7 +13,6 @@ Example:
 
 from __future__ import annotations
 
-import errno
 import logging
 import os
 import re
@@ -23,7 +22,7 @@ from pathlib import Path
 
 from pipeline.files import OutputError
 from pipeline.photo.summary import SUMMARY_FILE
-from rig.io.atomic import remove_stale_temporaries
+from rig.io.atomic import lock, remove_stale_temporaries
 
 _log = logging.getLogger(__name__)
 
@@ -70,30 +69,20 @@ def remove_leftovers(out: str | Path, folders: Iterable[str], files: Iterable[st
 
 
 def lock_folder(out: Path) -> int | None:
-    """Take an exclusive lock on the batch folder ``out`` (``flock`` on the folder itself: no file is
-    added); returns the descriptor that holds it (:func:`unlock`), or None where the file system has no
-    locks.
+    """Take an exclusive lock on the batch folder ``out`` (:func:`rig.io.atomic.lock`: ``flock`` on the folder
+    itself, no file is added); returns the descriptor that holds it (:func:`unlock`), or None where the file
+    system has no locks.
 
     Raises:
         pipeline.files.OutputError: another process holds it (a second ``jnr fit`` into ``out``).
     """
     try:
-        import fcntl
-
-        fd = os.open(out, os.O_RDONLY | os.O_DIRECTORY)
-    except (ImportError, OSError):
-        return None
-    try:
-        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except OSError as exc:
-        os.close(fd)
-        if exc.errno in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
-            raise OutputError(
-                f"another jnr fit is writing into --out {out} now (it holds the folder's lock); "
-                "wait for it to end or choose another --out"
-            ) from None
-        return None
-    return fd
+        return lock(out)
+    except BlockingIOError:
+        raise OutputError(
+            f"another jnr fit is writing into --out {out} now (it holds the folder's lock); "
+            "wait for it to end or choose another --out"
+        ) from None
 
 
 def unlock(fd: int | None) -> None:

@@ -61,6 +61,7 @@ from pipeline.scan.registration import (
     RigidAlignment,
     face_coverage,
     rigid_prealign,
+    view_direction,
 )
 from rig.expressions import ExpressionModel
 from rig.geometry import Similarity
@@ -197,10 +198,8 @@ def _fit_scan(
     expressions = expressions or ExpressionModel(rig.asset, dtype=rig.template.dtype)
     rng = np.random.default_rng(config.seed)
     normals = _cloud_normals(cloud, config)
-    # A single-view scan's normals face its sensor: their mean is the viewing direction (None for a
-    # cloud all around the head). Model -> cloud pairs only come from vertices facing the sensor.
-    mean_normal = normals.mean(0)
-    view_dir = mean_normal / np.linalg.norm(mean_normal) if np.linalg.norm(mean_normal) > 0.3 else None
+    # Model -> cloud pairs only come from vertices facing the sensor (None: a cloud all around the head).
+    view_dir = view_direction(normals)
     align, marks = _prealign(cloud, normals, view_dir, config, rig, neural, landmarks, landmarks_source)
     border = boundary_mask(cloud.points, k=config.correspondences.boundary_k)
     t_prealign = time.perf_counter() - t_start
@@ -312,17 +311,8 @@ def _prealign(
         marks = (lm_ids, lm_pos)
     # The not-a-head test (the pre-alignment's inlier fraction) comes before the per-point work only
     # the fit needs (the scan border).
-    align = rigid_prealign(
-        points,
-        normals,
-        start_vertices,
-        asset.faces,
-        face_mask=asset.region_mask(*FACE_REGIONS),
-        seed=config.seed,
-        yaw_step_deg=config.prealign.yaw_step_deg,
-        with_scale=config.prealign.scale,
-        landmarks=None if marks is None else (start_vertices[marks[0]], marks[1]),
-    )
+    pairs = None if marks is None else (start_vertices[marks[0]], marks[1])
+    align = _align(points, normals, start_vertices, asset, config, pairs)
     where = f"{cloud.path}: " if cloud.path else ""
     if align.inlier_fraction < config.prealign.min_inlier_fraction:
         sampled = f" (a random {len(points)} of its {cloud.input_points})" if cloud.input_points > len(points) else ""
@@ -345,6 +335,29 @@ UNITS_CHECK_COVERAGE = 0.6
 cover 0.81-0.99, the same scans shrunk by inches read as cm 0.07-0.53."""
 
 
+def _align(
+    points: np.ndarray,
+    normals: np.ndarray,
+    model_vertices: np.ndarray,
+    asset,
+    config: FitScanConfig,
+    landmarks: tuple[np.ndarray, np.ndarray] | None = None,
+) -> RigidAlignment:
+    """:func:`pipeline.scan.registration.rigid_prealign` of the head model ``model_vertices`` onto ``points``
+    with the config's search (or the similarity of ``landmarks``: model points, cloud points)."""
+    return rigid_prealign(
+        points,
+        normals,
+        model_vertices,
+        asset.faces,
+        face_mask=asset.region_mask(*FACE_REGIONS),
+        seed=config.seed,
+        yaw_step_deg=config.prealign.yaw_step_deg,
+        with_scale=config.prealign.scale,
+        landmarks=landmarks,
+    )
+
+
 def _check_frame_and_units(
     cloud: PointCloud,
     normals: np.ndarray,
@@ -361,27 +374,20 @@ def _check_frame_and_units(
     alternative (about 1.5 s). The thresholds were chosen on synthetic scans (``docs/fit_scan.md``)."""
     from scipy.spatial import cKDTree
 
-    mask = asset.region_mask(*FACE_REGIONS)
+    def covered(points: np.ndarray, fit: RigidAlignment, direction: np.ndarray | None) -> float:
+        mask = asset.region_mask(*FACE_REGIONS)
+        return face_coverage(cKDTree(points), fit, model_vertices, asset.faces, mask, direction)
 
     def aligned(points: np.ndarray, point_normals: np.ndarray) -> tuple[RigidAlignment, float]:
-        mean = point_normals.mean(0)
-        direction = mean / np.linalg.norm(mean) if np.linalg.norm(mean) > 0.3 else None
-        fit = rigid_prealign(
-            points,
-            point_normals,
-            model_vertices,
-            asset.faces,
-            face_mask=mask,
-            seed=config.seed,
-            yaw_step_deg=config.prealign.yaw_step_deg,
-            with_scale=config.prealign.scale,
-        )
-        return fit, face_coverage(cKDTree(points), fit, model_vertices, asset.faces, mask, direction)
+        fit = _align(points, point_normals, model_vertices, asset, config)
+        return fit, covered(points, fit, view_direction(point_normals))
 
     def pinned(fit: RigidAlignment) -> bool:
         return config.prealign.scale and min(abs(fit.scale - b) for b in SCALE_BOUNDS) < 0.01
 
-    coverage = face_coverage(cKDTree(cloud.points), align, model_vertices, asset.faces, mask, view_dir)
+    if align.inlier_fraction >= FRAME_CHECK_INLIERS and not cloud.units_detected:
+        return  # a good alignment in the units the user gave: nothing to check
+    coverage = covered(cloud.points, align, view_dir)
     _log.info(
         "fit-scan: pre-alignment inliers %.2f, face covered %.2f, scale %.3f",
         align.inlier_fraction,

@@ -103,6 +103,15 @@ class RigidAlignment:
         return Similarity(self.rotation, self.translation, self.scale)
 
 
+def view_direction(normals: np.ndarray, min_length: float = 0.3) -> np.ndarray | None:
+    """The direction towards the sensor of a single-view scan: the mean of its ``(N, 3)`` unit normals (which
+    face the sensor), normalised; None when the mean is shorter than ``min_length`` (a cloud all around the
+    head has no one viewing direction)."""
+    mean = np.asarray(normals, float).mean(0)
+    length = float(np.linalg.norm(mean))
+    return mean / length if length > min_length else None
+
+
 def _trimmed_icp(
     cloud: np.ndarray,
     cloud_n: np.ndarray | None,
@@ -242,11 +251,7 @@ def rigid_prealign(
     fine = pick(fine_points)
     cn_all = None if cloud_normals is None else np.asarray(cloud_normals, float)
     min_dot = 0.2
-    mean_n = None
-    if cn_all is not None:
-        m = cn_all.mean(0)
-        if np.linalg.norm(m) > 0.3:
-            mean_n = m / np.linalg.norm(m)
+    mean_n = None if cn_all is None else view_direction(cn_all)
     centroid = cloud.mean(0)
     face_centroid = model_v[face_mask].mean(0) if face_mask is not None else model_v.mean(0)
 

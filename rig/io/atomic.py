@@ -42,6 +42,7 @@ from pathlib import Path
 
 __all__ = [
     "TargetExistsError",
+    "lock",
     "move_into_place",
     "remove_stale_temporaries",
     "rename_exchange",
@@ -131,9 +132,15 @@ def _prefix(name: str) -> str:
     return f".{name[:STAGING_TAG]}.jnr{os.getpid()}-"
 
 
-def _lock(path: Path) -> int | None:
-    """An exclusive ``flock`` on ``path`` (a folder or a file) held by the returned descriptor; None where the
-    file system has no locks or the lock is taken."""
+def lock(path: str | os.PathLike) -> int | None:
+    """Take an exclusive ``flock`` on ``path`` (a folder or a file, not followed if a symbolic link) without
+    waiting; returns the descriptor that holds it (close it to release), or None where the file system has no
+    locks.
+
+    Raises:
+        BlockingIOError: another process holds it.
+    """
+    path = Path(path)
     try:
         import fcntl
 
@@ -142,10 +149,20 @@ def _lock(path: Path) -> int | None:
         return None
     try:
         fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except OSError:
+    except OSError as exc:
         os.close(fd)
+        if exc.errno in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
+            raise BlockingIOError(exc.errno, f"{path} is locked by another process") from None
         return None
     return fd
+
+
+def _lock(path: Path) -> int | None:
+    """:func:`lock`, None also when another process holds it."""
+    try:
+        return lock(path)
+    except BlockingIOError:
+        return None
 
 
 def _alive(pid: int) -> bool:
