@@ -220,6 +220,7 @@ def fit_landmarks(
     progress: Progress | None = None,
     terms: tuple[Term, ...] = (),
     layout: LandmarkLayout | None = None,
+    pose: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> LandmarkFit:
     """Fit pose, joints, Z and expressions of the rig to the landmarks of one photo (dlib's 68 iBUG points by
     default, or another ``layout``'s).
@@ -236,6 +237,9 @@ def fit_landmarks(
             :func:`landmark_inputs`: ``theta``, ``theta_n``, ``z``, ``c``, ``landmarks_px``), minimised with the
             landmark term and the priors by either solver.
         layout: the landmark scheme (:class:`landmarks.layout.LandmarkLayout`; default iBUG-68).
+        pose: ``(rotation (3, 3), translation (3,) mm)``, the head pose to start from
+            (``x_cam = RIG_TO_OPENCV @ rotation @ x_rig + translation``) instead of solvePnP's; with stages that do
+            not free ``pose`` it is held (the diagnostic benchmark's known pose).
 
     Returns:
         :class:`LandmarkFit`.
@@ -269,7 +273,10 @@ def fit_landmarks(
         asset, lm, intrinsic_camera, config.huber_delta_px, config.contour_weight, config.landmark_weighting, layout
     )
     model_points = landmark_positions(start.double().numpy(), term.embedding, term.faces)[0]
-    rotation0, translation0 = solve_pose(lm, model_points, width, height, focal, exclude=layout.pose_exclude)
+    if pose is None:
+        rotation0, translation0 = solve_pose(lm, model_points, width, height, focal, exclude=layout.pose_exclude)
+    else:
+        rotation0, translation0 = _check_pose(pose)
     state = PhotoState(rig, neural, ExpressionModel(asset, dtype=dtype), rotation0, translation0)
     # the data term, the head model's priors and the caller's: one list, minimised by either solver
     all_terms = (term.term(), *state.prior_terms(config.prior, gaze=layout.sees_irises), *terms)
@@ -284,6 +291,23 @@ def fit_landmarks(
     else:
         stages = run_schedule(state, config.stages, objective, config.lr, label="fit_landmarks", progress=progress)
     return _landmark_result(state, term, lm, width, height, focal, stages, t_start)
+
+
+def _check_pose(pose) -> tuple[np.ndarray, np.ndarray]:
+    try:
+        rotation, translation = (np.asarray(x, dtype=np.float64) for x in pose)
+    except (TypeError, ValueError):
+        raise ValueError("fit_landmarks: pose must be a (rotation (3, 3), translation (3,)) pair") from None
+    if rotation.shape != (3, 3) or translation.shape != (3,):
+        raise ValueError(
+            f"fit_landmarks: pose must be rotation (3, 3) and translation (3,), "
+            f"got {rotation.shape}, {translation.shape}"
+        )
+    if not (np.isfinite(rotation).all() and np.isfinite(translation).all()):
+        raise ValueError("fit_landmarks: the pose must be finite")
+    if not np.allclose(rotation @ rotation.T, np.eye(3), atol=1e-6) or np.linalg.det(rotation) <= 0:
+        raise ValueError("fit_landmarks: pose's rotation must be a rotation matrix")
+    return rotation, translation
 
 
 def landmark_inputs(state: PhotoState, term: LandmarkTerm, free: tuple[str, ...] = ()) -> Inputs:

@@ -323,3 +323,29 @@ def test_detection_tiles_cover_wide_and_large_images():
             assert side == min(height, width, max(2 * size, max(height, width) // 2))
             covered[top : top + side, left : left + side] = True
         assert covered.all()
+
+
+def test_a_face_below_the_detector_threshold_is_found_when_its_mesh_confirms_it(detector):
+    """Issue 37: a clear synthetic face (a held-out head at a 1.4 x focal) scores 0.56 in the full-range detector,
+    under MediaPipe's 0.6, and was reported as no face; the retry finds it, at the true face's place."""
+    from pipeline.evaluation.scans import scan_seed
+    from pipeline.synthetic.photos.settings import PhotoSettings
+    from pipeline.synthetic.photos.simulate import synthetic_photo
+
+    k = 1.4 / 1.45  # the diagnostic benchmark's 1.4 x photo: the camera's distance scaled with the focal
+    settings = PhotoSettings(focal_factor_range=(1.4, 1.4), distance_mm_range=(450.0 * k, 650.0 * k), spp=16)
+    photo = synthetic_photo(1, seed=scan_seed(0, "diagnose-neutral", 1), settings=settings)
+    assert detector.detect_boxes(photo.image) == []  # the detector's own threshold drops it
+    faces = detector.detect(photo.image)
+    assert len(faces) == 1
+    assert faces[0].score < 0.6
+    # the 68 points lie on the true ones (a few pixels' detector error, not another place)
+    assert np.median(np.linalg.norm(faces[0].landmarks[17:] - photo.landmarks2d[17:], axis=1)) < 6.0
+
+
+def test_weak_boxes_on_a_picture_without_a_face_stay_rejected(detector):
+    """The retry at a lower detector score keeps a box only when the mesh model sees a face: the Hubble deep field
+    has boxes scoring 0.44-0.54 (none over 0.6) and no face."""
+    image = np.ascontiguousarray(skimage_data.hubble_deep_field())
+    assert len(detector.detect_boxes(image, min_score=0.4)) >= 1
+    assert detector.detect(image) == []

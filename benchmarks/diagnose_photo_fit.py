@@ -1,0 +1,311 @@
+"""Where the photo fit loses the shape, per photo (issue 37): its error split into focal, pose, expression
+leakage and identity, for the detector's own points and for the true points.
+
+    .venv/bin/python benchmarks/diagnose_photo_fit.py [--first 20] [--heads 10] [--seed 0]
+        [--sources true478,mediapipe] [--conditions default,true_focal,true_pose,no_expressions]
+        [--set landmarks.prior.lambda_identity=0.1 ...] [--json FILE]
+
+Photos: held-out heads ``first .. first + heads - 1`` (the fit's settings are chosen on heads 0-9, never on
+these), each neutral and with one of ICT's expressions (outside the rig's ARKit span), rendered as in the photo
+benchmark (path tracing, random skin, light, background, yaw +-30 deg) with the **focal length cycling over
+1.0, 1.4, 2.0 and 3.0 x the image side** (the camera's distance scaled with it, so the face fills the frame
+alike): portrait lenses are longer than the fit's default 1.4 x.
+
+Sources: ``true478`` (the true head's MediaPipe-layout points projected, the outline on the silhouette, + 1 px
+noise), ``mediapipe`` (MediaPipe's own 478 points detected on the render), ``true68`` (iBUG-68 + 1 px).
+
+Conditions, each adding one piece of truth to the one before:
+
+* ``default``: what ``jnr fit`` does (the default focal, solvePnP's pose, pose + joints + expressions fitted);
+* ``true_focal``: the photo's true focal length;
+* ``true_pose``: and the true head pose, held (stages without ``pose``);
+* ``no_expressions``: and no expression coefficients (for the neutral photos that is the truth; for the
+  expressive ones it shows what the expressions buy).
+
+Per fit: the face-region s2m median against the head as photographed (NoW-style, :func:`pipeline.evaluation.
+photos.face_error`), the **identity error** (the fitted head with its expression coefficients set to 0 against
+the true *neutral* head: what the fit learned of the person), the pose error (deg), each against the unfitted
+template's. The differences between consecutive conditions are the error the focal, the pose and the
+expressions cost; the expressive photos' identity error against the neutral photos' is the expression leakage.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from common import finish, load_models  # noqa: E402
+
+from landmarks.detect import detect_landmarks  # noqa: E402
+from landmarks.detector import NoFaceError  # noqa: E402
+from landmarks.loss import project_points  # noqa: E402
+from landmarks.mediapipe.layout import mediapipe_layout  # noqa: E402
+from pipeline.camera import camera_center_in_rig, default_focal, make_camera  # noqa: E402
+from pipeline.config import load_config, parse_overrides  # noqa: E402
+from pipeline.evaluation.photos import face_error, pose_error_deg  # noqa: E402
+from pipeline.evaluation.scans import scan_seed  # noqa: E402
+from pipeline.fitting.engine import Stage  # noqa: E402
+from pipeline.fitting.state import head_vertices  # noqa: E402
+from pipeline.photo.fit_config import FitPhotoConfig  # noqa: E402
+from pipeline.photo.landmark_fit import fit_landmarks  # noqa: E402
+from pipeline.synthetic.photos.settings import PhotoSettings  # noqa: E402
+from pipeline.synthetic.photos.simulate import synthetic_photo  # noqa: E402
+from pipeline.synthetic.population import population_split  # noqa: E402
+from rig.asset import load_asset  # noqa: E402
+from rig.expressions import EXPRESSION_NAMES  # noqa: E402
+from rig.parameters import NUM_PARAMETERS  # noqa: E402
+from rig.skinning.neural import LATENT  # noqa: E402
+
+FOCAL_FACTORS = (1.0, 1.4, 2.0, 3.0)
+"""The photos' focal lengths over the image side, cycled over the heads (the default's 1.4 among them)."""
+SOURCES = ("true478", "mediapipe", "true68")
+CONDITIONS = ("default", "true_focal", "true_pose", "no_expressions")
+
+
+@dataclass
+class Photo:
+    """One rendered photo with its truth and its points per source (None: the detector found no face)."""
+
+    name: str
+    kind: str
+    focal_factor: float
+    photo: object
+    neutral: np.ndarray
+    points: dict
+
+
+def photo_settings(focal_factor: float) -> PhotoSettings:
+    """The photo benchmark's settings at one focal length, the distance scaled with it (the face's size in the
+    frame stays that of the default 1.2-1.7 x range at 450-650 mm)."""
+    base = PhotoSettings()
+    k = focal_factor / 1.45
+    return replace(
+        base,
+        focal_factor_range=(focal_factor, focal_factor),
+        distance_mm_range=(base.distance_mm_range[0] * k, base.distance_mm_range[1] * k),
+    )
+
+
+def true_dense_points(photo, layout, faces, rng: np.random.Generator) -> np.ndarray:
+    """The true head's points of ``layout``, the outline picked on the silhouette seen from the camera,
+    projected, + 1 px Gaussian noise."""
+    v = torch.as_tensor(photo.gt_vertices, dtype=torch.float64)
+    points = layout.points3d(v, faces, camera_center_in_rig(photo.rotation, photo.translation))
+    camera = make_camera(
+        photo.width,
+        photo.height,
+        photo.focal,
+        rotation=photo.rotation,
+        translation=photo.translation,
+        dtype=torch.float64,
+    )
+    px = project_points(points[None], camera)[0].numpy()
+    return px + rng.normal(0.0, 1.0, px.shape)
+
+
+def make_photos(first: int, heads: int, seed: int, sources: tuple[str, ...], asset) -> list[Photo]:
+    layout = mediapipe_layout(asset)
+    neutral_heads = population_split("heldout", 0, first=first + heads).vertices
+    photos = []
+    for index in range(first, first + heads):
+        factor = FOCAL_FACTORS[index % len(FOCAL_FACTORS)]
+        for kind in ("neutral", "expressive"):
+            photo = synthetic_photo(
+                index,
+                expressive=kind == "expressive",
+                seed=scan_seed(seed, "diagnose-" + kind, index),
+                settings=photo_settings(factor),
+            )
+            rng = np.random.default_rng(scan_seed(seed, "diagnose-noise-" + kind, index))
+            points: dict = {}
+            for source in sources:
+                if source == "true68":
+                    points[source] = (photo.landmarks2d, None)
+                elif source == "true478":
+                    points[source] = (true_dense_points(photo, layout, asset.faces, rng), layout)
+                else:
+                    try:
+                        face = detect_landmarks(photo.image, detector="mediapipe")
+                    except NoFaceError:
+                        points[source] = None
+                        continue
+                    points[source] = (face.dense[:, :2], layout)
+            photos.append(Photo(photo.name, kind, factor, photo, np.asarray(neutral_heads[index]), points))
+            print(f"  rendered {photo.name:20s} focal {factor:.1f} x  yaw {photo.yaw_deg:6.1f}", flush=True)
+    return photos
+
+
+def without(stages: tuple[Stage, ...], group: str) -> tuple[Stage, ...]:
+    """The stages with ``group`` held (stages left with nothing free dropped)."""
+    out = []
+    for st in stages:
+        free = tuple(g for g in st.free if g != group)
+        if free:
+            out.append(replace(st, free=free))
+    return tuple(out)
+
+
+def condition_config(config: FitPhotoConfig, condition: str):
+    lm = config.landmarks
+    if condition in ("true_pose", "no_expressions"):
+        lm = replace(lm, lm_stages=without(lm.lm_stages, "pose"))
+    if condition == "no_expressions":
+        lm = replace(lm, lm_stages=without(lm.lm_stages, "expressions"))
+    return lm
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--first", type=int, default=20, help="first held-out head (default 20)")
+    parser.add_argument("--heads", type=int, default=10, help="heads, each photographed neutral and expressive")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--sources", default="true478,mediapipe", help=f"comma-separated, of {list(SOURCES)}")
+    parser.add_argument("--conditions", default=",".join(CONDITIONS), help=f"comma-separated, of {list(CONDITIONS)}")
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="FitPhotoConfig overrides")
+    parser.add_argument("--json", type=Path, default=None)
+    args = parser.parse_args()
+    sources = tuple(s for s in args.sources.split(",") if s)
+    conditions = tuple(c for c in args.conditions.split(",") if c)
+    for s in sources:
+        if s not in SOURCES:
+            parser.error(f"unknown source {s!r}")
+    for c in conditions:
+        if c not in CONDITIONS:
+            parser.error(f"unknown condition {c!r}")
+    config = load_config(FitPhotoConfig, None, parse_overrides(args.set))
+    rig, neural = load_models()
+    asset = load_asset()
+    t0 = time.perf_counter()
+    photos = make_photos(args.first, args.heads, args.seed, sources, asset)
+    template = head_vertices(rig, neural, np.zeros(NUM_PARAMETERS), np.zeros(LATENT), np.zeros(len(EXPRESSION_NAMES)))
+    records = []
+    for ph in photos:
+        p = ph.photo
+        tmpl = face_error(template, p.gt_vertices, asset)["s2m_median_mm"]
+        tmpl_id = face_error(template, ph.neutral, asset)["s2m_median_mm"]
+        for source in sources:
+            if ph.points.get(source) is None:
+                print(f"  {ph.name}: {source} found no face", flush=True)
+                continue
+            target, layout = ph.points[source]
+            for condition in conditions:
+                focal = default_focal(p.width, p.height) if condition == "default" else p.focal
+                pose = (p.rotation, p.translation) if condition in ("true_pose", "no_expressions") else None
+                t1 = time.perf_counter()
+                fit = fit_landmarks(
+                    target,
+                    p.width,
+                    p.height,
+                    focal=focal,
+                    config=condition_config(config, condition),
+                    rig=rig,
+                    neural=neural,
+                    layout=layout,
+                    pose=pose,
+                )
+                seconds = time.perf_counter() - t1
+                v = head_vertices(rig, neural, fit.theta, fit.z, fit.expressions)
+                v_id = head_vertices(rig, neural, fit.theta, fit.z, np.zeros(len(EXPRESSION_NAMES)))
+                s2m = face_error(v, p.gt_vertices, asset)["s2m_median_mm"]
+                ident = face_error(v_id, ph.neutral, asset)["s2m_median_mm"]
+                pose_err = pose_error_deg(
+                    v, fit.rotation, fit.translation, p.gt_vertices, p.rotation, p.translation, asset
+                )
+                record = {
+                    "name": ph.name,
+                    "kind": ph.kind,
+                    "focal_factor": ph.focal_factor,
+                    "yaw_deg": float(p.yaw_deg),
+                    "source": source,
+                    "condition": condition,
+                    "s2m_median_mm": s2m,
+                    "template_mm": tmpl,
+                    "ratio": s2m / tmpl,
+                    "identity_mm": ident,
+                    "template_identity_mm": tmpl_id,
+                    "identity_ratio": ident / tmpl_id,
+                    "pose_error_deg": pose_err,
+                    "landmark_error_px": float(fit.error_px.mean()),
+                    "seconds": seconds,
+                }
+                records.append(record)
+                print(
+                    f"  {ph.name:20s} f {ph.focal_factor:.1f} {source:9s} {condition:14s} s2m {s2m:5.3f} "
+                    f"(template {tmpl:5.3f}, x{s2m / tmpl:5.2f})  identity {ident:5.3f} (x{ident / tmpl_id:5.2f})  "
+                    f"pose {pose_err:4.1f} deg  {seconds:4.1f} s",
+                    flush=True,
+                )
+    wall = time.perf_counter() - t0
+    summary = summarise(records, sources, conditions)
+    print()
+    print(table(summary))
+    finish(
+        {"records": records, "summary": summary, "settings": {**vars(args), "json": str(args.json)}, "wall_s": wall},
+        args.json,
+    )
+    print(f"wall {wall:.0f} s")
+
+
+def summarise(records: list[dict], sources, conditions) -> list[dict]:
+    """Per source, condition and kind (``neutral``, ``expressive``, ``all``): photos, the median of the per-photo
+    s2m ratios to the template, the mean s2m, the median identity ratio, photos worse than the template by more
+    than 0.05 mm, the mean pose error."""
+    rows = []
+    for source in sources:
+        for condition in conditions:
+            for kind in ("neutral", "expressive", "all"):
+                rs = [
+                    r
+                    for r in records
+                    if r["source"] == source and r["condition"] == condition and kind in ("all", r["kind"])
+                ]
+                if not rs:
+                    continue
+                rows.append(
+                    {
+                        "source": source,
+                        "condition": condition,
+                        "kind": kind,
+                        "photos": len(rs),
+                        "s2m_median_mm": float(np.mean([r["s2m_median_mm"] for r in rs])),
+                        "template_mm": float(np.mean([r["template_mm"] for r in rs])),
+                        "ratio_median": float(np.median([r["ratio"] for r in rs])),
+                        "ratio_of_medians": float(
+                            np.median([r["s2m_median_mm"] for r in rs]) / np.median([r["template_mm"] for r in rs])
+                        ),
+                        "identity_ratio_median": float(np.median([r["identity_ratio"] for r in rs])),
+                        "worse_by_0.05": int(sum(r["s2m_median_mm"] > r["template_mm"] + 0.05 for r in rs)),
+                        "worse": int(sum(r["s2m_median_mm"] > r["template_mm"] for r in rs)),
+                        "pose_error_deg": float(np.mean([r["pose_error_deg"] for r in rs])),
+                        "seconds": float(np.median([r["seconds"] for r in rs])),
+                    }
+                )
+    return rows
+
+
+def table(rows: list[dict]) -> str:
+    lines = [
+        "| points | condition | photos | kind | s2m median mm (mean) | template mm | fit / template (median ratio) "
+        "| identity / template | worse than template (by > 0.05 mm) | pose error deg |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        lines.append(
+            f"| {r['source']} | {r['condition']} | {r['photos']} | {r['kind']} | {r['s2m_median_mm']:.3f} | "
+            f"{r['template_mm']:.3f} | {r['ratio_median']:.2f} | {r['identity_ratio_median']:.2f} | "
+            f"{r['worse']} ({r['worse_by_0.05']}) | {r['pose_error_deg']:.2f} |"
+        )
+    return "\n".join(lines)
+
+
+if __name__ == "__main__":
+    main()
