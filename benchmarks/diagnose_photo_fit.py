@@ -12,7 +12,7 @@ benchmark (path tracing, random skin, light, background, yaw +-30 deg) with the 
 alike): portrait lenses are longer than the fit's default 1.4 x.
 
 Sources: ``true478`` (the true head's MediaPipe-layout points projected, the outline on the silhouette, + 1 px
-noise), ``mediapipe`` (MediaPipe's own 478 points detected on the render), ``true68`` (iBUG-68 + 1 px).
+noise, fitted with ``dense_noise_px`` 1, their true error), ``mediapipe`` (MediaPipe's own 478 points detected on the render), ``true68`` (iBUG-68 + 1 px).
 
 Conditions, each adding one piece of truth to the one before:
 
@@ -154,8 +154,10 @@ def without(stages: tuple[Stage, ...], group: str) -> tuple[Stage, ...]:
     return tuple(out)
 
 
-def condition_config(config: FitPhotoConfig, condition: str):
+def condition_config(config: FitPhotoConfig, condition: str, source: str):
     lm = config.landmarks
+    if source.startswith("true"):  # the true points' own error: 1 px (the priors' reference)
+        lm = replace(lm, dense_noise_px=1.0, noise_px=1.0)
     if condition in ("true_pose", "no_expressions"):
         lm = replace(lm, lm_stages=without(lm.lm_stages, "pose"))
     if condition == "no_expressions":
@@ -206,7 +208,7 @@ def main() -> None:
                     p.width,
                     p.height,
                     focal=focal,
-                    config=condition_config(config, condition),
+                    config=condition_config(config, condition, source),
                     rig=rig,
                     neural=neural,
                     layout=layout,

@@ -38,6 +38,34 @@ from rig.model import JointRig
 NUM_LANDMARKS = 68
 """The points of the default layout (dlib's iBUG-68)."""
 
+REFERENCE_EYE_DISTANCE_PX = 100.0
+"""The unit of the landmark term: pixels of a face imaged with this many pixels between the template's outer eye
+corners (where the detectors' scatter was measured, :mod:`landmarks.loss`). A photo's residuals are divided by
+:func:`face_scale`, so the weights of the priors, the Huber threshold and the detector's noise mean the same for a
+face 60 px or 600 px wide: in raw pixels, a 4x larger photo of the same face weighed its landmarks 16x against the
+identity prior and the fit followed the detector's errors (issue 37)."""
+
+
+@cached_per_asset
+def template_eye_distance_mm(asset) -> float:
+    """The template's distance between its outer eye corners (iBUG 36 and 45), mm."""
+    from landmarks.ibug68.embedding import ibug68_embedding
+    from landmarks.ibug68.positions import landmark_positions
+
+    points = landmark_positions(np.asarray(asset.vertices, np.float64), ibug68_embedding(asset), asset.faces)[0]
+    return float(np.linalg.norm(points[36] - points[45]))
+
+
+def face_scale(focal: float, depth_mm: float, asset) -> float:
+    """Image pixels per unit of the landmark term (:data:`REFERENCE_EYE_DISTANCE_PX`): the template's outer eye
+    corners' distance seen frontally at ``depth_mm`` (the head's distance along the optical axis, mm) with
+    ``focal`` (pixels), over 100 px. Taken from the pose, not from the detected eye corners, so a turned face
+    keeps its size."""
+    if not (np.isfinite(depth_mm) and depth_mm > 0 and np.isfinite(focal) and focal > 0):
+        raise ValueError(f"face_scale: focal and depth must be finite and > 0, got {focal!r}, {depth_mm!r}")
+    return float(focal / depth_mm * template_eye_distance_mm(asset) / REFERENCE_EYE_DISTANCE_PX)
+
+
 CONTOUR_UPDATES = 4
 """LM iterations per stage that re-pick the jaw contour's silhouette vertices; later ones keep the last
 pick. A pick is discrete: re-picked every iteration, neighbouring vertices took turns near the minimum and
@@ -54,6 +82,8 @@ class LandmarkTerm:
         huber_delta_px: Huber threshold, pixels.
         contour_weight, weighting: each landmark's weight (:meth:`landmarks.layout.LandmarkLayout.weights`).
         layout: the landmark scheme (default: :func:`landmarks.layout.ibug68_layout` of ``asset``).
+        scale: image pixels per unit of the term (:func:`face_scale`; 1: raw pixels). It may be set later
+            (:attr:`scale`), before the term is evaluated: the fits take it from the first pose.
 
     Raises:
         landmarks.layout.LayoutError: ``landmarks2d`` does not have the layout's shape.
@@ -68,8 +98,10 @@ class LandmarkTerm:
         contour_weight: float = CONTOUR_WEIGHT,
         weighting: str = "contour",
         layout: LandmarkLayout | None = None,
+        scale: float = 1.0,
     ) -> None:
         self.asset, self.camera, self.delta = asset, camera, float(huber_delta_px)
+        self.scale = float(scale)
         self.layout = ibug68_layout(asset) if layout is None else layout
         target = self.layout.check(landmarks2d, "LandmarkTerm")
         self.weights = self.layout.weights(weighting, contour_weight, camera.intrinsics.dtype)
@@ -80,11 +112,12 @@ class LandmarkTerm:
 
     def term(self, weight: float = 1.0, name: str = "landmarks_px2", key: str = "landmarks_px") -> Term:
         """The :class:`~pipeline.fitting.terms.Term` of these landmarks: ``weight`` times the weighted mean
-        Huber of the pixel errors (px^2), reading the input ``key`` ``(B, N, 2)``."""
+        Huber of the pixel errors divided by :attr:`scale` (px^2 of a face 100 px between the eye corners with
+        :func:`face_scale`), reading the input ``key`` ``(B, N, 2)``."""
 
         def pixel_error(p: Inputs) -> torch.Tensor:
             px = p[key]
-            return px - self.target.to(px.dtype)
+            return (px - self.target.to(px.dtype)) / self.scale
 
         return Term(name, weight, pixel_error, Huber(self.delta), normaliser="weights", group_weights=self.weights)
 
@@ -98,7 +131,7 @@ class LandmarkTerm:
         return project_points(model.to_camera(self.points3d(model, v), free)[None], self.camera)
 
     def __call__(self, model: PhotoState, v: torch.Tensor, free: tuple[str, ...] = ()) -> torch.Tensor:
-        """Scalar loss, px^2 (the term's value with weight 1)."""
+        """Scalar loss in the term's units (px^2 / :attr:`scale`^2; the term's value with weight 1)."""
         return self.term().value(Inputs(landmarks_px=lambda: self.pixels(model, v, free)))[0]
 
     def project(self, model: PhotoState, v: torch.Tensor) -> np.ndarray:

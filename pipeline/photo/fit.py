@@ -204,8 +204,15 @@ def fit_photo(
     state.load(lfit.theta, lfit.z, lfit.expressions)
     landmark = config.landmarks
     camera = make_camera(width, height, focal, dtype=dtype, pose=False)
+    scale = lfit.losses["face_scale"]  # the landmark fit's unit (pixels of a face 100 px between the eye corners)
     term = LandmarkTerm(
-        rig.asset, lm, camera, landmark.huber_delta_px, landmark.contour_weight, landmark.landmark_weighting
+        rig.asset,
+        lm,
+        camera,
+        landmark.huber_delta_px,
+        landmark.contour_weight,
+        landmark.landmark_weighting,
+        scale=scale,
     )
     fit_term = term
     if dense is not None:
@@ -217,6 +224,7 @@ def fit_photo(
             landmark.contour_weight,
             landmark.landmark_weighting,
             layout,
+            scale,
         )
     t1 = time.perf_counter()
     appearance, stages, crop = fit_appearance(photo, lm, focal, state, fit_term, config.photometric, progress)

@@ -39,7 +39,7 @@ from landmarks.layout import LandmarkLayout, ibug68_layout
 from landmarks.loss import CONTOUR_WEIGHT, WEIGHTINGS
 from pipeline.camera import default_focal, make_camera, solve_pose
 from pipeline.fitting.engine import LearningRates, Loss, Objective, Stage, StageLog, run_schedule
-from pipeline.fitting.landmark_term import NUM_LANDMARKS, BatchedLandmarks, LandmarkTerm
+from pipeline.fitting.landmark_term import NUM_LANDMARKS, BatchedLandmarks, LandmarkTerm, face_scale
 from pipeline.fitting.least_squares import LMSettings, StateVector, run_lm_stage
 from pipeline.fitting.priors import PriorWeights
 from pipeline.fitting.state import PhotoState
@@ -125,7 +125,8 @@ class LandmarkFitConfig:
     prior: PriorWeights = field(default_factory=PriorWeights)
     """Weights of the rig priors against the reprojection loss in px^2 (:mod:`pipeline.fitting.priors`)."""
     huber_delta_px: float = 5.0
-    """Huber threshold of the reprojection loss, pixels."""
+    """Huber threshold of the reprojection loss, pixels (of a face 100 px between the outer eye corners with
+    ``face_scale``)."""
     contour_weight: float = CONTOUR_WEIGHT
     """Weight of the 16 jaw-contour landmarks (0-16 but the chin) against 1 for the others: annotators and
     detectors put the face outline only approximately where the template's silhouette is."""
@@ -137,6 +138,21 @@ class LandmarkFitConfig:
     ``detector`` was better with the true landmarks + 1 px noise and with dlib's (docs/fit_photo.md)."""
     use_neural: bool = True
     """Use the neural skinning (learned linear + decoded residual); else the rig's own weights."""
+    noise_px: float = 1.0
+    """The landmarks' error in pixels of a face 100 px between the outer eye corners, for the 68-point layout
+    (dlib's points, a file's): the landmark term is divided by its square, so the priors weigh ``noise_px^2`` more
+    against noisier points. The priors' weights were chosen with the true points + 1 px noise: 1."""
+    dense_noise_px: float = 3.0
+    """The same for MediaPipe's 478 points: their error measured on renders of unseen heads is 3.07 px
+    (docs/landmarks.md). Chosen on validation photos (heads 0-9, issue 37): with MediaPipe's own points the fit
+    over the template's s2m median was 0.985 / 0.998 / **0.969** / 0.977 (median of 17 photos) for an effective
+    identity weight 0.03 / 0.1 / 0.3 / 1, i.e. ``dense_noise_px`` 1 / 1.8 / 3.2 / 5.8 (photos worse than the
+    template by > 0.05 mm: 6 / 3 / 2 / 3); the true points + 1 px want 1 (0.80 against 0.88 at 3.2)."""
+    face_scale: bool = True
+    """Measure the landmark errors in pixels of a face 100 px between the outer eye corners
+    (:func:`pipeline.fitting.landmark_term.face_scale`, from the first pose), so the priors weigh the same against
+    the landmarks for a small or a large photo of a face; ``false``: raw image pixels (before issue 37: a 4x
+    larger photo gave its landmarks 16x the weight)."""
     dense: bool = True
     """``jnr fit``: fit MediaPipe's dense points (478, or 468 from a file) when the detector or the landmarks
     file gives them (:mod:`landmarks.mediapipe.layout`); ``false``: fit the 68 iBUG points mapped from them."""
@@ -148,6 +164,10 @@ class LandmarkFitConfig:
             )
         if self.solver not in SOLVERS:
             raise ValueError(f"landmarks.solver must be one of {list(SOLVERS)}, got {self.solver!r}")
+        for name in ("noise_px", "dense_noise_px"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not (0 < value < float("inf")):
+                raise ValueError(f"landmarks.{name} must be a finite number > 0 (pixels), got {value!r}")
         bad = [st.name for st in self.lm_stages if "latent" in st.free]
         if bad:
             raise ValueError(
@@ -172,7 +192,9 @@ class LandmarkFit:
         nme: mean error / inter-ocular distance (the layout's outer eye corners of the input; 36, 45 in iBUG-68).
         landmarks3d: ``(N, 3)`` fitted landmarks in rig space (static embedding), mm.
         layout: the layout's name (``"ibug68"``, ``"mediapipe"``).
-        losses: per stage name, the total loss at its end; ``"data_px2"`` the final reprojection term.
+        losses: per stage name, the total loss at its end; ``"data_px2"`` the final reprojection term (in the
+            term's units: px^2 at a 100 px eye distance with ``face_scale``); ``"face_scale"`` image pixels per
+            unit of the term.
         stages: one :class:`~pipeline.fitting.engine.StageLog` per stage (every loss term at its end).
         seconds: wall time of the whole fit.
     """
@@ -277,9 +299,12 @@ def fit_landmarks(
         rotation0, translation0 = solve_pose(lm, model_points, width, height, focal, exclude=layout.pose_exclude)
     else:
         rotation0, translation0 = _check_pose(pose)
+    if config.face_scale:
+        term.scale = face_scale(focal, float(translation0[2]), asset)
     state = PhotoState(rig, neural, ExpressionModel(asset, dtype=dtype), rotation0, translation0)
     # the data term, the head model's priors and the caller's: one list, minimised by either solver
-    all_terms = (term.term(), *state.prior_terms(config.prior, gaze=layout.sees_irises), *terms)
+    noise = config.dense_noise_px if layout.name.startswith("mediapipe") else config.noise_px
+    all_terms = (term.term(1.0 / noise**2), *state.prior_terms(config.prior, gaze=layout.sees_irises), *terms)
     check_unique(all_terms)
 
     def objective(free: tuple[str, ...]) -> Loss:
@@ -403,6 +428,7 @@ def _landmark_result(
     values = state.arrays()
     losses = {s.name: s.loss_end for s in stages}
     losses["data_px2"] = data
+    losses["face_scale"] = term.scale
     error, nme = landmark_errors(projected, lm, term.layout.eye_corners)
     return LandmarkFit(
         theta=values["theta"],

@@ -47,7 +47,7 @@ from landmarks.loss import project_points
 from landmarks.mediapipe.ibug68_map import mesh_to_ibug68
 from pipeline.camera import camera_center_in_rig, check_focal, default_focal, make_camera
 from pipeline.fitting.engine import LearningRates, StageLog, run_schedule
-from pipeline.fitting.landmark_term import NUM_LANDMARKS, LandmarkTerm, expressions64
+from pipeline.fitting.landmark_term import NUM_LANDMARKS, LandmarkTerm, expressions64, face_scale
 from pipeline.fitting.least_squares import run_lm_stage
 from pipeline.fitting.terms import LeastSquaresTerms
 from pipeline.metrics import landmark_errors
@@ -300,8 +300,10 @@ def _problem(
             landmark.contour_weight,
             landmark.landmark_weighting,
             layout,
+            # each view's errors in pixels of a face 100 px between the eye corners, from its single-view pose
+            face_scale(f, float(single.translation[2]), rig.asset) if landmark.face_scale else 1.0,
         )
-        for lm, (w, h), f, layout in zip(lms, sizes, f0, layouts)
+        for lm, (w, h), f, layout, single in zip(lms, sizes, f0, layouts, singles)
     ]
     with torch.no_grad():
         weights = neural(torch.zeros(1, LATENT, dtype=dtype))[0].double()

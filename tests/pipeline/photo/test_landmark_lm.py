@@ -115,3 +115,66 @@ def test_lm_reaches_the_minimum_of_a_long_adam_run(models):
     a = head_vertices(rig, neural, lm.theta, lm.z, lm.expressions)
     b = head_vertices(rig, neural, adam.theta, adam.z, adam.expressions)
     assert _face_error(a, b, rig.asset) < 0.3
+
+
+def _scaled_fit(models, landmarks, k: float, face_scale: bool):
+    rig, neural = models
+    config = FitPhotoConfig().landmarks
+    from dataclasses import replace
+
+    config = replace(config, face_scale=face_scale)
+    return fit_landmarks(landmarks * k, int(W * k), int(H * k), focal=FOCAL * k, config=config, rig=rig, neural=neural)
+
+
+def test_the_fit_does_not_depend_on_the_photos_resolution(models):
+    """Issue 37: the same face photographed at 4x the resolution (landmarks, image and focal length x4, the same
+    detector error in units of the face) must give the same head: the landmark errors are measured in pixels of a
+    face 100 px between the eye corners. In raw pixels the larger photo weighed its landmarks 16x against the
+    identity prior and the head moved by much more than the solver's tolerance (checked below)."""
+    rig, _ = models
+    landmarks, *_ = _known_head(models, 4, 15.0, -5.0, 2.0, {"jawOpen": 0.2})
+    small, large = (_scaled_fit(models, landmarks, k, True) for k in (1.0, 4.0))
+    assert large.losses["face_scale"] == pytest.approx(4.0 * small.losses["face_scale"], rel=1e-3)
+    v_small = head_vertices(rig, models[1], small.theta, small.z, small.expressions)
+    v_large = head_vertices(rig, models[1], large.theta, large.z, large.expressions)
+    same = _face_error(v_small, v_large, rig.asset)
+    assert same < 0.01  # mm
+    np.testing.assert_allclose(large.landmarks_px / 4.0, small.landmarks_px, atol=0.01)
+    # raw pixels: the two photos give different heads
+    raw_small, raw_large = (_scaled_fit(models, landmarks, k, False) for k in (1.0, 4.0))
+    v_raw_small = head_vertices(rig, models[1], raw_small.theta, raw_small.z, raw_small.expressions)
+    v_raw_large = head_vertices(rig, models[1], raw_large.theta, raw_large.z, raw_large.expressions)
+    assert _face_error(v_raw_small, v_raw_large, rig.asset) > 20 * max(same, 1e-4)
+
+
+def test_noisier_landmarks_move_the_head_less_from_the_prior(models):
+    """The landmark term is divided by the detector's error squared (``noise_px``): declaring the same points
+    3x noisier is the same fit as a 9x heavier identity prior (checked on the head), and keeps the head closer to
+    the prior's mean than the 1-px fit."""
+    from dataclasses import replace
+
+    rig, neural = models
+    landmarks, *_ = _known_head(models, 7, -10.0, 4.0, 0.0, {})
+    base = FitPhotoConfig().landmarks
+    prior = load_identity_prior()
+
+    def fit(config):
+        f = fit_landmarks(landmarks, W, H, focal=FOCAL, config=config, rig=rig, neural=neural)
+        return f, head_vertices(rig, neural, f.theta, f.z, f.expressions)
+
+    noisy, v_noisy = fit(replace(base, noise_px=3.0))
+    heavy_prior = replace(
+        base.prior,
+        **{
+            k: 9.0 * getattr(base.prior, k)
+            for k in ("lambda_identity", "lambda_expressions", "lambda_gaze", "lambda_x", "lambda_z")
+        },
+    )
+    heavy, v_heavy = fit(replace(base, prior=heavy_prior))
+    assert _face_error(v_noisy, v_heavy, rig.asset) < 0.01
+    exact, _ = fit(base)
+
+    def distance_from_mean(theta):
+        return float(np.linalg.norm(theta / prior.span - prior.mean))
+
+    assert distance_from_mean(noisy.theta) < 0.8 * distance_from_mean(exact.theta)
