@@ -12,7 +12,8 @@ benchmark (path tracing, random skin, light, background, yaw +-30 deg) with the 
 alike): portrait lenses are longer than the fit's default 1.4 x.
 
 Sources: ``true478`` (the true head's MediaPipe-layout points projected, the outline on the silhouette, + 1 px
-noise, fitted with ``dense_noise_px`` 1, their true error), ``mediapipe`` (MediaPipe's own 478 points detected on the render), ``true68`` (iBUG-68 + 1 px).
+noise, fitted with ``dense_noise_px`` 1, their true error), ``mediapipe`` (MediaPipe's own 478 points detected on
+the render), ``true68`` (iBUG-68 + 1 px).
 
 Conditions, each adding one piece of truth to the one before:
 
