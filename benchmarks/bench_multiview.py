@@ -57,10 +57,11 @@ def main() -> None:
     parser.add_argument("--asm-iterations", type=int, default=60)
     parser.add_argument(
         "--landmarks",
-        choices=("ibug68", "mediapipe"),
+        choices=("ibug68", "mediapipe", "detected"),
         default="ibug68",
         help="the views' true landmarks + 1 px: iBUG's 68 (default) or MediaPipe's 478 (the dense layout, its "
-        "outline picked on each view's silhouette)",
+        "outline picked on each view's silhouette, fitted with their true error: dense_noise_px 1); or 'detected': "
+        "MediaPipe's own 478 points on the rendered views (views where it finds no face are left out)",
     )
     parser.add_argument("--json", type=Path)
     parser.add_argument("--figure", type=Path, help="grey renders (front, side) of the first head's fits")
@@ -72,6 +73,8 @@ def main() -> None:
     rig, neural = load_models()
     settings = MultiViewSettings(photo=PhotoSettings(spp=args.spp))
     base = MultiViewConfig()
+    if args.landmarks == "mediapipe":  # the true points + 1 px: fitted with their own error
+        base = replace(base, landmarks=replace(base.landmarks, dense_noise_px=1.0))
     methods = {"jnr": base}
     if args.photometric:
         methods["jnr + photometric"] = replace(base, photometric=replace(base.photometric, enabled=True))
@@ -85,10 +88,17 @@ def main() -> None:
     records = []
     for head in range(args.first, args.first + args.heads):
         t0 = time.perf_counter()
-        views = synthetic_views(head, most, settings=settings, render=args.photometric)
+        views = synthetic_views(head, most, settings=settings, render=args.photometric or args.landmarks == "detected")
         truth = views.neutral_vertices
         lms, layouts = [p.landmarks2d for p in views.photos], None
-        if args.landmarks == "mediapipe":
+        if args.landmarks == "detected":
+            layout = mediapipe_layout(rig.asset)
+            found = [(p, _detected(p.image)) for p in views.photos]
+            views = replace(views, photos=tuple(p for p, d in found if d is not None))
+            lms = [d for _, d in found if d is not None]
+            layouts = [layout] * len(lms)
+            print(f"  head {head}: MediaPipe found {len(lms)} of {len(found)} views", flush=True)
+        elif args.landmarks == "mediapipe":
             layout = mediapipe_layout(rig.asset)
             rng = np.random.default_rng([head, 478])
             lms = [dense_points(p, layout, rig.asset.faces, rng) for p in views.photos]
@@ -119,14 +129,14 @@ def main() -> None:
             }
         )
         for name, config in methods.items():
-            counts = [(n, list(range(n))) for n in args.views]
+            counts = [(n, list(range(n))) for n in args.views if n <= len(lms)]  # detected: the views found
             if name != "jnr":
                 counts = [(1, [best])] + counts
             for n, index in counts:
                 t1 = time.perf_counter()
                 fit = (
                     all_fit
-                    if (name == "jnr" and n == most)
+                    if (name == "jnr" and n == len(lms))
                     else fit_multiview(
                         [lms[i] for i in index],
                         [sizes[i] for i in index],
@@ -184,6 +194,17 @@ def main() -> None:
         },
         args.json,
     )
+
+
+def _detected(image):
+    """MediaPipe's 478 points ``(478, 2)`` on one view, or None when it finds no face."""
+    from landmarks.detect import detect_landmarks
+    from landmarks.detector import NoFaceError
+
+    try:
+        return np.asarray(detect_landmarks(image, detector="mediapipe").dense[:, :2], np.float64)
+    except NoFaceError:
+        return None
 
 
 def summarise(records: list[dict], names: list[str], counts: list[int]) -> dict:

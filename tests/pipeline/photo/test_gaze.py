@@ -8,6 +8,8 @@ iris model to follow, so the detector's own irises are not tested on them.)"""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 import torch
@@ -60,7 +62,9 @@ def test_iris_moves_the_gaze_the_right_way(models, gaze, direction):
     camera = make_camera(W, H, default_focal(W, H), rotation=rotation, translation=translation, dtype=torch.float64)
     target = project_points(points[None], camera)[0].numpy()
     target = target + np.random.default_rng(26).normal(0.0, 0.5, target.shape)
-    config = FitPhotoConfig().landmarks
+    # the points' noise stated (0.5 px here; the default 3 px is MediaPipe's own error on a photo, under
+    # which the gaze prior holds the eyes back more: 0.24 of 0.6 up)
+    config = replace(FitPhotoConfig().landmarks, dense_noise_px=1.0)
     dense = fit_landmarks(target, W, H, rig=rig, neural=neural, layout=layout, config=config)
     truth = np.array(_gaze(c.numpy(), names))
     fitted = np.array(_gaze(dense.expressions, names))
@@ -70,5 +74,7 @@ def test_iris_moves_the_gaze_the_right_way(models, gaze, direction):
     assert fitted @ along > 0.75 * (truth @ along)
     assert abs(fitted @ across) < 0.1
     # the same head's 468 mesh points without the irises: the gaze is held by the expressions' prior
-    mesh = fit_landmarks(target[:468], W, H, rig=rig, neural=neural, layout=mediapipe_mesh_layout(rig.asset))
+    mesh = fit_landmarks(
+        target[:468], W, H, rig=rig, neural=neural, layout=mediapipe_mesh_layout(rig.asset), config=config
+    )
     assert abs(np.array(_gaze(mesh.expressions, names)) @ along) < 0.5 * (fitted @ along)
