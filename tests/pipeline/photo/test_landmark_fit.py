@@ -222,7 +222,10 @@ def test_dense_layout_recovers_pose_identity_and_jaw(models, synthetic_head):
     template3 = landmark_positions(template, layout.embedding, faces)[0].numpy()[fixed]
     err_fit = _rigid_aligned_error(fit.landmarks3d[fixed], truth3)
     err_template = _rigid_aligned_error(template3, truth3)
-    print(f"\nface scale {fit.losses['face_scale']:.2f}; dense fit: pose {angle:.2f} deg, jawOpen {jaw:.3f} (0.3), 3D {err_fit:.2f} vs {err_template:.2f} mm")
+    print(
+        f"\nface scale {fit.losses['face_scale']:.2f}; dense fit: pose {angle:.2f} deg, jawOpen {jaw:.3f} (0.3), "
+        f"3D {err_fit:.2f} vs {err_template:.2f} mm"
+    )
     assert angle < 2.5
     assert abs(jaw - 0.3) < 0.1
     assert err_fit < 0.5 * err_template
