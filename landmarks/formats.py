@@ -13,7 +13,8 @@ format   layout
          added on write.
 .json    ``{"landmarks": [[x, y], ...], "convention": "ibug68", "pixel_origin": "opencv"}``
          (0-based; a file whose ``pixel_origin`` is ``"matlab"`` is shifted by -1 on read);
-         ``"convention": "mediapipe"`` for 468 or 478 points.
+         ``"convention": "mediapipe"`` for 468 or 478 points; without ``convention`` the count
+         tells it (68: iBUG, 468/478: MediaPipe).
 .csv     header ``index,x,y`` then one ``i,x,y`` row per point, ``i`` = 0..N-1 in order (0-based).
 =======  ======================================================================================
 """
@@ -122,8 +123,8 @@ def _read_json(path: Path, text: str, n_points: int) -> np.ndarray:
         raise _error(path, None, "JSON nested too deeply to be a landmark file") from None
     if not isinstance(data, dict) or "landmarks" not in data:
         raise _error(path, None, "expected an object with a 'landmarks' list")
-    convention = data.get("convention", "ibug68")
-    if convention not in ("ibug68", "mediapipe"):
+    convention = data.get("convention")  # without one: the convention of the count (68 iBUG, 468/478 MediaPipe)
+    if convention is not None and convention not in ("ibug68", "mediapipe"):
         raise _error(path, None, f"unsupported convention {convention!r}; expected 'ibug68' or 'mediapipe'")
     origin = data.get("pixel_origin", "opencv")
     if origin not in ("opencv", "matlab"):
@@ -143,8 +144,14 @@ def _read_json(path: Path, text: str, n_points: int) -> np.ndarray:
             raise _error(path, None, f"landmark {i}: non-finite value {row!r}")
         points.append([float(c) for c in row])
     points = _check_count(np.array(points, np.float64).reshape(-1, 2), n_points, path)
-    if CONVENTIONS.get(len(points)) != convention:
-        raise _error(path, None, f"{len(points)} landmarks do not match the convention {convention!r}")
+    if convention is not None and CONVENTIONS.get(len(points)) != convention:
+        expected = " or ".join(str(n) for n, c in CONVENTIONS.items() if c == convention)
+        raise _error(
+            path,
+            None,
+            f"{len(points)} landmarks do not match the convention {convention!r} ({expected} points); "
+            f"{len(points)} points are {CONVENTIONS[len(points)]!r}",
+        )
     return points - 1.0 if origin == "matlab" else points
 
 

@@ -260,7 +260,9 @@ def face_affine_fit(points: np.ndarray) -> tuple[float, float]:
     return residual, view_cosine
 
 
-def check_landmarks_2d(points: np.ndarray, width: int, height: int, *, source: str = "landmarks") -> PlausibilityReport:
+def check_landmarks_2d(
+    points: np.ndarray, width: int, height: int, *, source: str = "landmarks", mapped_from: int | None = None
+) -> PlausibilityReport:
     """Check that 68 2D landmarks are a plausible face in a ``width x height`` image (checks: module
     docstring).
 
@@ -268,6 +270,8 @@ def check_landmarks_2d(points: np.ndarray, width: int, height: int, *, source: s
         points: ``(68, 2)`` float 0-based OpenCV pixel coordinates (x right, y down), iBUG-68 order.
         width, height: image size, pixels (positive integers).
         source: where the points came from (e.g. the file name); prefixes the error message.
+        mapped_from: the count of MediaPipe points the 68 were mapped from (468 or 478), so that a message
+            speaks of the file's points and their order, not of iBUG-68 indices the user never wrote.
 
     Returns:
         :class:`PlausibilityReport` of the accepted points.
@@ -289,6 +293,8 @@ def check_landmarks_2d(points: np.ndarray, width: int, height: int, *, source: s
     def fail(message: str) -> LandmarkPlausibilityError:
         return LandmarkPlausibilityError(f"{source}: {message}")
 
+    dense = f"the {mapped_from} MediaPipe points" if mapped_from else None
+
     pts = np.asarray(points)
     if pts.shape != (NUM_LANDMARKS, 2):
         raise fail(f"expected {NUM_LANDMARKS} landmarks of shape ({NUM_LANDMARKS}, 2), got shape {pts.shape}")
@@ -307,7 +313,15 @@ def check_landmarks_2d(points: np.ndarray, width: int, height: int, *, source: s
     outside_px = np.linalg.norm(np.maximum(low - pts, 0.0) + np.maximum(pts - high, 0.0), axis=1)  # (68,)
     inside = outside_px == 0.0
     where = f"landmarks lie outside the {width}x{height} image"
+    if np.all((pts >= -0.05) & (pts <= 1.05)) and min(width, height) > 20:
+        raise fail(
+            f"{dense or 'the landmarks'} all lie within [0, 1]: normalised coordinates (as MediaPipe's "
+            f"NormalizedLandmark gives them)? jnr reads pixels: multiply x by the image width ({width}) and y by "
+            f"its height ({height})"
+        )
     if inside.sum() < MIN_FRACTION_INSIDE * NUM_LANDMARKS:
+        if dense:
+            raise fail(f"{where}: {dense} are not in this image's pixel coordinates (most of them lie outside it)")
         raise fail(
             f"{where}: only {inside.sum()} of {NUM_LANDMARKS} are inside it (need at least "
             f"{MIN_FRACTION_INSIDE:.0%}); are they in this image's pixel coordinates?"
@@ -334,6 +348,12 @@ def check_landmarks_2d(points: np.ndarray, width: int, height: int, *, source: s
     # 4. face-like: affine camera of the reference on the inner landmarks
     residual, view_cosine = face_affine_fit(pts)
     if residual > MAX_AFFINE_RESIDUAL:
+        if dense:
+            raise fail(
+                f"{dense} do not look like a face in MediaPipe's Face Mesh order (the best affine view of a face "
+                f"leaves an RMS residual of {residual:.3f} face sizes, at most {MAX_AFFINE_RESIDUAL:g}); check the "
+                "point order (reversed or shuffled?) and that they are MediaPipe's"
+            )
         raise fail(
             f"landmarks do not look like a face in iBUG-68 order: the best affine view of a face leaves "
             f"an RMS residual of {residual:.3f} face sizes (at most {MAX_AFFINE_RESIDUAL:g}); check the "
@@ -350,6 +370,11 @@ def check_landmarks_2d(points: np.ndarray, width: int, height: int, *, source: s
 
     # 6. orientation: the frontal-plane part of the map must not be a reflection
     if view_cosine <= 0.0:
+        if dense:
+            raise fail(
+                f"{dense} look mirrored left/right: matching them to a face needs a reflection (x flipped, or "
+                "points from a mirrored image); detect them again on this photo"
+            )
         raise fail(
             "landmarks look mirrored left/right: points 36-41 must be the subject's right eye (image "
             "left in a frontal photo), 42-47 the left, 0-7 the right jaw; matching them to a face needs a "

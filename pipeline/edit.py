@@ -22,7 +22,7 @@ from rig.head_model import head_model_kinds, is_posable
 from rig.io.mesh import export_mesh
 from rig.io.params import load_params_json
 from rig.model import JointRig
-from rig.parameters import NUM_PARAMETERS, ParameterError
+from rig.parameters import NUM_PARAMETERS, ParameterError, params_to_theta, theta_to_params
 
 FIT_PARAMS_KEYS = {"joints", "latent_z", "expressions"}
 """The keys of a JNR fit's ``params.json`` that make the head."""
@@ -71,8 +71,10 @@ def load_edit_params(params: str | Path | None, clamp: bool = False) -> tuple[to
         missing = sorted(FIT_PARAMS_KEYS - set(data))
         if missing:
             raise ParameterError(f"{path}: a fit's parameter file needs {sorted(FIT_PARAMS_KEYS)}; {missing} missing")
-        if clamp:
-            raise ParameterError(f"{path} is the parameter file of a fit; --clamp applies to joint parameters only")
+        if clamp and isinstance(data.get("joints"), dict):
+            # the viewer's "Save pose" of a fit (joints with the fit's latent Z and expressions): its joints
+            # clamped into their limits like a joint file's, with the same warning
+            data = {**data, "joints": theta_to_params(params_to_theta(data["joints"], clamp=True, dtype=torch.float64))}
         try:
             return None, fitted_head(data, source=path)
         except ParamsFileError as exc:

@@ -35,7 +35,7 @@ import logging
 import sys
 
 from pipeline.cli import accessory, animate, data, demo, evaluate, fit, fit_scan, rig, track, train
-from pipeline.cli.common import EXIT_FAILURE, EXIT_OK, EXIT_USAGE, CliError, printable
+from pipeline.cli.common import EXIT_FAILURE, EXIT_OK, EXIT_USAGE, CliError, PrintableStream, printable
 
 COMMAND_GROUPS = (demo, fit, fit_scan, track, animate, accessory, rig, data, train, evaluate)
 """The modules whose ``add_commands(subparsers)`` make the sub-commands, in the order ``--help`` lists them."""
@@ -175,6 +175,7 @@ def main(argv: list[str] | None = None, *, restore_signals: bool = True) -> int:
     saved = {n: signal.getsignal(n) for n in (signal.SIGINT, *TERMINATING)} if main_thread else {}
     if main_thread:
         terminate_as_exception()
+    saved_stdout, sys.stdout = sys.stdout, PrintableStream(sys.stdout)  # names printed as text, not terminal codes
     try:
         try:
             code = args.func(args)
@@ -217,6 +218,7 @@ def main(argv: list[str] | None = None, *, restore_signals: bool = True) -> int:
         print(f"jnr: terminated ({exc.name}); nothing half-written was left behind", file=sys.stderr)
         return 128 + exc.signum
     finally:
+        sys.stdout = saved_stdout
         warnings.formatwarning = saved_format
         if restore_signals:
             for signum, handler in saved.items():

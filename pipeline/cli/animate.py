@@ -41,6 +41,8 @@ def cmd_animate(args: argparse.Namespace) -> int:
     out = Path(args.out)
     if out.suffix.lower() not in (".glb", ".gltf"):
         raise CliError(f"--out {out}: the animation is glTF; use a .glb or .gltf name")
+    if args.fps is not None and not 0 < args.fps <= 1000:  # 0 is a value given, not "not given"; NaN too
+        raise CliError(f"--fps must be a frame rate in (0, 1000], got {args.fps:g}")
     if not 0 < args.preview_fps <= 60:  # NaN and inf too
         raise CliError(f"--preview-fps must be a number of frames per second in (0, 60], got {args.preview_fps}")
     preview = None if args.no_preview else Path(args.preview) if args.preview else out.with_suffix(".gif")
@@ -51,7 +53,7 @@ def cmd_animate(args: argparse.Namespace) -> int:
     check_output(out, args.force, inputs=inputs)
     if preview is not None:
         check_output(preview, args.force, inputs=inputs)
-    curves = read_curves(curves_path, fps=args.fps or _track_fps(args.fit_dir, curves_path), head_units=args.head_units)
+    curves = read_curves(curves_path, fps=args.fps if args.fps is not None else _track_fps(args.fit_dir, curves_path), head_units=args.head_units)
     bars = StageBars(args.quiet)
     try:
         summary = animate_fit(
@@ -90,7 +92,7 @@ def cmd_retarget(args: argparse.Namespace) -> int:
 
 ANIMATE_EPILOG = (
     "Curves: a Live Link Face CSV (Timecode, BlendShapeCount, the 52 ARKit names, HeadYaw/HeadPitch/HeadRoll in "
-    "radians, eye angles ignored; timecodes HH:MM:SS:FF at --fps, default 60) or a plain CSV (a header of ARKit "
+    "radians, eye angles ignored; timecodes HH:MM:SS:FF at --fps, else at the rate their frame numbers show) or a plain CSV (a header of ARKit "
     "names, any subset, optional time column in seconds, else rows at --fps, default 30; optional head_yaw, "
     "head_pitch, head_roll in degrees). 'example' is the shipped blink and smile (pipeline/assets/animation/"
     "blink_smile.csv).\nHead angles turn the head about the skull_root joint: +yaw towards the subject's left, +pitch "
@@ -121,8 +123,9 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     an.add_argument(
         "--fps",
         type=float,
-        help="frame rate of the curves' timecodes or rows (default: 60 for Live "
-        "Link Face, 30 for a plain CSV without a time column; a jnr track folder's own livelink.csv: its clip's)",
+        help="frame rate of the curves' timecodes or rows (default: a Live Link Face file's rate read from its "
+        "timecodes' frame numbers, 60 with a warning when it stays within one second; 30 for a plain CSV without "
+        "a time column; a jnr track folder's own livelink.csv: its clip's)",
     )
     an.add_argument(
         "--head-units",

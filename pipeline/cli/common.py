@@ -24,6 +24,23 @@ def printable(text: str) -> str:
     )
 
 
+class PrintableStream:
+    """A text stream that writes control characters other than line breaks and tabs as ``\\xNN`` (so a file
+    name printed in a summary cannot clear or recolour the terminal); everything else is the wrapped stream's."""
+
+    def __init__(self, stream) -> None:
+        self.stream = stream
+
+    def write(self, text: str) -> int:
+        self.stream.write(
+            "".join(c if c in "\n\t" or c.isprintable() else c.encode("unicode_escape").decode("ascii") for c in text)
+        )
+        return len(text)
+
+    def __getattr__(self, name: str):
+        return getattr(self.stream, name)
+
+
 class CliError(JnrError):
     """An error to report to the user in one line (exit status ``code``)."""
 

@@ -25,8 +25,26 @@ HEAD_COLUMNS = ("head_yaw", "head_pitch", "head_roll")
 """The plain layout's head angle columns (degrees), in :attr:`Curves.head_rotation` order."""
 LIVE_LINK_HEAD = ("HeadYaw", "HeadPitch", "HeadRoll")
 LIVE_LINK_EYES = ("LeftEyeYaw", "LeftEyePitch", "LeftEyeRoll", "RightEyeYaw", "RightEyePitch", "RightEyeRoll")
+LIVE_LINK_SHAPES = (
+    "EyeBlinkLeft", "EyeLookDownLeft", "EyeLookInLeft", "EyeLookOutLeft", "EyeLookUpLeft", "EyeSquintLeft",
+    "EyeWideLeft", "EyeBlinkRight", "EyeLookDownRight", "EyeLookInRight", "EyeLookOutRight", "EyeLookUpRight",
+    "EyeSquintRight", "EyeWideRight", "JawForward", "JawRight", "JawLeft", "JawOpen", "MouthClose", "MouthFunnel",
+    "MouthPucker", "MouthRight", "MouthLeft", "MouthSmileLeft", "MouthSmileRight", "MouthFrownLeft",
+    "MouthFrownRight", "MouthDimpleLeft", "MouthDimpleRight", "MouthStretchLeft", "MouthStretchRight",
+    "MouthRollLower", "MouthRollUpper", "MouthShrugLower", "MouthShrugUpper", "MouthPressLeft", "MouthPressRight",
+    "MouthLowerDownLeft", "MouthLowerDownRight", "MouthUpperUpLeft", "MouthUpperUpRight", "BrowDownLeft",
+    "BrowDownRight", "BrowInnerUp", "BrowOuterUpLeft", "BrowOuterUpRight", "CheekPuff", "CheekSquintLeft",
+    "CheekSquintRight", "NoseSneerLeft", "NoseSneerRight", "TongueOut",
+)  # fmt: skip
+"""The 52 shape columns of Live Link Face's CSV in the app's order (its header as recorded by the iOS app and as
+read by Epic's and Blender importers: ``JawRight`` before ``JawLeft``, ``MouthRight`` before ``MouthLeft``, unlike
+ARKit's documentation order of :data:`rig.expressions.EXPRESSION_NAMES`)."""
+LIVE_LINK_BLENDSHAPE_COUNT = 61
+"""The app's ``BlendShapeCount`` cell: the 52 shapes and the 9 head and eye rotations."""
 LIVE_LINK_FPS = 60.0
-"""Live Link Face's recording rate, the default frame rate of its timecodes."""
+"""Live Link Face's recording rate, the frame rate assumed for its timecodes when the file does not show it."""
+TIMECODE_RATES = (24.0, 25.0, 30.0, 48.0, 50.0, 60.0, 120.0)
+"""The frame rates a file's timecodes are matched to (:func:`timecode_rate`; 29.97 reads as 30)."""
 MAX_CURVES_BYTES = 512 << 20
 """The largest curves file read (512 MiB: millions of rows)."""
 PLAIN_FPS = 30.0
@@ -51,12 +69,15 @@ class Curves:
             each shape's limits.
         head_rotation: ``(T, 3)`` head yaw, pitch, roll in degrees, or None.
         layout: ``"live-link-face"`` or ``"plain"``.
+        fps: the frame rate of the file's timecodes or rows (given, read from the timecodes or assumed); None
+            for curves made in memory or a plain file with a time column.
     """
 
     times: np.ndarray
     coefficients: np.ndarray
     head_rotation: np.ndarray | None = None
     layout: str = "plain"
+    fps: float | None = None
 
 
 def _expression_index() -> dict[str, int]:
@@ -83,11 +104,34 @@ def _shape_key(name: str) -> str:
 _TIMECODE = re.compile(r"^(\d+):(\d+):(\d+):(\d+(?:\.\d+)?)$")
 
 
-def _timecode_seconds(text: str, fps: float, path: Path, row: int) -> float:
+def _timecode_fields(text: str, path: Path, row: int) -> tuple[float, float, float, float]:
     match = _TIMECODE.match(text.strip())
     if match is None:
         raise CurvesError(f"{path}: row {row}: timecode {text!r} is not HH:MM:SS:FF[.sub]")
     h, m, s, f = (float(g) for g in match.groups())
+    return h, m, s, f
+
+
+def timecode_rate(timecodes: list[str], path: Path | str = "curves") -> float | None:
+    """The frame rate that ``HH:MM:SS:FF[.sub]`` timecodes show: the smallest of :data:`TIMECODE_RATES` above
+    their largest whole frame number, when the timecodes pass a whole second (so that the frame numbers wrapped
+    at the rate); None when they stay within one second (the rate cannot be told).
+
+    Raises:
+        CurvesError: a malformed timecode, or frame numbers past every known rate."""
+    fields = [_timecode_fields(t, Path(path), r + 2) for r, t in enumerate(timecodes)]
+    seconds = {3600.0 * h + 60.0 * m + s for h, m, s, _ in fields}
+    if len(seconds) < 2:
+        return None
+    top = max(math.floor(f) for *_, f in fields)
+    for rate in TIMECODE_RATES:
+        if top < rate:
+            return rate
+    raise CurvesError(f"{path}: timecode frame numbers reach {top}, past {TIMECODE_RATES[-1]:g} fps; pass --fps")
+
+
+def _timecode_seconds(text: str, fps: float, path: Path, row: int) -> float:
+    h, m, s, f = _timecode_fields(text, path, row)
     if f >= fps:
         raise CurvesError(
             f"{path}: row {row}: timecode {text!r} has frame {f:g}, not below {fps:g} fps; "
@@ -181,7 +225,18 @@ def read_curves(path: str | Path, *, fps: float | None = None, head_units: str |
     coefficients = np.zeros((n, len(EXPRESSION_NAMES)))
     head = np.zeros((n, 3)) if any(kind == "head" for _, kind, _ in columns) else None
     times = np.zeros(n)
-    rate = fps or (LIVE_LINK_FPS if live_link else PLAIN_FPS)
+    rate = fps
+    if rate is None and live_link:
+        rate = timecode_rate([row[0] if row else "" for row in body], path)
+        if rate is None:
+            rate = LIVE_LINK_FPS
+            warnings.warn(
+                f"{path}: the timecodes stay within one second, so their frame rate cannot be read from them; "
+                f"assumed {LIVE_LINK_FPS:g} fps (pass --fps)",
+                stacklevel=2,
+            )
+    elif rate is None:
+        rate = PLAIN_FPS
     for r, row in enumerate(body):
         line = r + 2
         if len(row) != len(header):
@@ -209,13 +264,15 @@ def read_curves(path: str | Path, *, fps: float | None = None, head_units: str |
         warnings.warn(f"{path}: coefficients outside their limits were clamped (by up to {worst:.3g})", stacklevel=2)
     if head is not None and (head_units or ("rad" if live_link else "deg")) == "rad":
         head = np.degrees(head)
-    return Curves(times, clamped, head, "live-link-face" if live_link else "plain")
+    stated = rate if (live_link or time_column is None) else None
+    return Curves(times, clamped, head, "live-link-face" if live_link else "plain", stated)
 
 
 def write_curves(path: str | Path, curves: Curves, *, layout: str = "plain", fps: float = LIVE_LINK_FPS) -> None:
     """Write ``curves`` as CSV: ``layout="plain"`` (``time`` in seconds, the 52 ARKit names, head angles in
-    degrees when present) or ``"live-link-face"`` (timecodes at ``fps``, capitalised names, radians, zero
-    eye angles), atomically."""
+    degrees when present) or ``"live-link-face"`` (the app's header column for column: timecodes at ``fps``,
+    ``BlendShapeCount`` 61, :data:`LIVE_LINK_SHAPES`, head angles in radians, zero eye angles), atomically. A
+    reader finds the rate from the timecodes' frame numbers once they pass a second (:func:`timecode_rate`)."""
     text = io.StringIO()
     writer = csv.writer(text, lineterminator="\n")
     head = curves.head_rotation
@@ -230,8 +287,9 @@ def write_curves(path: str | Path, curves: Curves, *, layout: str = "plain", fps
                 ]
             )
     elif layout == "live-link-face":
-        names = [n[0].upper() + n[1:] for n in EXPRESSION_NAMES]
-        writer.writerow(["Timecode", "BlendShapeCount", *names, *LIVE_LINK_HEAD, *LIVE_LINK_EYES])
+        index = _expression_index()
+        order = [index[n.lower()] for n in LIVE_LINK_SHAPES]
+        writer.writerow(["Timecode", "BlendShapeCount", *LIVE_LINK_SHAPES, *LIVE_LINK_HEAD, *LIVE_LINK_EYES])
         for t in range(len(curves.times)):
             frames = curves.times[t] * fps
             seconds = int(frames // fps)
@@ -240,8 +298,8 @@ def write_curves(path: str | Path, curves: Curves, *, layout: str = "plain", fps
             writer.writerow(
                 [
                     code,
-                    len(EXPRESSION_NAMES),
-                    *(f"{c:.6f}" for c in curves.coefficients[t]),
+                    LIVE_LINK_BLENDSHAPE_COUNT,
+                    *(f"{c:.6f}" for c in curves.coefficients[t, order]),
                     *(f"{a:.6f}" for a in angles),
                     *("0",) * len(LIVE_LINK_EYES),
                 ]

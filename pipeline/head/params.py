@@ -25,7 +25,9 @@ from pathlib import Path
 
 from rig.errors import InputError
 from rig.head_model import HeadModel, HeadModelError, HeadParams, model_entries
-from rig.io.inputs import regular_file
+from rig.io.inputs import loads_json_strict, regular_file
+from rig.io.params import check_units
+from rig.parameters import ParameterError
 
 PARAMS_FILE = "params.json"
 MAX_PARAMS_BYTES = 64 << 20
@@ -106,6 +108,10 @@ def read_params(data: object, source: str | Path = PARAMS_FILE) -> FitParams:
     """
     if not isinstance(data, Mapping):
         raise ParamsFileError(f"{source} is not a jnr fit's parameter file (not a JSON object)")
+    try:
+        check_units(data.get("units"), source)  # cm or radians are refused, not read as mm and degrees
+    except ParameterError as exc:
+        raise ParamsFileError(str(exc)) from None
     fmt = data.get("format")
     if fmt == PARAMS_FORMAT:
         fit, model = data.get("fit"), data.get("model")
@@ -153,13 +159,15 @@ def load_params_file(path: str | Path) -> FitParams:
     path = Path(path)
     try:
         regular_file(path, "parameter file", MAX_PARAMS_BYTES)
-        data = json.loads(path.read_text(encoding="utf-8"))
+        data = loads_json_strict(path.read_text(encoding="utf-8"))
     except FileNotFoundError:
         raise ParamsFileError(f"{path} not found") from None
     except InputError as exc:
         raise ParamsFileError(str(exc)) from None
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise ParamsFileError(f"{path} is not a readable JSON file ({exc})") from None
+    except ValueError as exc:  # a key twice in one object
+        raise ParamsFileError(f"{path}: {exc}") from None
     except RecursionError:
         raise ParamsFileError(f"{path} is nested too deeply to be a jnr parameter file") from None
     return read_params(data, path)

@@ -127,7 +127,9 @@ def photo_landmarks(
         dense = None
         if len(points) != NUM_LANDMARKS:
             dense, points = photo.to_working(points), mesh_to_ibug68(points)
-        check_landmarks_2d(points, width, height, source=str(landmarks_path))
+        check_landmarks_2d(
+            points, width, height, source=str(landmarks_path), mapped_from=None if dense is None else len(dense)
+        )
         count = NUM_LANDMARKS if dense is None else len(dense)
         source = {"landmarks": os.path.abspath(landmarks_path), "landmark_count": count}
         return photo.to_working(points), source, dense

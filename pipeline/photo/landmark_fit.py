@@ -157,6 +157,11 @@ class LandmarkFitConfig:
     """``jnr fit``: fit MediaPipe's dense points (478, or 468 from a file) when the detector or the landmarks
     file gives them (:mod:`landmarks.mediapipe.layout`); ``false``: fit the 68 iBUG points mapped from them."""
 
+    def noise_for(self, layout_name: str) -> float:
+        """The points' error in pixels of a face 100 px between the eye corners for a layout: ``dense_noise_px``
+        for MediaPipe's layouts (``mediapipe``, ``mediapipe_mesh``), else ``noise_px``."""
+        return self.dense_noise_px if layout_name.startswith("mediapipe") else self.noise_px
+
     def __post_init__(self) -> None:
         if self.landmark_weighting not in WEIGHTINGS:
             raise ValueError(
@@ -303,7 +308,7 @@ def fit_landmarks(
         term.scale = face_scale(focal, float(translation0[2]), asset)
     state = PhotoState(rig, neural, ExpressionModel(asset, dtype=dtype), rotation0, translation0)
     # the data term, the head model's priors and the caller's: one list, minimised by either solver
-    noise = config.dense_noise_px if layout.name.startswith("mediapipe") else config.noise_px
+    noise = config.noise_for(layout.name)
     all_terms = (term.term(1.0 / noise**2), *state.prior_terms(config.prior, gaze=layout.sees_irises), *terms)
     check_unique(all_terms)
 

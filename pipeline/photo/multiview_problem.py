@@ -199,7 +199,9 @@ class MultiViewProblem:
             config.landmarks.prior, lambda_identity=config.lambda_identity, lambda_m=0.0, lambda_symmetry=0.0
         )
         landmarks = tuple(
-            t.term(name=f"landmarks_{k}", key=f"landmarks_px_{k}") for k, t in enumerate(self.landmark_terms)
+            # each view over its points' error squared, as in the single-view fit
+            t.term(1.0 / config.landmarks.noise_for(t.layout.name) ** 2, name=f"landmarks_{k}", key=f"landmarks_px_{k}")
+            for k, t in enumerate(self.landmark_terms)
         )
         return (*landmarks, *self.state.prior_terms(weights), focal_term(config.lambda_focal))
 

@@ -69,6 +69,13 @@ class FaceFollower:
         self._last: np.ndarray | None = None
         self._where: np.ndarray | None = None  # the face's last centre (pixels), kept while it is lost
         self._started = False
+        self.most_faces = 0
+        """The most faces found in one frame before the chosen one was (a too-large ``face`` shows here)."""
+
+    @property
+    def started(self) -> bool:
+        """Whether the chosen face has been found in a frame."""
+        return self._started
 
     def _detect(self, frame: np.ndarray) -> np.ndarray | None:
         try:
@@ -78,6 +85,7 @@ class FaceFollower:
         if not faces:
             return None
         if not self._started:
+            self.most_faces = max(self.most_faces, len(faces))
             by_size = sorted(faces, key=lambda f: -float(np.prod(np.ptp(f.dense[:, :2], axis=0))))
             if self.face >= len(by_size):
                 return None

@@ -76,6 +76,10 @@ class TrackConfig:
             raise ValueError(f"keyframe_choice must be 'poses' or 'time', got {self.keyframe_choice!r}")
         if not (isinstance(self.face, int) and self.face >= 0):
             raise ValueError(f"face must be an integer >= 0, got {self.face!r}")
+        if self.focal is not None and (
+            isinstance(self.focal, bool) or not isinstance(self.focal, int | float) or not 0 < self.focal < float("inf")
+        ):
+            raise ValueError(f"focal must be a focal length in pixels > 0, got {self.focal!r}")
         if not (isinstance(self.cold_iterations, int) and 1 <= self.cold_iterations <= 100):
             raise ValueError(f"cold_iterations must be an integer within [1, 100], got {self.cold_iterations!r}")
         if not (isinstance(self.max_frames, int) and 1 <= self.max_frames <= MAX_FRAMES):
@@ -170,6 +174,12 @@ def follow_clip(clip: Clip, face: int = 0, max_frames: int = MAX_FRAMES, progres
             progress("follow", index + 1, max(total, index + 1))
     if not points:
         raise NoTrackError(f"{clip.path}: no frame could be read")
+    if not follower.started and follower.most_faces > 0:  # faces were there, not as many as asked for
+        n = follower.most_faces
+        raise NoTrackError(
+            f"{clip.path}: found at most {n} {'face' if n == 1 else 'faces'} in a frame; --face must be 0..{n - 1} "
+            f"(0 the largest), got {face}"
+        )
     return np.stack(points), np.asarray(presence), np.asarray(ms)
 
 

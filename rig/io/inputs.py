@@ -39,4 +39,24 @@ def regular_file(path: str | os.PathLike, what: str, max_bytes: int) -> Path:
     return path
 
 
-__all__ = ["regular_file"]
+def loads_json_strict(text: str):
+    """``json.loads`` that refuses an object with a key twice (``json`` keeps the last silently, so a file
+    edited by hand could hold two values of one parameter and the user would not know which one counts).
+
+    Raises:
+        json.JSONDecodeError: invalid JSON; ValueError: a duplicate key (the message names it).
+    """
+    import json
+
+    def pairs(items: list[tuple[str, object]]) -> dict:
+        seen: dict = {}
+        for key, value in items:
+            if key in seen:
+                raise ValueError(f"the key {key!r} appears twice in one object")
+            seen[key] = value
+        return seen
+
+    return json.loads(text, object_pairs_hook=pairs)
+
+
+__all__ = ["loads_json_strict", "regular_file"]

@@ -132,3 +132,13 @@ def test_json_convention_must_match_the_count(tmp_path):
     path.write_text(json.dumps({"landmarks": [[1.0, 2.0]] * 68, "convention": "dlib"}))
     with pytest.raises(LandmarkFileError, match="unsupported convention 'dlib'"):
         read_landmarks(path, (68, 478))
+
+
+@pytest.mark.parametrize("count", [68, 468, 478])
+def test_a_json_file_without_a_convention_is_read_by_its_count(tmp_path, count):
+    """Issue 38: 468/478-point JSON files without ``"convention": "mediapipe"`` were refused with a message
+    about the convention; the count tells the layout (an explicit convention must still match)."""
+    points = np.random.default_rng(count).uniform(10.0, 500.0, (count, 2))
+    path = tmp_path / "points.json"
+    path.write_text(json.dumps({"landmarks": points.tolist()}))
+    np.testing.assert_allclose(read_landmarks(path, (68, 468, 478)), points)

@@ -310,3 +310,38 @@ class TestAstronaut:
 
     def test_shifted_5000_px(self, detected):
         _rejected(detected[0] + 5000.0, "outside the 512x512 image", 512, 512)
+
+
+def test_a_dense_file_is_told_what_is_wrong_in_its_own_terms(asset):
+    """Issue 38: 478-point files off the image, normalised to [0, 1], reversed or mirrored were refused with
+    messages about iBUG-68 indices and "68 points" the user never wrote; each now names the file's points and
+    what to do."""
+    from landmarks.loss import project_points
+    from landmarks.mediapipe.ibug68_map import mesh_to_ibug68
+    from landmarks.mediapipe.layout import mediapipe_layout
+    from pipeline.camera import default_focal, make_camera
+
+    rotation, translation = head_rotation(15.0, 0.0, 0.0), np.array([0.0, 0.0, 600.0])
+    layout = mediapipe_layout(asset)
+    v = torch.as_tensor(asset.vertices, dtype=torch.float64)
+    points = layout.points3d(v, asset.faces, camera_center_in_rig(rotation, translation))
+    camera = make_camera(W, H, default_focal(W, H), rotation=rotation, translation=translation, dtype=torch.float64)
+    dense = project_points(points[None], camera)[0].numpy()
+    assert dense.shape == (478, 2)
+
+    def check(p):
+        return check_landmarks_2d(mesh_to_ibug68(p), W, H, source="f.json", mapped_from=len(p))
+
+    assert check(dense).view_cosine > 0.9  # the good file passes
+    mirrored = dense.copy()
+    mirrored[:, 0] = W - 1 - mirrored[:, 0]
+    cases = [
+        (dense / [W, H], "all lie within [0, 1]: normalised coordinates"),
+        (dense + [5000.0, 0.0], "the 478 MediaPipe points are not in this image's pixel coordinates"),
+        (dense[::-1], "do not look like a face in MediaPipe's Face Mesh order"),
+        (mirrored, "the 478 MediaPipe points look mirrored left/right"),
+    ]
+    for bad, message in cases:
+        with pytest.raises(LandmarkPlausibilityError, match=message.replace("[", r"\[").replace("]", r"\]")) as e:
+            check(bad)
+        assert "iBUG" not in str(e.value) and "36-41" not in str(e.value)

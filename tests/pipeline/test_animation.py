@@ -227,6 +227,8 @@ def test_jnr_animate_bad_input_is_one_line(tmp_path, capsys):
         ([str(tmp_path / "nofit"), "example", "--out", str(tmp_path / "b.glb")], "not a fit folder"),
         ([str(asm), "example", "--out", str(tmp_path / "c.glb")], "ASM fit"),
         ([str(fit), "example", "--out", str(tmp_path / "d.obj")], ".glb or .gltf"),
+        ([str(fit), "example", "--out", str(tmp_path / "e.glb"), "--fps", "0"], "--fps must be"),  # not "unset"
+        ([str(fit), "example", "--out", str(tmp_path / "f.glb"), "--fps", "-30"], "--fps must be"),
     ]
     for k, (args, message) in enumerate(cases):
         if k == 0:  # once as a user runs it: a separate process, one line on stderr, no traceback
@@ -323,7 +325,67 @@ def test_a_written_live_link_file_reads_back_to_the_same_coefficients(tmp_path):
     write_curves(tmp_path / "take.csv", Curves(np.arange(4) / 60.0, coefficients, head), layout="live-link-face")
     header = (tmp_path / "take.csv").read_text().splitlines()[0].split(",")
     assert header[:3] == ["Timecode", "BlendShapeCount", "EyeBlinkLeft"]
-    back = read_curves(tmp_path / "take.csv")
+    with pytest.warns(UserWarning, match="assumed 60 fps"):  # 4 frames: within one second, the rate unseen
+        back = read_curves(tmp_path / "take.csv")
     np.testing.assert_allclose(back.coefficients, coefficients, atol=1e-6)
     np.testing.assert_allclose(back.head_rotation, head, atol=1e-4)
     np.testing.assert_allclose(back.times, np.arange(4) / 60.0, atol=1e-6)
+
+
+APP_HEADER = (
+    "Timecode,BlendShapeCount,EyeBlinkLeft,EyeLookDownLeft,EyeLookInLeft,EyeLookOutLeft,EyeLookUpLeft,"
+    "EyeSquintLeft,EyeWideLeft,EyeBlinkRight,EyeLookDownRight,EyeLookInRight,EyeLookOutRight,EyeLookUpRight,"
+    "EyeSquintRight,EyeWideRight,JawForward,JawRight,JawLeft,JawOpen,MouthClose,MouthFunnel,MouthPucker,"
+    "MouthRight,MouthLeft,MouthSmileLeft,MouthSmileRight,MouthFrownLeft,MouthFrownRight,MouthDimpleLeft,"
+    "MouthDimpleRight,MouthStretchLeft,MouthStretchRight,MouthRollLower,MouthRollUpper,MouthShrugLower,"
+    "MouthShrugUpper,MouthPressLeft,MouthPressRight,MouthLowerDownLeft,MouthLowerDownRight,MouthUpperUpLeft,"
+    "MouthUpperUpRight,BrowDownLeft,BrowDownRight,BrowInnerUp,BrowOuterUpLeft,BrowOuterUpRight,CheekPuff,"
+    "CheekSquintLeft,CheekSquintRight,NoseSneerLeft,NoseSneerRight,TongueOut,HeadYaw,HeadPitch,HeadRoll,"
+    "LeftEyeYaw,LeftEyePitch,LeftEyeRoll,RightEyeYaw,RightEyePitch,RightEyeRoll"
+)
+"""The header row of a take recorded by Epic's Live Link Face iOS app (the copy that public importers of its
+takes carry, e.g. the PyLiveLinkFace Blender add-on's LIVE_LINK_FACE_HEADER): JawRight before JawLeft,
+MouthRight before MouthLeft, 52 shapes and 9 rotations; the app writes BlendShapeCount 61 on every row."""
+
+
+def test_the_live_link_file_has_the_apps_header_column_for_column(tmp_path):
+    """Issue 38: the columns were in ARKit's documentation order (JawLeft before JawRight) and the count 52;
+    a reader that goes by position (the app's own order) swapped the jaw and mouth sideways shapes."""
+    c = np.zeros((3, len(EXPRESSION_NAMES)))
+    c[:, EXPRESSION_NAMES.index("jawLeft")] = 0.7
+    c[:, EXPRESSION_NAMES.index("mouthRight")] = 0.4
+    write_curves(tmp_path / "take.csv", Curves(np.arange(3) / 60.0, c), layout="live-link-face")
+    lines = (tmp_path / "take.csv").read_text().splitlines()
+    assert lines[0] == APP_HEADER
+    app = APP_HEADER.split(",")
+    row = lines[1].split(",")
+    assert row[1] == "61" and len(row) == len(app)
+    assert float(row[app.index("JawLeft")]) == 0.7 and float(row[app.index("JawRight")]) == 0.0
+    assert float(row[app.index("MouthRight")]) == 0.4 and float(row[app.index("MouthLeft")]) == 0.0
+
+
+@pytest.mark.parametrize("rate", [24.0, 30.0, 60.0])
+def test_the_frame_rate_is_read_from_the_timecodes(tmp_path, rate):
+    """Issue 38: a 30 fps take was played at the default 60 fps (twice as fast) without a word. The timecodes'
+    frame numbers wrap at the rate, so a take over a second long shows it; written at one rate, read at it."""
+    n = int(2.5 * rate)
+    c = np.zeros((n, len(EXPRESSION_NAMES)))
+    c[:, EXPRESSION_NAMES.index("jawOpen")] = np.linspace(0.0, 1.0, n)
+    write_curves(tmp_path / "take.csv", Curves(np.arange(n) / rate, c), layout="live-link-face", fps=rate)
+    back = read_curves(tmp_path / "take.csv")
+    assert back.fps == rate
+    np.testing.assert_allclose(back.times, np.arange(n) / rate, atol=1e-6)
+    assert read_curves(tmp_path / "take.csv", fps=120.0).fps == 120.0  # a given rate wins
+
+
+def test_a_29_97_take_reads_at_30_and_a_short_take_warns(tmp_path):
+    """An NTSC take (29.97 fps: frame numbers 0-29) reads at 30 fps, 0.1 % off, not at 60; a take shorter than
+    a second cannot show its rate: assumed 60 with a warning."""
+    rows = ["Timecode,BlendShapeCount,JawOpen"]
+    rows += [f"10:00:{s:02d}:{f:02d}.000,61,0.5" for s in (1, 2) for f in range(30)]
+    (tmp_path / "ntsc.csv").write_text("\n".join(rows) + "\n")
+    back = read_curves(tmp_path / "ntsc.csv")
+    assert back.fps == 30.0 and back.times[-1] == pytest.approx(59 / 30.0)
+    (tmp_path / "short.csv").write_text("Timecode,BlendShapeCount,JawOpen\n10:00:01:03.000,61,0\n10:00:01:04.000,61,1\n")
+    with pytest.warns(UserWarning, match="within one second.*assumed 60 fps"):
+        assert read_curves(tmp_path / "short.csv").fps == 60.0

@@ -567,9 +567,19 @@ def test_rig_edit_of_a_fits_params_gives_the_fits_mesh(capsys, tmp_path, sb):
     # the skinned glTF of the same file poses to the same head
     code, _, err = run(capsys, "rig", "edit", out / "params.json", "--out", tmp_path / "again.glb")
     assert code == 0, err
+    # issue 38: --clamp refused a whole head's file (the viewer's "Save pose" of a fit carries latent_z); its
+    # joints are clamped like a joint file's: in limits nothing changes, past them they are clamped with a warning
     code, _, err = run(capsys, "rig", "edit", out / "params.json", "--out", tmp_path / "c.ply", "--clamp")
-    assert code == 2
-    one_line_error(err, "--clamp applies to joint parameters only")
+    assert code == 0, err
+    clamped = np.asarray(trimesh.load(tmp_path / "c.ply", process=False).vertices)
+    np.testing.assert_allclose(clamped, again, atol=1e-6)
+    saved = {**params, "joints": {**params["joints"], "neck.scale": 9.0}}  # far past its limit
+    (tmp_path / "saved_pose.json").write_text(json.dumps({k: saved[k] for k in ("joints", "latent_z", "expressions")}))
+    code, _, err = run(capsys, "rig", "edit", tmp_path / "saved_pose.json", "--out", tmp_path / "d.ply")
+    assert code == 2 and "neck.scale" in err
+    with pytest.warns(UserWarning, match="'neck.scale' = 9.0 factor clamped"):
+        code, _, err = run(capsys, "rig", "edit", tmp_path / "saved_pose.json", "--out", tmp_path / "d.ply", "--clamp")
+    assert code == 0, err
     # a parameter file with keys nobody reads is refused, not silently half-used
     (tmp_path / "odd.json").write_text(json.dumps({"joints": {}, "latent": [0.0] * 50}))
     code, _, err = run(capsys, "rig", "edit", tmp_path / "odd.json", "--out", tmp_path / "odd.ply")

@@ -669,3 +669,18 @@ def test_fits_keep_the_latent_within_what_its_readers_accept(rig32):
     assert state.z.abs().max() == 20.0  # only what a stage frees is projected
     state.project(("latent",))
     assert state.z.abs().max() == LATENT_LIMIT and state.z[25] == torch.linspace(-20.0, 20.0, 50)[25]
+
+
+def test_a_one_photo_fit_prints_an_escape_in_the_name_as_text(capsys, tmp_path, photo_dir):
+    """Issue 38: ``jnr fit`` on one photo printed ``fitted x<ESC>[2J.jpg`` raw (every summary line goes to the
+    terminal through one filter now, not only the folder run's)."""
+    import shutil
+
+    from pipeline.cli import main
+    from tests.pipeline.conftest import fast_fit_args
+
+    photo = tmp_path / "x\x1b[2J.png"
+    shutil.copy(photo_dir / "face0.png", photo)
+    assert main(["fit", str(photo), "--out", str(tmp_path / "out"), "--outputs", "minimal", *fast_fit_args()]) == 0
+    printed = capsys.readouterr().out
+    assert "\x1b" not in printed and "x\\x1b[2J.png" in printed

@@ -112,6 +112,11 @@ def test_a_written_payload_reads_back(jnr_entries):
         ({"format": "jnr-params/2", "fit": "video", "model": "jnr"}, "needs 'fit'"),
         ({"format": "jnr-params/2", "fit": "photo", "model": "flame"}, "unknown head model 'flame'"),
         ({"format": "jnr-photo-params/1", "joints": {}}, "lacks"),
+        # issue 38: the units were never checked (a file in cm read as mm)
+        (
+            {"format": "jnr-params/2", "fit": "photo", "model": "jnr", "units": {"translate": "cm"}},
+            r"units \{'translate': 'cm'\} are not the rig's",
+        ),
     ],
 )
 def test_bad_params_are_one_clear_error(data, message):
@@ -144,3 +149,13 @@ def test_the_writer_the_resume_check_and_help_agree_on_the_file_list(capsys, tmp
     help_text = " ".join(capsys.readouterr().out.split())
     for f in PHOTO_FOLDER.files:
         assert f"{f.name}: {' '.join(f.description.split())}" in help_text
+
+
+def test_a_params_file_with_a_key_twice_is_refused(tmp_path):
+    """Issue 38: ``json`` keeps the last of two equal keys silently."""
+    from pipeline.head.params import load_params_file
+
+    path = tmp_path / "params.json"
+    path.write_text('{"format": "jnr-params/2", "fit": "photo", "fit": "scan", "model": "jnr"}')
+    with pytest.raises(ParamsFileError, match="'fit' appears twice"):
+        load_params_file(path)

@@ -133,6 +133,9 @@ def test_configs_track_yaml_is_the_default():
         (["--set", "frame.iterations=0"], "track.frame.iterations must be an integer within [1, 50]"),
         (["--set", "smooth.wobble=1"], "wobble"),
         (["--keyframes", "1"], "keyframes must be an integer within [2, 30]"),
+        # issue 38: --focal 0 was taken as "not given" (the default focal used without a word)
+        (["--focal", "0"], "focal must be a focal length in pixels > 0, got 0"),
+        (["--focal", "-800"], "TrackConfig.focal: must not be negative"),
     ],
 )
 def test_bad_settings_are_one_line(capsys, tmp_path, args, message):
@@ -141,3 +144,13 @@ def test_bad_settings_are_one_line(capsys, tmp_path, args, message):
     code, _, err = _run(capsys, "track", clip, "--out", tmp_path / "out", *args)
     assert code == 2 and message in err and len(err.strip().splitlines()) == 1, err
     assert not (tmp_path / "out").exists()
+
+
+def test_a_face_number_past_the_faces_found_says_the_range(capsys, tmp_path, clip):
+    """Issue 38: ``--face 5`` on a clip whose frames hold fewer faces said "no face found"; it names the range,
+    as ``jnr fit`` does."""
+    _, frames, _ = clip
+    out = tmp_path / "out"
+    code, _, err = _run(capsys, "track", frames, "--out", out, "--face", "5", "--max-frames", "3", "--quiet")
+    assert code == 2 and "found at most 1 face in a frame; --face must be 0..0 (0 the largest), got 5" in err, err
+    assert len(err.strip().splitlines()) == 1 and not out.exists()

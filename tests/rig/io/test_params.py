@@ -53,3 +53,33 @@ def test_bad_parameter_files(tmp_path):
     bad.write_text("[1, 2]")
     with pytest.raises(ParameterError, match="JSON object"):
         load_params_json(bad)
+
+
+def test_units_other_than_the_rigs_are_refused(tmp_path):
+    """Issue 38: a file stating ``translate: cm`` was read as millimetres (exit 0); the rig's own units and
+    files without a units entry still read, other keys of the entry (a fit's pixel convention) are the file's."""
+    path = tmp_path / "p.json"
+    joints = {"nose_tip.translate_y": 2.5}
+    path.write_text(json.dumps({"units": {**PARAMS_UNITS, "pixels": "OpenCV, 0-based"}, "joints": joints}))
+    assert load_params_json(path).abs().sum() > 0
+    for units, message in [
+        ({"rotate": "deg", "translate": "cm", "scale": "factor"}, r"units \{'translate': 'cm'\} are not the rig's"),
+        ({"rotate": "rad"}, r"units \{'rotate': 'rad'\}"),
+        ("mm", "'units' must be an object"),
+    ]:
+        path.write_text(json.dumps({"units": units, "joints": joints}))
+        with pytest.raises(ParameterError, match=message):
+            load_params_json(path)
+
+
+def test_a_key_twice_and_a_device_are_named_for_what_they_are(tmp_path):
+    """Issue 38: a duplicate key was accepted silently (the last value won); a link to /dev/zero was reported
+    as a missing file."""
+    path = tmp_path / "p.json"
+    path.write_text('{"joints": {"neck.scale": 1.2, "neck.scale": 0.8}}')
+    with pytest.raises(ParameterError, match="'neck.scale' appears twice"):
+        load_params_json(path)
+    link = tmp_path / "zero.json"
+    os.symlink("/dev/zero", link)
+    with pytest.raises(ParameterError, match="not a regular file|device"):
+        load_params_json(link)
