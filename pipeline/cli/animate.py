@@ -53,7 +53,8 @@ def cmd_animate(args: argparse.Namespace) -> int:
     check_output(out, args.force, inputs=inputs)
     if preview is not None:
         check_output(preview, args.force, inputs=inputs)
-    curves = read_curves(curves_path, fps=args.fps if args.fps is not None else _track_fps(args.fit_dir, curves_path), head_units=args.head_units)
+    fps = args.fps if args.fps is not None else _track_fps(args.fit_dir, curves_path)
+    curves = read_curves(curves_path, fps=fps, head_units=args.head_units)
     bars = StageBars(args.quiet)
     try:
         summary = animate_fit(
@@ -92,8 +93,9 @@ def cmd_retarget(args: argparse.Namespace) -> int:
 
 ANIMATE_EPILOG = (
     "Curves: a Live Link Face CSV (Timecode, BlendShapeCount, the 52 ARKit names, HeadYaw/HeadPitch/HeadRoll in "
-    "radians, eye angles ignored; timecodes HH:MM:SS:FF at --fps, else at the rate their frame numbers show) or a plain CSV (a header of ARKit "
-    "names, any subset, optional time column in seconds, else rows at --fps, default 30; optional head_yaw, "
+    "radians, eye angles ignored; timecodes HH:MM:SS:FF at --fps, else at the rate their frame numbers show) or a "
+    "plain CSV (a header of ARKit names, any subset, optional time column in seconds, else rows at --fps, "
+    "default 30; optional head_yaw, "
     "head_pitch, head_roll in degrees). 'example' is the shipped blink and smile (pipeline/assets/animation/"
     "blink_smile.csv).\nHead angles turn the head about the skull_root joint: +yaw towards the subject's left, +pitch "
     "nods down, +roll tilts the top towards the subject's left.\nOutputs: OUT.glb (the fit's skinned head with 52 "

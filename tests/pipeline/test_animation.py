@@ -386,6 +386,7 @@ def test_a_29_97_take_reads_at_30_and_a_short_take_warns(tmp_path):
     (tmp_path / "ntsc.csv").write_text("\n".join(rows) + "\n")
     back = read_curves(tmp_path / "ntsc.csv")
     assert back.fps == 30.0 and back.times[-1] == pytest.approx(59 / 30.0)
-    (tmp_path / "short.csv").write_text("Timecode,BlendShapeCount,JawOpen\n10:00:01:03.000,61,0\n10:00:01:04.000,61,1\n")
+    short = "Timecode,BlendShapeCount,JawOpen\n10:00:01:03.000,61,0\n10:00:01:04.000,61,1\n"
+    (tmp_path / "short.csv").write_text(short)
     with pytest.warns(UserWarning, match="within one second.*assumed 60 fps"):
         assert read_curves(tmp_path / "short.csv").fps == 60.0
