@@ -26,6 +26,8 @@ EXAMPLE_COLORS = {"glasses": (0.05, 0.18, 0.65), "cap": (0.75, 0.12, 0.08)}
 OTHER_COLOR = (0.05, 0.45, 0.40)
 MAX_ACCESSORY_VERTICES = 200_000
 """An accessory with more vertices is refused (the transfer is exact and per vertex; decimate it first)."""
+MAX_ACCESSORY_FACES = 400_000
+"""An accessory with more triangles is refused (twice the vertex limit: a closed mesh has about two per vertex)."""
 MAX_SKIN_DISTANCE_MM = 40.0
 """An accessory whose nearest vertex is farther than this from the template's skin is not placed on it."""
 MAX_EXTENT_MM = 1000.0
@@ -68,7 +70,7 @@ def read_accessory(accessory: str | Path, asset=None) -> Accessory:
 
     Raises:
         AccessoryInputError: missing, not an OBJ, unreadable, no triangles, non-finite vertices, more than
-            :data:`MAX_ACCESSORY_VERTICES`, larger than :data:`MAX_EXTENT_MM` (not millimetres?) or farther
+            :data:`MAX_ACCESSORY_VERTICES` or faces than :data:`MAX_ACCESSORY_FACES`, larger than :data:`MAX_EXTENT_MM` (not millimetres?) or farther
             than :data:`MAX_SKIN_DISTANCE_MM` from the template (not placed on it?).
     """
     import trimesh
@@ -86,10 +88,18 @@ def read_accessory(accessory: str | Path, asset=None) -> Accessory:
         data = regular_file(path, "accessory", MAX_ACCESSORY_BYTES).read_bytes()
     except InputError as exc:
         raise AccessoryInputError(str(exc)) from None
+    if b"\x00" in data:  # an OBJ is text; a binary file made trimesh guess its encoding (and fail on an import)
+        raise AccessoryInputError(f"accessory {path} is a binary file, not a Wavefront .obj (text)")
     # the material is optional: a file an OBJ names (mtllib, possibly a FIFO or a device) is never opened
     data = b"\n".join(line for line in data.splitlines() if not line.lstrip().startswith(b"mtllib"))
+    text = data.decode("utf-8", errors="replace")  # names and comments in another encoding do not matter
+    faces_listed = sum(1 for line in text.splitlines() if line.startswith("f "))
+    if faces_listed > MAX_ACCESSORY_FACES:
+        raise AccessoryInputError(
+            f"accessory {path} lists {faces_listed} faces; at most {MAX_ACCESSORY_FACES} (decimate it)"
+        )
     try:
-        mesh = trimesh.load(io.BytesIO(data), file_type="obj", force="mesh", process=False)
+        mesh = trimesh.load(io.StringIO(text), file_type="obj", force="mesh", process=False)
         vertices = np.asarray(mesh.vertices, dtype=np.float64)
         faces = np.asarray(mesh.faces, dtype=np.int64)
     except Exception as exc:  # trimesh's OBJ parser raises many types

@@ -74,6 +74,10 @@ MAX_PREVIEW_FRAMES = 1800
 it (logged), not by a clock that would need more frames than memory holds."""
 
 
+POSE_CHUNK = 32
+"""Preview frames posed in one batch (the skinning's per-vertex transforms take ~1 MB a frame and vertex set)."""
+
+
 def _frame_indices(times: np.ndarray, fps: float) -> np.ndarray:
     """Rows of the curves nearest to a ``fps`` clock from the first to the last time (no repeats), at most
     :data:`MAX_PREVIEW_FRAMES` (then spread evenly over the take)."""
@@ -111,9 +115,12 @@ def render_frames(
         else np.repeat(head.tau[None], len(curves.times), axis=0)
     )
     faces = load_asset().faces
-    posed = posed_frames(head, curves.coefficients[rows], taus[rows])  # one batch: the models are built once
     frames = []
-    for i, vertices in enumerate(posed):
+    for i in range(len(rows)):
+        if i % POSE_CHUNK == 0:  # posed a chunk at a time: a batch of every frame held GBs (issue 38)
+            chunk = rows[i : i + POSE_CHUNK]
+            posed = posed_frames(head, curves.coefficients[chunk], taus[chunk])
+        vertices = posed[i % POSE_CHUNK]
         frames.append(
             render_preview(
                 vertices,

@@ -45,7 +45,7 @@ def cmd_accessory(args: argparse.Namespace) -> int:
         f"(falloff {result.skinning.falloff_mm:g} mm, smoothing {result.skinning.smoothing_mm:g} mm); on the fitted "
         f"head its nearest vertex is {sd.min():.2f} mm {'outside' if sd.min() >= 0 else 'inside'} the skin"
     )
-    print(f"wrote {args.out}/: {ACCESSORY_FOLDER.listing()}")
+    print(f"wrote {args.out}/: {ACCESSORY_FOLDER.listing(args.out)}")
     return EXIT_OK
 
 

@@ -86,7 +86,7 @@ def cmd_retarget(args: argparse.Namespace) -> int:
     report = retarget_fit(args.source, args.target, out, force=args.force)
     print(
         f"the expression of {args.source} on the identity of {args.target} (largest vertex change "
-        f"{report['max_vertex_change_mm']:.1f} mm); wrote {out}/: {RETARGET_FOLDER.listing()}"
+        f"{report['max_vertex_change_mm']:.1f} mm); wrote {out}/: {RETARGET_FOLDER.listing(out)}"
     )
     return EXIT_OK
 

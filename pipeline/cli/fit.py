@@ -283,7 +283,7 @@ def _fit_views(args: argparse.Namespace, photos: list[Path]) -> int:
         f"fitted {summary['views']} views of one head in {summary['seconds']:.1f} s: landmark error "
         f"{summary['mean_error_px']:.2f} px (mean over views)"
     )
-    print(f"wrote {args.out}/: {VIEWS_FOLDER.listing()}")
+    print(f"wrote {args.out}/: {VIEWS_FOLDER.listing(args.out)}")
     return EXIT_OK
 
 

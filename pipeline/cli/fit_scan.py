@@ -49,7 +49,7 @@ def cmd_fit_scan(args: argparse.Namespace) -> int:
         f"scan-to-mesh median {result['s2m_median_mm']:.2f} mm, mean {result['s2m_mean_mm']:.2f} mm, "
         f"std {result['s2m_std_mm']:.2f} mm"
     )
-    print(f"wrote {out}/: {SCAN_FOLDER.listing()}")
+    print(f"wrote {out}/: {SCAN_FOLDER.listing(out)}")
     return EXIT_OK
 
 

@@ -62,7 +62,7 @@ def cmd_track(args: argparse.Namespace) -> int:
         f"{fps['follow_and_fit']:.1f} frames/s (follow {fps['follow']:.1f}, fit {fps['fit']:.1f}; identity "
         f"{report['seconds']['identity']:.1f} s)"
     )
-    print(f"wrote {out}/: {TRACK_FOLDER.listing()}")
+    print(f"wrote {out}/: {TRACK_FOLDER.listing(out)}")
     return EXIT_OK
 
 

@@ -49,9 +49,20 @@ class OutputFolder:
         """The names every run writes (patterns included; :attr:`OutputFile.optional` files left out)."""
         return tuple(f.name for f in self.files if not f.optional)
 
-    def listing(self) -> str:
-        """The names as printed after a run: ``mesh.obj, mesh.mtl, ...``."""
-        return ", ".join(self.names)
+    def listing(self, folder: str | Path | None = None) -> str:
+        """The names as printed after a run: ``mesh.obj, mesh.mtl, ...``; with ``folder``, only those it holds
+        (a pattern when one of its files is there), so that a summary never lists a file that was not written
+        (``preview.mp4`` of ``--no-preview``)."""
+        if folder is None:
+            return ", ".join(self.names)
+        folder = Path(folder)
+
+        def there(f: OutputFile) -> bool:
+            if f.per_item:
+                return any(folder.glob(f.name.replace("<k>", "*")))
+            return (folder / f.name).exists()
+
+        return ", ".join(f.name for f in self.files if there(f))
 
     def help_text(self) -> str:
         """The files with their descriptions, as ``--help`` prints them."""

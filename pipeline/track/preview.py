@@ -4,8 +4,8 @@ landmarks (green dots), beside the fitted head alone, grey, seen from the clip's
 
 The grey head is drawn by a small rasteriser (OpenCV polygons, far triangles first, Lambert shading with a
 light from the camera's upper left): a few tens of milliseconds a frame, so the preview does not cost more than
-the tracking. The video is MPEG-4 Part 2 (OpenCV's ``mp4v``, which every OpenCV build with FFmpeg writes;
-VLC, mpv, QuickTime and ffmpeg play it; some browsers want H.264).
+the tracking. The video is H.264 in MP4 (:mod:`pipeline.track.encode`: browsers, QuickTime, VLC and every
+editor play it; OpenCV's MPEG-4 Part 2 did not play in Chromium or Firefox), with the source video's sound.
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ from pipeline.animation.keyframes import posed_frames
 from pipeline.camera import RIG_TO_OPENCV
 from pipeline.track.tracker import TrackResult
 from pipeline.track.video import Clip
-from rig.errors import InputError
+from pipeline.track.encode import H264Writer
 
 LIGHT = np.array([-0.4, -0.5, -0.75])
 """The direction towards the light in the camera frame (OpenCV axes: up, left, towards the camera)."""
@@ -68,16 +68,15 @@ def write_preview(path: str | Path, clip: Clip, result: TrackResult, progress=No
     """Write ``preview.mp4`` (module docstring): the clip's frames again, side by side with the head.
 
     Raises:
-        InputError: OpenCV cannot write an MPEG-4 video here.
+        InputError: the H.264 encoder (imageio-ffmpeg) is not installed.
+        EncoderError: FFmpeg failed.
     """
     import cv2
 
     width, height = clip.size
-    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), float(clip.fps), (2 * width, height))
-    if not writer.isOpened():
-        raise InputError(f"{path}: OpenCV cannot write an MPEG-4 video here (no FFmpeg in its build?)")
+    audio = None if clip.is_folder else clip.path  # the source's sound, when it has one
     faces = np.asarray(result.head.faces, np.int64)
-    try:
+    with H264Writer(path, (2 * width, height), float(clip.fps), audio_from=audio) as writer:
         cached: dict[int, np.ndarray] = {}
         for index, frame in clip.frames(result.frames):
             if index not in cached:
@@ -91,12 +90,9 @@ def write_preview(path: str | Path, clip: Clip, result: TrackResult, progress=No
                     cv2.circle(left, (int(round(x)), int(round(y))), 1, (40, 220, 60), -1)
             else:
                 cv2.putText(left, "no face: bridged", (10, 28), cv2.FONT_HERSHEY_SIMPLEX, 0.8, (230, 30, 30), 2)
-            both = np.concatenate([left, head], axis=1)
-            writer.write(np.ascontiguousarray(both[..., ::-1]))
+            writer.write(np.concatenate([left, head], axis=1))
             if progress is not None:
                 progress("preview", index + 1, result.frames)
-    finally:
-        writer.release()
 
 
 __all__ = ["posed_camera_vertices", "shade_head", "write_preview"]

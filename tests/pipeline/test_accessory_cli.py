@@ -278,11 +278,19 @@ def test_cli_refuses_an_existing_output_without_force(capsys, tmp_path, fit_dir)
         ("v 0 0 0\nv 1 0 0\nv 0 nan 0\nf 1 2 3\n", "non-finite"),
         ("v 0 0 2000\nv 10 0 2000\nv 0 10 2000\nf 1 2 3\n", "from the template's skin"),
         ("v 0 0 0\nv 3000 0 0\nv 0 10 0\nf 1 2 3\n", "millimetres"),
+        # issue 38: a binary file reported "No module named 'charset_normalizer'" (trimesh guessing its encoding)
+        (bytes(range(256)) * 20, "a binary file, not a Wavefront .obj"),
+        # issue 38: a 10^6-face mesh was accepted (and its preview took minutes)
+        ("v 0 0 0\nv 10 0 0\nv 0 10 0\n" + "f 1 2 3\n" * 1_000_000, "lists 1000000 faces; at most 400000"),
     ],
+    ids=["text", "nan", "far", "metres", "binary", "million-faces"],
 )
 def test_cli_bad_accessory_is_one_line_exit_2(capsys, tmp_path, fit_dir, content, message):
     bad = tmp_path / "bad.obj"
-    bad.write_text(content)
+    if isinstance(content, bytes):
+        bad.write_bytes(content)
+    else:
+        bad.write_text(content)
     out = tmp_path / "out"
     code, _, err = run(capsys, "accessory", fit_dir, bad, "--out", out)
     assert code == 2 and err.count("\n") == 1 and err.startswith("jnr: error:") and message in err, err

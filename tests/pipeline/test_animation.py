@@ -390,3 +390,29 @@ def test_a_29_97_take_reads_at_30_and_a_short_take_warns(tmp_path):
     (tmp_path / "short.csv").write_text(short)
     with pytest.warns(UserWarning, match="within one second.*assumed 60 fps"):
         assert read_curves(tmp_path / "short.csv").fps == 60.0
+
+
+def test_a_long_takes_preview_is_posed_a_chunk_at_a_time(tmp_path, monkeypatch):
+    """Issue 38: a 4,500-row take's preview posed every frame in one batch (6 GB for a minute); frames are posed
+    a chunk at a time now, and each rendered head is still the one the whole batch gives."""
+    from pipeline.animation import keyframes
+
+    head = load_fit_head(_fit_folder(tmp_path, 4))
+    n = 150
+    c = np.zeros((n, len(EXPRESSION_NAMES)))
+    c[:, EXPRESSION_NAMES.index("jawOpen")] = np.linspace(0.0, 1.0, n)
+    curves = Curves(np.arange(n) / 30.0, c, np.stack([np.linspace(0, 20, n), np.zeros(n), np.zeros(n)], 1))
+    batches, rendered = [], []
+    real = keyframes.posed_frames
+
+    def counting(head, coefficients, taus):
+        batches.append(len(coefficients))
+        return real(head, coefficients, taus)
+
+    monkeypatch.setattr(keyframes, "posed_frames", counting)
+    monkeypatch.setattr(keyframes, "render_preview", lambda v, *a, **k: rendered.append(v) or np.zeros((2, 2, 3)))
+    frames, rows = keyframes.render_frames(head, curves, fps=30.0)
+    assert len(frames) == len(rows) == n and max(batches) <= keyframes.POSE_CHUNK and sum(batches) == n
+    taus = keyframes.curve_keyframes(head, curves).joint_transforms
+    whole = real(head, c[rows], taus[rows])
+    np.testing.assert_allclose(np.stack(rendered), whole, atol=1e-9)

@@ -5,6 +5,7 @@ gone for two frames, and on bad input."""
 from __future__ import annotations
 
 import json
+import subprocess
 
 import numpy as np
 import pytest
@@ -55,7 +56,11 @@ def test_a_short_clip_is_tracked_and_its_curves_follow_the_truth(capsys, tmp_pat
     out = tmp_path / "track"
     code, stdout, err = _run(capsys, "track", video, "--out", out, "--keyframes", "3", "--quiet")
     assert code == 0, err
-    assert f"tracked {FRAMES} frames" in stdout
+    assert f"tracked {FRAMES} frames" in stdout and "preview.mp4" in stdout
+    from pipeline.track.encode import ffmpeg_exe  # the preview is H.264, which browsers play (issue 38)
+
+    probe = subprocess.run([ffmpeg_exe(), "-hide_banner", "-i", str(out / "preview.mp4")], capture_output=True, text=True)
+    assert "Video: h264" in probe.stderr and f"{2 * SIZE[0]}x{SIZE[1]}" in probe.stderr
     params = np.load(out / "params.npz")
     assert params["coefficients"].shape == (FRAMES, 52) and params["observed"].all()
     error = np.abs(params["coefficients"] - data["coefficients"]).mean()
@@ -91,6 +96,7 @@ def test_frames_without_a_face_are_bridged(capsys, tmp_path, clip):
     code, stdout, err = _run(capsys, "track", folder, "--out", out, "--keyframes", "3", "--no-preview", "--quiet")
     assert code == 0, err
     assert "2 without a face (bridged)" in stdout
+    assert "preview.mp4" not in stdout and not (out / "preview.mp4").exists()  # never listed when not written
     params = np.load(out / "params.npz")
     assert params["observed"].tolist() == [True] * 4 + [False] * 2 + [True] * (FRAMES - 6)
     c = params["coefficients"]
