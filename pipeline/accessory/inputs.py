@@ -69,9 +69,10 @@ def read_accessory(accessory: str | Path, asset=None) -> Accessory:
     """Read and check an accessory (an OBJ file or a shipped example's name, :func:`accessory_path`).
 
     Raises:
-        AccessoryInputError: missing, not an OBJ, unreadable, no triangles, non-finite vertices, more than
-            :data:`MAX_ACCESSORY_VERTICES` or faces than :data:`MAX_ACCESSORY_FACES`, larger than :data:`MAX_EXTENT_MM` (not millimetres?) or farther
-            than :data:`MAX_SKIN_DISTANCE_MM` from the template (not placed on it?).
+        AccessoryInputError: missing, not an OBJ, a binary file, unreadable, no triangles, non-finite
+            vertices, more vertices than :data:`MAX_ACCESSORY_VERTICES` or faces than :data:`MAX_ACCESSORY_FACES`,
+            larger than :data:`MAX_EXTENT_MM` (not millimetres?) or farther than :data:`MAX_SKIN_DISTANCE_MM` from
+            the template (not placed on it?).
     """
     import trimesh
 

@@ -16,9 +16,9 @@ import numpy as np
 
 from pipeline.animation.keyframes import posed_frames
 from pipeline.camera import RIG_TO_OPENCV
+from pipeline.track.encode import H264Writer
 from pipeline.track.tracker import TrackResult
 from pipeline.track.video import Clip
-from pipeline.track.encode import H264Writer
 
 LIGHT = np.array([-0.4, -0.5, -0.75])
 """The direction towards the light in the camera frame (OpenCV axes: up, left, towards the camera)."""

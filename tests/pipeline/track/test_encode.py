@@ -100,7 +100,7 @@ def test_the_preview_plays_in_chromium(tmp_path):
         '<html><body><div id="out">pending</div><script>'
         'const v = document.createElement("video"); v.muted = true; v.src = "preview.mp4";'
         'v.addEventListener("loadeddata", () => { document.getElementById("out").textContent = '
-        '`loaded ${v.videoWidth}x${v.videoHeight} ${v.duration.toFixed(2)}s`; });'
+        "`loaded ${v.videoWidth}x${v.videoHeight} ${v.duration.toFixed(2)}s`; });"
         'v.addEventListener("error", () => { document.getElementById("out").textContent = `error ${v.error.code}`; });'
         "document.body.appendChild(v);</script></body></html>"
     )

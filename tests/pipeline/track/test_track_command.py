@@ -59,7 +59,9 @@ def test_a_short_clip_is_tracked_and_its_curves_follow_the_truth(capsys, tmp_pat
     assert f"tracked {FRAMES} frames" in stdout and "preview.mp4" in stdout
     from pipeline.track.encode import ffmpeg_exe  # the preview is H.264, which browsers play (issue 38)
 
-    probe = subprocess.run([ffmpeg_exe(), "-hide_banner", "-i", str(out / "preview.mp4")], capture_output=True, text=True)
+    probe = subprocess.run(
+        [ffmpeg_exe(), "-hide_banner", "-i", str(out / "preview.mp4")], capture_output=True, text=True
+    )
     assert "Video: h264" in probe.stderr and f"{2 * SIZE[0]}x{SIZE[1]}" in probe.stderr
     params = np.load(out / "params.npz")
     assert params["coefficients"].shape == (FRAMES, 52) and params["observed"].all()
