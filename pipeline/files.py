@@ -36,12 +36,14 @@ from rig.io.atomic import TargetExistsError
 
 OUTPUT_MARKER = ".jnr-output"
 """The file that marks a folder written by jnr; ``--force`` replaces only folders that hold it."""
-MIN_FREE_BYTES = 64 * 1024 * 1024
+MIN_FREE_BYTES = 16 * 1024 * 1024
+"""An output's folder must have this much free space before a fit starts: about three times a photo fit's
+default outputs (5.5 MB for a 512 x 512 portrait; 64 MB refused outputs that fitted, issue 38). A disk that
+fills anyway fails the write, which leaves nothing half-written (:func:`staged_folder`)."""
 SMALL_FILE_FREE_BYTES = 1024 * 1024
 """The free space a small report (a folder run's ``summary.csv``) needs: it is still written when a disk that
 filled during the run refuses the next photo's output (which needs :data:`MIN_FREE_BYTES`), so the run says
 which photos were fitted and which were not."""
-"""An output's folder must have this much free space before a fit starts (its outputs are a few MB)."""
 
 
 LEGACY_OUTPUT_FILES = frozenset(

@@ -271,13 +271,37 @@ def fit_photo_files(
     order = {t.photo: i for i, t in reversed(list(enumerate(tasks)))}
     results: list[PhotoFileResult] = list(kept)
     try:
-        _fit_all(todo, run or _sequential(rig, neural, progress), results, out, created)
-        results.sort(key=lambda r: (order[r.photo], -1 if r.face is None else r.face))
-        if out.is_dir():
-            write_summary(out / SUMMARY_FILE, results, force=force or resume, inputs=inputs)
+        try:
+            _fit_all(todo, run or _sequential(rig, neural, progress), results, out, created)
+        except BaseException:
+            # stopped (Ctrl-C, SIGTERM, a failure outside any one photo): the summary still says which photos
+            # were fitted and which were not, then the stop goes on (issue 38: a stopped run wrote none)
+            done = {r.photo for r in results}
+            results.extend(
+                PhotoFileResult(t.photo, error=f"{t.photo}: not fitted: the run was stopped first")
+                for t in todo
+                if t.photo not in done
+            )
+            _write_summary_of(results, order, out, force or resume, inputs, stopping=True)
+            raise
+        _write_summary_of(results, order, out, force or resume, inputs)
     finally:
         unlock(lock)
     return results
+
+
+def _write_summary_of(results, order, out: Path, force: bool, inputs, stopping: bool = False) -> None:
+    """``out/summary.csv`` of ``results`` in the photos' order; while stopping, only where the folder is still
+    there and only as well as it goes (the stop, not a failure of the summary, is what is reported)."""
+    results.sort(key=lambda r: (order[r.photo], -1 if r.face is None else r.face))
+    if not out.is_dir():
+        return
+    try:
+        write_summary(out / SUMMARY_FILE, results, force=force, inputs=inputs)
+    except (OSError, InputError):
+        if not stopping:
+            raise
+        _log.warning("the stopped run's summary could not be written in %s", out)
 
 
 __all__ = ["fit_photo_files", "output_names"]
