@@ -564,8 +564,9 @@ def test_ctrl_c_keeps_an_output_a_worker_finished(tmp_path):
 
 
 def test_a_disk_that_fills_during_a_folder_run_still_gets_its_summary(capsys, tmp_path, photo_dir, monkeypatch):
-    """D25: when the disk filled, every later photo was refused (the free-space check, 16 MB since issue 38) and so was summary.csv: the run
-    ended with one line and no record of which photos were fitted. The summary needs 1 MB."""
+    """D25: when the disk filled, every later photo was refused (the free-space check, 16 MB since issue 38) and
+    so was summary.csv: the run ended with one line and no record of which photos were fitted. The summary needs
+    1 MB."""
     import csv
     import shutil
     from collections import namedtuple
