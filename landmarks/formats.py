@@ -139,9 +139,9 @@ def _read_json(path: Path, text: str, n_points: int) -> np.ndarray:
             or len(row) != 2
             or not all(isinstance(c, (int, float)) and not isinstance(c, bool) for c in row)
         ):
-            raise _error(path, None, f"landmark {i}: expected [x, y] numbers, got {row!r}")
+            raise _error(path, None, f"landmark {i} (0-based): expected [x, y] numbers, got {row!r}")
         if not all(math.isfinite(c) for c in row):
-            raise _error(path, None, f"landmark {i}: non-finite value {row!r}")
+            raise _error(path, None, f"landmark {i} (0-based): non-finite value {row!r}")
         points.append([float(c) for c in row])
     points = _check_count(np.array(points, np.float64).reshape(-1, 2), n_points, path)
     if convention is not None and CONVENTIONS.get(len(points)) != convention:

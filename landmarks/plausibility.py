@@ -306,7 +306,10 @@ def check_landmarks_2d(
     pts = pts.astype(np.float64)
     bad = np.flatnonzero(~np.isfinite(pts).all(axis=1))
     if len(bad):
-        raise fail(f"{len(bad)} landmarks have non-finite coordinates (NaN or inf), the first is index {bad[0]}")
+        raise fail(
+            f"{len(bad)} landmarks have non-finite coordinates (NaN or inf), the first is landmark {bad[0]} "
+            f"(0-based; number {bad[0] + 1} counting from 1)"
+        )
 
     # 2. inside the image
     low, high = np.array([-0.5, -0.5]), np.array([width - 0.5, height - 0.5])
@@ -330,7 +333,7 @@ def check_landmarks_2d(
     worst = int(np.argmax(outside_px))
     if outside_px[worst] > MAX_OUTSIDE_FACE_SIZES * inside_size:
         raise fail(
-            f"{where}: landmark {worst} is {outside_px[worst]:.0f} px beyond its border, more than "
+            f"{where}: landmark {worst} (0-based) is {outside_px[worst]:.0f} px beyond its border, more than "
             f"{MAX_OUTSIDE_FACE_SIZES:g} face size ({inside_size:.0f} px, the bounding-box diagonal of "
             f"the landmarks inside the image)"
         )

@@ -142,3 +142,13 @@ def test_a_json_file_without_a_convention_is_read_by_its_count(tmp_path, count):
     path = tmp_path / "points.json"
     path.write_text(json.dumps({"landmarks": points.tolist()}))
     np.testing.assert_allclose(read_landmarks(path, (68, 468, 478)), points)
+
+
+def test_an_index_in_a_message_says_it_is_0_based(tmp_path):
+    """Issue 38: messages gave numpy's 0-based index without saying so (a user counts from 1)."""
+    path = tmp_path / "p.json"
+    rows = [[1.0, 2.0]] * 68
+    rows[3] = [1.0, "x"]
+    path.write_text(json.dumps({"landmarks": rows}))
+    with pytest.raises(LandmarkFileError, match=r"landmark 3 \(0-based\): expected \[x, y\] numbers"):
+        read_landmarks(path)

@@ -173,7 +173,7 @@ class TestExceptions:
     def test_non_finite(self, frontal, value):
         pts = frontal.copy()
         pts[30, 1] = value
-        assert "index 30" in _rejected(pts, "non-finite")
+        assert "landmark 30 (0-based" in _rejected(pts, "non-finite")
 
 
 class TestAccepted:
@@ -225,7 +225,7 @@ class TestRejected:
         """A stray point does not widen its own allowance (the face size is that of the points inside)."""
         pts = frontal.copy()
         pts[index] = [W / 2, H + 2000.0]
-        assert f"landmark {index} is" in _rejected(pts, "beyond its border")
+        assert f"landmark {index} (0-based) is" in _rejected(pts, "beyond its border")
 
     def test_coincident(self):
         _rejected(np.full((68, 2), 100.0), r"degenerate \(coincident or collinear\)")
