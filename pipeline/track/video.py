@@ -14,7 +14,9 @@ Example:
 
 from __future__ import annotations
 
+import os
 import re
+import warnings
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -89,9 +91,7 @@ class Clip:
             yield index, self._check_size(index, _read_image(path))
 
     def _video_frames(self, max_frames: int) -> Iterator[tuple[int, np.ndarray]]:
-        import cv2
-
-        capture = cv2.VideoCapture(str(self.path))
+        capture = _capture(self.path)
         try:
             index = 0
             while index < max_frames:
@@ -102,6 +102,22 @@ class Clip:
                 index += 1
         finally:
             capture.release()
+        expected = min(self.count, max_frames)
+        if index < expected - max(2, int(0.01 * expected)):  # containers may announce a frame or two too many
+            warnings.warn(
+                f"{self.path}: decoding stopped after {index} of the {self.count} frames the file announces "
+                "(damaged or truncated?); the frames after it are not tracked",
+                stacklevel=2,
+            )
+
+
+def _capture(path: Path):
+    """OpenCV's FFmpeg reader of ``path`` with FFmpeg's own log off (its lines came before jnr's one-line error,
+    issue 38); what it cannot read is reported by jnr."""
+    import cv2
+
+    os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")  # AV_LOG_QUIET, read when the reader opens
+    return cv2.VideoCapture(str(path))
 
 
 def _bgr_to_rgb(frame: np.ndarray) -> np.ndarray:
@@ -155,7 +171,7 @@ def open_clip(path: str | Path, fps: float | None = None) -> Clip:
         raise VideoError(f"{path}: an empty file, not a video")
     import cv2
 
-    capture = cv2.VideoCapture(str(path))
+    capture = _capture(path)
     try:
         if not capture.isOpened():
             raise VideoError(f"{path}: not a video OpenCV can decode (corrupt, or a format its FFmpeg lacks)")

@@ -162,3 +162,41 @@ def test_a_face_number_past_the_faces_found_says_the_range(capsys, tmp_path, cli
     code, _, err = _run(capsys, "track", frames, "--out", out, "--face", "5", "--max-frames", "3", "--quiet")
     assert code == 2 and "found at most 1 face in a frame; --face must be 0..0 (0 the largest), got 5" in err, err
     assert len(err.strip().splitlines()) == 1 and not out.exists()
+
+
+def test_a_damaged_video_is_said_so_in_jnrs_words_only(tmp_path, clip):
+    """Issue 38: a truncated video was tracked without a word (its missing frames unnoticed), and one FFmpeg
+    cannot open printed FFmpeg's own log lines before jnr's error. Run as a user runs it (FFmpeg writes to the
+    process's stderr directly)."""
+    import sys
+
+    from PIL import Image
+
+    from pipeline.track.encode import H264Writer
+
+    _, frames, _ = clip
+    whole = tmp_path / "whole.mp4"  # moov first (+faststart): a cut file still opens
+    pictures = [np.asarray(Image.open(p).convert("RGB")) for p in sorted(frames.glob("frame_*.png"))]
+    with H264Writer(whole, SIZE, 30.0) as video:
+        for picture in pictures * 4:
+            video.write(picture)
+    data = whole.read_bytes()
+    cut = tmp_path / "cut.mp4"
+    cut.write_bytes(data[: int(len(data) * 0.7)])
+    broken = tmp_path / "broken.mp4"  # no index at all: FFmpeg cannot open it
+    broken.write_bytes(b"\x00\x00\x00\x20ftypisom" + data[len(data) // 2 :])
+
+    def track(video, out):
+        return subprocess.run(
+            [sys.executable, "-m", "pipeline.cli", "track", str(video), "--out", str(out), "--keyframes", "2"]
+            + ["--no-preview", "--quiet"],
+            capture_output=True,
+            text=True,
+        )
+
+    run = track(cut, tmp_path / "cut_out")
+    warned = [ln for ln in run.stderr.splitlines() if "decoding stopped after" in ln]
+    assert len(warned) == 1 and f"of the {4 * FRAMES} frames the file announces" in warned[0], run.stderr
+    run = track(broken, tmp_path / "broken_out")
+    assert run.returncode == 2 and run.stderr.startswith("jnr: error:"), run.stderr
+    assert len(run.stderr.strip().splitlines()) == 1, run.stderr  # no FFmpeg lines before it
