@@ -228,13 +228,13 @@ def read_curves(path: str | Path, *, fps: float | None = None, head_units: str |
     rate = fps
     if rate is None and live_link:
         rate = timecode_rate([row[0] if row else "" for row in body], path)
-        if rate is None:
-            rate = LIVE_LINK_FPS
+        if rate is None and len(body) > 1:  # one row (a photo fit's expression) has no timing to get wrong
             warnings.warn(
                 f"{path}: the timecodes stay within one second, so their frame rate cannot be read from them; "
                 f"assumed {LIVE_LINK_FPS:g} fps (pass --fps)",
                 stacklevel=2,
             )
+        rate = rate or LIVE_LINK_FPS
     elif rate is None:
         rate = PLAIN_FPS
     for r, row in enumerate(body):
