@@ -30,21 +30,24 @@ def load_track_config(args: argparse.Namespace):
 
 
 def cmd_track(args: argparse.Namespace) -> int:
-    from pipeline.track.outputs import write_track_outputs
-    from pipeline.track.tracker import track_clip
+    import time
+
+    from pipeline.track.outputs import write_shot_outputs
+    from pipeline.track.tracker import track_shots
     from pipeline.track.video import open_clip
 
+    t0 = time.perf_counter()
     out = Path(args.out)
     check_output(out, args.force, inputs=[args.clip], kind="folder")
     config = load_track_config(args)
     clip = open_clip(args.clip, fps=args.fps)
     bars = StageBars(args.quiet)
     try:
-        result = track_clip(clip, config, progress=bars)
-        report = write_track_outputs(
+        tracked = track_shots(clip, config, progress=bars)
+        report = write_shot_outputs(
             out,
             clip,
-            result,
+            tracked,
             force=args.force,
             inputs=[args.clip],
             command="jnr track",
@@ -54,15 +57,33 @@ def cmd_track(args: argparse.Namespace) -> int:
         )
     finally:
         bars.close()
-    fps = report["frames_per_second"]
-    lost = report["lost_frames"]
+    seconds = time.perf_counter() - t0
+    size = f"{clip.size[0]}x{clip.size[1]}, {clip.fps:g} fps"
+    if len(tracked.shots) == 1:
+        track = tracked.tracks[0]
+        fps = report["frames_per_second"]
+        print(
+            f"tracked {track.frames} frames of {args.clip} ({size}) in {seconds:.1f} s, {tracked.frames / seconds:.1f} "
+            f"frames/s for the whole command: {len(track.lost)} without a face (bridged); landmark error median "
+            f"{report['landmark_rms_px']['median']:.2f} px; follow and fit {fps['follow_and_fit']:.1f} frames/s "
+            f"(identity {report['seconds']['identity']:.1f} s)"
+        )
+        print(f"wrote {out}/: {TRACK_FOLDER.listing(out)}")
+        return EXIT_OK
     print(
-        f"tracked {report['frames']} frames of {args.clip} ({clip.size[0]}x{clip.size[1]}, {clip.fps:g} fps): "
-        f"{len(lost)} without a face (bridged); landmark error median {report['landmark_rms_px']['median']:.2f} px; "
-        f"{fps['follow_and_fit']:.1f} frames/s (follow {fps['follow']:.1f}, fit {fps['fit']:.1f}; identity "
-        f"{report['seconds']['identity']:.1f} s)"
+        f"tracked {args.clip} ({size}, {tracked.frames} frames) in {seconds:.1f} s, {tracked.frames / seconds:.1f} "
+        f"frames/s for the whole command: {len(tracked.shots)} shots (cuts at frames "
+        f"{', '.join(str(c) for c in report['cuts'])}), each with its own identity; never bridged across a cut"
     )
-    print(f"wrote {out}/: {TRACK_FOLDER.listing(out)}")
+    for row in report["shots"]:
+        span = f"frames {row['start_frame']}-{row['end_frame'] - 1}"
+        if row["tracked"]:
+            print(f"  {row['folder']}/: {span}")
+        else:
+            print(f"  {span}: not tracked ({row['skipped_because']})")
+    folders = ", ".join(f"{r['folder']}/" for r in report["shots"] if r["tracked"])
+    each = TRACK_FOLDER.listing(out / "shot_0")
+    print(f"wrote {out}/: {folders}, report.json, config.yaml (each shot folder: {each})")
     return EXIT_OK
 
 
@@ -74,7 +95,10 @@ TRACK_EPILOG = (
     "--keyframes frames spread over the clip (as jnr fit --views); then each frame's head pose and 52 ARKit "
     "coefficients, warm started from the frame before, with a temporal prior. Frames without a face are bridged "
     "(interpolated) and listed in report.json.\n"
-    f"Outputs in --out: {TRACK_FOLDER.help_text()}.\n"
+    "Shot cuts (the whole picture changes from one frame to the next) split the clip: the face is found anew "
+    "after a cut, each shot gets its own identity, and no gap is bridged across a cut.\n"
+    f"Outputs in --out: {TRACK_FOLDER.help_text()}. A clip with cuts: one such folder per shot, shot_<k>/, and "
+    "report.json (the shots, their frames, the cuts) and config.yaml beside them.\n"
     "Try it: jnr track frames/ --out out/track && jnr animate out/track out/track/livelink.csv --out out/t.glb"
 )
 

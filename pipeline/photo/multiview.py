@@ -202,6 +202,7 @@ def fit_multiview(
     single_view_fits: tuple[LandmarkFit, ...] | None = None,
     min_views: int = 2,
     layouts: Sequence[LandmarkLayout | None] | None = None,
+    progress=None,
 ) -> MultiViewFit:
     """Reconstruct one head from ``N >= 2`` uncalibrated photos of it (module docstring).
 
@@ -219,6 +220,7 @@ def fit_multiview(
         layouts: per view a :class:`landmarks.layout.LandmarkLayout` its landmarks follow, or None (iBUG-68);
             None: every view iBUG-68. The views' :class:`ViewFit` landmarks are iBUG-68 either way (a dense
             view's 68 mapped from its mesh, :func:`landmarks.mediapipe.ibug68_map.mesh_to_ibug68`).
+        progress: ``progress("identity", done, N + 1)`` after each view's single fit and the joint refinement.
 
     Returns:
         :class:`MultiViewFit`.
@@ -238,9 +240,16 @@ def fit_multiview(
 
     # 1. single-view fits, averaged
     t0 = time.perf_counter()
+    steps = n + 1  # progress: each view's single fit, then the joint refinement
+
+    def single(k, lm, w, h, f, layout):
+        fit = fit_landmarks(lm, w, h, focal=f, config=config.landmarks, rig=rig, neural=neural, layout=layout)
+        if progress is not None:
+            progress("identity", k + 1, steps)
+        return fit
+
     singles = single_view_fits or tuple(
-        fit_landmarks(lm, w, h, focal=f, config=config.landmarks, rig=rig, neural=neural, layout=layout)
-        for lm, (w, h), f, layout in zip(lms, sizes, f0, layouts)
+        single(k, lm, w, h, f, layout) for k, (lm, (w, h), f, layout) in enumerate(zip(lms, sizes, f0, layouts))
     )
     singles = tuple(singles)
     t_single = time.perf_counter() - t0
@@ -257,6 +266,8 @@ def fit_multiview(
     if config.photometric.enabled and config.photometric.iterations > 0 and config.skinning == "jnr":
         stages.extend(_photo_consistency(problem, rows, images, config.photometric))
 
+    if progress is not None:
+        progress("identity", steps, steps)
     state = problem.state
     with torch.no_grad():
         theta = (state.span * state.theta_n).clone()

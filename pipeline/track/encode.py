@@ -51,7 +51,8 @@ class H264Writer:
         size: ``(width, height)`` of every frame, pixels; an odd side is padded by one black pixel (H.264 in
             yuv420p needs even sides).
         fps: frames per second (> 0).
-        audio_from: a video file whose first audio stream, if any, goes with the frames (cut to their length).
+        audio_from: a video file whose first audio stream, if any, goes with the frames (cut to their length),
+            from ``audio_start_s`` seconds on (a shot's start).
         crf: x264's quality (lower is better; 23 is its default).
     """
 
@@ -62,6 +63,7 @@ class H264Writer:
         fps: float,
         *,
         audio_from: str | Path | None = None,
+        audio_start_s: float = 0.0,
         crf: int = 23,
     ) -> None:
         if not (fps > 0 and np.isfinite(fps)):
@@ -71,7 +73,8 @@ class H264Writer:
         command += ["-f", "rawvideo", "-pix_fmt", "rgb24", "-s", f"{self.size[0]}x{self.size[1]}"]
         command += ["-framerate", f"{float(fps):.6g}", "-i", "pipe:0"]
         if audio_from is not None:
-            command += ["-i", str(audio_from), "-map", "0:v:0", "-map", "1:a:0?", "-c:a", "aac", "-b:a", "128k"]
+            command += ["-ss", f"{max(0.0, float(audio_start_s)):.6f}", "-i", str(audio_from)]
+            command += ["-map", "0:v:0", "-map", "1:a:0?", "-c:a", "aac", "-b:a", "128k"]
             command += ["-shortest"]
         command += ["-vf", "pad=ceil(iw/2)*2:ceil(ih/2)*2", "-c:v", "libx264", "-preset", "veryfast"]
         command += ["-crf", str(int(crf)), "-pix_fmt", "yuv420p", "-movflags", "+faststart", "-f", "mp4"]

@@ -70,7 +70,13 @@ class FaceFollower:
         self._where: np.ndarray | None = None  # the face's last centre (pixels), kept while it is lost
         self._started = False
         self.most_faces = 0
+        self.found_once = False
+        """Whether the chosen face was found in any frame (a reset at a cut keeps it)."""
         """The most faces found in one frame before the chosen one was (a too-large ``face`` shows here)."""
+
+    def reset(self) -> None:
+        """Forget the face (a shot cut): the next frame's is found by the detector, the ``face``-th largest."""
+        self._last, self._where, self._started = None, None, False
 
     @property
     def started(self) -> bool:
@@ -109,7 +115,7 @@ class FaceFollower:
         if found is None:
             self._last = None
             return FollowedFrame(None, 0.0, False, 1e3 * (time.perf_counter() - t0))
-        self._started = True
+        self._started = self.found_once = True
         self._last = found
         self._where = _centre(found)
         return FollowedFrame(found, 1.0, True, 1e3 * (time.perf_counter() - t0))

@@ -14,6 +14,9 @@
   from the camera (frames without a face marked);
 - ``report.json``: frames, lost frames, keyframes, errors, seconds and frames per second per phase, the settings;
 - ``config.yaml``: the settings, every field resolved (``jnr track --config`` repeats the run).
+
+A clip with shot cuts (:func:`write_shot_outputs`): one such folder per tracked shot, ``shot_<k>/``, and the
+clip's ``report.json`` (the shots, the cuts) and ``config.yaml`` beside them.
 """
 
 from __future__ import annotations
@@ -31,7 +34,7 @@ from pipeline.files import staged_folder
 from pipeline.head.curves import Curves, write_curves
 from pipeline.head.params import params_payload
 from pipeline.head.skinned import write_skinned_head
-from pipeline.track.tracker import TrackResult
+from pipeline.track.tracker import ShotTracks, TrackResult
 from pipeline.track.video import Clip
 from rig.geometry import head_angles
 
@@ -61,6 +64,7 @@ def report_payload(result: TrackResult, clip: Clip, seconds: dict, command: str 
             "height": clip.size[1],
         },
         "frames": fit_frames,
+        "first_frame": int(result.first_frame),
         "lost_frames": list(result.lost),
         "keyframes": list(result.keyframes),
         "focal_px": result.focal,
@@ -93,8 +97,10 @@ def write_track_outputs(
     preview: bool = True,
     progress=None,
     config=None,
+    extra: dict | None = None,
 ) -> dict:
-    """Write the output folder (module docstring) atomically; returns ``report.json``'s content.
+    """Write the output folder (module docstring) atomically; returns ``report.json``'s content (with
+    ``extra``'s entries).
 
     Raises:
         pipeline.files.OutputError: ``out`` is refused or cannot be written.
@@ -151,6 +157,7 @@ def write_track_outputs(
             write_preview(tmp / "preview.mp4", clip, result, progress=progress)
             seconds["preview"] = time.perf_counter() - t1
         report = report_payload(result, clip, seconds, command)
+        report.update(extra or {})
         report["config"] = None if config is None else config_to_dict(config)
         (tmp / "report.json").write_text(json.dumps(report, indent=2) + "\n")
         if config is not None:
@@ -158,4 +165,78 @@ def write_track_outputs(
     return report
 
 
-__all__ = ["report_payload", "track_curves", "write_track_outputs"]
+def shots_payload(tracked: ShotTracks, fps: float, folders: list[str] | None) -> list[dict]:
+    """``report.json``'s ``shots``: each shot's frames (clip frames ``start`` to ``end``, excluded), times,
+    whether it was tracked, its folder (``shot_<k>``; None in a one-shot run) or why not."""
+    tracked_starts = [t.first_frame for t in tracked.tracks]
+    rows = []
+    for shot in tracked.shots:
+        k = tracked_starts.index(shot.start) if shot.start in tracked_starts else None
+        reason = next((r for s, r in tracked.skipped if s == shot), None)
+        rows.append(
+            {
+                "start_frame": shot.start,
+                "end_frame": shot.end,
+                "start_s": shot.start / fps,
+                "end_s": shot.end / fps,
+                "tracked": k is not None,
+                "folder": None if k is None or folders is None else folders[k],
+                "skipped_because": reason,
+            }
+        )
+    return rows
+
+
+def write_shot_outputs(
+    out: str | Path,
+    clip: Clip,
+    tracked: ShotTracks,
+    *,
+    force: bool = False,
+    inputs=(),
+    command: str | None = None,
+    preview: bool = True,
+    progress=None,
+    config=None,
+) -> dict:
+    """The output of :func:`pipeline.track.tracker.track_shots`: a clip of one shot as
+    :func:`write_track_outputs` (its ``report.json`` with ``shots`` and ``cuts``); a clip of several, one such
+    folder per tracked shot, ``shot_<k>/``, and ``report.json`` (``format: jnr-track-shots/1``: the shots, the
+    cuts, why a shot was skipped) and ``config.yaml`` beside them, all atomically. Returns the top
+    ``report.json``'s content.
+
+    Raises:
+        pipeline.files.OutputError: ``out`` is refused or cannot be written.
+    """
+    cuts = [s.start for s in tracked.shots[1:]]
+    if len(tracked.shots) == 1:
+        report = write_track_outputs(
+            out, clip, tracked.tracks[0], force=force, inputs=inputs, command=command, preview=preview,
+            progress=progress, config=config, extra={"shots": shots_payload(tracked, clip.fps, None), "cuts": cuts},
+        )  # fmt: skip
+        return report
+    folders = [f"shot_{k}" for k in range(len(tracked.tracks))]
+    with staged_folder(Path(out), force, inputs=inputs, marker={"command": command}) as tmp:
+        reports = [
+            write_track_outputs(
+                tmp / folder, clip, track, inputs=inputs, command=command, preview=preview, progress=progress,
+                config=config,
+            )  # fmt: skip
+            for folder, track in zip(folders, tracked.tracks, strict=True)
+        ]
+        report = {
+            "format": "jnr-track-shots/1",
+            "command": command,
+            "input": reports[0]["input"],
+            "frames": tracked.frames,
+            "cuts": cuts,
+            "shots": shots_payload(tracked, clip.fps, folders),
+            "config": None if config is None else config_to_dict(config),
+        }
+        (tmp / "report.json").write_text(json.dumps(report, indent=2) + "\n")
+        if config is not None:
+            dump_config(config, tmp / CONFIG_FILE, command=command)
+    return report
+
+
+__all__ = ["report_payload", "shots_payload", "track_curves", "write_shot_outputs", "write_track_outputs"]

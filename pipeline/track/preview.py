@@ -76,9 +76,14 @@ def write_preview(path: str | Path, clip: Clip, result: TrackResult, progress=No
     width, height = clip.size
     audio = None if clip.is_folder else clip.path  # the source's sound, when it has one
     faces = np.asarray(result.head.faces, np.int64)
-    with H264Writer(path, (2 * width, height), float(clip.fps), audio_from=audio) as writer:
+    start_s = result.first_frame / float(clip.fps)
+    with H264Writer(path, (2 * width, height), float(clip.fps), audio_from=audio, audio_start_s=start_s) as writer:
         cached: dict[int, np.ndarray] = {}
-        for index, frame in clip.frames(result.frames):
+        first = result.first_frame  # a shot's frames are the clip's from its first on
+        for clip_index, frame in clip.frames(first + result.frames):
+            if clip_index < first:
+                continue
+            index = clip_index - first
             if index not in cached:
                 chunk = np.arange(index, min(index + CHUNK, result.frames))
                 cached = dict(zip(chunk.tolist(), posed_camera_vertices(result, chunk), strict=True))

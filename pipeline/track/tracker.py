@@ -28,6 +28,7 @@ from pipeline.head.fitted import FittedHead, fitted_head_from_params
 from pipeline.photo.multiview import MultiViewFit, fit_multiview
 from pipeline.photo.multiview_config import MultiViewConfig
 from pipeline.track.follow import FaceFollower
+from pipeline.track.shots import CutDetector, Shot, split_shots
 from pipeline.track.smooth import SmoothSettings, smooth_track
 from pipeline.track.solver import FrameModel, FrameState, TrackSettings, solve_frame
 from pipeline.track.video import MAX_FRAMES, Clip
@@ -37,7 +38,8 @@ from rig.model import JointRig
 _log = logging.getLogger(__name__)
 
 Progress = Callable[[str, int, int], None]
-"""``progress(phase, done, total)``: ``follow`` per frame read, ``identity`` once, ``fit`` per frame."""
+"""``progress(phase, done, total)``: ``follow`` per frame read, ``identity`` per keyframe's fit and at the joint
+refinement's end, ``fit`` per frame."""
 
 
 class NoTrackError(InputError):
@@ -99,6 +101,7 @@ class TrackResult:
         observed: ``(T,)`` bool, the frames with a face; landmarks: ``(T, 478, 2)`` pixels (NaN without).
         rms_px: ``(T,)`` the weighted RMS landmark error of each observed frame (NaN for bridged ones).
         seconds: per phase (``follow``, ``identity``, ``fit``), and ``per_frame_ms`` of each.
+        first_frame: the clip's frame that is frame 0 here (a shot's first frame; 0 for a whole clip).
     """
 
     fps: float
@@ -114,6 +117,8 @@ class TrackResult:
     landmarks: np.ndarray
     rms_px: np.ndarray
     seconds: dict
+    first_frame: int = 0
+    """The clip's frame that is this track's frame 0 (a shot after a cut: its first frame)."""
 
     @property
     def frames(self) -> int:
@@ -158,12 +163,20 @@ def choose_keyframes(observed: np.ndarray, count: int, landmarks: np.ndarray | N
     return sorted(int(frames[k]) for k in chosen)
 
 
-def follow_clip(clip: Clip, face: int = 0, max_frames: int = MAX_FRAMES, progress: Progress | None = None):
-    """``(landmarks (T, 478, 2) float32 px, NaN without a face; presence (T,); milliseconds (T,))``."""
+def follow_clip(
+    clip: Clip, face: int = 0, max_frames: int = MAX_FRAMES, progress: Progress | None = None, cuts: list | None = None
+):
+    """``(landmarks (T, 478, 2) float32 px, NaN without a face; presence (T,); milliseconds (T,))``. With a
+    ``cuts`` list, the shot cuts found (:class:`pipeline.track.shots.CutDetector`) are appended to it and the
+    face is found anew after each (the ``face``-th largest again), not followed from the shot before."""
     follower = FaceFollower(face=face)
+    detector = CutDetector() if cuts is not None else None
     points, presence, ms = [], [], []
     total = min(clip.count, max_frames)
     for index, frame in clip.frames(max_frames):
+        if detector is not None and detector.step(frame):
+            cuts.append(index)
+            follower.reset()
         seen = follower.step(frame)
         points.append(
             np.full((478, 2), np.nan, np.float32) if seen.points is None else seen.points[:, :2].astype(np.float32)
@@ -174,7 +187,7 @@ def follow_clip(clip: Clip, face: int = 0, max_frames: int = MAX_FRAMES, progres
             progress("follow", index + 1, max(total, index + 1))
     if not points:
         raise NoTrackError(f"{clip.path}: no frame could be read")
-    if not follower.started and follower.most_faces > 0:  # faces were there, not as many as asked for
+    if not follower.found_once and follower.most_faces > 0:  # faces were there, not as many as asked for
         n = follower.most_faces
         raise NoTrackError(
             f"{clip.path}: found at most {n} {'face' if n == 1 else 'faces'} in a frame; --face must be 0..{n - 1} "
@@ -229,17 +242,88 @@ def track_clip(
         NoTrackError: no frame with a face, or fewer than 2 to fit the identity on.
     """
     config = config or TrackConfig()
-    seconds: dict = {}
     t0 = time.perf_counter()
     if landmarks is None:
         landmarks, _, follow_ms = follow_clip(clip, config.face, config.max_frames, progress)
     else:
         landmarks = np.asarray(landmarks, np.float32)[: config.max_frames]
         follow_ms = np.zeros(len(landmarks))
-    seconds["follow"] = time.perf_counter() - t0
+    follow_s = time.perf_counter() - t0
     observed = np.isfinite(landmarks).all(axis=(1, 2))
     if not observed.any():
         raise NoTrackError(f"{clip.path}: no face found in any of its {len(landmarks)} frames")
+    return _track_frames(clip, landmarks, follow_ms, follow_s, config, rig=rig, progress=progress)
+
+
+@dataclass
+class ShotTracks:
+    """A clip tracked shot by shot (:func:`track_shots`).
+
+    Attributes:
+        shots: every :class:`~pipeline.track.shots.Shot` of the clip, in order.
+        tracks: the :class:`TrackResult` of each shot that was tracked (``first_frame`` its shot's start).
+        skipped: ``(shot, reason)`` of the shots that could not be (no face, or a face in one frame only).
+        frames: the frames read.
+    """
+
+    shots: list[Shot]
+    tracks: list[TrackResult]
+    skipped: list[tuple[Shot, str]]
+    frames: int
+
+
+def track_shots(
+    clip: Clip, config: TrackConfig | None = None, *, rig: JointRig | None = None, progress: Progress | None = None
+) -> ShotTracks:
+    """Track a clip that may hold several shots (:mod:`pipeline.track.shots`): the face followed through the
+    clip and found anew after each cut, each shot with a face in at least 2 frames tracked on its own (its own
+    identity; a gap is never bridged across a cut).
+
+    Raises:
+        NoTrackError: no shot could be tracked (no face, or a face in one frame only, in every shot).
+    """
+    config = config or TrackConfig()
+    t0 = time.perf_counter()
+    cuts: list[int] = []
+    landmarks, _, follow_ms = follow_clip(clip, config.face, config.max_frames, progress, cuts=cuts)
+    follow_s = time.perf_counter() - t0
+    observed = np.isfinite(landmarks).all(axis=(1, 2))
+    if not observed.any():
+        raise NoTrackError(f"{clip.path}: no face found in any of its {len(landmarks)} frames")
+    shots = split_shots(len(landmarks), cuts)
+    tracks, skipped = [], []
+    for shot in shots:
+        seen = int(observed[shot.start : shot.end].sum())
+        if seen < 2:
+            reason = "no face" if seen == 0 else "a face in one frame only (at least 2 fit an identity)"
+            skipped.append((shot, reason))
+            continue
+        part = slice(shot.start, shot.end)
+        share = follow_s * shot.frames / len(landmarks)
+        track = _track_frames(
+            clip, landmarks[part], follow_ms[part], share, config, rig=rig, progress=progress, first_frame=shot.start
+        )
+        tracks.append(track)
+    if not tracks:
+        reasons = "; ".join(f"frames {s.start}-{s.end - 1}: {r}" for s, r in skipped)
+        raise NoTrackError(f"{clip.path}: no shot could be tracked ({reasons})")
+    return ShotTracks(shots, tracks, skipped, len(landmarks))
+
+
+def _track_frames(
+    clip: Clip,
+    landmarks: np.ndarray,
+    follow_ms: np.ndarray,
+    follow_s: float,
+    config: TrackConfig,
+    *,
+    rig: JointRig | None = None,
+    progress: Progress | None = None,
+    first_frame: int = 0,
+) -> TrackResult:
+    """The identity, every frame, the smoothing and the bridges of one run of frames (a clip or a shot)."""
+    seconds: dict = {"follow": follow_s}
+    observed = np.isfinite(landmarks).all(axis=(1, 2))
     if observed.sum() < 2:
         raise NoTrackError(f"{clip.path}: a face in only one frame; at least 2 are needed to fit its identity")
 
@@ -257,11 +341,10 @@ def track_clip(
         config=MultiViewConfig(fit_focal=False),
         rig=rig,
         layouts=[layout] * len(keys),
+        progress=progress,
     )
     head = fitted_head_from_params(identity_fit.rig_identity)
     seconds["identity"] = time.perf_counter() - t1
-    if progress is not None:
-        progress("identity", 1, 1)
 
     # every frame
     t2 = time.perf_counter()
@@ -326,7 +409,18 @@ def track_clip(
         landmarks=landmarks,
         rms_px=rms,
         seconds=seconds,
+        first_frame=first_frame,
     )
 
 
-__all__ = ["NoTrackError", "TrackConfig", "TrackResult", "bridge", "choose_keyframes", "follow_clip", "track_clip"]
+__all__ = [
+    "NoTrackError",
+    "ShotTracks",
+    "TrackConfig",
+    "TrackResult",
+    "bridge",
+    "choose_keyframes",
+    "follow_clip",
+    "track_clip",
+    "track_shots",
+]

@@ -76,6 +76,7 @@ def test_a_short_clip_is_tracked_and_its_curves_follow_the_truth(capsys, tmp_pat
     np.testing.assert_allclose(curves.times, np.arange(FRAMES) / 30.0, atol=1e-6)
     report = json.loads((out / "report.json").read_text())
     assert report["frames"] == FRAMES and report["lost_frames"] == []
+    assert report["cuts"] == [] and [(s["start_frame"], s["end_frame"]) for s in report["shots"]] == [(0, FRAMES)]
     code, stdout, err = _run(capsys, "animate", out, out / "livelink.csv", "--out", tmp_path / "a.glb", "--no-preview")
     assert code == 0, err
     assert f"over {(FRAMES - 1) / 30:.2f} s" in stdout  # the folder's own curves play at the clip's rate
@@ -200,3 +201,45 @@ def test_a_damaged_video_is_said_so_in_jnrs_words_only(tmp_path, clip):
     run = track(broken, tmp_path / "broken_out")
     assert run.returncode == 2 and run.stderr.startswith("jnr: error:"), run.stderr
     assert len(run.stderr.strip().splitlines()) == 1, run.stderr  # no FFmpeg lines before it
+
+
+def test_a_shot_cut_splits_the_clip_into_shots_with_their_own_identity(capsys, tmp_path):
+    """Issue 38: a clip cut from one person to another was tracked as one identity, the lost frames bridged
+    across the cut. Two shots of two held-out heads (other camera, light and background): the cut is found, each
+    shot is its own folder with its own identity, report.json lists them, and nothing is bridged."""
+    import shutil
+
+    from pipeline.synthetic.clips import clip_truth, render_clip
+
+    truth = clip_truth(seconds=4.0, fps=30.0, seed=0)
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    n = 0
+    for head, start, seed in ((0, 20, 3), (1, 40, 11)):
+        shot = tmp_path / f"shot{head}"
+        render_clip(shot, truth, head_index=head, frames=slice(start, start + 9), width=320, height=240, spp=4, seed=seed)
+        for path in sorted(shot.glob("frame_*.png")):
+            shutil.copy(path, folder / f"frame_{n:05d}.png")
+            n += 1
+    out = tmp_path / "track"
+    code, stdout, err = _run(capsys, "track", folder, "--out", out, "--keyframes", "2", "--no-preview", "--quiet")
+    assert code == 0, err
+    assert "2 shots (cuts at frames 9)" in stdout and "frames/s for the whole command" in stdout
+    report = json.loads((out / "report.json").read_text())
+    assert report["format"] == "jnr-track-shots/1" and report["cuts"] == [9] and report["frames"] == 18
+    assert [(s["start_frame"], s["end_frame"], s["folder"]) for s in report["shots"]] == [
+        (0, 9, "shot_0"),
+        (9, 18, "shot_1"),
+    ]
+    identities = []
+    for k in (0, 1):
+        params = np.load(out / f"shot_{k}" / "params.npz")
+        assert params["observed"].all() and len(params["observed"]) == 9  # nothing bridged, nothing across the cut
+        shot_report = json.loads((out / f"shot_{k}" / "report.json").read_text())
+        assert shot_report["first_frame"] == 9 * k and shot_report["lost_frames"] == []
+        identities.append(json.loads((out / f"shot_{k}" / "params.json").read_text())["joints"])
+    moved = max(abs(identities[0][name] - identities[1].get(name, 0.0)) for name in identities[0])
+    assert moved > 0.5  # two people, two identities
+    # a shot folder is a fit folder: jnr animate takes it
+    code, _, err = _run(capsys, "animate", out / "shot_1", "example", "--out", tmp_path / "a.glb", "--no-preview")
+    assert code == 0, err
