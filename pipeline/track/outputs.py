@@ -219,7 +219,13 @@ def write_shot_outputs(
     with staged_folder(Path(out), force, inputs=inputs, marker={"command": command}) as tmp:
         reports = [
             write_track_outputs(
-                tmp / folder, clip, track, inputs=inputs, command=command, preview=preview, progress=progress,
+                tmp / folder,
+                clip,
+                track,
+                inputs=inputs,
+                command=command,
+                preview=preview,
+                progress=progress,
                 config=config,
             )  # fmt: skip
             for folder, track in zip(folders, tracked.tracks, strict=True)

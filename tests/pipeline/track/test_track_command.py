@@ -217,7 +217,8 @@ def test_a_shot_cut_splits_the_clip_into_shots_with_their_own_identity(capsys, t
     n = 0
     for head, start, seed in ((0, 20, 3), (1, 40, 11)):
         shot = tmp_path / f"shot{head}"
-        render_clip(shot, truth, head_index=head, frames=slice(start, start + 9), width=320, height=240, spp=4, seed=seed)
+        frames = slice(start, start + 9)
+        render_clip(shot, truth, head_index=head, frames=frames, width=320, height=240, spp=4, seed=seed)
         for path in sorted(shot.glob("frame_*.png")):
             shutil.copy(path, folder / f"frame_{n:05d}.png")
             n += 1
