@@ -56,6 +56,34 @@ def terminate_as_exception() -> None:
         signal.signal(signum, _raise_terminated)
 
 
+def run_interruptibly(function, *args, **kwargs):
+    """``function(*args, **kwargs)`` in a daemon thread while this (the main) thread waits in short steps, so
+    that Ctrl-C or SIGTERM (:func:`terminate_as_exception`) is acted on at once even while the function is in a
+    long native call (a Mitsuba render releases the GIL but would hold the main thread until it returns: a
+    SIGTERM came 33 s late, issue 38). The interrupted call is abandoned: the command's clean-up runs and the
+    process ends (``jnr``'s :func:`pipeline.cli.run` exits without waiting for daemon threads).
+
+    Returns:
+        What ``function`` returned; raises what it raised."""
+    import threading
+
+    outcome: dict = {}
+
+    def target() -> None:
+        try:
+            outcome["value"] = function(*args, **kwargs)
+        except BaseException as exc:  # passed on to the caller below
+            outcome["error"] = exc
+
+    worker = threading.Thread(target=target, name=getattr(function, "__name__", "work"), daemon=True)
+    worker.start()
+    while worker.is_alive():
+        worker.join(0.05)
+    if "error" in outcome:
+        raise outcome["error"]
+    return outcome.get("value")
+
+
 def ignore_termination() -> None:
     """Ignore SIGINT, SIGTERM, SIGHUP and SIGQUIT from now on (the clean-up has started, or the command's work
     is done and written: a signal then must neither interrupt the clean-up nor turn a finished command

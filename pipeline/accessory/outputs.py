@@ -19,6 +19,7 @@ from pipeline.accessory.transfer import AccessoryOnFit, accessory_on_fit
 from pipeline.files import check_output, staged_folder
 from pipeline.head.params import PARAMS_FILE
 from pipeline.head.skinned import write_skinned_head
+from pipeline.signals import run_interruptibly
 from render.preview import render_preview, save_png
 from rig.accessory import (
     DEFAULT_FALLOFF_MM,
@@ -46,9 +47,18 @@ def preview_image(
     vertices = np.concatenate([head_vertices, accessory_vertices])
     faces = np.concatenate([asset.faces, np.asarray(accessory_faces) + len(head_vertices)])
     colors = np.concatenate([np.full((len(head_vertices), 3), 0.55), np.tile(color, (len(accessory_vertices), 1))])
+    # each render in a thread the main thread waits on: Ctrl-C and SIGTERM are acted on during a long render
     tiles = [
-        render_preview(
-            vertices, faces, colors=colors, view=view, size=size, spp=spp, distance=750.0, target=(0.0, -5.0, 15.0)
+        run_interruptibly(
+            render_preview,
+            vertices,
+            faces,
+            colors=colors,
+            view=view,
+            size=size,
+            spp=spp,
+            distance=750.0,
+            target=(0.0, -5.0, 15.0),
         )
         for view in ("front", "side")
     ]

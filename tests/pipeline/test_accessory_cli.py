@@ -352,3 +352,36 @@ def test_the_accessory_file_keeps_the_fits_texture(capsys, tmp_path, fit_dir):
         code, _, err = run(capsys, "accessory", textured, "glasses", "--out", tmp_path / "bad", "--spp", 1)
     assert code == 0, err
     assert read_skinned_gltf(tmp_path / "bad" / "head_with_accessory.glb")["base_color_texture"] is None
+
+
+def test_sigterm_during_a_long_preview_render_is_acted_on_at_once(tmp_path, fit_dir):
+    """Issue 38 (review F3, X18): a SIGTERM while the preview rendered a 10^5-face accessory came 33 s late, and
+    a SIGKILL after it left a temporary folder. The render runs in a thread the main thread waits on, so the
+    signal ends the command within a second or two: exit 143, nothing left behind."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    rng = np.random.default_rng(0)
+    vertices = rng.normal(0.0, 40.0, (1000, 3)) + [0.0, 60.0, 40.0]
+    faces = rng.integers(1, 1001, (100_000, 3))
+    with open(tmp_path / "acc.obj", "w") as handle:
+        np.savetxt(handle, vertices, fmt="v %.3f %.3f %.3f")
+        np.savetxt(handle, faces, fmt="f %d %d %d")
+    out = tmp_path / "o"
+    process = subprocess.Popen(
+        [sys.executable, "-m", "pipeline.cli", "accessory", str(fit_dir), str(tmp_path / "acc.obj"), "--out", str(out)]
+        + ["--quiet"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    time.sleep(6.0)  # start-up, the transfer and the files: the preview's render has begun
+    sent = time.perf_counter()
+    process.send_signal(signal.SIGTERM)
+    _, err = process.communicate(timeout=60)
+    waited = time.perf_counter() - sent
+    assert process.returncode == 143 and "terminated" in err, err
+    assert waited < 3.0, waited
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["acc.obj"]  # no output, no temporary
