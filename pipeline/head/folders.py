@@ -114,6 +114,11 @@ PHOTO_FOLDER = OutputFolder(
     "jnr fit PHOTO",
     (
         *_MESH,
+        OutputFile(
+            "mesh_keys.glb",
+            "the same head for animation tools (Blender, Unity, three.js): the expression on the 52 shape keys at "
+            "params.json's values, the mesh without it (mesh.glb bakes it in, its keys at 0)",
+        ),
         _PARAMS,
         OutputFile("overlay.png", "the photo with the fitted face over it, input landmarks green, fitted red"),
         OutputFile("render.png", "the fitted head, albedo and light, alone at the photo's size"),
@@ -150,6 +155,7 @@ PHOTO_OUTPUT_SETS: dict[str, tuple[str, ...]] = {
         "texture.png",
         "mesh.ply",
         "mesh.glb",
+        "mesh_keys.glb",
         "params.json",
         "report.json",
         "config.yaml",

@@ -22,6 +22,7 @@ def write_skinned_head(
     attachments=(),
     animation=None,
     bind: str = "posed",
+    expression: str = "baked",
 ) -> None:
     """The skinned glTF of a head: the posed head as the bind mesh (``bind``), the 52 ARKit shapes as morph
     targets named by ARKit (:func:`rig.expressions.morph_targets`) with ``coefficients (E,)`` as their weights
@@ -37,11 +38,19 @@ def write_skinned_head(
     (the fitted or edited head, its expression baked in; the morph weights then 0 and the coefficients in
     ``extras.bakedMorphWeights``; with an ``animation`` only the joints' pose is baked), so that readers that
     do not skin (trimesh, Open3D, MeshLab) load the same head as skinning viewers show; ``"rest"``: the
-    template as the bind mesh (the file jnr wrote before issue 27)."""
+    template as the bind mesh (the file jnr wrote before issue 27). ``expression="keys"`` (with ``bind="posed"``):
+    the posed head without its expression as the bind mesh and ``coefficients`` as the morph targets' default
+    weights, so that animation tools (Blender's shape keys, Unity's blend shapes, three.js's influences) show the
+    expression at the fitted values and typing ``params.json``'s values gives the same head (issue 38: with the
+    expression baked they read 0, and typing the values doubled it); readers that do not apply morph weights then
+    see the neutral face."""
+    if expression not in ("baked", "keys"):
+        raise ValueError(f"write_skinned_head: expression must be 'baked' or 'keys', got {expression!r}")
     if base_color_texture is not None and vertex_colors is not None:
         raise ValueError("write_skinned_head: a textured head takes no vertex colours (glTF would multiply them)")
     rest = asset.vertices
-    if bind == "posed" and animation is None and coefficients is not None and np.any(coefficients):
+    bake = expression == "baked"
+    if bake and bind == "posed" and animation is None and coefficients is not None and np.any(coefficients):
         # the expression baked into the bind mesh exactly (jawOpen turns the jaw; the morph targets are its chord)
         with torch.no_grad():
             c = torch.as_tensor(np.asarray(coefficients, np.float64))[None]
@@ -64,4 +73,5 @@ def write_skinned_head(
         attachments=attachments,
         animation=animation,
         bind=bind,
+        bake_morphs=bake,
     )

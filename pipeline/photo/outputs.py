@@ -153,6 +153,9 @@ def landmarks3d_mesh_payload(fit: PhotoFit, units: str = "mm") -> dict:
     }
 
 
+KEYS_GLB = "mesh_keys.glb"
+"""The fitted head for animation tools: its expression on the 52 shape keys, not baked into the mesh."""
+
 DENSE_LANDMARKS_FILE = "landmarks3d_mediapipe.json"
 """MediaPipe's 478 fitted points in ``mesh.obj``'s frame (fits whose landmarks came from MediaPipe)."""
 
@@ -513,7 +516,7 @@ def write_photo_outputs(
         render, face_mask = render_fit(fit, spp=spp, asset=asset, mask_regions=face_regions)
         lap("render")
     texture = texture_png = colours = None
-    if want("texture.png", "mesh.obj", "mesh.ply", "mesh.glb", VIEWER_FILE):
+    if want("texture.png", "mesh.obj", "mesh.ply", "mesh.glb", KEYS_GLB, VIEWER_FILE):
         texture = texture_from_fit(
             photo,
             fit,
@@ -538,7 +541,17 @@ def write_photo_outputs(
             write_skinned_head(
                 tmp / "mesh.glb", asset, head.weights, head.tau, head.expressions, base_color_texture=texture_png
             )
-            lap("glb")
+        if want(KEYS_GLB):  # the same head for animation tools: the expression on the shape keys (issue 38)
+            write_skinned_head(
+                tmp / KEYS_GLB,
+                asset,
+                head.weights,
+                head.tau,
+                head.expressions,
+                base_color_texture=texture_png,
+                expression="keys",
+            )
+        lap("glb")
         params = params_payload(fit, image_factor, original_size, head)
         (tmp / "params.json").write_text(json.dumps(params, indent=2) + "\n")
         k = image_factor

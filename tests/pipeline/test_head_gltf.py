@@ -105,3 +105,24 @@ def test_jaw_chord_error_is_small():
     """glTF morph targets are linear: jawOpen between 0 and 1 is the chord of jnr's rotation."""
     assert 0.0 < jaw_chord_error_mm(coefficient=0.5) < 3.0
     assert jaw_chord_error_mm(coefficient=1.0) < 1e-9 and JAW_INDEX == EXPRESSION_NAMES.index("jawOpen")
+
+
+def test_keys_layout_puts_the_expression_on_the_shape_keys(asset, tmp_path):
+    """Issue 38: in mesh.glb the expression is baked into the mesh, so Blender showed every shape key at 0 and
+    typing params.json's values doubled the expression. ``expression="keys"``: the posed neutral head is the
+    bind mesh, the coefficients are the default weights, and skinning bind + weights gives jnr's head."""
+    rig = JointRig(asset, dtype=torch.float64)
+    theta = params_to_theta({"nose_tip.translate_y": 4.0, "left_cheek.scale": 1.3}, dtype=torch.float64)
+    c = coefficients_from_dict({"mouthSmileLeft": 0.8, "eyeBlinkRight": 1.0, "browInnerUp": 0.4}, dtype=torch.float64)
+    with torch.no_grad():
+        tau = rig.channel_transforms(theta[None])[0].numpy()
+        expected = (
+            rig(theta[None], vertices=ExpressionModel(asset, torch.float64).vertices(c[None])).vertices[0].numpy()
+        )
+        neutral = rig(theta[None]).vertices[0].numpy()
+    write_skinned_head(tmp_path / "keys.glb", asset, asset.weights, tau, c.numpy(), expression="keys")
+    out = read_skinned_gltf(tmp_path / "keys.glb")
+    np.testing.assert_allclose(out["morph_weights"], c.numpy(), atol=1e-6)  # the keys at the fitted values
+    assert "bakedMorphWeights" not in (out["extras"] or {})
+    np.testing.assert_allclose(out["vertices"], neutral, atol=1e-3)  # the bind mesh: the identity, no expression
+    np.testing.assert_allclose(_skin(out, _world(out)), expected, atol=1e-3)  # as a skinning viewer shows it

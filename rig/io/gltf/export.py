@@ -86,6 +86,7 @@ def export_skinned_gltf(
     attachments: Sequence[GltfAttachment] = (),
     animation: GltfAnimation | None = None,
     bind: str = "rest",
+    bake_morphs: bool = True,
 ) -> None:
     """Write a skinned mesh with its joint hierarchy as glTF 2.0 (``.glb`` or ``.gltf``).
 
@@ -159,7 +160,9 @@ def export_skinned_gltf(
         the mesh's ``extras.bakedMorphWeights``: the caller passes ``vertices`` with that expression
         applied (its exact shape, not the linear targets'), and a morph weight then adds to it. Attachments
         get their targets times ``morph_weights`` added before the pose. With an ``animation`` nothing is
-        baked (the weights stay the default and absolute; ``vertices`` is then the neutral rest mesh).
+        baked (the weights stay the default and absolute; ``vertices`` is then the neutral rest mesh), nor with
+        ``bake_morphs=False`` (the posed neutral mesh as the bind, ``morph_weights`` as the mesh's default
+        weights: animation tools show the expression on the shape keys, at the values given).
         The joint nodes keep ``joint_transforms``,
         so the file shows the posed head at rest and each joint still poses it (a re-bound skin: further
         poses blend slightly differently from jnr's own skinning).
@@ -203,7 +206,7 @@ def export_skinned_gltf(
             raise ValueError(f"{func}: bind='posed' needs joint_transforms")
         world, skinning = posed_bind(pos, par, taus)
         inverse_bind = np.linalg.inv(_scale_affine_to_metres(world))
-        bake = animation is None and len(target_weights) > 0
+        bake = bake_morphs and animation is None and len(target_weights) > 0
         baked = np.asarray(target_weights, np.float64) if bake else None
         v, targets = rebind(w, skinning, v, targets)  # the caller's vertices hold the expression (docstring)
         if bake:
