@@ -31,7 +31,7 @@ import numpy as np
 
 from rig.errors import InputError
 from rig.io.atomic import write_bytes_atomic
-from rig.io.inputs import regular_file
+from rig.io.inputs import loads_json_strict, regular_file
 
 MAX_LANDMARK_FILE_BYTES = 64 << 20
 """The largest landmark file read (64 MiB; 68 or 478 points are a few kB)."""
@@ -116,9 +116,11 @@ def _read_pts(path: Path, text: str, n_points: int) -> np.ndarray:
 
 def _read_json(path: Path, text: str, n_points: int) -> np.ndarray:
     try:
-        data = json.loads(text)
+        data = loads_json_strict(text)
     except json.JSONDecodeError as exc:
         raise _error(path, exc.lineno, f"invalid JSON: {exc.msg}") from None
+    except ValueError as exc:  # a key twice in one object (json keeps the last silently)
+        raise _error(path, None, str(exc)) from None
     except RecursionError:
         raise _error(path, None, "JSON nested too deeply to be a landmark file") from None
     if not isinstance(data, dict) or "landmarks" not in data:

@@ -152,3 +152,12 @@ def test_an_index_in_a_message_says_it_is_0_based(tmp_path):
     path.write_text(json.dumps({"landmarks": rows}))
     with pytest.raises(LandmarkFileError, match=r"landmark 3 \(0-based\): expected \[x, y\] numbers"):
         read_landmarks(path)
+
+
+def test_a_json_landmark_file_with_a_key_twice_is_refused(tmp_path):
+    """Issue 38: a duplicate key was accepted silently (json keeps the last one)."""
+    path = tmp_path / "p.json"
+    points = json.dumps([[1.0, 2.0]] * 68)
+    path.write_text(f'{{"landmarks": {points}, "landmarks": {points}}}')
+    with pytest.raises(LandmarkFileError, match="'landmarks' appears twice"):
+        read_landmarks(path)
