@@ -135,6 +135,10 @@ def _read_image(path: Path) -> np.ndarray:
         raise VideoError(f"{path}: {exc}") from None
 
 
+MAX_UNINDEXED_COUNT = 10**8
+"""A stated frame count above this (or below 1) is FFmpeg's placeholder for a file without an index."""
+
+
 def _natural_key(path: Path) -> tuple:
     return tuple(int(part) if part.isdigit() else part.lower() for part in re.split(r"(\d+)", path.name))
 
@@ -183,11 +187,18 @@ def open_clip(path: str | Path, fps: float | None = None) -> Clip:
     finally:
         capture.release()
     size = _frame_size(path, frame)
+    indexed = 0 < count <= MAX_UNINDEXED_COUNT  # a raw stream (.h264) or a damaged index states no frame count
     if fps is None:
         if not (np.isfinite(native) and 0.1 <= native <= 1000.0):
             raise VideoError(f"{path}: the video states no usable frame rate ({native}); give --fps")
+        if not indexed:
+            warnings.warn(
+                f"{path}: the file has no frame index (a raw stream, or a damaged container), so its frame rate "
+                f"{native:g} fps may be FFmpeg's guess (25 for streams without timing); pass --fps if it is not",
+                stacklevel=2,
+            )
         fps = native
-    return Clip(path, float(fps), size, max(count, 1))
+    return Clip(path, float(fps), size, count if indexed else 1)
 
 
 def _frame_size(path: Path, frame: np.ndarray) -> tuple[int, int]:

@@ -244,3 +244,26 @@ def test_a_shot_cut_splits_the_clip_into_shots_with_their_own_identity(capsys, t
     # a shot folder is a fit folder: jnr animate takes it
     code, _, err = _run(capsys, "animate", out / "shot_1", "example", "--out", tmp_path / "a.glb", "--no-preview")
     assert code == 0, err
+
+
+def test_a_stream_without_an_index_warns_that_its_rate_may_be_a_guess(capsys, tmp_path, clip):
+    """Issue 38: a video without a frame index (a raw H.264 stream here; a damaged container alike) was tracked
+    at FFmpeg's guessed 25 fps without a word; jnr now says the rate may be a guess and to pass --fps."""
+    import warnings
+
+    from pipeline.track.encode import ffmpeg_exe
+    from pipeline.track.video import open_clip
+
+    _, frames, _ = clip
+    raw = tmp_path / "clip.h264"
+    subprocess.run(
+        [ffmpeg_exe(), "-loglevel", "error", "-framerate", "30", "-pattern_type", "glob", "-i", str(frames / "*.png")]
+        + ["-c:v", "libx264", "-pix_fmt", "yuv420p", "-f", "h264", str(raw)],
+        check=True,
+    )
+    with pytest.warns(UserWarning, match="may be FFmpeg's guess"):
+        guessed = open_clip(raw)
+    assert guessed.fps == 25.0  # FFmpeg's guess, not the stream's 30: hence the warning
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert open_clip(raw, fps=30.0).fps == 30.0  # a given rate: nothing to warn about
