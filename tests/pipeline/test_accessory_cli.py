@@ -354,6 +354,7 @@ def test_the_accessory_file_keeps_the_fits_texture(capsys, tmp_path, fit_dir):
     assert read_skinned_gltf(tmp_path / "bad" / "head_with_accessory.glb")["base_color_texture"] is None
 
 
+@pytest.mark.slow  # a 6 s subprocess run: in `make test-slow` (CI runs it)
 def test_sigterm_during_a_long_preview_render_is_acted_on_at_once(tmp_path, fit_dir):
     """Issue 38 (review F3, X18): a SIGTERM while the preview rendered a 10^5-face accessory came 33 s late, and
     a SIGKILL after it left a temporary folder. The render runs in a thread the main thread waits on, so the

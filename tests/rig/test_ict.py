@@ -78,6 +78,7 @@ def test_lip_rim_is_icts_contact_line_not_its_skin_boundary(ict):
     assert np.ptp(asset.vertices[mid, 1]) < 2.0
 
 
+@pytest.mark.slow  # a whole asset rebuild (14 s): in `make test-slow`, which CI runs, so the suite stays under 6 min
 def test_committed_asset_is_rebuilt_from_the_vendored_data_bit_for_bit():
     built, committed = build_asset(), read_asset(DEFAULT_ASSET)
     for name in type(built).__dataclass_fields__:

@@ -165,6 +165,7 @@ def test_a_face_number_past_the_faces_found_says_the_range(capsys, tmp_path, cli
     assert len(err.strip().splitlines()) == 1 and not out.exists()
 
 
+@pytest.mark.slow  # two subprocess runs (5 s): in `make test-slow` (CI runs it)
 def test_a_damaged_video_is_said_so_in_jnrs_words_only(tmp_path, clip):
     """Issue 38: a truncated video was tracked without a word (its missing frames unnoticed), and one FFmpeg
     cannot open printed FFmpeg's own log lines before jnr's error. Run as a user runs it (FFmpeg writes to the
