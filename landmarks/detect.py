@@ -29,16 +29,17 @@ from landmarks.detector import (
     create_detector,
 )
 from landmarks.images import check_image
+from rig.errors import InputError
 
 
 def _check_faces(faces: object, detector: FaceDetector) -> list[FaceDetection]:
     """What a detector returned, if it keeps the :class:`~landmarks.detector.FaceDetector` contract
     (a detector's bug, not the user's input: ValueError)."""
     if not isinstance(faces, list) or not all(isinstance(f, FaceDetection) for f in faces):
-        raise ValueError(f"detect_faces: detector {detector.name!r} must return a list of FaceDetection")
+        raise InputError(f"detect_faces: detector {detector.name!r} must return a list of FaceDetection")
     for f in faces:
         if np.shape(f.box) != (4,) or np.shape(f.landmarks) != (NUM_LANDMARKS, 2):
-            raise ValueError(
+            raise InputError(
                 f"detect_faces: detector {detector.name!r} returned a face with box shape {np.shape(f.box)} and "
                 f"landmarks shape {np.shape(f.landmarks)}; expected (4,) and ({NUM_LANDMARKS}, 2)"
             )

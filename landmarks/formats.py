@@ -210,9 +210,9 @@ def write_landmarks(path: str | Path, points) -> None:
     fmt = _format(path)
     pts = np.asarray(points, np.float64)
     if pts.ndim != 2 or pts.shape[1] != 2:
-        raise ValueError(f"write_landmarks: points must have shape (N, 2), got {pts.shape}")
+        raise InputError(f"write_landmarks: points must have shape (N, 2), got {pts.shape}")
     if not np.isfinite(pts).all():
-        raise ValueError(
+        raise InputError(
             "write_landmarks: points contain non-finite values "
             f"(rows {np.flatnonzero(~np.isfinite(pts).all(1)).tolist()})"
         )

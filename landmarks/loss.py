@@ -10,6 +10,7 @@ import torch
 from kornia.geometry.camera import PinholeCamera
 
 from landmarks.ibug68.names import CHIN, IBUG68_MIRROR, JAW_CONTOUR
+from rig.errors import InputError
 from rig.lbs import ShapeError
 
 ROBUST_KINDS = ("huber", "l2")
@@ -121,9 +122,9 @@ def landmark_weights(
     the contour's (but the chin's) times ``contour_weight / CONTOUR_WEIGHT``.
     """
     if weighting not in WEIGHTINGS:
-        raise ValueError(f"landmark_weights: weighting must be one of {list(WEIGHTINGS)}, got {weighting!r}")
+        raise InputError(f"landmark_weights: weighting must be one of {list(WEIGHTINGS)}, got {weighting!r}")
     if not contour_weight >= 0:
-        raise ValueError(f"contour_weight must be >= 0, got {contour_weight}")
+        raise InputError(f"contour_weight must be >= 0, got {contour_weight}")
     contour = [i for i in JAW_CONTOUR if i != CHIN]
     if weighting == "detector":
         w = detector_landmark_weights(dtype).clone()
@@ -207,9 +208,9 @@ def landmark_reprojection_loss(
             f"{func}: landmarks2d must have shape {(*points3d.shape[:2], 2)}, got {tuple(landmarks2d.shape)}"
         )
     if robust not in ROBUST_KINDS:
-        raise ValueError(f"{func}: robust must be one of {ROBUST_KINDS}, got {robust!r}")
+        raise InputError(f"{func}: robust must be one of {ROBUST_KINDS}, got {robust!r}")
     if not delta_px > 0:
-        raise ValueError(f"{func}: delta_px must be > 0, got {delta_px}")
+        raise InputError(f"{func}: delta_px must be > 0, got {delta_px}")
     n = points3d.shape[1]
     if weights is None:
         if n != 68:
@@ -219,7 +220,7 @@ def landmark_reprojection_loss(
     if weights.shape != (n,):
         raise ShapeError(f"{func}: weights must have shape ({n},), got {tuple(weights.shape)}")
     if (weights < 0).any() or weights.sum() <= 0:
-        raise ValueError(f"{func}: weights must be non-negative with a positive sum")
+        raise InputError(f"{func}: weights must be non-negative with a positive sum")
     residual = project_points(points3d, camera) - landmarks2d.to(points3d.dtype)
     # sqrt has an infinite derivative at 0: take it of a value kept away from 0, and use the squared norm
     # directly where the quadratic branch applies.

@@ -221,7 +221,7 @@ def fit_affine_camera(reference: np.ndarray, points: np.ndarray) -> tuple[np.nda
         or points.shape != (len(reference), 2)
         or len(reference) <= reference.shape[1]
     ):
-        raise ValueError(
+        raise InputError(
             f"fit_affine_camera: reference must be (N, 2) or (N, 3) and points (N, 2) with "
             f"N > D, got {reference.shape} and {points.shape}"
         )

@@ -87,7 +87,7 @@ def default_focal(width: int, height: int) -> float:
         896.0
     """
     if not (width > 0 and height > 0):
-        raise ValueError(f"default_focal: width and height must be > 0, got {width} x {height}")
+        raise InputError(f"default_focal: width and height must be > 0, got {width} x {height}")
     return 1.4 * float(max(width, height))
 
 
@@ -138,9 +138,9 @@ def make_camera(
         tensor([[[319.5000, 239.5000]]])
     """
     if not (width > 0 and height > 0):
-        raise ValueError(f"make_camera: width and height must be > 0, got {width} x {height}")
+        raise InputError(f"make_camera: width and height must be > 0, got {width} x {height}")
     if not (np.isfinite(focal) and focal > 0):
-        raise ValueError(f"make_camera: focal must be a finite number > 0 (pixels), got {focal}")
+        raise InputError(f"make_camera: focal must be a finite number > 0 (pixels), got {focal}")
     cx, cy = ((width - 1) / 2.0, (height - 1) / 2.0) if principal is None else map(float, principal)
     intrinsics = np.array([[focal, 0.0, cx, 0.0], [0.0, focal, cy, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]])
     if pose:
@@ -150,7 +150,7 @@ def make_camera(
     elif rotation is None and translation is None:
         extrinsics = np.eye(4)
     else:
-        raise ValueError("make_camera: pose=False takes no rotation or translation")
+        raise InputError("make_camera: pose=False takes no rotation or translation")
     return PinholeCamera(
         torch.as_tensor(intrinsics, dtype=dtype)[None],
         torch.as_tensor(extrinsics, dtype=dtype)[None],
@@ -198,22 +198,22 @@ def solve_pose(
     if pts3.shape != (len(pts2), 3):
         raise ShapeError(f"{func}: model_points must have shape ({len(pts2)}, 3), got {pts3.shape}")
     if not np.isfinite(pts2).all():
-        raise ValueError(
+        raise InputError(
             f"{func}: landmarks2d contain NaN or inf (rows {np.flatnonzero(~np.isfinite(pts2).all(1)).tolist()})"
         )
     if not np.isfinite(pts3).all():
-        raise ValueError(f"{func}: model_points contain NaN or inf")
+        raise InputError(f"{func}: model_points contain NaN or inf")
     if not (np.isfinite(focal) and focal > 0):
-        raise ValueError(f"{func}: focal must be a finite number > 0, got {focal}")
+        raise InputError(f"{func}: focal must be a finite number > 0, got {focal}")
     use = np.ones(len(pts2), bool)
     use[[i for i in exclude if i < len(use)]] = False
     if use.sum() < 6:
-        raise ValueError(
+        raise InputError(
             f"{func}: need at least 6 finite landmarks outside {len(exclude)} excluded ones, got {int(use.sum())}"
         )
     spread = pts2[use].std(0)
     if not (spread > 1e-3).all():
-        raise ValueError(f"{func}: the landmarks are degenerate (all on a line or a point): spread {spread} px")
+        raise InputError(f"{func}: the landmarks are degenerate (all on a line or a point): spread {spread} px")
     K = np.array([[focal, 0.0, (width - 1) / 2.0], [0.0, focal, (height - 1) / 2.0], [0.0, 0.0, 1.0]])
     rvec0 = cv2.Rodrigues(RIG_TO_OPENCV)[0]
     tvec0 = np.array([[0.0], [0.0], [DEFAULT_DISTANCE_MM]])
@@ -221,7 +221,7 @@ def solve_pose(
         pts3[use], pts2[use], K, None, rvec0.copy(), tvec0.copy(), useExtrinsicGuess=True, flags=cv2.SOLVEPNP_ITERATIVE
     )
     if not ok or not (np.isfinite(rvec).all() and np.isfinite(tvec).all()) or tvec[2, 0] <= 0:
-        raise ValueError(f"{func}: PnP failed (no pose puts the head in front of the camera)")
+        raise InputError(f"{func}: PnP failed (no pose puts the head in front of the camera)")
     camera_rotation = cv2.Rodrigues(rvec)[0]
     return RIG_TO_OPENCV.T @ camera_rotation, tvec[:, 0].copy()
 

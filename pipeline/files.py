@@ -216,7 +216,7 @@ def check_output(
         OutputError: the output is refused (one line that says why).
     """
     if kind not in ("folder", "file"):
-        raise ValueError(f"check_output: kind must be 'folder' or 'file', got {kind!r}")
+        raise InputError(f"check_output: kind must be 'folder' or 'file', got {kind!r}")
     out = Path(out)
     _check_paths(out, inputs, option)
     if out.is_symlink() or out.exists():

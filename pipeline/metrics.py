@@ -40,6 +40,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from rig.errors import InputError
 from rig.geometry import closest_surface_points
 
 __all__ = [
@@ -111,7 +112,7 @@ def distance_stats(distances: np.ndarray) -> DistanceStats:
     """
     d = np.asarray(distances, dtype=np.float64).reshape(-1)
     if d.size == 0:
-        raise ValueError("distance_stats: distances is empty, got shape (0,)")
+        raise InputError("distance_stats: distances is empty, got shape (0,)")
     return DistanceStats(median_mm=float(np.median(d)), mean_mm=float(d.mean()), std_mm=float(d.std()))
 
 
@@ -130,7 +131,7 @@ def vertex_errors(fitted: np.ndarray, truth: np.ndarray) -> np.ndarray:
     fitted = np.asarray(fitted, dtype=np.float64)
     truth = np.asarray(truth, dtype=np.float64)
     if fitted.shape != truth.shape or fitted.ndim < 2 or fitted.shape[-1] != 3:
-        raise ValueError(
+        raise InputError(
             f"vertex_errors: fitted and truth must have the same shape (..., V, 3), got "
             f"{fitted.shape} and {truth.shape}"
         )
@@ -166,7 +167,7 @@ def landmark_errors(
         or projected.shape[1] != 2
         or projected.shape[0] <= max(eye_corners)
     ):
-        raise ValueError(
+        raise InputError(
             f"landmark_errors: projected and landmarks2d must have the same shape (N, 2), got "
             f"{projected.shape} and {landmarks2d.shape}"
         )
@@ -207,7 +208,7 @@ def summarize(values: Iterable[float]) -> Summary:
     """
     x = np.asarray(list(values), dtype=np.float64).reshape(-1)
     if x.size == 0:
-        raise ValueError("summarize: no values")
+        raise InputError("summarize: no values")
     std = float(x.std(ddof=STD_DDOF)) if x.size > STD_DDOF else math.nan
     return Summary(n=int(x.size), mean=float(x.mean()), std=std, median=float(np.median(x)))
 

@@ -47,7 +47,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rig.errors import SetupError
+from rig.errors import InputError, SetupError
 from rig.expressions import EXPRESSION_NAMES, EXPRESSIONS, JAW_ANGLE_DEG, JAW_INDEX, ExpressionModel, jaw_pivot
 from rig.io.atomic import write_bytes_atomic
 from rig.io.params import PARAMS_UNITS
@@ -623,10 +623,10 @@ def read_viewer_data(page: str | Path) -> dict:
     text = Path(page).read_text(encoding="utf-8") if not str(page).lstrip().startswith("<") else str(page)
     match = re.search(r'<script type="application/json" id="jnr-data">(.*?)</script>', text, re.S)
     if not match:
-        raise ValueError(f"{page if len(str(page)) < 200 else 'the page'} is not a jnr viewer page (no #jnr-data)")
+        raise InputError(f"{page if len(str(page)) < 200 else 'the page'} is not a jnr viewer page (no #jnr-data)")
     data = json.loads(match.group(1))
     if data.get("format") != VIEWER_FORMAT:
-        raise ValueError(f"not a {VIEWER_FORMAT} page: format {data.get('format')!r}")
+        raise InputError(f"not a {VIEWER_FORMAT} page: format {data.get('format')!r}")
     data["images"] = dict(re.findall(r'<img id="([^"]+)" alt="" src="([^"]+)">', text))
 
     def walk(node):
@@ -650,7 +650,7 @@ def read_viewer_state(dom: str) -> dict:
     """
     match = re.search(r'<pre id="jnr-state" hidden="">(.*?)</pre>', dom, re.S)
     if not match or not match.group(1).strip():
-        raise ValueError("the page wrote no #jnr-state (it did not draw the head)")
+        raise InputError("the page wrote no #jnr-state (it did not draw the head)")
     return json.loads(html.unescape(match.group(1)))
 
 

@@ -18,6 +18,8 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
+from render.errors import RenderArgumentError
+
 MIN_LLVM_MAJOR = 17
 """Oldest libLLVM major version Dr.Jit 1.5 can generate code with."""
 
@@ -213,7 +215,7 @@ def resolve_variant(device: str = "cpu") -> str:
         ValueError: unknown device. LLVMError: unusable libLLVM. RuntimeError: CUDA asked for, absent.
     """
     if device not in ("cpu", "cuda"):
-        raise ValueError(f"resolve_variant: device must be 'cpu' or 'cuda', got {device!r}")
+        raise RenderArgumentError(f"resolve_variant: device must be 'cpu' or 'cuda', got {device!r}")
     if device == "cuda":
         if not cuda_available():
             raise RuntimeError("resolve_variant: device='cuda' asked for, but Dr.Jit finds no CUDA device")

@@ -14,6 +14,8 @@ import math
 
 import numpy as np
 
+from render.errors import RenderArgumentError
+
 _FLIP = np.diag([-1.0, -1.0, 1.0, 1.0])
 
 
@@ -22,12 +24,12 @@ def _single(camera, name: str) -> np.ndarray:
     arr = value.detach().cpu().double().numpy() if hasattr(value, "detach") else np.asarray(value, float)
     if arr.ndim == 3:
         if arr.shape[0] != 1:
-            raise ValueError(
+            raise RenderArgumentError(
                 f"sensor_from_pinhole: expected a single camera (batch 1), got {name} of shape {arr.shape}"
             )
         arr = arr[0]
     if arr.shape != (4, 4):
-        raise ValueError(f"sensor_from_pinhole: expected {name} (1, 4, 4), got {arr.shape}")
+        raise RenderArgumentError(f"sensor_from_pinhole: expected {name} (1, 4, 4), got {arr.shape}")
     return arr
 
 
@@ -74,13 +76,13 @@ def sensor_from_pinhole(
     )
     fx, fy, cx, cy, skew = K[0, 0], K[1, 1], K[0, 2], K[1, 2], K[0, 1]
     if width <= 0 or height <= 0:
-        raise ValueError(f"sensor_from_pinhole: expected a positive image size, got {width}x{height}")
+        raise RenderArgumentError(f"sensor_from_pinhole: expected a positive image size, got {width}x{height}")
     if fx <= 0 or abs(fx - fy) > 1e-6 * abs(fx):
-        raise ValueError(
+        raise RenderArgumentError(
             f"sensor_from_pinhole: Mitsuba's perspective sensor needs square pixels fx == fy > 0, got fx={fx}, fy={fy}"
         )
     if abs(skew) > 1e-9 * abs(fx):
-        raise ValueError(f"sensor_from_pinhole: expected zero skew, got {skew}")
+        raise RenderArgumentError(f"sensor_from_pinhole: expected zero skew, got {skew}")
     return {
         "type": "perspective",
         "fov_axis": "x",
@@ -113,5 +115,7 @@ def to_world_matrix(extrinsics: np.ndarray) -> np.ndarray:
     E = np.asarray(extrinsics, float)
     R = E[:3, :3]
     if E.shape != (4, 4) or not np.allclose(R @ R.T, np.eye(3), atol=1e-5) or np.linalg.det(R) < 0:
-        raise ValueError(f"to_world_matrix: expected a rigid (4, 4) world-to-camera transform, got {E.tolist()}")
+        raise RenderArgumentError(
+            f"to_world_matrix: expected a rigid (4, 4) world-to-camera transform, got {E.tolist()}"
+        )
     return np.linalg.inv(E) @ _FLIP

@@ -18,6 +18,8 @@ from dataclasses import dataclass
 
 import torch
 
+from render.errors import RenderArgumentError
+
 
 @dataclass(frozen=True)
 class Lighting:
@@ -50,9 +52,9 @@ def check_lighting(light: Lighting) -> None:
         value = getattr(light, name)
         if not isinstance(value, torch.Tensor) or tuple(value.shape) != (3,):
             shape = tuple(value.shape) if hasattr(value, "shape") else type(value).__name__
-            raise ValueError(f"Lighting: expected {name} a (3,) torch tensor, got {shape}")
+            raise RenderArgumentError(f"Lighting: expected {name} a (3,) torch tensor, got {shape}")
     if float(light.direction.detach().norm()) == 0.0:
-        raise ValueError("Lighting: direction must be non-zero")
+        raise RenderArgumentError("Lighting: direction must be non-zero")
 
 
 def shade_lambert(albedo: torch.Tensor, normals: torch.Tensor, light: Lighting) -> torch.Tensor:

@@ -12,6 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
+from render.errors import RenderArgumentError
+
 VIEWS = {
     # name: (yaw degrees, pitch degrees); yaw 0 looks at the face, +90 at the subject's left side.
     "front": (0.0, 0.0),
@@ -102,7 +104,7 @@ def _render_preview(
     vertices = np.asarray(vertices, np.float32)
     faces = np.asarray(faces, np.uint32)
     if vertices.ndim != 2 or vertices.shape[1] != 3 or faces.ndim != 2 or faces.shape[1] != 3:
-        raise ValueError(
+        raise RenderArgumentError(
             f"render_preview: expected vertices (V, 3) and faces (F, 3), got {vertices.shape}, {faces.shape}"
         )
     base_yaw, base_pitch = VIEWS[view]

@@ -26,6 +26,7 @@ import numpy as np
 
 from render.backend import resolve_variant, use_variant
 from render.camera import sensor_from_pinhole
+from render.errors import RenderArgumentError
 from render.renderer import weld_vertices
 
 __all__ = ["ReferenceLight", "ReferenceRender", "render_reference"]
@@ -34,11 +35,11 @@ __all__ = ["ReferenceLight", "ReferenceRender", "render_reference"]
 def _vector3(value, name: str, *, non_negative: bool) -> tuple[float, float, float]:
     arr = np.asarray(value.detach().cpu().numpy() if hasattr(value, "detach") else value, dtype=np.float64)
     if arr.shape != (3,):
-        raise ValueError(f"ReferenceLight: expected {name} of shape (3,), got {arr.shape}")
+        raise RenderArgumentError(f"ReferenceLight: expected {name} of shape (3,), got {arr.shape}")
     if not np.isfinite(arr).all():
-        raise ValueError(f"ReferenceLight: {name} must be finite, got {arr.tolist()}")
+        raise RenderArgumentError(f"ReferenceLight: {name} must be finite, got {arr.tolist()}")
     if non_negative and (arr < 0).any():
-        raise ValueError(f"ReferenceLight: {name} must be >= 0, got {arr.tolist()}")
+        raise RenderArgumentError(f"ReferenceLight: {name} must be >= 0, got {arr.tolist()}")
     return (float(arr[0]), float(arr[1]), float(arr[2]))
 
 
@@ -115,25 +116,29 @@ def _check_inputs(
     v = _as_array(vertices, np.float64)
     f = _as_array(faces, None)
     if not np.issubdtype(f.dtype, np.integer):
-        raise ValueError(f"{func}: expected faces an integer array (F, 3), got dtype {f.dtype}")
+        raise RenderArgumentError(f"{func}: expected faces an integer array (F, 3), got dtype {f.dtype}")
     f = f.astype(np.int64)
     a = _as_array(albedo, np.float64)
     if v.ndim != 2 or v.shape[1] != 3 or len(v) == 0:
-        raise ValueError(f"{func}: expected vertices of shape (V, 3), got {v.shape}")
+        raise RenderArgumentError(f"{func}: expected vertices of shape (V, 3), got {v.shape}")
     if not np.isfinite(v).all():
-        raise ValueError(f"{func}: vertices must be finite")
+        raise RenderArgumentError(f"{func}: vertices must be finite")
     if f.ndim != 2 or f.shape[1] != 3 or len(f) == 0:
-        raise ValueError(f"{func}: expected faces of shape (F, 3), got {f.shape}")
+        raise RenderArgumentError(f"{func}: expected faces of shape (F, 3), got {f.shape}")
     if f.min() < 0 or f.max() >= len(v):
-        raise ValueError(f"{func}: face indices must lie in [0, {len(v)}), got [{f.min()}, {f.max()}]")
+        raise RenderArgumentError(f"{func}: face indices must lie in [0, {len(v)}), got [{f.min()}, {f.max()}]")
     if a.shape != v.shape:
-        raise ValueError(f"{func}: expected albedo of shape {v.shape} (one linear RGB per vertex), got {a.shape}")
+        raise RenderArgumentError(
+            f"{func}: expected albedo of shape {v.shape} (one linear RGB per vertex), got {a.shape}"
+        )
     if not np.isfinite(a).all():
-        raise ValueError(f"{func}: albedo must be finite")
+        raise RenderArgumentError(f"{func}: albedo must be finite")
     if isinstance(spp, bool) or not isinstance(spp, (int, np.integer)) or spp < 1:
-        raise ValueError(f"{func}: expected spp an integer >= 1, got {spp!r}")
+        raise RenderArgumentError(f"{func}: expected spp an integer >= 1, got {spp!r}")
     if isinstance(max_depth, bool) or not isinstance(max_depth, (int, np.integer)) or max_depth < 2:
-        raise ValueError(f"{func}: expected max_depth an integer >= 2 (2: direct light only), got {max_depth!r}")
+        raise RenderArgumentError(
+            f"{func}: expected max_depth an integer >= 2 (2: direct light only), got {max_depth!r}"
+        )
     bg = None if background is None else _as_array(background, np.float64)
     return v, f, a, bg
 
@@ -199,12 +204,12 @@ def render_reference(
     sensor = sensor_from_pinhole(camera, spp=int(spp), seed=int(seed))
     width, height = sensor["film"]["width"], sensor["film"]["height"]
     if bg is not None and bg.shape != (height, width, 3):
-        raise ValueError(
+        raise RenderArgumentError(
             f"render_reference: expected background of shape ({height}, {width}, 3) (the camera's "
             f"image size), got {bg.shape}"
         )
     if bg is not None and not np.isfinite(bg).all():
-        raise ValueError("render_reference: background must be finite")
+        raise RenderArgumentError("render_reference: background must be finite")
 
     variant = resolve_variant(device)
     previous = _current_variant()

@@ -26,6 +26,7 @@ import torch
 
 from render.backend import resolve_variant, use_variant
 from render.camera import sensor_from_pinhole
+from render.errors import RenderArgumentError
 from render.lighting import Lighting, check_lighting
 
 
@@ -108,15 +109,15 @@ class DifferentiableRenderer:
         faces = _as_numpy(faces, np.int64)
         albedo = _as_numpy(albedo, np.float64)
         if vertices.ndim != 2 or vertices.shape[1] != 3:
-            raise ValueError(f"DifferentiableRenderer: expected vertices (V, 3), got {vertices.shape}")
+            raise RenderArgumentError(f"DifferentiableRenderer: expected vertices (V, 3), got {vertices.shape}")
         if faces.ndim != 2 or faces.shape[1] != 3 or faces.min(initial=0) < 0 or faces.max(initial=0) >= len(vertices):
-            raise ValueError(
+            raise RenderArgumentError(
                 f"DifferentiableRenderer: expected faces (F, 3) indexing {len(vertices)} vertices, got {faces.shape}"
             )
         if albedo.shape != vertices.shape:
-            raise ValueError(f"DifferentiableRenderer: expected albedo {vertices.shape}, got {albedo.shape}")
+            raise RenderArgumentError(f"DifferentiableRenderer: expected albedo {vertices.shape}, got {albedo.shape}")
         if spp < 1:
-            raise ValueError(f"DifferentiableRenderer: expected spp >= 1, got {spp}")
+            raise RenderArgumentError(f"DifferentiableRenderer: expected spp >= 1, got {spp}")
         light = Lighting.default() if light is None else light
         check_lighting(light)
         self.variant = resolve_variant(device)
@@ -254,7 +255,7 @@ class DifferentiableRenderer:
             :class:`RenderOutput` with ``image`` ``(H, W, 3)`` linear RGB.
         """
         if tuple(vertices.shape) != (self.num_vertices, 3) or tuple(albedo.shape) != (self.num_vertices, 3):
-            raise ValueError(
+            raise RenderArgumentError(
                 f"DifferentiableRenderer.render: expected vertices and albedo ({self.num_vertices}, 3), "
                 f"got {tuple(vertices.shape)} and {tuple(albedo.shape)}"
             )

@@ -346,12 +346,12 @@ class Similarity:
         rotation = np.asarray(rotation, float)
         translation = np.asarray(translation, float)
         if rotation.shape != (3, 3) or translation.shape != (3,):
-            raise ValueError(
+            raise InputError(
                 f"Similarity: rotation must be (3, 3) and translation (3,), got {rotation.shape} "
                 f"and {translation.shape}"
             )
         if not (np.isfinite(scale) and scale > 0):
-            raise ValueError(f"Similarity: scale must be a finite number > 0, got {scale}")
+            raise InputError(f"Similarity: scale must be a finite number > 0, got {scale}")
         self.rotation, self.translation, self.scale = rotation, translation, float(scale)
 
     def __repr__(self) -> str:
@@ -388,7 +388,7 @@ class Similarity:
         source = np.asarray(source, float)
         target = np.asarray(target, float)
         if source.shape != target.shape or source.ndim != 2 or source.shape[1] != 3 or len(source) < 3:
-            raise ValueError(
+            raise InputError(
                 f"Similarity.fit: source and target must both be (N >= 3, 3), got {source.shape} and {target.shape}"
             )
         w = np.ones(len(source)) if weights is None else np.asarray(weights, float)

@@ -22,6 +22,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from rig.errors import InputError
+
 
 @dataclass(frozen=True)
 class AnchorOptions:
@@ -111,7 +113,7 @@ def ssd_anchors(options: AnchorOptions) -> np.ndarray:
     """
     strides = tuple(int(s) for s in options.strides)
     if not strides or min(strides) < 1 or options.input_size < 1:
-        raise ValueError(f"ssd_anchors: need strides >= 1 and input_size >= 1, got {options}")
+        raise InputError(f"ssd_anchors: need strides >= 1 and input_size >= 1, got {options}")
     anchors = []
     layer = 0
     while layer < len(strides):

@@ -24,6 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from rig.asset import RigAsset
+from rig.errors import InputError
 from rig.geometry import vertex_normals
 
 LINE_REGIONS = ("forehead", "brows", "cheeks", "chin", "jaw", "scalp", "neck")
@@ -77,7 +78,7 @@ def contour_lines(asset: RigAsset, points: np.ndarray) -> ContourLines:
     """
     points = np.asarray(points, dtype=np.float64)
     if points.ndim != 2 or points.shape[1] != 3 or not np.isfinite(points).all():
-        raise ValueError(f"contour_lines: points must be a finite (C, 3) array, got shape {points.shape}")
+        raise InputError(f"contour_lines: points must be a finite (C, 3) array, got shape {points.shape}")
     v = np.asarray(asset.vertices, np.float64)
     faces = np.asarray(asset.faces, np.int64)
     allowed = np.flatnonzero(asset.region_mask(*LINE_REGIONS))

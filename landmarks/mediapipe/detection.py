@@ -35,6 +35,7 @@ from landmarks.detector import DetectionError
 from landmarks.mediapipe.anchors import DetectorOptions, ssd_anchors
 from landmarks.mediapipe.crop import RotatedRect, crop_to_image, warp_crop
 from landmarks.mediapipe.models import model
+from rig.errors import InputError
 
 KEYPOINT_NAMES = ("right_eye", "left_eye", "nose_tip", "mouth_centre", "right_ear_tragion", "left_ear_tragion")
 """The detectors' 6 keypoints, in their order (the subject's right and left)."""
@@ -89,7 +90,7 @@ def decode_boxes(raw: np.ndarray, anchors: np.ndarray, scale: float) -> tuple[np
     raw = np.asarray(raw, dtype=np.float64)
     anchors = np.asarray(anchors, dtype=np.float64)
     if raw.ndim != 2 or raw.shape[1] < 4 or raw.shape[1] % 2 or anchors.shape != (raw.shape[0], 4):
-        raise ValueError(
+        raise InputError(
             f"decode_boxes: expected raw (N, 4 + 2K) and anchors (N, 4); got {raw.shape} and {anchors.shape}"
         )
     centre = anchors[:, :2]

@@ -25,6 +25,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from rig.errors import InputError
+
 # --- fitted table (benchmarks/fit_mediapipe_ibug_map.py --write replaces this block) ---
 # fmt: off
 IBUG68_MESH_INDICES = np.array([
@@ -81,7 +83,7 @@ def mesh_to_ibug68(points: np.ndarray) -> np.ndarray:
     """
     points = np.asarray(points, dtype=np.float64)
     if points.ndim != 2 or points.shape[0] < 468:
-        raise ValueError(f"mesh_to_ibug68: expected points (468+, D), got {points.shape}")
+        raise InputError(f"mesh_to_ibug68: expected points (468+, D), got {points.shape}")
     return np.einsum("kj,kjd->kd", IBUG68_MESH_WEIGHTS, points[IBUG68_MESH_INDICES])
 
 

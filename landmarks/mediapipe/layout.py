@@ -24,6 +24,7 @@ from landmarks.loss import CONTOUR_WEIGHT
 from landmarks.mediapipe.contour import contour_lines, pick_contour
 from landmarks.mediapipe.embedding import mediapipe_embedding
 from rig.asset import RigAsset, cached_per_asset
+from rig.errors import InputError
 
 MESH_POINTS = 468
 """MediaPipe's face-mesh points (the irises follow, 5 per eye)."""
@@ -65,7 +66,7 @@ def mediapipe_layout_for(asset: RigAsset, count: int) -> LandmarkLayout:
         return mediapipe_layout(asset)
     if count == MESH_POINTS:
         return mediapipe_mesh_layout(asset)
-    raise ValueError(f"MediaPipe's layouts have {MESH_POINTS} or {MESH_POINTS + IRIS_POINTS} points, got {count}")
+    raise InputError(f"MediaPipe's layouts have {MESH_POINTS} or {MESH_POINTS + IRIS_POINTS} points, got {count}")
 
 
 def _layout(asset: RigAsset, count: int) -> LandmarkLayout:
@@ -97,7 +98,7 @@ def _layout(asset: RigAsset, count: int) -> LandmarkLayout:
             w = np.ones(len(sigma))
             w[contour] = contour_weight
         else:
-            raise ValueError(f"landmark weighting must be 'contour' or 'detector', got {weighting!r}")
+            raise InputError(f"landmark weighting must be 'contour' or 'detector', got {weighting!r}")
         return w
 
     return LandmarkLayout(

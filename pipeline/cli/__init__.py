@@ -25,7 +25,9 @@ pieces in :mod:`.common`); a handler parses, calls one library function, prints 
 Errors in the input (:class:`rig.errors.InputError` and its subclasses: missing or malformed files,
 unknown parameter names, values outside limits, refused outputs) end with a one-line message on
 stderr and exit status 2; a broken installation (:class:`rig.errors.SetupError`, render's
-``LLVMError``), an error while writing or a diverged fit, 1. Nothing half-written is left behind.
+``LLVMError``), an error while writing or a diverged fit, 1. Any other exception is a defect in jnr, not
+the user's input: one line with its type, message and where it was raised (``JNR_TRACEBACK=1`` adds the
+traceback), exit status 1. Nothing half-written is left behind.
 """
 
 from __future__ import annotations
@@ -151,7 +153,8 @@ def run() -> None:
 def main(argv: list[str] | None = None, *, restore_signals: bool = True) -> int:
     """Run ``jnr`` with ``argv`` (default: ``sys.argv[1:]``); returns the exit status: 0, 2 for bad input
     (:class:`rig.errors.InputError`, a missing or refused file), 1 for other failures
-    (:class:`rig.errors.JnrError`, render's ``LLVMError``, OSError, ValueError), 130 on Ctrl-C, 128 + the
+    (:class:`rig.errors.JnrError`, render's ``LLVMError``, OSError, a diverged fit's FloatingPointError; any other
+    exception is a defect, reported on one line with where it was raised), 130 on Ctrl-C, 128 + the
     signal's number on SIGTERM (143), SIGHUP (129) or SIGQUIT (131), 141 when the reader of its output goes
     away (``| head``); errors are one line on stderr. Once the command's work is done, signals are ignored
     (a finished output is never reported as a failure); ``restore_signals`` puts the caller's handlers back
@@ -206,8 +209,11 @@ def main(argv: list[str] | None = None, *, restore_signals: bool = True) -> int:
         devnull = os.open(os.devnull, os.O_WRONLY)
         os.dup2(devnull, sys.stdout.fileno())  # so that the interpreter's final flush does not fail again
         return 141
-    except (JnrError, LLVMError, OSError, ValueError) as exc:
+    except (JnrError, LLVMError, OSError, FloatingPointError) as exc:  # set-up, system, a diverged fit
         print(f"jnr: error: {_one_line(exc)}", file=sys.stderr)
+        return EXIT_FAILURE
+    except Exception as exc:  # not raised on purpose: a defect in jnr (or a library), never the user's input
+        print(f"jnr: internal error: {_defect_report(exc)}", file=sys.stderr)
         return EXIT_FAILURE
     except KeyboardInterrupt:
         if main_thread:
@@ -223,6 +229,43 @@ def main(argv: list[str] | None = None, *, restore_signals: bool = True) -> int:
         if restore_signals:
             for signum, handler in saved.items():
                 signal.signal(signum, handler if handler is not None else signal.SIG_DFL)
+
+
+def _defect_report(exc: BaseException) -> str:
+    """One line for an exception jnr did not raise on purpose: its type, message and where it was raised
+    (the innermost frame, and the innermost frame in jnr's own packages when that is another one), asking
+    for a report; ``JNR_TRACEBACK=1`` in the environment prints the whole traceback too."""
+    import os
+    import traceback
+
+    frames = traceback.extract_tb(exc.__traceback__)
+    ours = [f for f in frames if _package_path(f.filename) is not None]
+
+    def where(frame: traceback.FrameSummary) -> str:
+        return f"{_package_path(frame.filename) or os.path.basename(frame.filename)}:{frame.lineno} in {frame.name}"
+
+    places = [where(frames[-1])] if frames else []
+    if ours and ours[-1] is not frames[-1]:
+        places.append(f"called from {where(ours[-1])}")
+    if os.environ.get("JNR_TRACEBACK"):
+        traceback.print_exception(exc, file=sys.stderr)
+    at = f" (at {', '.join(places)})" if places else ""
+    return (
+        f"{type(exc).__name__}: {_one_line(exc)}{at}; this is a defect in jnr, not in the input: please report it "
+        "with this line (JNR_TRACEBACK=1 prints the whole traceback)"
+    )
+
+
+def _package_path(filename: str) -> str | None:
+    """``filename`` relative to the folder holding jnr's packages when it is one of their files, else None."""
+    import os
+
+    root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    path = os.path.abspath(filename)
+    rel = os.path.relpath(path, root)
+    if rel.split(os.sep)[0] in ("rig", "pipeline", "landmarks", "render"):
+        return rel
+    return None
 
 
 def _interruption(exc: BaseException) -> BaseException | None:

@@ -15,6 +15,7 @@ from pipeline.cli.common import (
     load_fit_scan_config,
     write_output_file,
 )
+from rig.errors import InputError
 
 CAPACITY_MODELS = ("jnr", "pca", "asm")
 """``jnr eval capacity --models`` choices (:data:`pipeline.evaluation.capacity.MODEL_GROUPS`)."""
@@ -100,7 +101,7 @@ def _run_evaluation(args: argparse.Namespace, label: str, evaluate) -> int:
 
     try:
         result = evaluate(progress)
-    except ValueError as exc:
+    except InputError as exc:
         raise CliError(str(exc)) from None
     finally:
         bars.close()

@@ -59,6 +59,7 @@ from pipeline.photo.fit_config import FitPhotoConfig
 from pipeline.synthetic.photos.settings import PhotoSettings
 from pipeline.synthetic.photos.simulate import synthetic_photo
 from rig.asset import load_asset
+from rig.errors import InputError
 from rig.expressions import EXPRESSION_NAMES
 from rig.geometry import RIG_TO_OPENCV, Similarity, closest_surface_points, head_angles
 from rig.model import JointRig
@@ -270,13 +271,13 @@ def evaluate_photos(
     """
     for name, value in (("first", first), ("n_neutral", n_neutral), ("n_expressive", n_expressive)):
         if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not 0 <= value <= 100:
-            raise ValueError(f"evaluate_photos: {name} must be an integer in [0, 100], got {value!r}")
+            raise InputError(f"evaluate_photos: {name} must be an integer in [0, 100], got {value!r}")
     if first + max(n_neutral, n_expressive) > 100:
-        raise ValueError(
+        raise InputError(
             f"evaluate_photos: heads {first}..{first + max(n_neutral, n_expressive) - 1} exceed the 100 held-out heads"
         )
     if landmarks not in LANDMARK_SOURCES:
-        raise ValueError(f"evaluate_photos: landmarks must be one of {list(LANDMARK_SOURCES)}, got {landmarks!r}")
+        raise InputError(f"evaluate_photos: landmarks must be one of {list(LANDMARK_SOURCES)}, got {landmarks!r}")
 
     config = config or FitPhotoConfig()
     settings = settings or PhotoSettings()

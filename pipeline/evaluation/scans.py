@@ -58,6 +58,7 @@ from pipeline.synthetic.expressive import expressive_split
 from pipeline.synthetic.population import SPLIT_SIZES
 from pipeline.synthetic.scans import DepthCamera, ScanSettings, simulate_scan
 from rig.asset import load_asset
+from rig.errors import InputError
 from rig.expressions import ExpressionModel
 from rig.model import JointRig
 from rig.skinning.neural import load_neural
@@ -156,7 +157,7 @@ def scan_seed(seed: int, kind: str, index: int) -> int:
 
 def _check_count(value, name: str, limit: int) -> int:
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not 0 <= value <= limit:
-        raise ValueError(f"evaluate_scans: {name} must be an integer in [0, {limit}], got {value!r}")
+        raise InputError(f"evaluate_scans: {name} must be an integer in [0, {limit}], got {value!r}")
     return int(value)
 
 
@@ -289,13 +290,13 @@ def evaluate_scans(
 
 def _check_arguments(n_neutral, n_expressive, seed, split: str) -> tuple[int, int]:
     if split not in SPLIT_SIZES:
-        raise ValueError(f"evaluate_scans: split must be one of {list(SPLIT_SIZES)}, got {split!r}")
+        raise InputError(f"evaluate_scans: split must be one of {list(SPLIT_SIZES)}, got {split!r}")
     n_neutral = _check_count(n_neutral, "n_neutral", SPLIT_SIZES[split])
     n_expressive = _check_count(n_expressive, "n_expressive", SPLIT_SIZES[split])
     if n_neutral + n_expressive == 0:
-        raise ValueError("evaluate_scans: n_neutral and n_expressive are both 0; nothing to evaluate")
+        raise InputError("evaluate_scans: n_neutral and n_expressive are both 0; nothing to evaluate")
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
-        raise ValueError(f"evaluate_scans: seed must be an integer >= 0, got {seed!r}")
+        raise InputError(f"evaluate_scans: seed must be an integer >= 0, got {seed!r}")
     return n_neutral, n_expressive
 
 

@@ -32,6 +32,7 @@ from typing import Any, ClassVar, NamedTuple
 import torch
 
 from pipeline.fitting.state import FREE_GROUPS, GroupedParameters
+from rig.errors import InputError
 from rig.optim import Progress, frozen
 
 MAX_STAGE_ITERATIONS = 100_000
@@ -56,11 +57,11 @@ class Stage:
     def __post_init__(self) -> None:
         bad = [f for f in self.free if f not in self.groups]
         if bad or not self.free:
-            raise ValueError(
+            raise InputError(
                 f"stage {self.name!r}: free must be a non-empty subset of {list(self.groups)}, got {list(self.free)}"
             )
         if not (isinstance(self.iterations, int) and 0 <= self.iterations <= MAX_STAGE_ITERATIONS):
-            raise ValueError(
+            raise InputError(
                 f"stage {self.name!r}: iterations must be an integer within [0, {MAX_STAGE_ITERATIONS}], "
                 f"got {self.iterations!r}"
             )

@@ -32,6 +32,7 @@ import numpy as np
 import torch
 
 from rig.asset import ASSET_DIR, TEMPLATE_VERSION, AssetError, write_npz_atomic
+from rig.errors import InputError
 from rig.lbs import ShapeError
 from rig.parameters import NUM_PARAMETERS, theta_limits
 
@@ -188,7 +189,7 @@ def build_identity_prior(
     if theta.ndim != 2 or theta.shape[1] != span.shape[0]:
         raise ShapeError(f"build_identity_prior: theta must be (N, {span.shape[0]}), got {theta.shape}")
     if len(theta) < 2 * folds:
-        raise ValueError(
+        raise InputError(
             f"build_identity_prior: need at least {2 * folds} heads for {folds}-fold validation, got {len(theta)}"
         )
     u = theta / span

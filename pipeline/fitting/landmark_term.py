@@ -30,6 +30,7 @@ from landmarks.loss import CONTOUR_WEIGHT, project_points
 from pipeline.fitting.state import PhotoState
 from pipeline.fitting.terms import Huber, Inputs, Term
 from rig.asset import cached_per_asset
+from rig.errors import InputError
 from rig.expressions import ExpressionModel
 from rig.geometry import RIG_TO_OPENCV
 from rig.lbs import skin_vertices_shared_weights
@@ -62,7 +63,7 @@ def face_scale(focal: float, depth_mm: float, asset) -> float:
     ``focal`` (pixels), over 100 px. Taken from the pose, not from the detected eye corners, so a turned face
     keeps its size."""
     if not (np.isfinite(depth_mm) and depth_mm > 0 and np.isfinite(focal) and focal > 0):
-        raise ValueError(f"face_scale: focal and depth must be finite and > 0, got {focal!r}, {depth_mm!r}")
+        raise InputError(f"face_scale: focal and depth must be finite and > 0, got {focal!r}, {depth_mm!r}")
     return float(focal / depth_mm * template_eye_distance_mm(asset) / REFERENCE_EYE_DISTANCE_PX)
 
 

@@ -25,6 +25,7 @@ import torch
 
 from pipeline.fitting.identity import IdentityPrior, load_identity_prior
 from pipeline.fitting.terms import L1, L2, Inputs, Term, Value, term_values
+from rig.errors import InputError
 from rig.expressions import EXPRESSION_NAMES
 from rig.parameters import mirror_theta
 
@@ -63,7 +64,7 @@ class PriorWeights:
         for f in fields(self):
             value = getattr(self, f.name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
-                raise ValueError(f"prior.{f.name} must be a finite number >= 0, got {value!r}")
+                raise InputError(f"prior.{f.name} must be a finite number >= 0, got {value!r}")
 
 
 # ----------------------------------------------------------------------------------------------------

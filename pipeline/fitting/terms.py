@@ -37,6 +37,8 @@ from typing import Any
 
 import torch
 
+from rig.errors import InputError
+
 LM_MODES = ("rows", "box", "none")
 
 
@@ -166,7 +168,7 @@ class Value(Robust):
         return r if r.dim() == 2 else r.sum(-1)
 
     def irls(self, r: torch.Tensor) -> float:
-        raise ValueError("a Value term has no least-squares form")
+        raise InputError("a Value term has no least-squares form")
 
 
 # ----------------------------------------------------------------------------------------------------
@@ -248,13 +250,13 @@ class Term:
 
     def __post_init__(self) -> None:
         if self.lm not in LM_MODES:
-            raise ValueError(f"term {self.name!r}: lm must be one of {list(LM_MODES)}, got {self.lm!r}")
+            raise InputError(f"term {self.name!r}: lm must be one of {list(LM_MODES)}, got {self.lm!r}")
         if isinstance(self.normaliser, str) and self.normaliser not in ("mean", "weights"):
-            raise ValueError(f"term {self.name!r}: normaliser must be a number, 'mean' or 'weights'")
+            raise InputError(f"term {self.name!r}: normaliser must be a number, 'mean' or 'weights'")
         if self.normaliser == "weights" and self.group_weights is None:
-            raise ValueError(f"term {self.name!r}: normaliser 'weights' needs group_weights")
+            raise InputError(f"term {self.name!r}: normaliser 'weights' needs group_weights")
         if self.lm == "rows" and isinstance(self.robust, Value):
-            raise ValueError(f"term {self.name!r}: a Value term cannot be stacked by the LM solver (lm='rows')")
+            raise InputError(f"term {self.name!r}: a Value term cannot be stacked by the LM solver (lm='rows')")
 
     def _weights(self, p: Inputs, r: torch.Tensor) -> torch.Tensor | None:
         w = p[self.group_weights] if isinstance(self.group_weights, str) else self.group_weights
@@ -282,7 +284,7 @@ class Term:
     def irls(self, p: Inputs) -> torch.Tensor | float:
         """The kernel's IRLS weights at ``p`` (batch 1): ``(1, n)`` or a float."""
         if self.lm != "rows":
-            raise ValueError(f"term {self.name!r} has no least-squares rows (lm={self.lm!r}): {self.note}")
+            raise InputError(f"term {self.name!r} has no least-squares rows (lm={self.lm!r}): {self.note}")
         return self.robust.irls(self.residual(p).detach())
 
     def coefficients(self, p: Inputs, r: torch.Tensor, omega: torch.Tensor | float) -> torch.Tensor | float:
@@ -328,7 +330,7 @@ def check_unique(terms: Sequence[Term]) -> None:
     names = [t.name for t in terms]
     twice = sorted({n for n in names if names.count(n) > 1})
     if twice:
-        raise ValueError(f"loss terms must have distinct names; {twice} appear more than once")
+        raise InputError(f"loss terms must have distinct names; {twice} appear more than once")
 
 
 class LeastSquaresTerms:
@@ -345,7 +347,7 @@ class LeastSquaresTerms:
         bad = [t for t in terms if t.lm == "none"]
         if bad:
             reasons = "; ".join(f"{t.name!r}: {t.note or 'no least-squares form'}" for t in bad)
-            raise ValueError(f"Levenberg-Marquardt cannot minimise the term(s) {reasons}; use the Adam solver")
+            raise InputError(f"Levenberg-Marquardt cannot minimise the term(s) {reasons}; use the Adam solver")
         self.terms = tuple(t for t in terms if t.lm == "rows" and t.weight != 0)
         self.omega: dict[str, torch.Tensor | float] = {}
 

@@ -305,7 +305,7 @@ def write_curves(path: str | Path, curves: Curves, *, layout: str = "plain", fps
                 ]
             )
     else:
-        raise ValueError(f"write_curves: layout must be 'plain' or 'live-link-face', got {layout!r}")
+        raise InputError(f"write_curves: layout must be 'plain' or 'live-link-face', got {layout!r}")
     write_bytes_atomic(Path(path), text.getvalue().encode("utf-8"))
 
 

@@ -82,14 +82,14 @@ def params_payload(model: HeadModel, params: HeadParams, *, fit: str, units: Map
             :data:`FIT_ENTRIES` does not list for ``fit`` (its readers would refuse the file).
     """
     if fit not in FIT_KINDS:
-        raise ValueError(f"params_payload: fit must be one of {FIT_KINDS}, got {fit!r}")
+        raise InputError(f"params_payload: fit must be one of {FIT_KINDS}, got {fit!r}")
     head = model.to_dict(params)
     clash = sorted(set(entries) & (set(head) | set(SCHEMA_KEYS)))
     if clash:
-        raise ValueError(f"params_payload: entries {clash} are the schema's or the model's")
+        raise InputError(f"params_payload: entries {clash} are the schema's or the model's")
     undeclared = sorted(set(entries) - set(FIT_ENTRIES[fit]))
     if undeclared:  # the readers refuse keys FIT_ENTRIES does not list: declare them there first
-        raise ValueError(f"params_payload: entries {undeclared} of a {fit} fit are not in FIT_ENTRIES")
+        raise InputError(f"params_payload: entries {undeclared} of a {fit} fit are not in FIT_ENTRIES")
     return {
         "format": PARAMS_FORMAT,
         "fit": fit,

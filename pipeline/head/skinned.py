@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from rig.errors import InputError
 from rig.expressions import EXPRESSION_NAMES, ExpressionModel, morph_targets
 from rig.io.gltf import export_skinned_gltf
 
@@ -45,9 +46,9 @@ def write_skinned_head(
     expression baked they read 0, and typing the values doubled it); readers that do not apply morph weights then
     see the neutral face."""
     if expression not in ("baked", "keys"):
-        raise ValueError(f"write_skinned_head: expression must be 'baked' or 'keys', got {expression!r}")
+        raise InputError(f"write_skinned_head: expression must be 'baked' or 'keys', got {expression!r}")
     if base_color_texture is not None and vertex_colors is not None:
-        raise ValueError("write_skinned_head: a textured head takes no vertex colours (glTF would multiply them)")
+        raise InputError("write_skinned_head: a textured head takes no vertex colours (glTF would multiply them)")
     rest = asset.vertices
     bake = expression == "baked"
     if bake and bind == "posed" and animation is None and coefficients is not None and np.any(coefficients):

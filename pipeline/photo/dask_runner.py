@@ -76,7 +76,7 @@ def check_address(address: str) -> str:
     try:
         scheme, location = parse_address(text)
         if not location or location.endswith(":"):
-            raise ValueError("missing port number")
+            raise InputError("missing port number")
         if scheme == "tcp":
             from distributed.comm.addressing import parse_host_port
 

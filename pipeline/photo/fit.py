@@ -62,6 +62,7 @@ from pipeline.photo.landmark_fit import (
     fit_landmarks,
 )
 from pipeline.photo.photometric import fit_appearance
+from rig.errors import InputError
 from rig.expressions import ExpressionModel
 from rig.model import JointRig
 from rig.optim import Progress
@@ -132,12 +133,12 @@ def check_photo(image) -> np.ndarray:
     """``(H, W, 3)`` float32 linear RGB of a uint8 sRGB or float linear image; ValueError otherwise."""
     img = np.asarray(image)
     if img.ndim != 3 or img.shape[2] != 3 or img.shape[0] < 16 or img.shape[1] < 16:
-        raise ValueError(f"fit_photo: image must be (H, W, 3) RGB with H, W >= 16, got {img.shape}")
+        raise InputError(f"fit_photo: image must be (H, W, 3) RGB with H, W >= 16, got {img.shape}")
     if img.dtype == np.uint8:
         return srgb_to_linear(img.astype(np.float32) / 255.0)
     img = img.astype(np.float32)
     if not np.isfinite(img).all() or img.min() < 0 or img.max() > 1:
-        raise ValueError("fit_photo: a float image must be linear RGB within [0, 1] without NaN")
+        raise InputError("fit_photo: a float image must be linear RGB within [0, 1] without NaN")
     return img
 
 

@@ -13,6 +13,7 @@ from pipeline.photo.landmark_fit import (
     LandmarkFitConfig,
 )
 from rig.asset import REGION_NAMES
+from rig.errors import InputError
 from rig.template import FACE_REGIONS
 
 PHOTO_GROUPS = FREE_GROUPS + ("albedo", "light")
@@ -138,18 +139,18 @@ class PhotometricConfig:
 
     def __post_init__(self) -> None:
         if self.render_size < 16:
-            raise ValueError(f"render_size must be >= 16 pixels, got {self.render_size}")
+            raise InputError(f"render_size must be >= 16 pixels, got {self.render_size}")
         if not 1 <= self.spp <= MAX_SPP:
-            raise ValueError(f"spp must be within [1, {MAX_SPP}], got {self.spp}")
+            raise InputError(f"spp must be within [1, {MAX_SPP}], got {self.spp}")
         if not self.crop_margin >= 0:
-            raise ValueError(f"crop_margin must be >= 0, got {self.crop_margin}")
+            raise InputError(f"crop_margin must be >= 0, got {self.crop_margin}")
         if self.light_model not in LIGHT_MODELS:
-            raise ValueError(f"light_model must be one of {list(LIGHT_MODELS)}, got {self.light_model!r}")
+            raise InputError(f"light_model must be one of {list(LIGHT_MODELS)}, got {self.light_model!r}")
         if self.light_directions < 1:
-            raise ValueError(f"light_directions must be >= 1, got {self.light_directions}")
+            raise InputError(f"light_directions must be >= 1, got {self.light_directions}")
         bad = [r for r in self.face_regions if r not in REGION_NAMES]
         if bad or not self.face_regions:
-            raise ValueError(
+            raise InputError(
                 f"face_regions must be a non-empty subset of {list(REGION_NAMES)}, got {list(self.face_regions)}"
             )
 
@@ -186,11 +187,11 @@ class OutputsConfig:
 
     def __post_init__(self) -> None:
         if self.ply_up not in PLY_UP_AXES:
-            raise ValueError(f"outputs.ply_up must be one of {list(PLY_UP_AXES)}, got {self.ply_up!r}")
+            raise InputError(f"outputs.ply_up must be one of {list(PLY_UP_AXES)}, got {self.ply_up!r}")
         if self.units not in MESH_UNITS:
-            raise ValueError(f"outputs.units must be one of {list(MESH_UNITS)}, got {self.units!r}")
+            raise InputError(f"outputs.units must be one of {list(MESH_UNITS)}, got {self.units!r}")
         if self.files not in OUTPUT_SET_NAMES:
-            raise ValueError(f"outputs.files must be one of {list(OUTPUT_SET_NAMES)}, got {self.files!r}")
+            raise InputError(f"outputs.files must be one of {list(OUTPUT_SET_NAMES)}, got {self.files!r}")
 
 
 @dataclass(frozen=True)

@@ -45,6 +45,7 @@ from pipeline.fitting.priors import PriorWeights
 from pipeline.fitting.state import PhotoState
 from pipeline.fitting.terms import Inputs, Term, check_unique, term_values
 from pipeline.metrics import landmark_errors
+from rig.errors import InputError
 from rig.expressions import ExpressionModel
 from rig.lbs import ShapeError
 from rig.model import JointRig
@@ -164,18 +165,18 @@ class LandmarkFitConfig:
 
     def __post_init__(self) -> None:
         if self.landmark_weighting not in WEIGHTINGS:
-            raise ValueError(
+            raise InputError(
                 f"landmarks.landmark_weighting must be one of {list(WEIGHTINGS)}, got {self.landmark_weighting!r}"
             )
         if self.solver not in SOLVERS:
-            raise ValueError(f"landmarks.solver must be one of {list(SOLVERS)}, got {self.solver!r}")
+            raise InputError(f"landmarks.solver must be one of {list(SOLVERS)}, got {self.solver!r}")
         for name in ("noise_px", "dense_noise_px"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not (0 < value < float("inf")):
-                raise ValueError(f"landmarks.{name} must be a finite number > 0 (pixels), got {value!r}")
+                raise InputError(f"landmarks.{name} must be a finite number > 0 (pixels), got {value!r}")
         bad = [st.name for st in self.lm_stages if "latent" in st.free]
         if bad:
-            raise ValueError(
+            raise InputError(
                 f"landmarks.lm_stages: the LM solver does not fit the latent (stages {bad}); "
                 "use solver: adam for a latent stage"
             )
@@ -231,7 +232,7 @@ def check_landmarks_2d_shape(landmarks2d, function: str = "fit_landmarks", count
         raise ShapeError(f"{function}: landmarks2d must have shape ({count}, 2) ({order}, pixels), got {lm.shape}")
     if not np.isfinite(lm).all():
         bad = np.flatnonzero(~np.isfinite(lm).all(1)).tolist()
-        raise ValueError(f"{function}: landmarks2d must be finite; rows {bad} contain NaN or inf")
+        raise InputError(f"{function}: landmarks2d must be finite; rows {bad} contain NaN or inf")
     return lm
 
 
@@ -280,7 +281,7 @@ def fit_landmarks(
     layout = ibug68_layout(rig.asset) if layout is None else layout
     lm = check_landmarks_2d_shape(landmarks2d, count=layout.count)
     if not (width > 0 and height > 0):
-        raise ValueError(f"fit_landmarks: width and height must be > 0, got {width} x {height}")
+        raise InputError(f"fit_landmarks: width and height must be > 0, got {width} x {height}")
     focal = default_focal(width, height) if focal is None else float(focal)
     config = config or LandmarkFitConfig()
     if config.use_neural and neural is None:
@@ -327,16 +328,16 @@ def _check_pose(pose) -> tuple[np.ndarray, np.ndarray]:
     try:
         rotation, translation = (np.asarray(x, dtype=np.float64) for x in pose)
     except (TypeError, ValueError):
-        raise ValueError("fit_landmarks: pose must be a (rotation (3, 3), translation (3,)) pair") from None
+        raise InputError("fit_landmarks: pose must be a (rotation (3, 3), translation (3,)) pair") from None
     if rotation.shape != (3, 3) or translation.shape != (3,):
-        raise ValueError(
+        raise InputError(
             f"fit_landmarks: pose must be rotation (3, 3) and translation (3,), "
             f"got {rotation.shape}, {translation.shape}"
         )
     if not (np.isfinite(rotation).all() and np.isfinite(translation).all()):
-        raise ValueError("fit_landmarks: the pose must be finite")
+        raise InputError("fit_landmarks: the pose must be finite")
     if not np.allclose(rotation @ rotation.T, np.eye(3), atol=1e-6) or np.linalg.det(rotation) <= 0:
-        raise ValueError("fit_landmarks: pose's rotation must be a rotation matrix")
+        raise InputError("fit_landmarks: pose's rotation must be a rotation matrix")
     return rotation, translation
 
 

@@ -9,6 +9,7 @@ from pipeline.fitting.least_squares import LMSettings
 from pipeline.photo.fit_config import PHOTO_PRIOR, OutputsConfig
 from pipeline.photo.landmark_fit import LandmarkFitConfig
 from rig.asset import REGION_NAMES
+from rig.errors import InputError
 from rig.template import FACE_REGIONS
 
 SKINNING_MODELS = ("jnr", "asm")
@@ -59,14 +60,14 @@ class PhotoConsistencyConfig:
 
     def __post_init__(self) -> None:
         if self.patch not in PATCHES:
-            raise ValueError(f"photometric.patch must be one of {list(PATCHES)}, got {self.patch!r}")
+            raise InputError(f"photometric.patch must be one of {list(PATCHES)}, got {self.patch!r}")
         if self.iterations < 0 or self.visibility_every < 1:
-            raise ValueError("photometric.iterations must be >= 0 and visibility_every >= 1")
+            raise InputError("photometric.iterations must be >= 0 and visibility_every >= 1")
         if self.lambda_pc < 0:
-            raise ValueError(f"photometric.lambda_pc must be >= 0, got {self.lambda_pc}")
+            raise InputError(f"photometric.lambda_pc must be >= 0, got {self.lambda_pc}")
         bad = [r for r in self.regions if r not in REGION_NAMES]
         if bad or not self.regions:
-            raise ValueError(
+            raise InputError(
                 f"photometric.regions must be a non-empty subset of {list(REGION_NAMES)}, got {list(self.regions)}"
             )
 
@@ -102,7 +103,7 @@ class AsmConfig:
 
     def __post_init__(self) -> None:
         if self.register_to not in ("averaged", "refined"):
-            raise ValueError(f"asm.register_to must be 'averaged' or 'refined', got {self.register_to!r}")
+            raise InputError(f"asm.register_to must be 'averaged' or 'refined', got {self.register_to!r}")
 
 
 @dataclass(frozen=True)
@@ -132,8 +133,8 @@ class MultiViewConfig:
 
     def __post_init__(self) -> None:
         if self.skinning not in SKINNING_MODELS:
-            raise ValueError(f"skinning must be one of {list(SKINNING_MODELS)}, got {self.skinning!r}")
+            raise InputError(f"skinning must be one of {list(SKINNING_MODELS)}, got {self.skinning!r}")
         if self.refine_iterations < 0:
-            raise ValueError(f"refine_iterations must be >= 0, got {self.refine_iterations}")
+            raise InputError(f"refine_iterations must be >= 0, got {self.refine_iterations}")
         if self.lambda_identity < 0 or self.lambda_focal < 0:
-            raise ValueError("lambda_identity and lambda_focal must be >= 0")
+            raise InputError("lambda_identity and lambda_focal must be >= 0")

@@ -318,10 +318,6 @@ def fit_multiview_files(
         )
     except FloatingPointError as exc:
         raise FloatingPointError(f"{', '.join(map(str, paths))}: {exc}") from None
-    except InputError:
-        raise
-    except ValueError as exc:
-        raise InputError(f"jnr fit --views: {exc}") from None
     write_multiview_outputs(
         out,
         images,

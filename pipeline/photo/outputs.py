@@ -49,6 +49,7 @@ from pipeline.viewer import VIEWER_FILE, ViewerView, shared_three_src, write_fit
 from render.lighting import Lighting
 from render.renderer import DifferentiableRenderer
 from rig.asset import RigAsset, load_asset
+from rig.errors import InputError
 from rig.expressions import EXPRESSION_NAMES
 from rig.geometry import head_angles
 from rig.head_model import JnrHead
@@ -127,7 +128,7 @@ def z_up(points: np.ndarray) -> np.ndarray:
 def mesh_units(units: str) -> tuple[float, str]:
     """``(factor from mm, header comment)`` of ``mesh.obj`` / ``mesh.ply`` in ``units`` (``outputs.units``)."""
     if units not in MESH_UNITS:
-        raise ValueError(f"outputs.units must be one of {list(MESH_UNITS)}, got {units!r}")
+        raise InputError(f"outputs.units must be one of {list(MESH_UNITS)}, got {units!r}")
     return MESH_UNITS[units], RIG_SPACE_COMMENT.replace("millimetres", "metres" if units == "m" else "millimetres")
 
 
@@ -191,7 +192,7 @@ def now_landmarks_txt(points68: np.ndarray) -> str:
     mesh's frame and units), one ``x y z`` line each, single spaces (the evaluation splits on ``" "``)."""
     points = np.asarray(points68, np.float64)
     if points.shape != (68, 3):
-        raise ValueError(f"now_landmarks_txt: expected (68, 3) iBUG points, got {points.shape}")
+        raise InputError(f"now_landmarks_txt: expected (68, 3) iBUG points, got {points.shape}")
     return "\n".join(" ".join(f"{c:.6f}" for c in points[i]) for i in NOW_IBUG_INDICES) + "\n"
 
 
@@ -291,7 +292,7 @@ def mesh_from_photo_params(params: dict | str | Path, *, frame: str = "rig") -> 
         ParamsFileError: not a ``jnr fit`` parameter file, or bad contents. ValueError: an unknown frame.
     """
     if frame not in ("rig", "camera"):
-        raise ValueError(f"frame must be 'rig' or 'camera', got {frame!r}")
+        raise InputError(f"frame must be 'rig' or 'camera', got {frame!r}")
     fit = load_params_file(params) if not isinstance(params, dict) else read_params(params)
     if fit.fit != "photo":
         raise ParamsFileError(f"not a jnr fit parameter file of one photo (written by {fit.fit or 'no fit'})")
@@ -330,7 +331,7 @@ def render_fit(
     if mask_regions is not None:
         unknown = [r for r in mask_regions if r not in asset.region_names]
         if unknown:
-            raise ValueError(f"render_fit: unknown mask_regions {unknown}; the regions are {list(asset.region_names)}")
+            raise InputError(f"render_fit: unknown mask_regions {unknown}; the regions are {list(asset.region_names)}")
         region_ids = [asset.region_names.index(r) for r in mask_regions]
     v = torch.as_tensor(fit.rig_vertices, dtype=torch.float32)
     albedo = torch.as_tensor(fit.albedo, dtype=torch.float32)

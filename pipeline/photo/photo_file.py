@@ -91,7 +91,7 @@ def _fit_and_write(
         )
     except FloatingPointError as exc:  # a diverged fit
         raise FloatingPointError(f"{label}: {exc}") from None
-    except ValueError as exc:  # bad image or landmarks for the fit (InputError and plain ValueError)
+    except InputError as exc:  # bad image or landmarks for the fit; anything else is a defect (exit 1)
         raise InputError(f"{label}: {exc}") from None
     _log.info(
         "%s: fitted %s points in %.2f s (landmark fit %.2f s, photometric %.2f s)",

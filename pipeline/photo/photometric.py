@@ -20,6 +20,7 @@ from pipeline.photo.sh import fit_sh, sh_basis
 from render.backend import reproducible
 from render.lighting import Lighting
 from render.renderer import DifferentiableRenderer
+from rig.errors import InputError
 from rig.geometry import mesh_edges, vertex_normals
 from rig.optim import Progress, torch_threads
 
@@ -157,7 +158,7 @@ class PhotometricObjective:
             first = self.renderer.render(v_cam0, torch.full((n_vertices, 3), 0.5), aovs=True)
             m = self.face_mask(first.region_ids) > 0
             if int(m.sum()) < 50:
-                raise ValueError(
+                raise InputError(
                     f"fit_photo: the face covers only {int(m.sum())} pixels of the "
                     f"{crop.size}x{crop.size} crop; the landmarks do not match the head"
                 )

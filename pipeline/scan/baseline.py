@@ -40,6 +40,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from rig.errors import InputError
+
 __all__ = ["DEFAULT_STEPS", "BaselineResult", "nricp_baseline"]
 
 #: Default ``[ws, wl, wn, max_iter]`` schedule: one step, ``ws`` = 0.01, anchors ``wl`` = 1,
@@ -80,13 +82,13 @@ def _array(x, name: str, shape: tuple[int | None, ...]) -> np.ndarray:
     try:
         a = np.asarray(x, dtype=np.float64)
     except (TypeError, ValueError):
-        raise ValueError(
+        raise InputError(
             f"nricp_baseline: {name} must be a float array of shape {shape}; got {type(x).__name__}"
         ) from None
     if a.ndim != len(shape) or any(s is not None and s != n for s, n in zip(shape, a.shape)):
-        raise ValueError(f"nricp_baseline: {name} must have shape {shape}; got {a.shape}")
+        raise InputError(f"nricp_baseline: {name} must have shape {shape}; got {a.shape}")
     if not np.all(np.isfinite(a)):
-        raise ValueError(f"nricp_baseline: {name} contains NaN or inf")
+        raise InputError(f"nricp_baseline: {name} contains NaN or inf")
     return a
 
 
@@ -95,18 +97,18 @@ def _check_steps(steps) -> list[list]:
     try:
         rows = [list(s) for s in steps]
     except TypeError:
-        raise ValueError("nricp_baseline: steps must be a sequence of [ws, wl, wn, max_iter]") from None
+        raise InputError("nricp_baseline: steps must be a sequence of [ws, wl, wn, max_iter]") from None
     if not rows:
-        raise ValueError("nricp_baseline: steps must not be empty")
+        raise InputError("nricp_baseline: steps must not be empty")
     out = []
     for i, row in enumerate(rows):
         if len(row) != 4:
-            raise ValueError(f"nricp_baseline: steps[{i}] must be [ws, wl, wn, max_iter]; got {row}")
+            raise InputError(f"nricp_baseline: steps[{i}] must be [ws, wl, wn, max_iter]; got {row}")
         ws, wl, wn, max_iter = row
         if not all(np.isfinite(v) and v >= 0 for v in (ws, wl, wn)) or ws <= 0:
-            raise ValueError(f"nricp_baseline: steps[{i}] needs ws > 0 and wl, wn >= 0 finite; got {row}")
+            raise InputError(f"nricp_baseline: steps[{i}] needs ws > 0 and wl, wn >= 0 finite; got {row}")
         if max_iter is not None and (int(max_iter) != max_iter or max_iter < 1):
-            raise ValueError(f"nricp_baseline: steps[{i}] max_iter must be a positive int or None; got {max_iter}")
+            raise InputError(f"nricp_baseline: steps[{i}] max_iter must be a positive int or None; got {max_iter}")
         out.append([float(ws), float(wl), float(wn), None if max_iter is None else int(max_iter)])
     return out
 
@@ -177,26 +179,26 @@ def nricp_baseline(
     try:
         tri = np.asarray(faces)
     except (TypeError, ValueError):
-        raise ValueError("nricp_baseline: faces must be an (F, 3) int array") from None
+        raise InputError("nricp_baseline: faces must be an (F, 3) int array") from None
     if tri.ndim != 2 or tri.shape[1] != 3 or len(tri) == 0 or not np.issubdtype(tri.dtype, np.integer):
-        raise ValueError(f"nricp_baseline: faces must be a non-empty (F, 3) int array; got {tri.shape} {tri.dtype}")
+        raise InputError(f"nricp_baseline: faces must be a non-empty (F, 3) int array; got {tri.shape} {tri.dtype}")
     if tri.min() < 0 or tri.max() >= len(verts):
-        raise ValueError(f"nricp_baseline: faces index outside [0, {len(verts)}); got range [{tri.min()}, {tri.max()}]")
+        raise InputError(f"nricp_baseline: faces index outside [0, {len(verts)}); got range [{tri.min()}, {tri.max()}]")
     points = _array(cloud, "cloud", (None, 3))
     if len(points) < 4:
-        raise ValueError(f"nricp_baseline: cloud needs at least 4 points; got {len(points)}")
+        raise InputError(f"nricp_baseline: cloud needs at least 4 points; got {len(points)}")
     R = _array(rotation, "rotation", (3, 3))
     if not np.allclose(R.T @ R, np.eye(3), atol=1e-6) or np.linalg.det(R) <= 0:
-        raise ValueError(
+        raise InputError(
             f"nricp_baseline: rotation must be a proper rotation (R^T R = I, det +1); got det {np.linalg.det(R):.6g}"
         )
     t = _array(translation, "translation", (3,))
     if not (np.isfinite(scale) and scale > 0):
-        raise ValueError(f"nricp_baseline: scale must be finite and > 0; got {scale}")
+        raise InputError(f"nricp_baseline: scale must be finite and > 0; got {scale}")
     if not (np.isfinite(distance_threshold_mm) and distance_threshold_mm > 0):
-        raise ValueError(f"nricp_baseline: distance_threshold_mm must be finite and > 0; got {distance_threshold_mm}")
+        raise InputError(f"nricp_baseline: distance_threshold_mm must be finite and > 0; got {distance_threshold_mm}")
     if max_points is not None and (int(max_points) != max_points or max_points < 4):
-        raise ValueError(f"nricp_baseline: max_points must be an int >= 4 or None; got {max_points}")
+        raise InputError(f"nricp_baseline: max_points must be an int >= 4 or None; got {max_points}")
     if cloud_normals is not None:
         _array(cloud_normals, "cloud_normals", (len(points), 3))
         warnings.warn(
@@ -217,7 +219,7 @@ def nricp_baseline(
     unseen = cKDTree(points).query(source.vertices)[0] > distance_threshold_mm
     n_close = int((~unseen).sum())
     if n_close < 4:
-        raise ValueError(
+        raise InputError(
             f"nricp_baseline: only {n_close} template vertices lie within "
             f"{distance_threshold_mm} mm of the cloud after the pre-alignment (need >= 4); "
             "check rotation/translation/scale and the cloud's units"

@@ -8,6 +8,7 @@ from dataclasses import dataclass, field
 from pipeline.config import SIGNED
 from pipeline.fitting.engine import LearningRates, Stage
 from pipeline.fitting.priors import PriorWeights
+from rig.errors import InputError
 
 
 def jnr_schedule(
@@ -146,6 +147,6 @@ class FitScanConfig:
 
     def __post_init__(self) -> None:
         if self.skinning not in ("jnr", "asm"):
-            raise ValueError(f"skinning must be 'jnr' or 'asm', got {self.skinning!r}")
+            raise InputError(f"skinning must be 'jnr' or 'asm', got {self.skinning!r}")
         if not isinstance(self.asm_components, int) or not 1 <= self.asm_components <= 8:
-            raise ValueError(f"asm_components must be an int in [1, 8], got {self.asm_components!r}")
+            raise InputError(f"asm_components must be an int in [1, 8], got {self.asm_components!r}")

@@ -34,6 +34,7 @@ import numpy as np
 import torch
 
 from rig.asset import RigAsset, load_asset
+from rig.errors import InputError
 from rig.expressions import EXPRESSION_NAMES, ExpressionModel
 
 STILL_FRACTION = 0.2
@@ -87,10 +88,10 @@ def clip_truth(seconds: float = 10.0, fps: float = 30.0, seed: int = 0) -> ClipT
         ValueError: ``seconds`` or ``fps`` not positive, or fewer than 5 frames.
     """
     if not (seconds > 0 and fps > 0):
-        raise ValueError(f"clip_truth: seconds and fps must be > 0, got {seconds}, {fps}")
+        raise InputError(f"clip_truth: seconds and fps must be > 0, got {seconds}, {fps}")
     count = int(round(seconds * fps))
     if count < 5:
-        raise ValueError(f"clip_truth: at least 5 frames, got {count}")
+        raise InputError(f"clip_truth: at least 5 frames, got {count}")
     rng = np.random.default_rng(seed)
     t = np.arange(count) / fps
     c = np.zeros((count, len(EXPRESSION_NAMES)))

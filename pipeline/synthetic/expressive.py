@@ -92,7 +92,7 @@ import numpy as np
 
 from pipeline.synthetic.population import SPLIT_SIZES, population_split
 from rig.asset import RigAsset, cached_per_asset, load_asset
-from rig.errors import SetupError
+from rig.errors import InputError, SetupError
 from rig.expressions import EXPRESSION_NAMES, ExpressionModel
 from rig.ict.modes import expression_shapes
 
@@ -267,16 +267,16 @@ def _check_coefficients(coefficients) -> tuple[np.ndarray, bool]:
     c = c[None] if single else c
     n_feat = len(EXPRESSIVE_FEATURE_NAMES)
     if c.ndim != 2 or c.shape[1] != n_feat:
-        raise ValueError(
+        raise InputError(
             f"expressive_offsets: coefficients must have shape (n, {n_feat}) or ({n_feat},), "
             f"got {np.shape(coefficients)}"
         )
     if not np.isfinite(c).all():
-        raise ValueError("expressive_offsets: coefficients must be finite")
+        raise InputError("expressive_offsets: coefficients must be finite")
     bad = (c < -1e-9) | (c > 1.0 + 1e-9)
     if bad.any():
         i, j = np.argwhere(bad)[0]
-        raise ValueError(
+        raise InputError(
             f"expressive_offsets: coefficient {EXPRESSIVE_FEATURE_NAMES[j]!r} = {c[i, j]} of head {i} "
             f"is outside its limits {EXPRESSIVE_LIMITS[EXPRESSIVE_FEATURE_NAMES[j]]}"
         )
@@ -354,7 +354,7 @@ def span_residuals(offsets: np.ndarray, asset: RigAsset | None = None) -> np.nda
     single = o.ndim == 2
     o = o[None] if single else o
     if o.ndim != 3 or o.shape[1:] != asset.vertices.shape:
-        raise ValueError(
+        raise InputError(
             f"span_residuals: offsets must have shape {asset.vertices.shape} or "
             f"(n, {len(asset.vertices)}, 3), got {np.shape(offsets)}"
         )
@@ -395,7 +395,7 @@ def sample_expression_coefficients(rng: np.random.Generator | int, n: int) -> np
         ``(n, 53)`` float64 coefficients in ``[0, 1]``, ``c[jawOpen] >= c[mouthClose]``.
     """
     if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 0:
-        raise ValueError(f"sample_expression_coefficients: n must be a non-negative integer, got {n!r}")
+        raise InputError(f"sample_expression_coefficients: n must be a non-negative integer, got {n!r}")
     rng = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
     n_feat = len(EXPRESSIVE_FEATURE_NAMES)
     c = np.zeros((int(n), n_feat))
@@ -450,13 +450,13 @@ class ExpressiveHeads:
 
 def _check_split(name) -> str:
     if name not in SPLIT_SIZES:
-        raise ValueError(f"unknown split {name!r}; splits are {list(SPLIT_SIZES)}")
+        raise InputError(f"unknown split {name!r}; splits are {list(SPLIT_SIZES)}")
     return name
 
 
 def _check_seed(seed) -> int:
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
-        raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
+        raise InputError(f"seed must be a non-negative integer, got {seed!r}")
     return int(seed)
 
 
@@ -487,14 +487,14 @@ def expressive_split(
     seeds = expressive_seeds(name, seed)
     if n is not None:
         if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or not 0 <= n <= len(seeds):
-            raise ValueError(f"expressive_split: n must be an integer in [0, {len(seeds)}], got {n!r}")
+            raise InputError(f"expressive_split: n must be an integer in [0, {len(seeds)}], got {n!r}")
         seeds = seeds[: int(n)]
     asset = load_asset() if asset is None else asset
     population = population_split(name, seed, first=len(seeds))  # the same identities, only those needed
     k = len(seeds)
     neutral = np.asarray(population.vertices[:k], dtype=float)
     if neutral.shape[1:] != asset.vertices.shape:
-        raise ValueError(
+        raise InputError(
             f"expressive_split: the identity heads have {neutral.shape[1]} vertices, the template {len(asset.vertices)}"
         )
     coefficients = np.zeros((k, len(EXPRESSIVE_FEATURE_NAMES)))

@@ -31,6 +31,7 @@ from pipeline.synthetic.photos.settings import PhotoSettings, SyntheticPhoto
 from pipeline.synthetic.photos.simulate import simulate_photo
 from pipeline.synthetic.population import SPLIT_SIZES, population_split
 from rig.asset import RigAsset, load_asset
+from rig.errors import InputError
 
 __all__ = ["MultiViewSettings", "SyntheticViews", "simulate_views", "synthetic_views"]
 
@@ -59,11 +60,11 @@ class MultiViewSettings:
             raise TypeError(f"MultiViewSettings: photo must be a PhotoSettings, got {type(self.photo).__name__}")
         lo, hi = (float(x) for x in self.yaw_deg_range)
         if not (-90.0 <= lo <= hi <= 90.0):
-            raise ValueError(
+            raise InputError(
                 f"MultiViewSettings: yaw_deg_range must be (low, high) within [-90, 90], got {self.yaw_deg_range!r}"
             )
         if not (np.isfinite(self.expression_scale) and 0.0 <= self.expression_scale <= 1.0):
-            raise ValueError(f"MultiViewSettings: expression_scale must be in [0, 1], got {self.expression_scale!r}")
+            raise InputError(f"MultiViewSettings: expression_scale must be in [0, 1], got {self.expression_scale!r}")
 
 
 @dataclass(frozen=True)
@@ -94,7 +95,7 @@ class SyntheticViews:
     def subset(self, n: int) -> SyntheticViews:
         """The first ``n`` views."""
         if not 1 <= n <= len(self.photos):
-            raise ValueError(f"SyntheticViews.subset: n must be in [1, {len(self.photos)}], got {n}")
+            raise InputError(f"SyntheticViews.subset: n must be in [1, {len(self.photos)}], got {n}")
         return replace(self, photos=self.photos[:n], expression_coefficients=self.expression_coefficients[:n])
 
 
@@ -127,11 +128,11 @@ def simulate_views(
         ValueError: bad ``n_views`` or vertices, or :func:`~pipeline.synthetic.photos.simulate.simulate_photo`'s errors.
     """
     if isinstance(n_views, bool) or not isinstance(n_views, (int, np.integer)) or n_views < 1:
-        raise ValueError(f"simulate_views: n_views must be an integer >= 1, got {n_views!r}")
+        raise InputError(f"simulate_views: n_views must be an integer >= 1, got {n_views!r}")
     asset = load_asset() if asset is None else asset
     v = np.asarray(neutral_vertices, np.float64)
     if v.shape != asset.vertices.shape or not np.isfinite(v).all():
-        raise ValueError(f"simulate_views: neutral_vertices must be finite {asset.vertices.shape}, got {v.shape}")
+        raise InputError(f"simulate_views: neutral_vertices must be finite {asset.vertices.shape}, got {v.shape}")
     rng = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
     photo_settings = replace(settings.photo, yaw_deg_range=tuple(settings.yaw_deg_range))
     albedo = synthesize_albedo(rng, asset, settings=photo_settings)
@@ -169,10 +170,10 @@ def synthetic_views(
         (3, (68, 2))
     """
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
-        raise ValueError(f"synthetic_views: seed must be a non-negative integer, got {seed!r}")
+        raise InputError(f"synthetic_views: seed must be a non-negative integer, got {seed!r}")
     n_heads = SPLIT_SIZES["heldout"]
     if isinstance(index, bool) or not isinstance(index, (int, np.integer)) or not 0 <= index < n_heads:
-        raise ValueError(f"synthetic_views: index must be an integer in [0, {n_heads - 1}], got {index!r}")
+        raise InputError(f"synthetic_views: index must be an integer in [0, {n_heads - 1}], got {index!r}")
     population = population_split("heldout", 0, first=int(index) + 1)  # the same heads, without making all 100
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), int(index), _VIEWS_STREAM]))
     return simulate_views(

@@ -23,6 +23,7 @@ from pipeline.files import staged_file
 from pipeline.scan.pointcloud.write import write_point_cloud_ply
 from pipeline.synthetic.expressive import expressive_split
 from rig.asset import load_asset
+from rig.errors import InputError
 from rig.geometry import RIG_TO_OPENCV, face_normals, head_rotation
 
 __all__ = [
@@ -138,13 +139,13 @@ def _check_mesh(vertices, faces, fn: str) -> tuple[np.ndarray, np.ndarray]:
     v = np.asarray(vertices, dtype=float)
     f = np.asarray(faces)
     if v.ndim != 2 or v.shape[1] != 3 or len(v) == 0:
-        raise ValueError(f"{fn}: vertices must have shape (V, 3), got {v.shape}")
+        raise InputError(f"{fn}: vertices must have shape (V, 3), got {v.shape}")
     if f.ndim != 2 or f.shape[1] != 3 or not np.issubdtype(f.dtype, np.integer):
-        raise ValueError(f"{fn}: faces must be an integer array of shape (F, 3), got {f.shape} {f.dtype}")
+        raise InputError(f"{fn}: faces must be an integer array of shape (F, 3), got {f.shape} {f.dtype}")
     if len(f) and (f.min() < 0 or f.max() >= len(v)):
-        raise ValueError(f"{fn}: face indices must be in [0, {len(v)}), got [{f.min()}, {f.max()}]")
+        raise InputError(f"{fn}: face indices must be in [0, {len(v)}), got [{f.min()}, {f.max()}]")
     if not np.isfinite(v).all():
-        raise ValueError(f"{fn}: vertices must be finite")
+        raise InputError(f"{fn}: vertices must be finite")
     return v, f.astype(np.int64)
 
 
@@ -237,12 +238,12 @@ def _rays(camera: DepthCamera, u: np.ndarray, v: np.ndarray) -> np.ndarray:
 def _angle(value, rng_range, rng: np.random.Generator, name: str) -> float:
     lo, hi = rng_range
     if lo > hi:
-        raise ValueError(f"simulate_scan: {name} range must be (low, high), got {rng_range}")
+        raise InputError(f"simulate_scan: {name} range must be (low, high), got {rng_range}")
     draw = float(rng.uniform(lo, hi))  # always drawn, so the stream does not depend on the overrides
     if value is None:
         return draw
     if not np.isfinite(value):
-        raise ValueError(f"simulate_scan: {name} must be finite, got {value}")
+        raise InputError(f"simulate_scan: {name} must be finite, got {value}")
     return float(value)
 
 
@@ -349,9 +350,9 @@ def simulate_scan(
     s = settings
     lo_h, hi_h = s.hole_fraction
     if not 0.0 <= lo_h <= hi_h < 1.0:
-        raise ValueError(f"simulate_scan: hole_fraction must be 0 <= low <= high < 1, got {s.hole_fraction}")
+        raise InputError(f"simulate_scan: hole_fraction must be 0 <= low <= high < 1, got {s.hole_fraction}")
     if s.distance_mm <= 0 or s.max_offset_mm < 0 or s.outlier_fraction < 0:
-        raise ValueError("simulate_scan: distance_mm must be > 0, max_offset_mm and outlier_fraction >= 0")
+        raise InputError("simulate_scan: distance_mm must be > 0, max_offset_mm and outlier_fraction >= 0")
     yaw = _angle(yaw_deg, s.yaw_deg_range, rng, "yaw_deg")
     pitch = _angle(pitch_deg, s.pitch_deg_range, rng, "pitch_deg")
     roll = _angle(roll_deg, s.roll_deg_range, rng, "roll_deg")

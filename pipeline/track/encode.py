@@ -67,7 +67,7 @@ class H264Writer:
         crf: int = 23,
     ) -> None:
         if not (fps > 0 and np.isfinite(fps)):
-            raise ValueError(f"H264Writer: fps must be > 0, got {fps}")
+            raise InputError(f"H264Writer: fps must be > 0, got {fps}")
         self.path, self.size = Path(path), (int(size[0]), int(size[1]))
         command = [ffmpeg_exe(), "-hide_banner", "-loglevel", "error", "-nostdin", "-y"]
         command += ["-f", "rawvideo", "-pix_fmt", "rgb24", "-s", f"{self.size[0]}x{self.size[1]}"]
@@ -88,7 +88,7 @@ class H264Writer:
         """Append one ``(height, width, 3)`` uint8 RGB frame."""
         frame = np.asarray(frame)
         if frame.shape != (self.size[1], self.size[0], 3) or frame.dtype != np.uint8:
-            raise ValueError(
+            raise InputError(
                 f"H264Writer: frames must be ({self.size[1]}, {self.size[0]}, 3) uint8, got {frame.shape} {frame.dtype}"
             )
         try:

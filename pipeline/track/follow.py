@@ -22,6 +22,7 @@ from landmarks.detector import NoFaceError
 from landmarks.mediapipe.detector import DEFAULT_MIN_PRESENCE, MediaPipeDetector, mesh_rect
 from landmarks.mediapipe.iris import add_irises
 from landmarks.mediapipe.mesh import face_mesh
+from rig.errors import InputError
 
 
 @dataclass(frozen=True)
@@ -62,7 +63,7 @@ class FaceFollower:
         detector: MediaPipeDetector | None = None,
     ) -> None:
         if not (isinstance(face, int) and face >= 0):
-            raise ValueError(f"face must be an integer >= 0, got {face!r}")
+            raise InputError(f"face must be an integer >= 0, got {face!r}")
         self.face = face
         self.min_presence = float(min_presence)
         self.detector = detector or MediaPipeDetector()

@@ -18,6 +18,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from rig.errors import InputError
+
 THUMB_WIDTH = 96
 """Frames are compared at this width (pixels): enough for a change of picture, cheap (~0.1 ms a frame)."""
 CUT_THRESHOLD = 27.0
@@ -59,7 +61,7 @@ class CutDetector:
 
     def __init__(self, threshold: float = CUT_THRESHOLD, min_shot_frames: int = MIN_SHOT_FRAMES) -> None:
         if not threshold > 0:
-            raise ValueError(f"CutDetector: threshold must be > 0, got {threshold}")
+            raise InputError(f"CutDetector: threshold must be > 0, got {threshold}")
         self.threshold, self.min_shot_frames = float(threshold), int(min_shot_frames)
         self._previous: np.ndarray | None = None
         self._index = -1

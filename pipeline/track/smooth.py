@@ -27,6 +27,8 @@ from scipy import sparse
 from scipy.sparse.linalg import spsolve
 from scipy.spatial.transform import Rotation
 
+from rig.errors import InputError
+
 WINDOW = 600
 """Frames solved at once (longer runs: overlapping windows, :data:`OVERLAP` frames blended)."""
 OVERLAP = 60
@@ -51,7 +53,7 @@ class SmoothSettings:
         for name in ("coefficients", "rotation_per_deg", "translation_per_mm"):
             value = getattr(self, name)
             if not (isinstance(value, int | float) and math.isfinite(value) and value >= 0):
-                raise ValueError(f"track.smooth.{name} must be a finite number >= 0, got {value!r}")
+                raise InputError(f"track.smooth.{name} must be a finite number >= 0, got {value!r}")
 
 
 def left_jacobian(phi: np.ndarray) -> np.ndarray:

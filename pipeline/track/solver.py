@@ -34,6 +34,7 @@ import torch
 
 from landmarks.layout import LandmarkLayout
 from pipeline.camera import RIG_TO_OPENCV
+from rig.errors import InputError
 from rig.expressions import EXPRESSION_NAMES, JAW_ANGLE_DEG, JAW_INDEX, ExpressionModel, expression_limits
 from rig.model import JointRig
 
@@ -93,11 +94,11 @@ class TrackSettings:
         ):
             value = getattr(self, name)
             if not (isinstance(value, int | float) and math.isfinite(value) and value >= 0):
-                raise ValueError(f"track.frame.{name} must be a finite number >= 0, got {value!r}")
+                raise InputError(f"track.frame.{name} must be a finite number >= 0, got {value!r}")
         if self.huber_delta_px <= 0:
-            raise ValueError("track.frame.huber_delta_px must be > 0")
+            raise InputError("track.frame.huber_delta_px must be > 0")
         if not (isinstance(self.iterations, int) and 1 <= self.iterations <= 50):
-            raise ValueError(f"track.frame.iterations must be an integer within [1, 50], got {self.iterations!r}")
+            raise InputError(f"track.frame.iterations must be an integer within [1, 50], got {self.iterations!r}")
 
     def prior_scale(self) -> np.ndarray:
         """``(52,)`` the square roots of each coefficient's prior weight."""

@@ -73,19 +73,19 @@ class TrackConfig:
 
     def __post_init__(self) -> None:
         if not (isinstance(self.keyframes, int) and 2 <= self.keyframes <= 30):
-            raise ValueError(f"keyframes must be an integer within [2, 30], got {self.keyframes!r}")
+            raise InputError(f"keyframes must be an integer within [2, 30], got {self.keyframes!r}")
         if self.keyframe_choice not in ("poses", "time"):
-            raise ValueError(f"keyframe_choice must be 'poses' or 'time', got {self.keyframe_choice!r}")
+            raise InputError(f"keyframe_choice must be 'poses' or 'time', got {self.keyframe_choice!r}")
         if not (isinstance(self.face, int) and self.face >= 0):
-            raise ValueError(f"face must be an integer >= 0, got {self.face!r}")
+            raise InputError(f"face must be an integer >= 0, got {self.face!r}")
         if self.focal is not None and (
             isinstance(self.focal, bool) or not isinstance(self.focal, int | float) or not 0 < self.focal < float("inf")
         ):
-            raise ValueError(f"focal must be a focal length in pixels > 0, got {self.focal!r}")
+            raise InputError(f"focal must be a focal length in pixels > 0, got {self.focal!r}")
         if not (isinstance(self.cold_iterations, int) and 1 <= self.cold_iterations <= 100):
-            raise ValueError(f"cold_iterations must be an integer within [1, 100], got {self.cold_iterations!r}")
+            raise InputError(f"cold_iterations must be an integer within [1, 100], got {self.cold_iterations!r}")
         if not (isinstance(self.max_frames, int) and 1 <= self.max_frames <= MAX_FRAMES):
-            raise ValueError(f"max_frames must be an integer within [1, {MAX_FRAMES}], got {self.max_frames!r}")
+            raise InputError(f"max_frames must be an integer within [1, {MAX_FRAMES}], got {self.max_frames!r}")
 
 
 @dataclass

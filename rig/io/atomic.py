@@ -40,6 +40,8 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
+from rig.errors import InputError
+
 __all__ = [
     "TargetExistsError",
     "lock",
@@ -302,7 +304,7 @@ def move_into_place(
         OSError: the move failed; ``out`` is unchanged.
     """
     if kind not in ("file", "folder"):
-        raise ValueError(f"move_into_place: kind must be 'file' or 'folder', got {kind!r}")
+        raise InputError(f"move_into_place: kind must be 'file' or 'folder', got {kind!r}")
     tmp, out = Path(tmp), Path(out)
     for _ in range(100):  # each round lost a race with another process creating or removing ``out``
         if _exists(out):

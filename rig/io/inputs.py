@@ -52,7 +52,7 @@ def loads_json_strict(text: str):
         seen: dict = {}
         for key, value in items:
             if key in seen:
-                raise ValueError(f"the key {key!r} appears twice in one object")
+                raise InputError(f"the key {key!r} appears twice in one object")
             seen[key] = value
         return seen
 

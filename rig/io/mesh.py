@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 import trimesh
 
-from rig.errors import shape_error
+from rig.errors import InputError, shape_error
 from rig.io.atomic import write_bytes_atomic
 from rig.io.ply import binary_ply, position_dtype
 
@@ -85,20 +85,20 @@ def check_mesh_arrays(
     if v.ndim != 2 or v.shape[1] != 3 or v.shape[0] == 0:
         raise shape_error(func, "vertices", "(V, 3) with V > 0", v.shape)
     if not np.issubdtype(v.dtype, np.number) or np.issubdtype(v.dtype, np.complexfloating):
-        raise ValueError(f"{func}: vertices must be real numbers, got dtype {v.dtype}")
+        raise InputError(f"{func}: vertices must be real numbers, got dtype {v.dtype}")
     v = v.astype(np.float64)
     if not np.isfinite(v).all():
-        raise ValueError(f"{func}: vertices contain NaN or infinite values")
+        raise InputError(f"{func}: vertices contain NaN or infinite values")
     n_vertices = v.shape[0]
 
     f = np.asarray(faces)
     if f.ndim != 2 or f.shape[1] != 3 or f.shape[0] == 0:
         raise shape_error(func, "faces", "(F, 3) with F > 0", f.shape)
     if not np.issubdtype(f.dtype, np.integer):
-        raise ValueError(f"{func}: faces must be integer vertex indices, got dtype {f.dtype}")
+        raise InputError(f"{func}: faces must be integer vertex indices, got dtype {f.dtype}")
     f = f.astype(np.int64)
     if f.min() < 0 or f.max() >= n_vertices:
-        raise ValueError(f"{func}: faces index vertices out of range [0, {n_vertices}): min {f.min()}, max {f.max()}")
+        raise InputError(f"{func}: faces index vertices out of range [0, {n_vertices}): min {f.min()}, max {f.max()}")
 
     uv = None
     if face_uvs is not None:
@@ -107,7 +107,7 @@ def check_mesh_arrays(
             raise shape_error(func, "face_uvs", f"(F, 3, 2) = ({f.shape[0]}, 3, 2)", uv.shape)
         uv = uv.astype(np.float64) + 0.0  # + 0.0 turns -0.0 into 0.0 so equal UVs compare equal
         if not np.isfinite(uv).all():
-            raise ValueError(f"{func}: face_uvs contain NaN or infinite values")
+            raise InputError(f"{func}: face_uvs contain NaN or infinite values")
 
     colors = None
     if vertex_colors is not None:
@@ -119,13 +119,13 @@ def check_mesh_arrays(
         elif np.issubdtype(c.dtype, np.floating):
             colors = c.astype(np.float64)
             if not np.isfinite(colors).all() or colors.min() < -1e-6 or colors.max() > 1 + 1e-6:
-                raise ValueError(
+                raise InputError(
                     f"{func}: float vertex_colors must lie in [0, 1], got range "
                     f"[{np.nanmin(colors)}, {np.nanmax(colors)}]"
                 )
             colors = np.clip(colors, 0.0, 1.0)
         else:
-            raise ValueError(f"{func}: vertex_colors must be float in [0, 1] or uint8, got dtype {c.dtype}")
+            raise InputError(f"{func}: vertex_colors must be float in [0, 1] or uint8, got dtype {c.dtype}")
     return v, f, uv, colors
 
 
@@ -142,7 +142,7 @@ def resolve_format(func: str, path: Path, file_format: str | None, allowed: Sequ
         fmt = str(file_format).lower().lstrip(".")
         source = f"file_format={file_format!r}"
     if fmt not in allowed:
-        raise ValueError(
+        raise InputError(
             f"{func}: unsupported file format {fmt!r} (from {source}); expected one of "
             + ", ".join(repr(a) for a in allowed)
         )
@@ -273,7 +273,7 @@ def _ply_bytes(vertices, faces, uvs, colors) -> bytes:
 def _check_obj_name(func: str, arg: str, value: str) -> str:
     """A material or file name as one OBJ/MTL token: a non-empty string without whitespace or ``#``."""
     if not isinstance(value, str) or not value or any(ch.isspace() or ch == "#" for ch in value):
-        raise ValueError(f"{func}: {arg} must be a non-empty name without whitespace or '#', got {value!r}")
+        raise InputError(f"{func}: {arg} must be a non-empty name without whitespace or '#', got {value!r}")
     return value
 
 
@@ -314,7 +314,7 @@ def write_mtl(path: str | os.PathLike, material: str, texture: str, *, diffuse=(
     texture = _check_obj_name(func, "texture", texture)
     kd = np.asarray(diffuse, dtype=np.float64)
     if kd.shape != (3,) or not np.isfinite(kd).all() or kd.min() < 0 or kd.max() > 1:
-        raise ValueError(f"{func}: diffuse must be 3 numbers in [0, 1], got {diffuse!r}")
+        raise InputError(f"{func}: diffuse must be 3 numbers in [0, 1], got {diffuse!r}")
     text = "\n".join(
         [
             "# jnr",
@@ -393,16 +393,16 @@ def export_mesh(
     path = Path(path)
     fmt = resolve_format(func, path, file_format, ("obj", "ply"))
     if not isinstance(comment, str) or "\n" in comment or "\r" in comment:
-        raise ValueError(f"{func}: comment must be one line of text, got {comment!r}")
+        raise InputError(f"{func}: comment must be one line of text, got {comment!r}")
     header = f"jnr: {comment}"
     v, f, uv, colors = check_mesh_arrays(func, vertices, faces, face_uvs, vertex_colors)
     if (mtllib is None) != (material is None):
-        raise ValueError(f"{func}: mtllib and material go together, got mtllib={mtllib!r}, material={material!r}")
+        raise InputError(f"{func}: mtllib and material go together, got mtllib={mtllib!r}, material={material!r}")
     if mtllib is not None:
         if fmt != "obj":
-            raise ValueError(f"{func}: a material (mtllib, material) is written to OBJ files only, not {fmt!r}")
+            raise InputError(f"{func}: a material (mtllib, material) is written to OBJ files only, not {fmt!r}")
         if uv is None:
-            raise ValueError(f"{func}: a textured material needs face_uvs")
+            raise InputError(f"{func}: a textured material needs face_uvs")
         _check_obj_name(func, "mtllib", mtllib)
         _check_obj_name(func, "material", material)
 

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from rig.errors import InputError
+
 PLY_TYPES = {"<f4": "float", "<f8": "double", "u1": "uchar", "<i4": "int"}
 """The PLY property type of each NumPy dtype :func:`binary_ply` writes."""
 FLOAT32_TOLERANCE = 1e-6
@@ -50,9 +52,9 @@ def binary_ply(
     n = len(fields[0][2]) if fields else 0
     for name, dtype, values in fields:
         if dtype not in PLY_TYPES or np.shape(values) != (n,):
-            raise ValueError(f"binary_ply: field {name!r}: dtype {dtype!r} and shape ({n},) needed")
+            raise InputError(f"binary_ply: field {name!r}: dtype {dtype!r} and shape ({n},) needed")
     if any("\n" in c or "\r" in c for c in comments):
-        raise ValueError("binary_ply: a comment must be one line")
+        raise InputError("binary_ply: a comment must be one line")
     vertex = np.empty(n, dtype=[(name, dtype) for name, dtype, _ in fields])
     for name, _, values in fields:
         vertex[name] = values
@@ -62,7 +64,7 @@ def binary_ply(
     if faces is not None:
         f = np.asarray(faces)
         if f.ndim != 2 or f.shape[1] != 3 or (f.size and (f.min() < 0 or f.max() >= n)):
-            raise ValueError(f"binary_ply: faces must be (F, 3) indices below {n}, got shape {f.shape}")
+            raise InputError(f"binary_ply: faces must be (F, 3) indices below {n}, got shape {f.shape}")
         rows = np.empty(len(f), dtype=[("count", "u1"), ("indices", "<i4", (3,))])
         rows["count"], rows["indices"] = 3, f
         header += [f"element face {len(f)}", "property list uchar int vertex_indices"]

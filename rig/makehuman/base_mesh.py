@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rig.errors import SetupError
+from rig.errors import InputError, SetupError
 
 MAKEHUMAN_TO_MM = 100.0
 """MakeHuman's files are in decimetres."""
@@ -64,7 +64,7 @@ class BaseMesh:
         """``(F,)`` bool: the faces of the groups ``names`` (each must exist)."""
         unknown = [n for n in names if n not in self.groups]
         if unknown:
-            raise ValueError(f"BaseMesh.group_faces: unknown groups {unknown}; the mesh has {list(self.groups)}")
+            raise InputError(f"BaseMesh.group_faces: unknown groups {unknown}; the mesh has {list(self.groups)}")
         return np.isin(self.face_groups, [self.groups.index(n) for n in names])
 
 

@@ -7,7 +7,7 @@ from functools import cache
 
 import numpy as np
 
-from rig.errors import SetupError
+from rig.errors import InputError, SetupError
 from rig.makehuman.base_mesh import data_dir
 from rig.makehuman.head import head_mesh
 from rig.makehuman.phenotype import RACES
@@ -89,7 +89,7 @@ def expression_unit_offsets(variant: str = "caucasian") -> tuple[tuple[str, ...]
     largely outside the ARKit span: the test expressions of issue 13."""
     folder = data_dir() / "mpfb2" / "targets" / "expression" / "units" / variant
     if not folder.is_dir():
-        raise ValueError(f"expression_unit_offsets: variant must be one of {list(RACES)}, got {variant!r}")
+        raise InputError(f"expression_unit_offsets: variant must be one of {list(RACES)}, got {variant!r}")
     paths = sorted(folder.glob("*.target.gz"))
     head = head_mesh()
     names = tuple(p.name.removesuffix(".target.gz") for p in paths)

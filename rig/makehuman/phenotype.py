@@ -8,7 +8,7 @@ from itertools import product
 
 import numpy as np
 
-from rig.errors import SetupError
+from rig.errors import InputError, SetupError
 from rig.makehuman.base_mesh import data_dir
 from rig.makehuman.head import head_mesh
 from rig.makehuman.targets import target_on_head
@@ -40,9 +40,9 @@ class Phenotype:
         for name in ("gender", "age", "muscle", "weight", "height", "proportions", *RACES):
             value = getattr(self, name)
             if not (np.isfinite(value) and 0.0 <= value <= 1.0):
-                raise ValueError(f"Phenotype: {name} must be within [0, 1], got {value}")
+                raise InputError(f"Phenotype: {name} must be within [0, 1], got {value}")
         if sum(getattr(self, r) for r in RACES) <= 0:
-            raise ValueError("Phenotype: the race weights must not all be 0")
+            raise InputError("Phenotype: the race weights must not all be 0")
 
     @staticmethod
     def age_value(years: float) -> float:

@@ -23,6 +23,7 @@ import torch
 from torch import nn
 
 from rig.asset import AssetError, default_skinning_path, write_npz_atomic
+from rig.errors import InputError
 from rig.lbs import ShapeError, skin_vertices
 from rig.losses import LAMBDA_P, laplacian_loss, vertex_rmse
 from rig.optim import Progress, frozen
@@ -48,7 +49,7 @@ class GroupLinear(nn.Module):
     def __init__(self, in_features: int, out_features: int, groups: int) -> None:
         super().__init__()
         if in_features % groups or out_features % groups:
-            raise ValueError(
+            raise InputError(
                 f"GroupLinear: in_features {in_features} and out_features {out_features} must be "
                 f"divisible by groups {groups}"
             )

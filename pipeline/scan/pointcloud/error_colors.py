@@ -6,6 +6,8 @@ import math
 
 import numpy as np
 
+from rig.errors import InputError
+
 NAN_GREY = (128, 128, 128)
 
 # Blue → light blue → pale yellow → orange → red (ColorBrewer RdYlBu, reversed): even lightness steps
@@ -35,12 +37,12 @@ def error_colors(distances_mm: np.ndarray, vmax_mm: float | None = None) -> np.n
     """
     distances = np.asarray(distances_mm, dtype=np.float64)
     if distances.ndim != 1:
-        raise ValueError(f"error_colors: distances_mm must have shape (N,), got {distances.shape}")
+        raise InputError(f"error_colors: distances_mm must have shape (N,), got {distances.shape}")
     finite = distances[np.isfinite(distances)]
     if vmax_mm is None:
         vmax_mm = max(float(np.percentile(finite, 95.0)) if finite.size else 0.0, 1e-6)
     elif not (math.isfinite(vmax_mm) and vmax_mm > 0):
-        raise ValueError(f"error_colors: vmax_mm must be a positive number, got {vmax_mm}")
+        raise InputError(f"error_colors: vmax_mm must be a positive number, got {vmax_mm}")
     t = np.clip(np.nan_to_num(distances, nan=0.0) / vmax_mm, 0.0, 1.0)
     rgb = np.stack([np.interp(t, _ERROR_STOPS, _ERROR_COLOURS[:, c]) for c in range(3)], axis=1)
     rgb = np.rint(rgb).astype(np.uint8)

@@ -7,6 +7,7 @@ import os
 
 import numpy as np
 
+from rig.errors import InputError
 from rig.io.atomic import write_bytes_atomic
 from rig.io.ply import binary_ply, position_dtype
 
@@ -39,29 +40,29 @@ def write_point_cloud_ply(
     func = "write_point_cloud_ply"
     points = np.asarray(points)
     if points.ndim != 2 or points.shape[1] != 3:
-        raise ValueError(f"{func}: points must have shape (N, 3), got {points.shape}")
+        raise InputError(f"{func}: points must have shape (N, 3), got {points.shape}")
     n = len(points)
     fields = [(c, position_dtype(points), points[:, i]) for i, c in enumerate("xyz")]
     if normals is not None:
         normals = np.asarray(normals)
         if normals.shape != (n, 3):
-            raise ValueError(f"{func}: normals must have shape ({n}, 3), got {normals.shape}")
+            raise InputError(f"{func}: normals must have shape ({n}, 3), got {normals.shape}")
         fields += [(c, "<f4", normals[:, i]) for i, c in enumerate(("nx", "ny", "nz"))]
     if colors is not None:
         colors = np.asarray(colors)
         if colors.shape != (n, 3):
-            raise ValueError(f"{func}: colors must have shape ({n}, 3), got {colors.shape}")
+            raise InputError(f"{func}: colors must have shape ({n}, 3), got {colors.shape}")
         if not np.issubdtype(colors.dtype, np.integer) or colors.min(initial=0) < 0 or colors.max(initial=0) > 255:
-            raise ValueError(f"{func}: colors must be integers in 0-255 (uint8), got dtype {colors.dtype}")
+            raise InputError(f"{func}: colors must be integers in 0-255 (uint8), got dtype {colors.dtype}")
         fields += [(c, "u1", colors[:, i]) for i, c in enumerate(("red", "green", "blue"))]
     for name, values in (scalars or {}).items():
         values = np.asarray(values)
         if not (isinstance(name, str) and name.isidentifier() and name.isascii()):
-            raise ValueError(f"{func}: scalar name {name!r} is not a valid PLY property name")
+            raise InputError(f"{func}: scalar name {name!r} is not a valid PLY property name")
         if name in {f[0] for f in fields}:
-            raise ValueError(f"{func}: scalar name {name!r} clashes with another vertex property")
+            raise InputError(f"{func}: scalar name {name!r} clashes with another vertex property")
         if values.shape != (n,):
-            raise ValueError(f"{func}: scalars[{name!r}] must have shape ({n},), got {values.shape}")
+            raise InputError(f"{func}: scalars[{name!r}] must have shape ({n},), got {values.shape}")
         fields.append((name, "<f4", values))
 
     data = binary_ply(fields, comments=("written by jnr (pipeline.scan.pointcloud)",))

@@ -9,6 +9,7 @@ import numpy as np
 
 from pipeline.colour import srgb_to_linear
 from pipeline.synthetic.photos.settings import _as_generator
+from rig.errors import InputError
 
 
 def _value_noise(rng: np.random.Generator, width: int, height: int, cells: int) -> np.ndarray:
@@ -38,7 +39,7 @@ def synthetic_background(rng: np.random.Generator | int, width: int, height: int
     """
     for name, value in (("width", width), ("height", height)):
         if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
-            raise ValueError(f"synthetic_background: {name} must be an integer >= 1, got {value!r}")
+            raise InputError(f"synthetic_background: {name} must be an integer >= 1, got {value!r}")
     rng = _as_generator(rng, "synthetic_background")
     width, height = int(width), int(height)
     hue, saturation, value = rng.uniform(0.0, 1.0), rng.uniform(0.05, 0.45), rng.uniform(0.3, 0.85)

@@ -9,6 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from render.reference import ReferenceLight
+from rig.errors import InputError
 
 
 def _check_range(
@@ -17,15 +18,15 @@ def _check_range(
     try:
         lo, hi = (float(x) for x in value)
     except (TypeError, ValueError):
-        raise ValueError(f"PhotoSettings: {name} must be a (low, high) pair of numbers, got {value!r}") from None
+        raise InputError(f"PhotoSettings: {name} must be a (low, high) pair of numbers, got {value!r}") from None
     if not (math.isfinite(lo) and math.isfinite(hi)) or lo > hi:
-        raise ValueError(f"PhotoSettings: {name} must be a finite (low, high) pair with low <= high, got {value!r}")
+        raise InputError(f"PhotoSettings: {name} must be a finite (low, high) pair with low <= high, got {value!r}")
     if low is not None and (lo < low or (strict_low and lo <= low)):
-        raise ValueError(
+        raise InputError(
             f"PhotoSettings: {name} must lie {'above' if strict_low else 'at or above'} {low}, got {value!r}"
         )
     if high is not None and hi > high:
-        raise ValueError(f"PhotoSettings: {name} must lie at or below {high}, got {value!r}")
+        raise InputError(f"PhotoSettings: {name} must lie at or below {high}, got {value!r}")
     return lo, hi
 
 
@@ -38,13 +39,13 @@ def _check_number(value, name: str, *, low: float = 0.0, high: float | None = No
         or (high is not None and value > high)
     ):
         bound = f"in [{low}, {high}]" if high is not None else f">= {low}"
-        raise ValueError(f"PhotoSettings: {name} must be a finite number {bound}, got {value!r}")
+        raise InputError(f"PhotoSettings: {name} must be a finite number {bound}, got {value!r}")
     return float(value)
 
 
 def _check_int(value, name: str, low: int) -> int:
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
-        raise ValueError(f"PhotoSettings: {name} must be an integer >= {low}, got {value!r}")
+        raise InputError(f"PhotoSettings: {name} must be an integer >= {low}, got {value!r}")
     return int(value)
 
 
@@ -184,7 +185,7 @@ def _as_generator(rng, func: str) -> np.random.Generator:
         return rng
     if isinstance(rng, (int, np.integer)) and not isinstance(rng, bool) and rng >= 0:
         return np.random.default_rng(int(rng))
-    raise ValueError(f"{func}: rng must be a numpy Generator or a non-negative integer seed, got {rng!r}")
+    raise InputError(f"{func}: rng must be a numpy Generator or a non-negative integer seed, got {rng!r}")
 
 
 __all__ = ["PhotoSettings", "SyntheticPhoto"]

@@ -24,6 +24,7 @@ from pipeline.synthetic.photos.settings import PhotoSettings, SyntheticPhoto, _a
 from pipeline.synthetic.population import SPLIT_SIZES, population_split
 from render.reference import ReferenceLight, render_reference
 from rig.asset import RigAsset, load_asset
+from rig.errors import InputError
 from rig.geometry import head_rotation
 
 logger = logging.getLogger(__name__)
@@ -44,7 +45,7 @@ def _draw(value, bounds, rng: np.random.Generator, name: str) -> float:
         or not isinstance(value, (int, float, np.integer, np.floating))
         or not math.isfinite(float(value))
     ):
-        raise ValueError(f"simulate_photo: {name} must be a finite number, got {value!r}")
+        raise InputError(f"simulate_photo: {name} must be a finite number, got {value!r}")
     return float(value)
 
 
@@ -142,11 +143,11 @@ def _checked_vertices(vertices, asset: RigAsset) -> np.ndarray:
     func = "simulate_photo"
     v = np.asarray(vertices.detach().cpu().numpy() if isinstance(vertices, torch.Tensor) else vertices, np.float64)
     if v.shape != asset.vertices.shape:
-        raise ValueError(
+        raise InputError(
             f"{func}: expected vertices of shape {asset.vertices.shape} (the template's topology), got {v.shape}"
         )
     if not np.isfinite(v).all():
-        raise ValueError(f"{func}: vertices must be finite")
+        raise InputError(f"{func}: vertices must be finite")
     return v
 
 
@@ -198,7 +199,7 @@ def _draws(rng: np.random.Generator, s: PhotoSettings, asset: RigAsset, shape, a
     else:
         albedo = np.asarray(albedo, np.float64)
         if albedo.shape != shape or not np.isfinite(albedo).all() or albedo.min() < 0 or albedo.max() > 1:
-            raise ValueError(f"{func}: albedo must be {shape} linear RGB within [0, 1], got shape {albedo.shape}")
+            raise InputError(f"{func}: albedo must be {shape} linear RGB within [0, 1], got shape {albedo.shape}")
     background = synthetic_background(rng, width, height)
     render_seed = int(rng.integers(0, 2**31 - 1))
     noise = rng.normal(0.0, 1.0, size=(68, 2)) * s.landmark_noise_px
@@ -233,7 +234,7 @@ def _pose(v: np.ndarray, asset: RigAsset, d: _Draws) -> tuple[np.ndarray, np.nda
     face_centre = RIG_TO_OPENCV @ rotation @ landmarks3d.mean(axis=0)  # camera axes, before translation
     depth = face_centre[2] + d.distance
     if depth <= 0:
-        raise ValueError(f"simulate_photo: distance {d.distance:.1f} mm puts the face centre behind the camera")
+        raise InputError(f"simulate_photo: distance {d.distance:.1f} mm puts the face centre behind the camera")
     offset, focal = d.offset, d.focal
     translation = np.array(
         [offset[0] * depth / focal - face_centre[0], offset[1] * depth / focal - face_centre[1], d.distance]
@@ -259,7 +260,7 @@ def _true_landmarks(
     landmarks3d[:17] = contour_landmarks(torch.as_tensor(v), asset.faces, centre_rig, asset).numpy()
     cam_points = landmarks3d @ (RIG_TO_OPENCV @ rotation).T + translation
     if (cam_points[:, 2] <= 1.0).any():
-        raise ValueError(
+        raise InputError(
             f"{func}: landmarks {np.flatnonzero(cam_points[:, 2] <= 1.0).tolist()} lie behind the "
             f"camera (distance {d.distance:.1f} mm)"
         )
@@ -267,7 +268,7 @@ def _true_landmarks(
     m = s.margin_px
     outside = (true2d[:, 0] < m) | (true2d[:, 0] > width - 1 - m) | (true2d[:, 1] < m) | (true2d[:, 1] > height - 1 - m)
     if outside.any():
-        raise ValueError(
+        raise InputError(
             f"{func}: the face does not fit in the {width}x{height} image: "
             f"landmarks {np.flatnonzero(outside).tolist()} "
             f"lie outside it or within {m} px of its border (focal {d.focal:.1f} px, distance {d.distance:.1f} mm, "
@@ -332,10 +333,10 @@ def synthetic_photo(
         ValueError: index out of range, negative seed, or :func:`simulate_photo`'s errors.
     """
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
-        raise ValueError(f"synthetic_photo: seed must be a non-negative integer, got {seed!r}")
+        raise InputError(f"synthetic_photo: seed must be a non-negative integer, got {seed!r}")
     n_heads = SPLIT_SIZES["heldout"]
     if isinstance(index, bool) or not isinstance(index, (int, np.integer)) or not 0 <= index < n_heads:
-        raise ValueError(f"synthetic_photo: index must be an integer in [0, {n_heads - 1}], got {index!r}")
+        raise InputError(f"synthetic_photo: index must be an integer in [0, {n_heads - 1}], got {index!r}")
     index = int(index)
     population = population_split("heldout", 0, first=index + 1)  # the same heads, without making all 100
     if expressive:

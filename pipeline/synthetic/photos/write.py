@@ -10,6 +10,7 @@ import numpy as np
 from landmarks.formats import write_landmarks
 from pipeline.synthetic.photos.settings import SyntheticPhoto
 from rig.asset import RigAsset, load_asset
+from rig.errors import InputError
 
 
 def write_synthetic_photo(photo: SyntheticPhoto, out_dir: str | Path, asset: RigAsset | None = None) -> Path:
@@ -36,7 +37,7 @@ def write_synthetic_photo(photo: SyntheticPhoto, out_dir: str | Path, asset: Rig
 
     asset = load_asset() if asset is None else asset
     if photo.gt_vertices.shape != asset.vertices.shape:
-        raise ValueError(
+        raise InputError(
             f"write_synthetic_photo: expected gt_vertices of shape {asset.vertices.shape}, "
             f"got {photo.gt_vertices.shape}"
         )

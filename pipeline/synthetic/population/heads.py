@@ -16,6 +16,7 @@ from pipeline.synthetic.population.phenotypes import (
     sample_phenotypes,
 )
 from rig.asset import RigAsset, cached_per_asset, load_asset
+from rig.errors import InputError
 from rig.geometry import face_normals
 from rig.template import HIDDEN_REGIONS
 
@@ -142,7 +143,7 @@ def flipped_skin_faces(vertices: np.ndarray, asset: RigAsset | None = None) -> n
 
 def check_seed(seed) -> int:
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
-        raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
+        raise InputError(f"seed must be a non-negative integer, got {seed!r}")
     return int(seed)
 
 
@@ -197,6 +198,6 @@ def synthesize_heads(
     if phenotypes is not None:
         p = _check_phenotypes(phenotypes)
         if len(p) not in (1, len(c)):
-            raise ValueError(f"phenotypes must have one row per head ({len(c)}) or one row; got {len(p)}")
+            raise InputError(f"phenotypes must have one row per head ({len(c)}) or one row; got {len(p)}")
         heads = heads + phenotype_displacements(p, asset)
     return heads[0] if np.ndim(coefficients) == 1 else heads

@@ -31,6 +31,7 @@ from __future__ import annotations
 import numpy as np
 
 from rig.asset import RigAsset, load_asset
+from rig.errors import InputError
 from rig.ict.data import NUM_IDENTITY_MODES
 
 __all__ = ["MAX_DRAWS", "MODE_NAMES", "MODE_SD", "SHIFTED_MODE_SD", "ict_coefficients", "ict_heads"]
@@ -71,7 +72,7 @@ def ict_heads(coefficients: np.ndarray, asset: RigAsset | None = None) -> np.nda
     one = c.ndim == 1
     c = np.atleast_2d(c)
     if c.ndim != 2 or c.shape[1] > NUM_IDENTITY_MODES or not np.isfinite(c).all():
-        raise ValueError(f"coefficients must be finite, (n, k <= {NUM_IDENTITY_MODES}); got {np.shape(coefficients)}")
+        raise InputError(f"coefficients must be finite, (n, k <= {NUM_IDENTITY_MODES}); got {np.shape(coefficients)}")
     modes = identity_modes(asset)[: c.shape[1]]
     d = np.tensordot(c, modes, axes=([1], [0]))  # (n, V, 3)
     eyes = asset.region_mask("eyeballs")

@@ -12,6 +12,7 @@ import numpy as np
 
 from pipeline.synthetic.population.features import _check_rows, _check_template, _mirror, _target
 from rig.asset import RigAsset, load_asset
+from rig.errors import InputError
 from rig.makehuman.head import head_mesh
 from rig.makehuman.phenotype import RACES, Phenotype, macro_target_weights
 
@@ -41,7 +42,7 @@ HEIGHT_SD, HEIGHT_RANGE = 0.1, (0.25, 0.75)
 
 def _check_count(n) -> int:
     if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 0:
-        raise ValueError(f"n must be a non-negative integer, got {n!r}")
+        raise InputError(f"n must be a non-negative integer, got {n!r}")
     return int(n)
 
 
@@ -49,7 +50,7 @@ def _generator(rng) -> np.random.Generator:
     if isinstance(rng, np.random.Generator):
         return rng
     if isinstance(rng, bool) or not isinstance(rng, (int, np.integer)):
-        raise ValueError(f"rng must be a numpy Generator or an integer seed, got {type(rng).__name__}")
+        raise InputError(f"rng must be a numpy Generator or an integer seed, got {type(rng).__name__}")
     return np.random.default_rng(int(rng))
 
 

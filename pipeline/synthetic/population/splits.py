@@ -81,7 +81,7 @@ class Population:
 
 def check_split(name) -> str:
     if name not in SPLIT_SIZES:
-        raise ValueError(f"unknown split {name!r}; splits are {list(SPLIT_SIZES)}")
+        raise InputError(f"unknown split {name!r}; splits are {list(SPLIT_SIZES)}")
     return name
 
 
@@ -92,7 +92,7 @@ def split_seeds(name: str, seed: int = 0, stream: str = "ict") -> np.ndarray:
     seed = check_seed(seed)
     sizes = MAKEHUMAN_SPLIT_SIZES if stream == "makehuman" else SPLIT_SIZES
     if name not in sizes:
-        raise ValueError(f"unknown split {name!r}; splits are {list(sizes)}")
+        raise InputError(f"unknown split {name!r}; splits are {list(sizes)}")
     key = name if stream == "makehuman" else f"ict-{name}"
     ss = np.random.SeedSequence([seed, zlib.crc32(key.encode("utf-8"))])
     return ss.generate_state(sizes[name], dtype=np.uint32).astype(np.int64)

@@ -9,7 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 import pygltflib
 
-from rig.errors import shape_error
+from rig.errors import InputError, shape_error
 from rig.io.gltf.encoding import _FLOAT, _BufferBuilder
 from rig.io.gltf.skin import _joint_nodes
 
@@ -70,10 +70,10 @@ def _add_animation(
     """Append ``animation`` to ``gltf`` (its accessors to ``builder``): one shared time accessor, a channel per
     animated joint path and per mesh node with morph targets."""
     if not isinstance(animation, GltfAnimation):
-        raise ValueError(f"{func}: animation must be a GltfAnimation, got {type(animation).__name__}")
+        raise InputError(f"{func}: animation must be a GltfAnimation, got {type(animation).__name__}")
     times = np.asarray(animation.times, dtype=np.float64).reshape(-1)
     if times.size == 0 or not np.isfinite(times).all() or np.any(np.diff(times) <= 0.0) or times[0] < 0.0:
-        raise ValueError(f"{func}: animation times must be finite, >= 0 and strictly increasing (T >= 1)")
+        raise InputError(f"{func}: animation times must be finite, >= 0 and strictly increasing (T >= 1)")
     n_keys = times.size
     samplers: list[pygltflib.AnimationSampler] = []
     channels: list[pygltflib.AnimationChannel] = []
@@ -98,7 +98,7 @@ def _add_animation(
                 func, "animation.joint_transforms", f"(T, K, 4, 4) = ({n_keys}, {len(names)}, 4, 4)", taus.shape
             )
         if not np.isfinite(taus).all():
-            raise ValueError(f"{func}: animation.joint_transforms contain NaN or infinite values")
+            raise InputError(f"{func}: animation.joint_transforms contain NaN or infinite values")
         trans, rots, scales = _joint_trs_keys(func, taus, names, par, pos)
         for j in range(len(names)):
             for path, values, kind in (
@@ -113,9 +113,9 @@ def _add_animation(
         if w.shape != (n_keys, n_targets) or n_targets == 0:
             raise shape_error(func, "animation.morph_weights", f"(T, M) = ({n_keys}, {n_targets})", w.shape)
         if not np.isfinite(w).all():
-            raise ValueError(f"{func}: animation.morph_weights contain NaN or infinite values")
+            raise InputError(f"{func}: animation.morph_weights contain NaN or infinite values")
         for node in morph_nodes:
             channel(node, "weights", w.reshape(-1), "SCALAR")
     if not channels:
-        raise ValueError(f"{func}: the animation animates nothing (no morph weights, no joint transform changes)")
+        raise InputError(f"{func}: the animation animates nothing (no morph weights, no joint transform changes)")
     gltf.animations = [pygltflib.Animation(name=animation.name, samplers=samplers, channels=channels)]

@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pygltflib
 
+from rig.errors import InputError
 from rig.geometry import vertex_normals
 from rig.io.atomic import write_bytes_atomic
 from rig.io.gltf.animation import GltfAnimation, _add_animation
@@ -193,17 +194,17 @@ def export_skinned_gltf(
     )
     k = len(names)
     if k > np.iinfo(np.uint16).max + 1:
-        raise ValueError(f"{func}: at most 65536 joints fit JOINTS_0 (unsigned short), got {k}")
+        raise InputError(f"{func}: at most 65536 joints fit JOINTS_0 (unsigned short), got {k}")
 
     joints4, weights4 = _top_influences(func, w)
     targets, target_names, target_weights = _check_morphs(func, n_vertices, morph_targets, morph_names, morph_weights)
     if bind not in BIND_MODES:
-        raise ValueError(f"{func}: bind must be one of {list(BIND_MODES)}, got {bind!r}")
+        raise InputError(f"{func}: bind must be one of {list(BIND_MODES)}, got {bind!r}")
     inverse_bind = np.stack([_translation(-p * MM_TO_M) for p in pos])
     mesh_extras: dict = {}
     if bind == "posed":
         if taus is None:
-            raise ValueError(f"{func}: bind='posed' needs joint_transforms")
+            raise InputError(f"{func}: bind='posed' needs joint_transforms")
         world, skinning = posed_bind(pos, par, taus)
         inverse_bind = np.linalg.inv(_scale_affine_to_metres(world))
         bake = bake_morphs and animation is None and len(target_weights) > 0
@@ -216,9 +217,9 @@ def export_skinned_gltf(
     normals = _unit_normals(v, f)
     if base_color_texture is not None:
         if not is_png(base_color_texture):
-            raise ValueError(f"{func}: base_color_texture must be the bytes of a PNG file")
+            raise InputError(f"{func}: base_color_texture must be the bytes of a PNG file")
         if uv is None:
-            raise ValueError(f"{func}: base_color_texture needs face_uvs (TEXCOORD_0)")
+            raise InputError(f"{func}: base_color_texture needs face_uvs (TEXCOORD_0)")
 
     if uv is not None:
         f, uvs, source = split_uv_seams(f, uv, n_vertices)
@@ -251,7 +252,7 @@ def export_skinned_gltf(
     morph = (morphs, target_names, target_weights)
     extra = [_add_attachment(func, builder, a, names, target_names, target_weights) for a in attachments]
     if len({m.name for m, _, _ in extra} | {"mesh"}) != len(extra) + 1:
-        raise ValueError(f"{func}: attachment names must be unique and not 'mesh'")
+        raise InputError(f"{func}: attachment names must be unique and not 'mesh'")
     texture_view = None if base_color_texture is None else builder._view(bytes(base_color_texture))
     gltf = _encode(
         builder, joint_nodes, roots, mesh_node, attributes, indices, ibm_accessor, morph, texture_view, extra
@@ -337,10 +338,10 @@ def _add_attachment(
 ) -> tuple[pygltflib.Mesh, pygltflib.Material, bool]:
     """An attachment's arrays in the buffer: ``(mesh, material, has morph targets)``."""
     if not isinstance(attachment, GltfAttachment):
-        raise ValueError(f"{func}: attachments must be GltfAttachment, got {type(attachment).__name__}")
+        raise InputError(f"{func}: attachments must be GltfAttachment, got {type(attachment).__name__}")
     name = str(attachment.name)
     if not name or name in joint_names:
-        raise ValueError(f"{func}: attachment name {name!r} must be non-empty and not a joint name")
+        raise InputError(f"{func}: attachment name {name!r} must be non-empty and not a joint name")
     v, f, _, _ = check_mesh_arrays(f"{func}: attachment {name!r}", attachment.vertices, attachment.faces, None, None)
     _, _, _, w, _ = _check_rig(
         f"{func}: attachment {name!r}",
@@ -365,7 +366,7 @@ def _add_attachment(
         ]
     color = (0.8, 0.8, 0.8) if attachment.color is None else tuple(float(c) for c in attachment.color)
     if len(color) != 3 or not all(0.0 <= c <= 1.0 for c in color):
-        raise ValueError(f"{func}: attachment {name!r} color must be 3 linear RGB values in [0, 1], got {color}")
+        raise InputError(f"{func}: attachment {name!r} color must be 3 linear RGB values in [0, 1], got {color}")
     mesh = pygltflib.Mesh(
         name=name,
         primitives=[

@@ -9,7 +9,7 @@ from dataclasses import dataclass
 
 import torch
 
-from rig.errors import ShapeError
+from rig.errors import InputError, ShapeError
 from rig.optim import Progress
 from rig.skinning.asm.model import AdaptiveSkinning
 from rig.skinning.asm.parameters import TAU_UNITS, UV_UNIT, AsmParameters, AsmRegularizer, AsmVariant
@@ -78,7 +78,7 @@ def fit_asm(
     if targets.dim() != 3 or targets.shape[1:] != (V, 3):
         raise ShapeError(f"fit_asm: targets must have shape (B, {V}, 3), got {tuple(targets.shape)}")
     if not torch.isfinite(targets).all():
-        raise ValueError("fit_asm: targets contain NaN or infinite values")
+        raise InputError("fit_asm: targets contain NaN or infinite values")
     t0 = time.perf_counter()
     dtype = model.rig.template.dtype
     targets = targets.to(dtype)

@@ -11,7 +11,7 @@ from pathlib import Path
 import torch
 from torch import nn
 
-from rig.errors import ShapeError
+from rig.errors import InputError, ShapeError
 from rig.lbs import hierarchy_levels, joint_world_transforms, skin_vertices_blended
 from rig.model import JointRig, RigOutput
 from rig.skinning.asm.binding import bone_local_transforms, bone_positions_from_uv, uv_domain, uv_face_tree
@@ -56,7 +56,7 @@ class AdaptiveSkinning(nn.Module):
         if rig is None:
             rig = JointRig()
         if not isinstance(components, int) or components < 1:
-            raise ValueError(f"AdaptiveSkinning: components must be a positive int, got {components!r}")
+            raise InputError(f"AdaptiveSkinning: components must be a positive int, got {components!r}")
         self.rig = rig
         self.components = components
         asset = rig.asset
@@ -121,7 +121,7 @@ class AdaptiveSkinning(nn.Module):
     def initial(self, batch: int = 1) -> AsmParameters:
         """The initial binding and GMM fits, zero transforms, for ``batch`` heads (new tensors)."""
         if not isinstance(batch, int) or batch < 1:
-            raise ValueError(f"AdaptiveSkinning.initial: batch must be a positive int, got {batch!r}")
+            raise InputError(f"AdaptiveSkinning.initial: batch must be a positive int, got {batch!r}")
         J, K = self.num_bones, self.components
         return AsmParameters(
             tau=self.zeta0.new_zeros(batch, J, 9),

@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import torch
 
-from rig.errors import SetupError, ShapeError
+from rig.errors import InputError, SetupError, ShapeError
 
 if TYPE_CHECKING:
     from rig.skinning.asm.model import AdaptiveSkinning
@@ -179,9 +179,9 @@ def asm_params_from_dict(data: dict, model: AdaptiveSkinning) -> AsmParameters:
         ValueError: another ``K``, an unknown bone or channel, values of the wrong length or not finite.
     """
     if not isinstance(data, dict) or not isinstance(data.get("bones"), dict):
-        raise ValueError("ASM parameters must be an object with a 'bones' object")
+        raise InputError("ASM parameters must be an object with a 'bones' object")
     if int(data.get("components", -1)) != model.components:
-        raise ValueError(
+        raise InputError(
             f"ASM parameters have K = {data.get('components')} Gaussians per bone, the model {model.components}"
         )
     names = model.rig.asset.joint_names
@@ -189,21 +189,21 @@ def asm_params_from_dict(data: dict, model: AdaptiveSkinning) -> AsmParameters:
     K = model.components
     for name, bone in data["bones"].items():
         if name not in names:
-            raise ValueError(f"unknown ASM bone {name!r}; bones are the rig's joints ({names[0]}, ...)")
+            raise InputError(f"unknown ASM bone {name!r}; bones are the rig's joints ({names[0]}, ...)")
         j = names.index(name)
         tau = bone.get("tau", {})
         unknown = [c for c in tau if c not in ASM_CHANNELS]
         if unknown:
-            raise ValueError(f"bone {name!r}: unknown channel(s) {unknown}; channels are {list(ASM_CHANNELS)}")
+            raise InputError(f"bone {name!r}: unknown channel(s) {unknown}; channels are {list(ASM_CHANNELS)}")
         for c, v in tau.items():
             p.tau[0, j, ASM_CHANNELS.index(c)] = float(v)
         for field, shape in (("zeta", (2,)), ("log_pi", (K,)), ("mu", (K, 2)), ("chol", (K, 3))):
             if field in bone:
                 value = torch.as_tensor(np.asarray(bone[field], np.float64), dtype=p.tau.dtype)
                 if tuple(value.shape) != shape:
-                    raise ValueError(f"bone {name!r}: {field} must have shape {shape}, got {tuple(value.shape)}")
+                    raise InputError(f"bone {name!r}: {field} must have shape {shape}, got {tuple(value.shape)}")
                 getattr(p, field)[0, j] = value
     for field, t in p.as_dict().items():
         if not torch.isfinite(t).all():
-            raise ValueError(f"ASM parameters: {field} has NaN or infinite values")
+            raise InputError(f"ASM parameters: {field} has NaN or infinite values")
     return p
