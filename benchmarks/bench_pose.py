@@ -39,6 +39,8 @@ from pipeline.fitting.state import head_vertices
 from pipeline.photo.fit_config import FitPhotoConfig
 from pipeline.photo.landmark_fit import fit_landmarks
 from pipeline.synthetic.photos.simulate import synthetic_photo
+from rig.expressions import EXPRESSION_NAMES
+from rig.skinning.neural import LATENT
 
 
 def main() -> None:
@@ -49,7 +51,9 @@ def main() -> None:
     args = parser.parse_args()
     rig, neural = load_models()
     asset = rig.asset
-    template = head_vertices(rig, neural, np.zeros(105), np.zeros(50), np.zeros(52))
+    template = head_vertices(
+        rig, neural, np.zeros(rig.num_parameters), np.zeros(LATENT), np.zeros(len(EXPRESSION_NAMES))
+    )
     template_landmarks = landmark_positions(template, ibug68_embedding(asset), asset.faces)[0]
     base = FitPhotoConfig().landmarks
     variants = {

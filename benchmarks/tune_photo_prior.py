@@ -38,6 +38,8 @@ from pipeline.fitting.state import head_vertices
 from pipeline.photo.fit_config import FitPhotoConfig
 from pipeline.photo.landmark_fit import fit_landmarks
 from pipeline.synthetic.photos.simulate import synthetic_photo
+from rig.expressions import EXPRESSION_NAMES
+from rig.skinning.neural import LATENT
 
 
 def main() -> None:
@@ -66,7 +68,9 @@ def main() -> None:
     parser.add_argument("--json", type=Path, default=None)
     args = parser.parse_args()
     rig, neural = load_models()
-    template = head_vertices(rig, neural, np.zeros(105), np.zeros(50), np.zeros(52))
+    template = head_vertices(
+        rig, neural, np.zeros(rig.num_parameters), np.zeros(LATENT), np.zeros(len(EXPRESSION_NAMES))
+    )
     base = FitPhotoConfig().landmarks
     if args.contour_weight is not None:
         base = replace(base, contour_weight=args.contour_weight)

@@ -11,7 +11,7 @@ landmarks in iBUG-68 order (:data:`landmarks.ibug68.names.IBUG68_NAMES`), the co
 Example::
 
     image = load_image("photo.jpg")            # (H, W, 3) uint8 RGB
-    face = detect_landmarks(image)             # the largest face, dlib's "auto" detector
+    face = detect_landmarks(image)             # the largest face, the "auto" detector (MediaPipe, then dlib)
     face.landmarks.shape                       # (68, 2)
 """
 
@@ -82,8 +82,8 @@ def detect_landmarks(
         image: ``(H, W, 3)`` uint8 RGB.
         face: which face, 0-based in the largest-first order of :func:`detect_faces`; ``None`` (default)
             takes the largest.
-        detector, options: as :func:`detect_faces` (default ``"auto"``: dlib's HOG detector, and its CNN
-            only when HOG finds no face).
+        detector, options: as :func:`detect_faces` (default ``"auto"``: MediaPipe's models, and dlib's HOG
+            and CNN detectors only when MediaPipe finds no face; it refuses without MediaPipe's runtime or models).
 
     Returns:
         The chosen :class:`~landmarks.detector.FaceDetection`; ``landmarks`` is ``(68, 2)`` float64

@@ -10,7 +10,8 @@ and sorts them largest first.
 Built in: dlib's HOG and CNN detectors (:mod:`landmarks.dlib_detector`), ``dlib`` (HOG, and the CNN
 only when HOG finds nothing), ``mediapipe`` (:mod:`landmarks.mediapipe.detector`: MediaPipe's models,
 which also fill :attr:`FaceDetection.dense` and :attr:`FaceDetection.roll_deg`) and ``auto``, the default
-(``mediapipe``, and ``dlib`` only when it finds nothing). Adding one is a module
+(``mediapipe``, and ``dlib`` only when it finds nothing; without MediaPipe's runtime or models it refuses
+rather than run ``dlib`` alone). Adding one is a module
 with a class that implements :class:`FaceDetector` and one :func:`register_detector` call: in the new
 module (imported before use), or below in this module's :func:`_register_builtin` for one jnr ships
 (importing the implementation lazily, in its factory, so that this module, which ``jnr fit --help``
@@ -68,7 +69,8 @@ class FaceDetection:
     landmarks: np.ndarray
     """``(68, 2)`` float64 0-based OpenCV pixel coordinates (x right, y down), iBUG-68 order."""
     detector: str
-    """The registered name of the detector that found the face (``"hog"`` or ``"cnn"`` for ``auto``)."""
+    """The registered name of the detector that found the face (for ``auto``: ``"mediapipe"``, ``"hog"`` or
+    ``"cnn"``)."""
     dense: np.ndarray | None = None
     """``(478, 3)`` float64 dense points, or None (dlib's detectors): MediaPipe's 468 face-mesh points and
     the subject's right (468-472) and left (473-477) iris, centre first, in MediaPipe's order; ``x, y`` in
@@ -105,8 +107,13 @@ class FaceDetector(Protocol):
 
 
 class FallbackDetector:
-    """Runs detectors in turn and returns the faces of the first that finds any (``auto``: dlib's HOG
-    detector, then its slower CNN only when HOG finds nothing). Implements :class:`FaceDetector`.
+    """Runs detectors in turn and returns the faces of the first that finds any. Implements :class:`FaceDetector`.
+
+    The built-in ``dlib`` (:func:`landmarks.dlib_detector.dlib_detector`) is one: dlib's HOG detector, then its
+    slower CNN only when HOG finds nothing. So is ``auto`` (:func:`landmarks.mediapipe.detector.auto_detector`):
+    MediaPipe's models, then dlib's HOG and CNN only when MediaPipe finds no face. ``auto`` is not made at all
+    without MediaPipe's runtime or model files: it refuses, saying what to install, and never runs dlib's
+    detectors alone in their place.
 
     Args:
         name: the registered name. detectors: tried in this order. description: for messages.

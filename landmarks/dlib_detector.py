@@ -2,8 +2,8 @@
 
 * :class:`HogDetector` (``"hog"``): dlib's HOG frontal face detector: fast, frontal faces.
 * :class:`CnnDetector` (``"cnn"``): dlib's CNN (MMOD) detector (``mmod_human_face_detector.dat`` from
-  ``face-recognition-models``): finds turned, tilted and low-contrast faces HOG misses, at about 5 s for
-  a 512 x 512 photo on 2 CPU cores.
+  ``face-recognition-models``): finds turned, tilted and low-contrast faces HOG misses, at many times HOG's
+  time (both timed in ``docs/fit_photo.md``, "How it works").
 * :func:`dlib_detector` (``"dlib"``): HOG, and the CNN only when HOG finds nothing (``"auto"``, the
   default, tries MediaPipe's first: :func:`landmarks.mediapipe.detector.auto_detector`).
 

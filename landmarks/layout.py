@@ -1,12 +1,13 @@
 """Landmark layouts: a detector's point scheme on the template, as the photo fit needs it (issue 26).
 
-A :class:`LandmarkLayout` says, for one scheme of ``N`` 2D points (dlib's iBUG-68 today, MediaPipe's dense
-mesh next): where each point lies on the template (:attr:`~LandmarkLayout.embedding`, one face and three
-barycentric weights each), which points are *contour* points that slide on the silhouette seen from the
-camera (re-picked as template vertices by :attr:`~LandmarkLayout.pick`), how much each point is trusted
-(:meth:`~LandmarkLayout.weights`) and which two points are the outer eye corners (for the normalised mean
-error). :class:`pipeline.fitting.landmark_term.LandmarkTerm` takes any layout, so both solvers fit any
-scheme the same way.
+A :class:`LandmarkLayout` says, for one scheme of ``N`` 2D points (iBUG-68, :func:`ibug68_layout`; MediaPipe's
+478 dense points, :mod:`landmarks.mediapipe.layout`): where each point lies on the template
+(:attr:`~LandmarkLayout.embedding`, one face and three barycentric weights each), which points are *contour*
+points that slide on the silhouette seen from the camera (re-picked as template vertices by
+:attr:`~LandmarkLayout.pick`), how much each point is trusted (:meth:`~LandmarkLayout.weights`) and which two
+points are the outer eye corners (for the normalised mean error).
+:class:`pipeline.fitting.landmark_term.LandmarkTerm` takes any layout, so both solvers fit any scheme the same
+way.
 
 Example::
 

@@ -14,7 +14,7 @@ Every output of the ``jnr`` commands goes through this module:
   in one atomic step at the end: ``renameat2(RENAME_NOREPLACE)`` when nothing may be replaced (a target
   that appeared meanwhile, e.g. from a second ``jnr`` process with the same ``--out``, is refused, not
   overwritten) and ``RENAME_EXCHANGE`` (swap, then delete the old one) with ``force`` (a folder only if
-  it is still jnr's). On any error or signal (SIGINT, SIGTERM: see :func:`pipeline.signals`) the
+  it is still jnr's). On any error or signal (SIGINT, SIGTERM: see :mod:`pipeline.signals`) the
   temporary is removed and the old output is untouched; errors name the user's path.
 * Outputs get the user's umask permissions (``mkdtemp``/``mkstemp`` make 0700/0600).
 """

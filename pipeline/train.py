@@ -102,6 +102,112 @@ def perturb(theta: torch.Tensor, config: TrainConfig, gen: torch.Generator) -> t
     return torch.cat(out) if out else theta.new_zeros(0, theta.shape[1])
 
 
+def _training_parameter_sets(
+    snapshots: torch.Tensor, config: TrainConfig, gen: torch.Generator
+) -> tuple[torch.Tensor, torch.Tensor, int]:
+    """Saved plus sparsely perturbed joint parameters (step 3 inputs), capped at ``max_training_sets``.
+
+    ``snapshots`` is ``(T, N, P)``; returns ``(S, P)`` parameters, ``(S,)`` head indices and the number of
+    perturbed sets (before the cap). Draws the perturbations, then the cap's permutation, from ``gen``.
+    """
+    T, N, P = snapshots.shape
+    theta_sets = snapshots.reshape(T * N, P)
+    head_index = torch.arange(N).repeat(T)
+    perturbed = perturb(theta_sets, config, gen)
+    theta_all = torch.cat([theta_sets, perturbed])
+    head_all = torch.cat([head_index, head_index.repeat(config.perturb_copies)])
+    if theta_all.shape[0] > config.max_training_sets:
+        keep = torch.randperm(theta_all.shape[0], generator=gen)[: config.max_training_sets]
+        theta_all, head_all = theta_all[keep], head_all[keep]
+    return theta_all, head_all, int(perturbed.shape[0])
+
+
+def _solve_weight_sets(
+    rig: JointRig,
+    theta_all: torch.Tensor,
+    head_all: torch.Tensor,
+    targets: torch.Tensor,
+    free: torch.Tensor,
+    config: TrainConfig,
+    progress: Progress | None,
+) -> torch.Tensor:
+    """Closed-form skinning floats that best reproduce each set's head, in chunks of 64 (bounded memory).
+
+    ``theta_all`` ``(S, P)``, ``head_all`` ``(S,)`` index into ``targets`` ``(N, V, 3)`` mm; ``free`` is the
+    learned linear floats ``(F,)``; returns ``(S, F)`` float32.
+    """
+    system = OrbitSystem.from_rig(rig)
+    solved = []
+    chunk = 64
+    for start in range(0, theta_all.shape[0], chunk):
+        solved.append(
+            solve_weights(
+                rig,
+                theta_all[start : start + chunk],
+                targets[head_all[start : start + chunk]],
+                free,
+                reg=config.solve_reg,
+                system=system,
+            )
+        )
+        if progress:
+            progress("weight sets", min(start + chunk, theta_all.shape[0]), theta_all.shape[0])
+    return torch.cat(solved).float()
+
+
+def _split_residuals(residuals: torch.Tensor, gen: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
+    """Random 1-in-20 (at least one) validation split of the ``(S, F)`` residual floats; ``(val, train)``."""
+    n_val = max(1, residuals.shape[0] // 20)
+    split = torch.randperm(residuals.shape[0], generator=gen)
+    return residuals[split[:n_val]], residuals[split[n_val:]]
+
+
+def _train_neural(
+    rig: JointRig,
+    train_res: torch.Tensor,
+    val_res: torch.Tensor,
+    config: TrainConfig,
+    seconds: dict[str, float],
+    progress: Progress | None,
+) -> tuple[SkinningDecoder, dict]:
+    """Step 4: auto-encoder, then WGAN fine-tuning of the decoder; returns it and its losses (last 20 of the WGAN).
+
+    Records ``seconds["autoencoder"]`` and ``seconds["wgan"]`` (wall time, s).
+    """
+    t = time.perf_counter()
+    decoder = SkinningDecoder(rig.num_skinning_floats)
+    encoder = SkinningEncoder(rig.num_skinning_floats)
+    critic = Critic()
+    ae_train, ae_val = train_autoencoder(
+        decoder,
+        encoder,
+        train_res,
+        val_res,
+        epochs=config.autoencoder_epochs,
+        batch_size=config.batch_size,
+        lr=config.autoencoder_lr,
+        seed=config.seed,
+        progress=progress,
+    )
+    seconds["autoencoder"] = time.perf_counter() - t
+    t = time.perf_counter()
+    g_log, c_log = train_wgan(
+        decoder,
+        encoder,
+        critic,
+        train_res,
+        iterations=config.wgan_iterations,
+        batch_size=config.batch_size,
+        lr=config.wgan_lr,
+        critic_steps=config.critic_steps,
+        seed=config.seed,
+        progress=progress,
+    )
+    seconds["wgan"] = time.perf_counter() - t
+    losses = {"autoencoder_train": ae_train, "autoencoder_val": ae_val, "generator": g_log[-20:], "critic": c_log[-20:]}
+    return decoder, losses
+
+
 def train(
     config: TrainConfig, out_path: Path, *, log_path: Path | None = None, progress: Progress | None = None
 ) -> TrainReport:
@@ -133,70 +239,14 @@ def train(
 
     # 3: skinning-weight training sets.
     t = time.perf_counter()
-    snaps = linear.snapshots  # (T, N, P)
-    T, N, P = snaps.shape
-    theta_sets = snaps.reshape(T * N, P)
-    head_index = torch.arange(N).repeat(T)
-    perturbed = perturb(theta_sets, config, gen)
-    theta_all = torch.cat([theta_sets, perturbed])
-    head_all = torch.cat([head_index, head_index.repeat(config.perturb_copies)])
-    if theta_all.shape[0] > config.max_training_sets:
-        keep = torch.randperm(theta_all.shape[0], generator=gen)[: config.max_training_sets]
-        theta_all, head_all = theta_all[keep], head_all[keep]
-    system = OrbitSystem.from_rig(rig)
-    solved = []
-    chunk = 64
-    for start in range(0, theta_all.shape[0], chunk):
-        solved.append(
-            solve_weights(
-                rig,
-                theta_all[start : start + chunk],
-                targets[head_all[start : start + chunk]],
-                linear.free,
-                reg=config.solve_reg,
-                system=system,
-            )
-        )
-        if progress:
-            progress("weight sets", min(start + chunk, theta_all.shape[0]), theta_all.shape[0])
-    solved_free = torch.cat(solved).float()
-    residuals = solved_free - linear.free[None]
-    n_val = max(1, residuals.shape[0] // 20)
-    split = torch.randperm(residuals.shape[0], generator=gen)
-    val_res, train_res = residuals[split[:n_val]], residuals[split[n_val:]]
+    T, N, _ = linear.snapshots.shape  # (T, N, P)
+    theta_all, head_all, n_perturbed = _training_parameter_sets(linear.snapshots, config, gen)
+    solved_free = _solve_weight_sets(rig, theta_all, head_all, targets, linear.free, config, progress)
+    val_res, train_res = _split_residuals(solved_free - linear.free[None], gen)
     seconds["weight_sets"] = time.perf_counter() - t
 
     # 4: neural skinning.
-    t = time.perf_counter()
-    decoder = SkinningDecoder(rig.num_skinning_floats)
-    encoder = SkinningEncoder(rig.num_skinning_floats)
-    critic = Critic()
-    ae_train, ae_val = train_autoencoder(
-        decoder,
-        encoder,
-        train_res,
-        val_res,
-        epochs=config.autoencoder_epochs,
-        batch_size=config.batch_size,
-        lr=config.autoencoder_lr,
-        seed=config.seed,
-        progress=progress,
-    )
-    seconds["autoencoder"] = time.perf_counter() - t
-    t = time.perf_counter()
-    g_log, c_log = train_wgan(
-        decoder,
-        encoder,
-        critic,
-        train_res,
-        iterations=config.wgan_iterations,
-        batch_size=config.batch_size,
-        lr=config.wgan_lr,
-        critic_steps=config.critic_steps,
-        seed=config.seed,
-        progress=progress,
-    )
-    seconds["wgan"] = time.perf_counter() - t
+    decoder, nn_losses = _train_neural(rig, train_res, val_res, config, seconds, progress)
     seconds["total"] = time.perf_counter() - t0
 
     neural = NeuralSkinning(rig, linear.free, decoder)
@@ -206,7 +256,7 @@ def train(
             "train_heads": N,
             "val_heads": len(val_set.names),
             "saved_parameter_sets": T * N,
-            "perturbed_parameter_sets": int(perturbed.shape[0]),
+            "perturbed_parameter_sets": n_perturbed,
             "weight_training_sets": int(train_res.shape[0]),
             "weight_validation_sets": int(val_res.shape[0]),
             "skinning_floats": rig.num_skinning_floats,
@@ -214,13 +264,7 @@ def train(
         },
         seconds={k: round(v, 1) for k, v in seconds.items()},
         rmse_train_mm={"per_joint_fit": linear.rmse_per_cycle},
-        losses={
-            "autoencoder_train": ae_train,
-            "autoencoder_val": ae_val,
-            "generator": g_log[-20:],
-            "critic": c_log[-20:],
-            "linear_weights_last": linear.weight_losses[-5:],
-        },
+        losses={**nn_losses, "linear_weights_last": linear.weight_losses[-5:]},
     )
     save_neural(neural, out_path, meta={"config": asdict(config), "counts": report.counts, "seconds": report.seconds})
     if log_path is not None:

@@ -1,9 +1,9 @@
 """The versioned rig asset: template mesh, joints and initial skinning weights in one ``.npz``.
 
 ``build_asset()`` regenerates everything from MakeHuman's data and code (deterministic); the committed file
-``rig/assets/jnr_rig_v1.npz`` is its output, loaded once per process by :func:`load_asset`.
-Arrays are named and typed; the joint order is :data:`rig.joints.JOINT_NAMES` and the region order is
-:data:`rig.template.REGION_NAMES` (both stored in the file and checked on load).
+``rig/assets/jnr_rig_v<template version>.npz`` (:data:`DEFAULT_ASSET`) is its output, loaded once per process
+by :func:`load_asset`. Arrays are named and typed; the joint order is :data:`rig.joints.JOINT_NAMES` and the
+region order is :data:`rig.template.REGION_NAMES` (both stored in the file and checked on load).
 """
 
 from __future__ import annotations

@@ -1,10 +1,11 @@
 """Arrays that take seconds to derive, kept on disk between runs (``disk_cached``).
 
-A command that builds the same arrays at every start (the 52 expression shapes from MakeHuman's target files
-take ~1.9 s on 2 cores) reads them from ``<cache>/<name>-<key>.npz`` instead; the key is a SHA-256 of what
-they are derived from: the caller's inputs (e.g. the template's vertices and faces), the source of the
-``rig`` package and the installed versions of the packages whose data it reads. A cached file is exactly
-what the build returned (``np.savez``, lossless), so results do not depend on whether it was there.
+A command that builds the same arrays at every start (the 52 expression shapes from MakeHuman's target files:
+seconds on 2 cores, timed in ``docs/fit_photo.md``, "Speed of the whole command") reads them from
+``<cache>/<name>-<key>.npz`` instead; the key is a SHA-256 of what they are derived from: the caller's inputs
+(e.g. the template's vertices and faces), the source of the ``rig`` package and the installed versions of the
+packages whose data it reads. A cached file is exactly what the build returned (``np.savez``, lossless), so
+results do not depend on whether it was there.
 
 Where: ``$JNR_CACHE_DIR``, else ``$XDG_CACHE_HOME/jnr``, else ``~/.cache/jnr``. ``JNR_CACHE_DIR=off``
 turns the cache off. A cache that cannot be read or written is skipped silently (logged at debug

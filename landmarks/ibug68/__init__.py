@@ -2,8 +2,8 @@
 
 Every landmark is first placed from the template's own structure (eyelid and lip loops, regions, the
 midline, geometric extremes), so it follows the template if the template is regenerated; then the
-committed corrections (:mod:`landmarks.ibug68.corrections`) move it to where
-dlib's 68-point predictor -- the detector the photo fit uses -- puts it on renders of the template
+committed corrections (:mod:`landmarks.ibug68.corrections`) move it to where dlib's 68-point predictor -- the
+photo fit's source of these 68 points with ``--detector dlib`` -- puts it on renders of the template
 (``benchmarks/bench_landmark_offsets.py``; ``docs/landmarks.md``). No rendering happens at run time:
 the embedding is a function of the asset and the two tables. Landmarks on the subject's left (+X) and
 on the midline are computed, their right-side partners are obtained through the vertex mirror map, so

@@ -10,18 +10,12 @@ table maps the mesh to the 68 iBUG landmarks (:mod:`landmarks.mediapipe.ibug68_m
 order, and ``roll_deg``. Models are loaded once, on the first detection; LiteRT runs on one thread by
 default.
 
-Why the full-range model by default: it finds small faces the short-range one, made for selfies, misses.
-Measured on the astronaut shrunk into a 512-px image of its blurred self: full range found face boxes down
-to 40 px (15 px of its 192-px input; not 33 px), short range down to 80 px (not 53 px); a 57-px face
-beside the 512-px astronaut (an 819-px wide image) was found by full range only. On a close portrait
-both find the face, and the 68 landmarks mapped from their meshes are about as accurate
-(``benchmarks/fit_mediapipe_ibug_map.py``). ``model="both"`` runs both and merges their boxes (weighted
-NMS). The detector sees the whole image at 192 x 192: a smaller face needs a crop.
-
-Measured on ``skimage.data.astronaut()`` (512 x 512, one face, 1 thread, median of 7, 2026-12-04): detection
-24.5 ms (the whole image and its four 384-px squares, :func:`detection_tiles`; 4.5 ms with ``tiles=False``),
-mesh 4.3 ms (two passes), irises 3.4 ms, 31 ms in all (12 ms without the squares); the first detection loads
-the models (about 30 ms more).
+Why the full-range model by default: it finds small faces the short-range one, made for selfies, misses,
+and on a close portrait both find the face and the 68 landmarks mapped from their meshes are about as
+accurate (measured in ``docs/landmarks.md``, "MediaPipe's detector and its 68 points"). ``model="both"`` runs
+both and merges their boxes (weighted NMS). The detector sees the whole image at 192 x 192: a smaller face
+needs a crop, hence the overlapping squares of :func:`detection_tiles` on large images (the time each part
+takes: ``docs/landmarks.md``, ``docs/fit_photo.md``).
 
 Example::
 

@@ -10,11 +10,8 @@ true landmark over all the photos (least squares, pixels scaled to an inter-ocul
 The jaw contour (0-16) of iBUG follows the face's silhouette as the head turns; a fixed vertex mix
 cannot, so those points are the least accurate for turned heads.
 
-Measured (the script's output): on 15 evaluation photos of 3 heads the fit never saw (yaw -30..30), the
-mean error at an inter-ocular distance of 100 px is 2.8 px over landmarks 17-67 (brows 3.8, nose 2.9,
-eyes 2.2, lips 2.5) and 8.3 px on the jaw contour; on ``skimage.data.astronaut()`` the mapped points lie
-2.8 px on average (at most 6.6 px, a brow end) from dlib's 68 landmarks, at an inter-ocular distance of
-60 px.
+The table's error on photos the fit never saw, and against dlib's 68 on a real photo, is measured in
+``docs/landmarks.md`` ("MediaPipe's detector and its 68 points").
 
 Example::
 

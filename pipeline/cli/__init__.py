@@ -120,8 +120,9 @@ def _one_line(exc: BaseException) -> str:
 def run() -> None:
     """The ``jnr`` console command: :func:`main`, then a quick exit. Once the command is done (its outputs
     written, closed and moved into place) the interpreter's own teardown of torch, Dr.Jit and LiteRT takes
-    about 0.5 s (``benchmarks/bench_fit_command.py``); it is skipped when nothing else runs (no other non-daemon
-    thread, no child process), after the output streams and the logs are flushed."""
+    a noticeable part of a short command (``benchmarks/bench_fit_command.py``; ``docs/fit_photo.md``, "Speed of the
+    whole command"); it is skipped when nothing else runs (no other non-daemon thread, no child process), after
+    the output streams and the logs are flushed."""
     import multiprocessing
     import os
     import threading

@@ -378,6 +378,102 @@ def _detector_help() -> str:
     return ", ".join(listed)
 
 
+def _add_input_arguments(parser: argparse.ArgumentParser) -> None:
+    """``jnr fit``'s inputs: the photos, the output folder, the landmarks, face, detector and focal."""
+    parser.add_argument("photos", nargs="+", metavar="PHOTO", help="image file(s) or folder(s) of images")
+    parser.add_argument("--out", required=True, help="output folder (per photo: OUT/<name>/ when several)")
+    parser.add_argument(
+        "--landmarks",
+        metavar="FILE|auto",
+        help="landmarks file (.pts, .json, .csv; 68 iBUG points, or MediaPipe's 468/478) instead of "
+        "detection (one photo); 'auto': the "
+        "file with the photo's name beside each photo (face.png -> face.pts), as in iBUG 300-W",
+    )
+    parser.add_argument(
+        "--face",
+        metavar="N|all",
+        help="which detected face, 0 = the largest (default: 0), or 'all': every face, into "
+        "OUT/face_<k>/ with OUT/summary.csv (not with --landmarks)",
+    )
+    parser.add_argument(
+        "--detector",
+        choices=detector_names(),
+        default=DEFAULT_DETECTOR,
+        help=f"the face detector: {_detector_help()}; report.json lists every face found",
+    )
+    parser.add_argument("--focal", type=float, help="focal length in pixels (default: 1.4 x max(width, height))")
+
+
+def _add_output_arguments(parser: argparse.ArgumentParser) -> None:
+    """Which files each fit writes, in which units and axes (shortcuts of ``--set outputs.*``)."""
+    parser.add_argument(
+        "--outputs",
+        choices=("all", "mesh", "minimal"),
+        help="which files each fit writes: all (default), mesh (mesh.obj/.mtl/.ply/.glb, texture.png, params.json, "
+        "report.json, config.yaml) or minimal (params.json, report.json, config.yaml; jnr rig edit rebuilds the "
+        "head from them); fewer files take less time (= --set outputs.files=...)",
+    )
+    parser.add_argument(
+        "--units",
+        choices=("mm", "m"),
+        help="units of mesh.obj and mesh.ply (default mm, rig space; m for Blender and tools that read metres; "
+        "mesh.glb is in metres either way; = --set outputs.units=...)",
+    )
+    parser.add_argument(
+        "--ply-up",
+        choices=("y", "z"),
+        help="up axis of mesh.ply: y (default, rig space; MeshLab, Open3D, CloudCompare) or z (upright in "
+        "Blender's PLY importer with its default axes); mesh.obj stays Y-up (= --set outputs.ply_up=...)",
+    )
+
+
+def _add_fit_arguments(parser: argparse.ArgumentParser) -> None:
+    """What is fitted (landmarks, photometric stages, views, identity model) and its settings."""
+    parser.add_argument(
+        "--landmarks-only", action="store_true", help="the landmark fit only (the default; kept for scripts)"
+    )
+    parser.add_argument(
+        "--photometric",
+        action="store_true",
+        help="after the landmark fit, the photometric stages (render + photo loss, ~20 s a photo; off by "
+        "default: on synthetic validation photos they did not improve the geometry, see "
+        "docs/fit_photo.md)",
+    )
+    parser.add_argument(
+        "--views",
+        action="store_true",
+        help="the photos are views of ONE person: fit one shared identity with a pose, expression and "
+        "focal per view (at least 2 photos; OUT/ gets one mesh and overlay_<k>.png per view; "
+        "--photometric adds photometric consistency between views; docs/multiview.md)",
+    )
+    parser.add_argument(
+        "--skinning",
+        choices=("jnr", "asm"),
+        help="with --views: the identity model, jnr (the rig's joints, default) or asm (adaptive skinning)",
+    )
+    parser.add_argument("--config", help="YAML overriding the fitting settings (e.g. configs/fit_photo.yaml)")
+    parser.add_argument("--set", action="append", metavar="KEY=VALUE", help="override one setting (repeatable)")
+
+
+def _add_run_arguments(parser: argparse.ArgumentParser) -> None:
+    """How several photos are run (processes or a Dask cluster), replaced and reported."""
+    parser.add_argument("--jobs", type=int, help="parallel processes for several photos (default: the CPU count)")
+    parser.add_argument(
+        "--scheduler",
+        metavar="ADDRESS",
+        help="fit several photos on a Dask cluster: the address of its scheduler (e.g. tcp://host:8786, "
+        "as `dask scheduler` prints it); the workers need jnr installed and the photos and --out "
+        "at the same paths (docs/datasets.md); not with --jobs",
+    )
+    parser.add_argument(
+        "--force",
+        action="store_true",
+        help="replace output folders that exist (only jnr's own); for several photos: fit every photo "
+        "again instead of keeping the complete outputs of an earlier run",
+    )
+    parser.add_argument("--quiet", action="store_true", help="no progress bars")
+
+
 def add_commands(sub: argparse._SubParsersAction) -> None:
     """``jnr fit``."""
     fit = sub.add_parser(
@@ -387,84 +483,8 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
         description=FIT_DESCRIPTION,
         epilog=FIT_EPILOG,
     )
-    fit.add_argument("photos", nargs="+", metavar="PHOTO", help="image file(s) or folder(s) of images")
-    fit.add_argument("--out", required=True, help="output folder (per photo: OUT/<name>/ when several)")
-    fit.add_argument(
-        "--landmarks",
-        metavar="FILE|auto",
-        help="landmarks file (.pts, .json, .csv; 68 iBUG points, or MediaPipe's 468/478) instead of "
-        "detection (one photo); 'auto': the "
-        "file with the photo's name beside each photo (face.png -> face.pts), as in iBUG 300-W",
-    )
-    fit.add_argument(
-        "--face",
-        metavar="N|all",
-        help="which detected face, 0 = the largest (default: 0), or 'all': every face, into "
-        "OUT/face_<k>/ with OUT/summary.csv (not with --landmarks)",
-    )
-    fit.add_argument(
-        "--detector",
-        choices=detector_names(),
-        default=DEFAULT_DETECTOR,
-        help=f"the face detector: {_detector_help()}; report.json lists every face found",
-    )
-    fit.add_argument("--focal", type=float, help="focal length in pixels (default: 1.4 x max(width, height))")
-    fit.add_argument(
-        "--outputs",
-        choices=("all", "mesh", "minimal"),
-        help="which files each fit writes: all (default), mesh (mesh.obj/.mtl/.ply/.glb, texture.png, params.json, "
-        "report.json, config.yaml) or minimal (params.json, report.json, config.yaml; jnr rig edit rebuilds the "
-        "head from them); fewer files take less time (= --set outputs.files=...)",
-    )
-    fit.add_argument(
-        "--units",
-        choices=("mm", "m"),
-        help="units of mesh.obj and mesh.ply (default mm, rig space; m for Blender and tools that read metres; "
-        "mesh.glb is in metres either way; = --set outputs.units=...)",
-    )
-    fit.add_argument(
-        "--ply-up",
-        choices=("y", "z"),
-        help="up axis of mesh.ply: y (default, rig space; MeshLab, Open3D, CloudCompare) or z (upright in "
-        "Blender's PLY importer with its default axes); mesh.obj stays Y-up (= --set outputs.ply_up=...)",
-    )
-    fit.add_argument(
-        "--landmarks-only", action="store_true", help="the landmark fit only (the default; kept for scripts)"
-    )
-    fit.add_argument(
-        "--photometric",
-        action="store_true",
-        help="after the landmark fit, the photometric stages (render + photo loss, ~20 s a photo; off by "
-        "default: on synthetic validation photos they did not improve the geometry, see "
-        "docs/fit_photo.md)",
-    )
-    fit.add_argument(
-        "--views",
-        action="store_true",
-        help="the photos are views of ONE person: fit one shared identity with a pose, expression and "
-        "focal per view (at least 2 photos; OUT/ gets one mesh and overlay_<k>.png per view; "
-        "--photometric adds photometric consistency between views; docs/multiview.md)",
-    )
-    fit.add_argument(
-        "--skinning",
-        choices=("jnr", "asm"),
-        help="with --views: the identity model, jnr (the rig's joints, default) or asm (adaptive skinning)",
-    )
-    fit.add_argument("--config", help="YAML overriding the fitting settings (e.g. configs/fit_photo.yaml)")
-    fit.add_argument("--set", action="append", metavar="KEY=VALUE", help="override one setting (repeatable)")
-    fit.add_argument("--jobs", type=int, help="parallel processes for several photos (default: the CPU count)")
-    fit.add_argument(
-        "--scheduler",
-        metavar="ADDRESS",
-        help="fit several photos on a Dask cluster: the address of its scheduler (e.g. tcp://host:8786, "
-        "as `dask scheduler` prints it); the workers need jnr installed and the photos and --out "
-        "at the same paths (docs/datasets.md); not with --jobs",
-    )
-    fit.add_argument(
-        "--force",
-        action="store_true",
-        help="replace output folders that exist (only jnr's own); for several photos: fit every photo "
-        "again instead of keeping the complete outputs of an earlier run",
-    )
-    fit.add_argument("--quiet", action="store_true", help="no progress bars")
+    _add_input_arguments(fit)
+    _add_output_arguments(fit)
+    _add_fit_arguments(fit)
+    _add_run_arguments(fit)
     fit.set_defaults(func=cmd_fit)

@@ -239,6 +239,71 @@ def face_error(fitted: np.ndarray, truth: np.ndarray, asset=None) -> dict:
     return now_style_error(fitted, truth, asset.faces, asset.region_mask(*FACE_REGIONS), inner(fitted), inner(truth))
 
 
+def _check_selection(first, n_neutral, n_expressive, landmarks: str) -> None:
+    """Reject counts or a first head outside the 100 held-out heads, and an unknown landmark source."""
+    for name, value in (("first", first), ("n_neutral", n_neutral), ("n_expressive", n_expressive)):
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not 0 <= value <= 100:
+            raise InputError(f"evaluate_photos: {name} must be an integer in [0, 100], got {value!r}")
+    if first + max(n_neutral, n_expressive) > 100:
+        raise InputError(
+            f"evaluate_photos: heads {first}..{first + max(n_neutral, n_expressive) - 1} exceed the 100 held-out heads"
+        )
+    if landmarks not in LANDMARK_SOURCES:
+        raise InputError(f"evaluate_photos: landmarks must be one of {list(LANDMARK_SOURCES)}, got {landmarks!r}")
+
+
+def _photo_landmarks(photo, landmarks: str, asset) -> tuple[np.ndarray, tuple | None] | None:
+    """The fit's ``(K, 2)`` px target and dense MediaPipe points from ``landmarks``' source; ``None``: no face seen."""
+    target, dense = photo.landmarks2d, None
+    if landmarks != "noisy":
+        try:
+            face = detect_landmarks(photo.image, detector="dlib" if landmarks == "dlib" else "mediapipe")
+        except NoFaceError:
+            return None
+        target = face.landmarks
+        if landmarks == "mediapipe":
+            dense = (face.dense[:, :2], mediapipe_layout(asset))
+    return target, dense
+
+
+def _method_heads(fit, seconds: float, template: np.ndarray, template_pose: tuple, rig, neural) -> tuple:
+    """Per method: name, ``(V, 3)`` rig-space head (mm), camera rotation and translation, landmark error (px), s."""
+    lfit = fit.landmark_fit
+    t_rot, t_trans = template_pose
+    return (
+        ("jnr", fit.rig_vertices, fit.rotation, fit.translation, float(fit.error_px.mean()), seconds),
+        (
+            "landmarks",
+            head_vertices(rig, neural, lfit.theta, lfit.z, lfit.expressions),
+            lfit.rotation,
+            lfit.translation,
+            float(lfit.error_px.mean()),
+            lfit.seconds,
+        ),
+        ("template", template, t_rot, t_trans, math.nan, 0.0),
+    )
+
+
+def _score_photo(photo, kind: str, heads: tuple, asset, add: Callable[..., None]) -> None:
+    """Score each method's head against the photo's true head (face error, mm; pose error, deg) and ``add`` it."""
+    truth = photo.gt_vertices
+    common = {"name": photo.name, "kind": kind, "yaw_deg": float(photo.yaw_deg)}
+    for method, vertices, rot, trans, lm_px, secs in heads:
+        err = face_error(vertices, truth, asset)
+        pose = pose_error_deg(vertices, rot, trans, truth, photo.rotation, photo.translation, asset)
+        add(
+            **common,
+            method=method,
+            s2m_median_mm=err["s2m_median_mm"],
+            s2m_mean_mm=err["s2m_mean_mm"],
+            s2m_std_mm=err["s2m_std_mm"],
+            vertex_mean_mm=err["vertex_mean_mm"],
+            pose_error_deg=pose,
+            landmark_error_px=lm_px,
+            seconds=secs,
+        )
+
+
 def evaluate_photos(
     n_neutral: int = 5,
     n_expressive: int = 5,
@@ -269,15 +334,7 @@ def evaluate_photos(
     Returns:
         :class:`PhotoEvaluation` with records for ``jnr``, ``landmarks`` and ``template`` per photo.
     """
-    for name, value in (("first", first), ("n_neutral", n_neutral), ("n_expressive", n_expressive)):
-        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not 0 <= value <= 100:
-            raise InputError(f"evaluate_photos: {name} must be an integer in [0, 100], got {value!r}")
-    if first + max(n_neutral, n_expressive) > 100:
-        raise InputError(
-            f"evaluate_photos: heads {first}..{first + max(n_neutral, n_expressive) - 1} exceed the 100 held-out heads"
-        )
-    if landmarks not in LANDMARK_SOURCES:
-        raise InputError(f"evaluate_photos: landmarks must be one of {list(LANDMARK_SOURCES)}, got {landmarks!r}")
+    _check_selection(first, n_neutral, n_expressive, landmarks)
 
     config = config or FitPhotoConfig()
     settings = settings or PhotoSettings()
@@ -301,48 +358,16 @@ def evaluate_photos(
             photo = synthetic_photo(
                 index, expressive=kind == "expressive", seed=scan_seed(seed, "photo-" + kind, index), settings=settings
             )
-            truth = photo.gt_vertices
-            target, dense = photo.landmarks2d, None
-            if landmarks != "noisy":
-                try:
-                    face = detect_landmarks(photo.image, detector="dlib" if landmarks == "dlib" else "mediapipe")
-                except NoFaceError:
-                    missed.append(photo.name)
-                    continue
-                target = face.landmarks
-                if landmarks == "mediapipe":
-                    dense = (face.dense[:, :2], mediapipe_layout(asset))
+            found = _photo_landmarks(photo, landmarks, asset)
+            if found is None:
+                missed.append(photo.name)
+                continue
+            target, dense = found
             t0 = time.perf_counter()
             fit = fit_photo(photo.image, target, focal=photo.focal, config=config, rig=rig, neural=neural, dense=dense)
             seconds = time.perf_counter() - t0
-            common = {"name": photo.name, "kind": kind, "yaw_deg": float(photo.yaw_deg)}
-            lfit = fit.landmark_fit
-            t_rot, t_trans = solve_pose(target, template_landmarks, photo.width, photo.height, photo.focal)
-            for method, vertices, rot, trans, lm_px, secs in (
-                ("jnr", fit.rig_vertices, fit.rotation, fit.translation, float(fit.error_px.mean()), seconds),
-                (
-                    "landmarks",
-                    head_vertices(rig, neural, lfit.theta, lfit.z, lfit.expressions),
-                    lfit.rotation,
-                    lfit.translation,
-                    float(lfit.error_px.mean()),
-                    lfit.seconds,
-                ),
-                ("template", template, t_rot, t_trans, math.nan, 0.0),
-            ):
-                err = face_error(vertices, truth, asset)
-                pose = pose_error_deg(vertices, rot, trans, truth, photo.rotation, photo.translation, asset)
-                add(
-                    **common,
-                    method=method,
-                    s2m_median_mm=err["s2m_median_mm"],
-                    s2m_mean_mm=err["s2m_mean_mm"],
-                    s2m_std_mm=err["s2m_std_mm"],
-                    vertex_mean_mm=err["vertex_mean_mm"],
-                    pose_error_deg=pose,
-                    landmark_error_px=lm_px,
-                    seconds=secs,
-                )
+            template_pose = solve_pose(target, template_landmarks, photo.width, photo.height, photo.focal)
+            _score_photo(photo, kind, _method_heads(fit, seconds, template, template_pose, rig, neural), asset, add)
     return PhotoEvaluation(
         tuple(records),
         settings={

@@ -150,30 +150,8 @@ def _number(text: str, path: Path, row: int, column: str) -> float:
     return value
 
 
-def read_curves(path: str | Path, *, fps: float | None = None, head_units: str | None = None) -> Curves:
-    """Read a Live Link Face or plain curves CSV (module docstring). Shape columns may use ARKit's names
-    (``eyeBlinkLeft``, any case) or its raw ``ARFaceAnchor`` keys (``eyeBlink_L``); MediaPipe's blendshape
-    output reads as it is (its ``_neutral`` column skipped, its missing ``tongueOut`` 0, ``timestamp_ms`` a
-    time column); shapes a file does not have are 0.
-
-    Args:
-        fps: frames per second of the timecodes (Live Link Face, default :data:`LIVE_LINK_FPS`) or of the
-            rows of a plain file without a ``time`` column (default :data:`PLAIN_FPS`).
-        head_units: ``"rad"`` or ``"deg"``: the head angles' unit (default: radians for Live Link Face,
-            degrees for the plain layout).
-
-    Returns:
-        :class:`Curves`; coefficients outside a shape's limits are clamped with a warning.
-
-    Raises:
-        CurvesError: unreadable file, unknown column, bad number, times not increasing, no rows.
-        FileNotFoundError: no such file.
-    """
-    path = Path(path)
-    if fps is not None and not (math.isfinite(fps) and fps > 0):
-        raise CurvesError(f"fps must be a positive number, got {fps}")
-    if head_units not in (None, "rad", "deg"):
-        raise CurvesError(f"head units must be 'rad' or 'deg', got {head_units!r}")
+def _read_rows(path: Path) -> tuple[list[str], list[list[str]]]:
+    """The stripped header and the non-blank rows under it of a UTF-8 CSV, refusing empty or header-only files."""
     try:
         regular_file(path, "curves", MAX_CURVES_BYTES)
         text = path.read_text(encoding="utf-8-sig")
@@ -188,7 +166,13 @@ def read_curves(path: str | Path, *, fps: float | None = None, head_units: str |
     body = rows[1:]
     if not body:
         raise CurvesError(f"{path}: no rows under the header")
-    live_link = len(header) >= 2 and header[0].lower() == "timecode" and header[1].lower() == "blendshapecount"
+    return header, body
+
+
+def _header_columns(
+    header: list[str], live_link: bool, path: Path
+) -> tuple[list[tuple[int, str, int | None]], int | None, float]:
+    """``(csv column, "shape" | "head", target index)`` per read column, and the time column and its unit (s)."""
     index = _expression_index()
     head_names = [h.lower() for h in (LIVE_LINK_HEAD if live_link else HEAD_COLUMNS)]
     ignored = {h.lower() for h in LIVE_LINK_EYES} if live_link else set()
@@ -220,11 +204,11 @@ def read_curves(path: str | Path, *, fps: float | None = None, head_units: str |
     shapes = [n for _, kind, n in columns if kind == "shape"]
     if len(set(shapes)) != len(shapes):
         raise CurvesError(f"{path}: an ARKit name appears twice in the header")
+    return columns, time_column, time_unit
 
-    n = len(body)
-    coefficients = np.zeros((n, len(EXPRESSION_NAMES)))
-    head = np.zeros((n, 3)) if any(kind == "head" for _, kind, _ in columns) else None
-    times = np.zeros(n)
+
+def _frame_rate(fps: float | None, live_link: bool, body: list[list[str]], path: Path) -> float:
+    """Frames per second: ``fps``, else the timecodes' rate (warning when unreadable) or the layout's default."""
     rate = fps
     if rate is None and live_link:
         rate = timecode_rate([row[0] if row else "" for row in body], path)
@@ -232,11 +216,29 @@ def read_curves(path: str | Path, *, fps: float | None = None, head_units: str |
             warnings.warn(
                 f"{path}: the timecodes stay within one second, so their frame rate cannot be read from them; "
                 f"assumed {LIVE_LINK_FPS:g} fps (pass --fps)",
-                stacklevel=2,
+                stacklevel=3,
             )
         rate = rate or LIVE_LINK_FPS
     elif rate is None:
         rate = PLAIN_FPS
+    return rate
+
+
+def _parse_rows(
+    header: list[str],
+    body: list[list[str]],
+    columns: list[tuple[int, str, int | None]],
+    live_link: bool,
+    time_column: int | None,
+    time_unit: float,
+    rate: float,
+    path: Path,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """``(T,)`` times (s, from 0, increasing), ``(T, 52)`` raw coefficients and ``(T, 3)`` head angles (file units)."""
+    n = len(body)
+    coefficients = np.zeros((n, len(EXPRESSION_NAMES)))
+    head = np.zeros((n, 3)) if any(kind == "head" for _, kind, _ in columns) else None
+    times = np.zeros(n)
     for r, row in enumerate(body):
         line = r + 2
         if len(row) != len(header):
@@ -257,11 +259,49 @@ def read_curves(path: str | Path, *, fps: float | None = None, head_units: str |
     if np.any(np.diff(times) <= 0.0):
         bad = int(np.flatnonzero(np.diff(times) <= 0.0)[0]) + 3
         raise CurvesError(f"{path}: times must increase from row to row; row {bad} does not")
+    return times, coefficients, head
+
+
+def _clamp_to_limits(coefficients: np.ndarray, path: Path) -> np.ndarray:
+    """``(T, 52)`` coefficients clamped to the shapes' limits, warning (for the reader's caller) when any moved."""
     low, high = (t.numpy().astype(np.float64) for t in expression_limits())
     clamped = np.clip(coefficients, low, high)
     if np.any(np.abs(clamped - coefficients) > 1e-9):
         worst = float(np.max(np.abs(clamped - coefficients)))
-        warnings.warn(f"{path}: coefficients outside their limits were clamped (by up to {worst:.3g})", stacklevel=2)
+        warnings.warn(f"{path}: coefficients outside their limits were clamped (by up to {worst:.3g})", stacklevel=3)
+    return clamped
+
+
+def read_curves(path: str | Path, *, fps: float | None = None, head_units: str | None = None) -> Curves:
+    """Read a Live Link Face or plain curves CSV (module docstring). Shape columns may use ARKit's names
+    (``eyeBlinkLeft``, any case) or its raw ``ARFaceAnchor`` keys (``eyeBlink_L``); MediaPipe's blendshape
+    output reads as it is (its ``_neutral`` column skipped, its missing ``tongueOut`` 0, ``timestamp_ms`` a
+    time column); shapes a file does not have are 0.
+
+    Args:
+        fps: frames per second of the timecodes (Live Link Face, default :data:`LIVE_LINK_FPS`) or of the
+            rows of a plain file without a ``time`` column (default :data:`PLAIN_FPS`).
+        head_units: ``"rad"`` or ``"deg"``: the head angles' unit (default: radians for Live Link Face,
+            degrees for the plain layout).
+
+    Returns:
+        :class:`Curves`; coefficients outside a shape's limits are clamped with a warning.
+
+    Raises:
+        CurvesError: unreadable file, unknown column, bad number, times not increasing, no rows.
+        FileNotFoundError: no such file.
+    """
+    path = Path(path)
+    if fps is not None and not (math.isfinite(fps) and fps > 0):
+        raise CurvesError(f"fps must be a positive number, got {fps}")
+    if head_units not in (None, "rad", "deg"):
+        raise CurvesError(f"head units must be 'rad' or 'deg', got {head_units!r}")
+    header, body = _read_rows(path)
+    live_link = len(header) >= 2 and header[0].lower() == "timecode" and header[1].lower() == "blendshapecount"
+    columns, time_column, time_unit = _header_columns(header, live_link, path)
+    rate = _frame_rate(fps, live_link, body, path)
+    times, coefficients, head = _parse_rows(header, body, columns, live_link, time_column, time_unit, rate, path)
+    clamped = _clamp_to_limits(coefficients, path)
     if head is not None and (head_units or ("rad" if live_link else "deg")) == "rad":
         head = np.degrees(head)
     stated = rate if (live_link or time_column is None) else None

@@ -1,7 +1,9 @@
 """Single-photo reconstruction: the landmark fit, then a joint photometric + landmark fit (JNR 4.3 on a photo).
 
 1. **Landmark fit** (:func:`pipeline.photo.landmark_fit.fit_landmarks`): camera, solvePnP pose, then pose,
-   joints, Z and expressions against the 68 iBUG landmarks.
+   joints, Z and expressions against the landmarks: the ``dense`` points when given (``jnr fit``'s default,
+   MediaPipe's 478, :mod:`landmarks.mediapipe.layout`), else the 68 iBUG points (``--detector dlib`` or a
+   68-point landmarks file).
 2. **Photometric fit**: the rig mesh is rendered by :class:`render.renderer.DifferentiableRenderer`
    (Mitsuba 3, CPU) into a square crop around the face, downsampled to ``render_size`` pixels, and
    compared with the photo. Stages (:class:`PhotoStage`) alternate as in JNR 4.3: albedo and light
@@ -24,9 +26,10 @@
      camera-side hemisphere by linear least squares (ambient and irradiance per channel) on the
      ray-cast normals; ambient and irradiance are then optimised with the rest.
 
-Measured on synthetic photos (``benchmarks/bench_fit_photo.py``, README): the photometric stages
-leave the face geometry where the landmark fit put it (within +-0.06 mm of its error) and fit albedo and
-light; freer geometry in them made the geometry worse, since a photo's light is never exactly this model.
+On synthetic photos (``benchmarks/bench_fit_photo.py``) the photometric stages leave the face geometry
+about where the landmark fit put it and fit albedo and light; freer geometry in them made the geometry worse,
+since a photo's light is never exactly this model (measured in ``docs/fit_photo.md``, "The photometric
+stages" and "Settings: figures moved from the code").
 
 The renderer's world is the OpenCV camera frame of the photo (the model moves rig-space vertices
 there, as for the landmarks); the light is reported in rig space as well
@@ -142,6 +145,78 @@ def check_photo(image) -> np.ndarray:
     return img
 
 
+def _models(
+    config: FitPhotoConfig, rig: JointRig | None, neural: NeuralSkinning | None
+) -> tuple[JointRig, NeuralSkinning | None]:
+    """The rig (default: the committed one) and its learned skinning, loaded unless the config fits without it."""
+    rig = rig or JointRig()
+    if not config.landmarks.use_neural:
+        neural = None
+    elif neural is None:
+        neural, _ = load_neural(rig)
+    return rig, neural
+
+
+def _photo_state(rig: JointRig, neural: NeuralSkinning | None, lfit: LandmarkFit) -> PhotoState:
+    """The photometric fit's state (pose, joints, Z, expressions), started where the landmark fit ended."""
+    dtype = rig.template.dtype
+    state = PhotoState(rig, neural, ExpressionModel(rig.asset, dtype=dtype), lfit.rotation, lfit.translation)
+    state.load(lfit.theta, lfit.z, lfit.expressions)
+    return state
+
+
+def _landmark_terms(
+    rig: JointRig,
+    lm: np.ndarray,
+    dense: tuple[np.ndarray, LandmarkLayout] | None,
+    lfit: LandmarkFit,
+    size: tuple[int, int],
+    focal: float,
+    config: FitPhotoConfig,
+) -> tuple[LandmarkTerm, LandmarkTerm]:
+    """The term of the ``(68, 2)`` px iBUG landmarks (reported) and the one fitted: ``dense``'s layout, if given."""
+    width, height = size
+    landmark = config.landmarks
+    camera = make_camera(width, height, focal, dtype=rig.template.dtype, pose=False)
+    scale = lfit.losses["face_scale"]  # the landmark fit's unit (pixels of a face 100 px between the eye corners)
+    term = LandmarkTerm(
+        rig.asset,
+        lm,
+        camera,
+        landmark.huber_delta_px,
+        landmark.contour_weight,
+        landmark.landmark_weighting,
+        scale=scale,
+    )
+    fit_term = term
+    if dense is not None:
+        fitted, layout = dense
+        fit_term = LandmarkTerm(
+            rig.asset,
+            fitted,
+            camera,
+            landmark.huber_delta_px,
+            landmark.contour_weight,
+            landmark.landmark_weighting,
+            layout,
+            scale,
+        )
+    return term, fit_term
+
+
+def _fitted_points(
+    state: PhotoState, term: LandmarkTerm, fit_term: LandmarkTerm, dense: tuple[np.ndarray, LandmarkLayout] | None
+) -> tuple:
+    """Fitted ``(V, 3)`` rig head, ``(68, 2)`` px landmarks, their and the dense points' camera 3D, translation, mm."""
+    with torch.no_grad():
+        v = state.rig_vertices()
+        projected = term.project(state, v)
+        landmarks3d_camera = state.to_camera(term.points3d(state, v)).double().numpy()
+        dense3d_camera = None if dense is None else state.to_camera(fit_term.points3d(state, v)).double().numpy()
+        translation = state.translation.double().numpy()
+    return v, projected, landmarks3d_camera, dense3d_camera, translation
+
+
 def fit_photo(
     image,
     landmarks2d,
@@ -181,11 +256,7 @@ def fit_photo(
     lm = check_landmarks_2d_shape(landmarks2d)
     height, width = photo.shape[:2]
     focal = default_focal(width, height) if focal is None else check_focal(focal, width, height)
-    rig = rig or JointRig()
-    if not config.landmarks.use_neural:
-        neural = None
-    elif neural is None:
-        neural, _ = load_neural(rig)
+    rig, neural = _models(config, rig, neural)
     fitted, layout = (lm, None) if dense is None else dense
     lfit = fit_landmarks(
         fitted,
@@ -200,43 +271,13 @@ def fit_photo(
     )
     t_landmarks = time.perf_counter() - t0
 
-    dtype = rig.template.dtype
-    state = PhotoState(rig, neural, ExpressionModel(rig.asset, dtype=dtype), lfit.rotation, lfit.translation)
-    state.load(lfit.theta, lfit.z, lfit.expressions)
-    landmark = config.landmarks
-    camera = make_camera(width, height, focal, dtype=dtype, pose=False)
-    scale = lfit.losses["face_scale"]  # the landmark fit's unit (pixels of a face 100 px between the eye corners)
-    term = LandmarkTerm(
-        rig.asset,
-        lm,
-        camera,
-        landmark.huber_delta_px,
-        landmark.contour_weight,
-        landmark.landmark_weighting,
-        scale=scale,
-    )
-    fit_term = term
-    if dense is not None:
-        fit_term = LandmarkTerm(
-            rig.asset,
-            fitted,
-            camera,
-            landmark.huber_delta_px,
-            landmark.contour_weight,
-            landmark.landmark_weighting,
-            layout,
-            scale,
-        )
+    state = _photo_state(rig, neural, lfit)
+    term, fit_term = _landmark_terms(rig, lm, dense, lfit, (width, height), focal, config)
     t1 = time.perf_counter()
     appearance, stages, crop = fit_appearance(photo, lm, focal, state, fit_term, config.photometric, progress)
     t_photo = time.perf_counter() - t1
 
-    with torch.no_grad():
-        v = state.rig_vertices()
-        projected = term.project(state, v)
-        landmarks3d_camera = state.to_camera(term.points3d(state, v)).double().numpy()
-        dense3d_camera = None if dense is None else state.to_camera(fit_term.points3d(state, v)).double().numpy()
-        translation = state.translation.double().numpy()
+    v, projected, landmarks3d_camera, dense3d_camera, translation = _fitted_points(state, term, fit_term, dense)
     values = state.arrays()
     rotation = values["rotation"]
     error, nme = landmark_errors(projected, lm)

@@ -22,7 +22,7 @@ LIGHT_MODELS = ("directional", "sh")
 
 PHOTO_LAMBDA_IDENTITY = 0.03
 """Weight of the learned identity prior (:mod:`pipeline.fitting.identity`) in the photo fit, against the
-landmark term (mean over the 68 landmarks of half the squared pixel error, Huber); L_m is off.
+landmark term (mean over the fitted landmarks of half the squared pixel error, Huber); L_m is off.
 
 Chosen on synthetic validation photos (held-out heads 0-5, neutral and expressive, 1 px landmark noise,
 true focal; ``benchmarks/bench_fit_photo.py`` scores heads 20 on): NoW-style scan-to-mesh median,

@@ -1,4 +1,8 @@
-"""Fitting the rig to the 68 iBUG landmarks of one photo (JNR's single-image reconstruction, landmark term).
+"""Fitting the rig to the 2D landmarks of one photo (JNR's single-image reconstruction, landmark term).
+
+The points follow a :class:`landmarks.layout.LandmarkLayout`: :func:`fit_landmarks` defaults to the 68 iBUG
+points; ``jnr fit`` fits MediaPipe's 478 dense points by default (:mod:`landmarks.mediapipe.layout`), the 68
+only with ``--detector dlib``, a 68-point landmarks file or ``landmarks.dense: false``.
 
 1. **Camera**: a pinhole with the given focal length (default :func:`pipeline.camera.default_focal`),
    principal point at the image centre.
@@ -144,11 +148,9 @@ class LandmarkFitConfig:
     (dlib's points, a file's): the landmark term is divided by its square, so the priors weigh ``noise_px^2`` more
     against noisier points. The priors' weights were chosen with the true points + 1 px noise: 1."""
     dense_noise_px: float = 3.0
-    """The same for MediaPipe's 478 points: their error measured on renders of unseen heads is 3.07 px
-    (docs/landmarks.md). Chosen on validation photos (heads 0-9, issue 37): with MediaPipe's own points the fit
-    over the template's s2m median was 0.985 / 0.998 / **0.969** / 0.977 (median of 17 photos) for an effective
-    identity weight 0.03 / 0.1 / 0.3 / 1, i.e. ``dense_noise_px`` 1 / 1.8 / 3.2 / 5.8 (photos worse than the
-    template by > 0.05 mm: 6 / 3 / 2 / 3); the true points + 1 px want 1 (0.80 against 0.88 at 3.2)."""
+    """The same for MediaPipe's 478 points: about their error measured on renders of unseen heads
+    (``docs/fit_photo.md``, "How it works", step 3), and the best of the values tried on validation photos
+    (heads 0-9, issue 37; the figures: ``docs/fit_photo.md``, "Where the photo fit loses the shape")."""
     face_scale: bool = True
     """Measure the landmark errors in pixels of a face 100 px between the outer eye corners
     (:func:`pipeline.fitting.landmark_term.face_scale`, from the first pose), so the priors weigh the same against
@@ -250,8 +252,8 @@ def fit_landmarks(
     layout: LandmarkLayout | None = None,
     pose: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> LandmarkFit:
-    """Fit pose, joints, Z and expressions of the rig to the landmarks of one photo (dlib's 68 iBUG points by
-    default, or another ``layout``'s).
+    """Fit pose, joints, Z and expressions of the rig to the landmarks of one photo (the 68 iBUG points by
+    default, or another ``layout``'s, e.g. MediaPipe's 478 as ``jnr fit`` passes them).
 
     Args:
         landmarks2d: ``(N, 2)`` pixels (OpenCV, 0-based; x right, y down), in the layout's order (iBUG-68:

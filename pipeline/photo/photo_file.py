@@ -167,7 +167,7 @@ def fit_photo_file(
     not the working directory, writable; an existing one only with ``force`` and only if jnr wrote
     it), the image (readable, at most :data:`landmarks.images.MAX_IMAGE_PIXELS`), ``focal`` (within
     :data:`pipeline.camera.FOCAL_RANGE` times the longer side), the landmarks (a readable file
-    with 68 points, in or near the image, a face-like and not mirrored configuration). Photos longer
+    with 68, 468 or 478 points, in or near the image, a face-like and not mirrored configuration). Photos longer
     than :data:`landmarks.images.WORKING_MAX_SIDE` are fitted reduced by a power of two; the outputs
     give the camera and landmarks in the photo's own pixels.
 

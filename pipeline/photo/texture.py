@@ -211,6 +211,95 @@ def _check_camera(intrinsics, extrinsics) -> tuple[np.ndarray, np.ndarray]:
     return k, e
 
 
+def _check_mesh_inputs(photo, vertices, faces, face_uvs, size) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The photo ``(H, W, 3)`` uint8, vertices ``(V, 3)`` mm, faces ``(F, 3)`` int64 and UVs ``(F, 3, 2)``, checked."""
+    func = "unwrap_texture"
+    img = np.asarray(photo)
+    if img.ndim != 3 or img.shape[2] != 3 or min(img.shape[:2]) < 1:
+        raise shape_error(func, "photo", "(H, W, 3)", img.shape)
+    if img.dtype != np.uint8:
+        raise InputError(f"{func}: photo must be uint8 sRGB, got dtype {img.dtype}")
+    v = np.asarray(vertices, np.float64)
+    if v.ndim != 2 or v.shape[1] != 3 or not np.isfinite(v).all():
+        raise shape_error(func, "vertices", "(V, 3) finite", v.shape)
+    f = np.asarray(faces)
+    if f.ndim != 2 or f.shape[1] != 3 or not np.issubdtype(f.dtype, np.integer):
+        raise shape_error(func, "faces", "(F, 3) integer", f.shape)
+    f = f.astype(np.int64)
+    if len(f) == 0 or f.min() < 0 or f.max() >= len(v):
+        raise InputError(
+            f"{func}: faces must index the {len(v)} vertices, got range [{f.min(initial=0)}, "
+            f"{f.max(initial=0)}] over {len(f)} faces"
+        )
+    uv = np.asarray(face_uvs, np.float64)
+    if uv.shape != (len(f), 3, 2) or not np.isfinite(uv).all():
+        raise shape_error(func, "face_uvs", f"({len(f)}, 3, 2) finite", uv.shape)
+    if not (isinstance(size, (int, np.integer)) and 16 <= size <= 8192):
+        raise InputError(f"{func}: size must be an integer in 16-8192 texels, got {size!r}")
+    return img, v, f, uv
+
+
+def _check_fill_inputs(fill_colours, skin_faces, n_vertices: int, n_faces: int) -> tuple[np.ndarray | None, np.ndarray]:
+    """The fill ``(V, 3)`` as float sRGB in [0, 1] (or None) and the ``(F,)`` bool skin faces, checked."""
+    func = "unwrap_texture"
+    fill = None
+    if fill_colours is not None:
+        fill = np.asarray(fill_colours)
+        if fill.shape != (n_vertices, 3):
+            raise shape_error(func, "fill_colours", f"({n_vertices}, 3)", fill.shape)
+        fill = fill.astype(np.float64) / 255.0 if fill.dtype == np.uint8 else fill.astype(np.float64)
+        if not (np.isfinite(fill).all() and fill.min() >= 0.0 and fill.max() <= 1.0):
+            raise InputError(f"{func}: float fill_colours must lie in [0, 1]")
+    skin = np.ones(n_faces, bool) if skin_faces is None else np.asarray(skin_faces, bool)
+    if skin.shape != (n_faces,):
+        raise shape_error(func, "skin_faces", f"({n_faces},)", skin.shape)
+    return fill, skin
+
+
+def _texel_weights(
+    points: np.ndarray,
+    normals: np.ndarray,
+    v: np.ndarray,
+    f: np.ndarray,
+    k: np.ndarray,
+    e: np.ndarray,
+    width: int,
+    height: int,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Photo pixel ``(T, 2)`` of each texel point ``(T, 3)`` mm and the photo's weight there: 0 where unseen."""
+    rot, trans = e[:3, :3], e[:3, 3]
+    cam_centre = -rot.T @ trans
+    to_camera = cam_centre - points
+    distance = np.linalg.norm(to_camera, axis=1).clip(1e-12)
+    cos = (normals * to_camera).sum(1) / distance
+    cam = _transform(rot, points) + trans
+    z = cam[:, 2]
+    in_front = z > 1e-6
+    zs = np.where(in_front, z, 1.0)
+    xy = _transform(k[:2, :2], cam[:, :2] / zs[:, None]) + k[:2, 2]
+    inside = in_front & (xy[:, 0] > -0.5) & (xy[:, 0] < width - 0.5) & (xy[:, 1] > -0.5) & (xy[:, 1] < height - 0.5)
+
+    v_cam = _transform(rot, v) + trans
+    vz = v_cam[:, 2]
+    v_px = _transform(k[:2, :2], v_cam[:, :2] / np.where(vz > 1e-6, vz, 1.0)[:, None]) + k[:2, 2]
+    depth = zbuffer(v_px, vz, f, width, height)
+    # the nearest surface around the point: the farthest of the 4 pixel centres around it (a point on the
+    # visible surface has it within the tolerance, a hidden one has all 4 on the surface in front of it);
+    # tolerance: the surface's depth change over a pixel (steeper towards grazing angles, capped at 3:1)
+    # plus 0.5 mm
+    c0 = np.clip(np.floor(xy[:, 0]), 0, width - 1).astype(np.int64)
+    r0 = np.clip(np.floor(xy[:, 1]), 0, height - 1).astype(np.int64)
+    c1, r1 = np.minimum(c0 + 1, width - 1), np.minimum(r0 + 1, height - 1)
+    nearest = np.maximum(np.maximum(depth[r0, c0], depth[r0, c1]), np.maximum(depth[r1, c0], depth[r1, c1]))
+    pixel_mm = zs / k[0, 0]
+    slope = np.sqrt(np.clip(1.0 - cos**2, 0.0, 1.0)) / np.clip(cos, 1e-3, None)
+    tolerance = 0.5 + pixel_mm * np.minimum(slope, 3.0)
+    unoccluded = z <= nearest + tolerance
+    seen = inside & unoccluded & (cos > VISIBLE_COS)
+    weight = np.where(seen, np.clip((cos - VISIBLE_COS) / (FULL_WEIGHT_COS - VISIBLE_COS), 0.0, 1.0), 0.0)
+    return xy, weight
+
+
 def unwrap_texture(
     photo: np.ndarray,
     vertices: np.ndarray,
@@ -260,40 +349,9 @@ def unwrap_texture(
 
     t0 = time.perf_counter()
     func = "unwrap_texture"
-    img = np.asarray(photo)
-    if img.ndim != 3 or img.shape[2] != 3 or min(img.shape[:2]) < 1:
-        raise shape_error(func, "photo", "(H, W, 3)", img.shape)
-    if img.dtype != np.uint8:
-        raise InputError(f"{func}: photo must be uint8 sRGB, got dtype {img.dtype}")
-    v = np.asarray(vertices, np.float64)
-    if v.ndim != 2 or v.shape[1] != 3 or not np.isfinite(v).all():
-        raise shape_error(func, "vertices", "(V, 3) finite", v.shape)
-    f = np.asarray(faces)
-    if f.ndim != 2 or f.shape[1] != 3 or not np.issubdtype(f.dtype, np.integer):
-        raise shape_error(func, "faces", "(F, 3) integer", f.shape)
-    f = f.astype(np.int64)
-    if len(f) == 0 or f.min() < 0 or f.max() >= len(v):
-        raise InputError(
-            f"{func}: faces must index the {len(v)} vertices, got range [{f.min(initial=0)}, "
-            f"{f.max(initial=0)}] over {len(f)} faces"
-        )
-    uv = np.asarray(face_uvs, np.float64)
-    if uv.shape != (len(f), 3, 2) or not np.isfinite(uv).all():
-        raise shape_error(func, "face_uvs", f"({len(f)}, 3, 2) finite", uv.shape)
-    if not (isinstance(size, (int, np.integer)) and 16 <= size <= 8192):
-        raise InputError(f"{func}: size must be an integer in 16-8192 texels, got {size!r}")
+    img, v, f, uv = _check_mesh_inputs(photo, vertices, faces, face_uvs, size)
     k, e = _check_camera(intrinsics, extrinsics)
-    fill = None
-    if fill_colours is not None:
-        fill = np.asarray(fill_colours)
-        if fill.shape != v.shape:
-            raise shape_error(func, "fill_colours", f"({len(v)}, 3)", fill.shape)
-        fill = fill.astype(np.float64) / 255.0 if fill.dtype == np.uint8 else fill.astype(np.float64)
-        if not (np.isfinite(fill).all() and fill.min() >= 0.0 and fill.max() <= 1.0):
-            raise InputError(f"{func}: float fill_colours must lie in [0, 1]")
-    skin = np.ones(len(f), bool) if skin_faces is None else np.asarray(skin_faces, bool)
-    if skin.shape != (len(f),):
-        raise shape_error(func, "skin_faces", f"({len(f)},)", skin.shape)
+    fill, skin = _check_fill_inputs(fill_colours, skin_faces, len(v), len(f))
     height, width = img.shape[:2]
 
     # the covered texels and their points on the head
@@ -307,36 +365,7 @@ def unwrap_texture(
     normals /= np.linalg.norm(normals, axis=1, keepdims=True).clip(1e-12)
 
     # where they land in the photo, and whether they are seen there
-    rot, trans = e[:3, :3], e[:3, 3]
-    cam_centre = -rot.T @ trans
-    to_camera = cam_centre - points
-    distance = np.linalg.norm(to_camera, axis=1).clip(1e-12)
-    cos = (normals * to_camera).sum(1) / distance
-    cam = _transform(rot, points) + trans
-    z = cam[:, 2]
-    in_front = z > 1e-6
-    zs = np.where(in_front, z, 1.0)
-    xy = _transform(k[:2, :2], cam[:, :2] / zs[:, None]) + k[:2, 2]
-    inside = in_front & (xy[:, 0] > -0.5) & (xy[:, 0] < width - 0.5) & (xy[:, 1] > -0.5) & (xy[:, 1] < height - 0.5)
-
-    v_cam = _transform(rot, v) + trans
-    vz = v_cam[:, 2]
-    v_px = _transform(k[:2, :2], v_cam[:, :2] / np.where(vz > 1e-6, vz, 1.0)[:, None]) + k[:2, 2]
-    depth = zbuffer(v_px, vz, f, width, height)
-    # the nearest surface around the point: the farthest of the 4 pixel centres around it (a point on the
-    # visible surface has it within the tolerance, a hidden one has all 4 on the surface in front of it);
-    # tolerance: the surface's depth change over a pixel (steeper towards grazing angles, capped at 3:1)
-    # plus 0.5 mm
-    c0 = np.clip(np.floor(xy[:, 0]), 0, width - 1).astype(np.int64)
-    r0 = np.clip(np.floor(xy[:, 1]), 0, height - 1).astype(np.int64)
-    c1, r1 = np.minimum(c0 + 1, width - 1), np.minimum(r0 + 1, height - 1)
-    nearest = np.maximum(np.maximum(depth[r0, c0], depth[r0, c1]), np.maximum(depth[r1, c0], depth[r1, c1]))
-    pixel_mm = zs / k[0, 0]
-    slope = np.sqrt(np.clip(1.0 - cos**2, 0.0, 1.0)) / np.clip(cos, 1e-3, None)
-    tolerance = 0.5 + pixel_mm * np.minimum(slope, 3.0)
-    unoccluded = z <= nearest + tolerance
-    seen = inside & unoccluded & (cos > VISIBLE_COS)
-    weight = np.where(seen, np.clip((cos - VISIBLE_COS) / (FULL_WEIGHT_COS - VISIBLE_COS), 0.0, 1.0), 0.0)
+    xy, weight = _texel_weights(points, normals, v, f, k, e, width, height)
 
     map_x = np.full((size, size), -1.0, np.float32)
     map_y = np.full((size, size), -1.0, np.float32)

@@ -371,7 +371,8 @@ def _check_frame_and_units(
     """Refuse, with the evidence, a cloud the head fits far better turned over (a wrong ``--frame``) or in
     other units (inches detected as cm). Only doubtful alignments are checked (:data:`FRAME_CHECK_INLIERS`,
     :data:`UNITS_CHECK_COVERAGE`): a good scan costs nothing; a doubtful one one more pre-alignment per
-    alternative (about 1.5 s). The thresholds were chosen on synthetic scans (``docs/fit_scan.md``)."""
+    alternative (timed in ``docs/fit_scan.md``). The thresholds were chosen on synthetic scans
+    (``docs/fit_scan.md``)."""
     from scipy.spatial import cKDTree
 
     def covered(points: np.ndarray, fit: RigidAlignment, direction: np.ndarray | None) -> float:

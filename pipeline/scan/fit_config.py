@@ -26,9 +26,9 @@ def jnr_schedule(
     explains an open mouth with joint motion and stays in that local minimum (measured on the rig's own
     posed, expressive vertices fitted as a cloud: ``docs/fit_scan.md``). JNR runs 500 iterations per
     stage on a GPU; the defaults are scaled to a 2-core CPU: 135 steps, chosen on simulated scans of the
-    ``test`` split's ICT identities (4 neutral, 3 expressive; not the benchmark's held-out heads), where
-    they gave a face error of 2.94 mm in 3.8 s against 3.04 mm in 7.0 s for the earlier 260 steps (30 / 15
-    / 30, two identity cycles, coarse 20); fewer steps lost 0.3-0.7 mm (``docs/fit_scan.md``, "Speed").
+    ``test`` split's ICT identities (4 neutral, 3 expressive; not the benchmark's held-out heads) against the
+    earlier 260 steps and shorter schedules: the lowest face error of those tried, in about half the earlier
+    time (the table: ``docs/fit_scan.md``, "Speed").
     """
     stages: list[Stage] = []
     if coarse_iterations:

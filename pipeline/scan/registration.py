@@ -190,6 +190,93 @@ def pose_hypotheses(
     return candidates
 
 
+def _rank_coarse(
+    points: np.ndarray,
+    normals: np.ndarray | None,
+    candidates: list[tuple[np.ndarray, np.ndarray, float]],
+    tree: cKDTree,
+    model_n: np.ndarray,
+    model_v: np.ndarray,
+    iterations: int,
+    trim: float,
+    scale_bounds: tuple[float, float],
+    min_dot: float,
+) -> list[tuple[float, np.ndarray, np.ndarray, float]]:
+    """Each start after rigid trimmed ICP on the coarse ``(n, 3)`` mm points: ``(score, R, t, scale)``, best first."""
+    scored = []
+    for rot, t, s in candidates:
+        r, tt, ss, score = _trimmed_icp(
+            points,
+            normals,
+            tree,
+            model_n,
+            model_v,
+            rot,
+            t,
+            s,
+            iterations,
+            trim,
+            False,
+            scale_bounds,
+            min_dot,
+        )
+        scored.append((score, r, tt, ss))
+    scored.sort(key=lambda x: x[0])
+    return scored
+
+
+def _refine_best(
+    points: np.ndarray,
+    normals: np.ndarray | None,
+    best_coarse: list[tuple[float, np.ndarray, np.ndarray, float]],
+    tree: cKDTree,
+    model_n: np.ndarray,
+    model_v: np.ndarray,
+    vertical_shifts_mm: tuple[float, ...],
+    iterations: int,
+    trim: float,
+    with_scale: bool,
+    scale_bounds: tuple[float, float],
+    min_dot: float,
+) -> tuple[float, np.ndarray, np.ndarray, float]:
+    """The best ``(score, R, t, scale)`` of ICP on the fine ``(n, 3)`` mm points from each start and vertical shift."""
+    best = None
+    # Refine the best few, each also shifted along the head's vertical axis (ICP on a partial face
+    # can settle with the face slid up or down by a feature, e.g. the chin matched to the mouth).
+    for _score0, r, tt, ss in best_coarse:
+        for shift in vertical_shifts_mm:
+            r1, t1, s1, score = _trimmed_icp(
+                points,
+                normals,
+                tree,
+                model_n,
+                model_v,
+                r,
+                tt + shift * (r @ np.array([0.0, 1.0, 0.0])),
+                ss,
+                iterations,
+                trim,
+                with_scale,
+                scale_bounds,
+                min_dot,
+            )
+            if best is None or score < best[0]:
+                best = (score, r1, t1, s1)
+    return best
+
+
+def _inlier_fit(
+    points: np.ndarray, tree: cKDTree, rot: np.ndarray, t: np.ndarray, s: float, inlier_mm: float
+) -> tuple[float, float]:
+    """RMS distance (mm; inf if none) of the ``(n, 3)`` points within ``inlier_mm`` of the model, and their share."""
+    q = Similarity(rot, t, s).apply_inverse(points)
+    d, _ = tree.query(q)
+    d = d * s
+    inl = d <= inlier_mm
+    rms = float(np.sqrt(np.mean(d[inl] ** 2))) if inl.any() else float("inf")
+    return rms, float(inl.mean())
+
+
 def rigid_prealign(
     cloud: np.ndarray,
     cloud_normals: np.ndarray | None,
@@ -270,55 +357,26 @@ def rigid_prealign(
         facing_min=facing_min,
     )
     cn_coarse = None if cn_all is None else cn_all[coarse]
-    scored = []
-    for rot, t, s in candidates:
-        r, tt, ss, score = _trimmed_icp(
-            cloud[coarse],
-            cn_coarse,
-            tree,
-            model_n,
-            model_v,
-            rot,
-            t,
-            s,
-            coarse_iterations,
-            trim,
-            False,
-            scale_bounds,
-            min_dot,
-        )
-        scored.append((score, r, tt, ss))
-    scored.sort(key=lambda x: x[0])
+    scored = _rank_coarse(
+        cloud[coarse], cn_coarse, candidates, tree, model_n, model_v, coarse_iterations, trim, scale_bounds, min_dot
+    )
     cn_fine = None if cn_all is None else cn_all[fine]
-    best = None
-    # Refine the best few, each also shifted along the head's vertical axis (ICP on a partial face
-    # can settle with the face slid up or down by a feature, e.g. the chin matched to the mouth).
-    for _score0, r, tt, ss in scored[:refine_best]:
-        for shift in vertical_shifts_mm:
-            r1, t1, s1, score = _trimmed_icp(
-                cloud[fine],
-                cn_fine,
-                tree,
-                model_n,
-                model_v,
-                r,
-                tt + shift * (r @ np.array([0.0, 1.0, 0.0])),
-                ss,
-                fine_iterations,
-                trim,
-                with_scale,
-                scale_bounds,
-                min_dot,
-            )
-            if best is None or score < best[0]:
-                best = (score, r1, t1, s1)
-    score, rot, t, s = best
-    q = Similarity(rot, t, s).apply_inverse(cloud[fine])
-    d, _ = tree.query(q)
-    d = d * s
-    inl = d <= inlier_mm
-    rms = float(np.sqrt(np.mean(d[inl] ** 2))) if inl.any() else float("inf")
-    return RigidAlignment(rot, t, float(s), rms, float(inl.mean()), len(candidates), float(score))
+    score, rot, t, s = _refine_best(
+        cloud[fine],
+        cn_fine,
+        scored[:refine_best],
+        tree,
+        model_n,
+        model_v,
+        vertical_shifts_mm,
+        fine_iterations,
+        trim,
+        with_scale,
+        scale_bounds,
+        min_dot,
+    )
+    rms, inlier_fraction = _inlier_fit(cloud[fine], tree, rot, t, s, inlier_mm)
+    return RigidAlignment(rot, t, float(s), rms, inlier_fraction, len(candidates), float(score))
 
 
 def face_coverage(

@@ -3,10 +3,10 @@
 The head (rig space: mm, right-handed, +Y up, +Z out of the face) is placed by a random rigid
 transform, a pinhole depth camera is put ``distance_mm`` in front of it looking along world -Z, the
 mesh is rasterised with a numpy z-buffer (perspective-correct depth), the valid pixels are
-back-projected to 3D and corrupted like a time-of-flight sensor: axial noise growing with the square
-of the depth, lateral jitter, dropout at depth discontinuities and grazing angles, elliptical holes
-and flying pixels / stray points. The points come back in the WORLD frame (+Y up), the frame of the
-ground-truth vertices, so they are directly comparable.
+back-projected to 3D and corrupted like a time-of-flight sensor (:mod:`pipeline.synthetic.depth_sensor`):
+axial noise growing with the square of the depth, lateral jitter, dropout at depth discontinuities and
+grazing angles, elliptical holes and flying pixels / stray points. The points come back in the WORLD frame
+(+Y up), the frame of the ground-truth vertices, so they are directly comparable.
 
 Camera frame: OpenCV (x right, y down, z forward), pixel centres at integer coordinates
 ``(u, v) = (fx x / z + cx, fy y / z + cy)``. World -> camera: ``p_cam = diag(1, -1, -1) (p - c)`` with
@@ -21,10 +21,11 @@ import numpy as np
 
 from pipeline.files import staged_file
 from pipeline.scan.pointcloud.write import write_point_cloud_ply
+from pipeline.synthetic.depth_sensor import add_outliers, back_project, drop_pixels
 from pipeline.synthetic.expressive import expressive_split
 from rig.asset import load_asset
 from rig.errors import InputError
-from rig.geometry import RIG_TO_OPENCV, face_normals, head_rotation
+from rig.geometry import RIG_TO_OPENCV, head_rotation
 
 __all__ = [
     "HIRES_CAMERA",
@@ -225,11 +226,6 @@ def render_depth(
     return depth.reshape(h, w), face_id.reshape(h, w)
 
 
-def _rays(camera: DepthCamera, u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Camera-frame rays with ``z = 1`` through pixel coordinates ``u, v``, ``(..., 3)``."""
-    return np.stack([(u - camera.cx) / camera.fx, (v - camera.cy) / camera.fy, np.ones_like(u, dtype=float)], -1)
-
-
 # ----------------------------------------------------------------------------------------------------
 # Scan simulation
 # ----------------------------------------------------------------------------------------------------
@@ -247,68 +243,41 @@ def _angle(value, rng_range, rng: np.random.Generator, name: str) -> float:
     return float(value)
 
 
-def _edge_mask(depth: np.ndarray, jump_mm: float) -> np.ndarray:
-    """Pixels with a 4-neighbour that is empty or deeper/shallower by more than ``jump_mm``."""
-    pad = np.pad(depth, 1, constant_values=np.inf)
-    centre = pad[1:-1, 1:-1]
-    bad = np.zeros(depth.shape, bool)
-    for dy, dx in ((0, 1), (2, 1), (1, 0), (1, 2)):
-        nb = pad[dy : dy + depth.shape[0], dx : dx + depth.shape[1]]
-        with np.errstate(invalid="ignore"):
-            bad |= ~np.isfinite(nb) | (np.abs(nb - centre) > jump_mm)
-    return bad & np.isfinite(depth)
+def _check_settings(s: ScanSettings) -> None:
+    """Reject a hole range, distance, offset or outlier fraction outside its domain (before any draw)."""
+    lo_h, hi_h = s.hole_fraction
+    if not 0.0 <= lo_h <= hi_h < 1.0:
+        raise InputError(f"simulate_scan: hole_fraction must be 0 <= low <= high < 1, got {s.hole_fraction}")
+    if s.distance_mm <= 0 or s.max_offset_mm < 0 or s.outlier_fraction < 0:
+        raise InputError("simulate_scan: distance_mm must be > 0, max_offset_mm and outlier_fraction >= 0")
 
 
-def _holes(valid: np.ndarray, target: float, rng: np.random.Generator) -> np.ndarray:
-    """Random elliptical holes over ``valid`` pixels until about ``target`` of them are dropped."""
-    holes = np.zeros(valid.shape, bool)
-    n_valid = int(valid.sum())
-    if target <= 0.0 or n_valid == 0:
-        return holes
-    vv, uu = np.mgrid[0 : valid.shape[0], 0 : valid.shape[1]]
-    ys, xs = np.nonzero(valid)
-    for _ in range(40):
-        missing = target * n_valid - (holes & valid).sum()
-        if missing <= 0.02 * target * n_valid:
-            break
-        i = rng.integers(len(ys))
-        area = missing * rng.uniform(0.4, 1.0)
-        ratio = rng.uniform(1.0, 2.5)
-        a = np.sqrt(area * ratio / np.pi)
-        b = a / ratio
-        th = rng.uniform(0.0, np.pi)
-        du, dv = uu - xs[i], vv - ys[i]
-        p = du * np.cos(th) + dv * np.sin(th)
-        q = -du * np.sin(th) + dv * np.cos(th)
-        holes |= (p / a) ** 2 + (q / b) ** 2 <= 1.0
-    return holes
+def _place_head(
+    v: np.ndarray, s: ScanSettings, rng: np.random.Generator, yaw_deg, pitch_deg, roll_deg
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Random rigid pose (draws yaw, pitch, roll, then the offset): rotation, ``(3,)`` mm offset, ``(V, 3)`` world."""
+    yaw = _angle(yaw_deg, s.yaw_deg_range, rng, "yaw_deg")
+    pitch = _angle(pitch_deg, s.pitch_deg_range, rng, "pitch_deg")
+    roll = _angle(roll_deg, s.roll_deg_range, rng, "roll_deg")
+    rotation = head_rotation(yaw, pitch, roll)
+    translation = rng.uniform(-s.max_offset_mm, s.max_offset_mm, size=3)
+    return rotation, translation, v @ rotation.T + translation
 
 
-def _depth_normals(points_img: np.ndarray, valid: np.ndarray) -> np.ndarray:
-    """Per-pixel normals ``(H, W, 3)`` (camera frame) from central (or one-sided) differences of the
-    back-projected image, oriented towards the camera; zero where no neighbours are valid."""
-    p = np.where(valid[..., None], points_img, np.nan)
-    pad = np.pad(p, ((1, 1), (1, 1), (0, 0)), constant_values=np.nan)
-
-    def diff(a, b):
-        d = a - b
-        return d
-
-    c = pad[1:-1, 1:-1]
-    right, left = pad[1:-1, 2:], pad[1:-1, :-2]
-    down, up = pad[2:, 1:-1], pad[:-2, 1:-1]
-    du = diff(right, left)
-    du = np.where(np.isnan(du), diff(right, c), du)
-    du = np.where(np.isnan(du), diff(c, left), du)
-    dv = diff(down, up)
-    dv = np.where(np.isnan(dv), diff(down, c), dv)
-    dv = np.where(np.isnan(dv), diff(c, up), dv)
-    n = np.cross(du, dv)
-    n = np.where(np.isnan(n), 0.0, n)
-    flip = (n * np.nan_to_num(c)).sum(-1) > 0  # towards the camera: n . p < 0
-    n = np.where(flip[..., None], -n, n)
-    norm = np.linalg.norm(n, axis=-1, keepdims=True)
-    return np.where(norm > 0, n / np.maximum(norm, 1e-12), 0.0)
+def _visible_vertices(cam: np.ndarray, used: np.ndarray, depth: np.ndarray, camera: DepthCamera) -> np.ndarray:
+    """``(V,)`` vertices (``cam`` mm) seen before dropout: used, on a rendered pixel, within 3 mm of its z-buffer."""
+    # A vertex whose pixel is empty lies on the silhouette between pixel centres (a grazing or slightly
+    # back-facing vertex): the camera samples no surface there, so it is not seen.
+    with np.errstate(divide="ignore", invalid="ignore"):
+        pu = np.rint(camera.fx * cam[:, 0] / cam[:, 2] + camera.cx).astype(np.int64)
+        pv = np.rint(camera.fy * cam[:, 1] / cam[:, 2] + camera.cy).astype(np.int64)
+    inside = (cam[:, 2] > _NEAR_MM) & (pu >= 0) & (pu < camera.width) & (pv >= 0) & (pv < camera.height)
+    visible = np.zeros(len(cam), bool)
+    zb = depth[pv[inside], pu[inside]]
+    visible[inside] = np.isfinite(zb) & (cam[inside, 2] <= zb + 3.0)
+    referenced = np.zeros(len(cam), bool)
+    referenced[used] = True
+    return visible & referenced
 
 
 def simulate_scan(
@@ -348,82 +317,18 @@ def simulate_scan(
     v, f = _check_mesh(vertices, faces, "simulate_scan")
     rng = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
     s = settings
-    lo_h, hi_h = s.hole_fraction
-    if not 0.0 <= lo_h <= hi_h < 1.0:
-        raise InputError(f"simulate_scan: hole_fraction must be 0 <= low <= high < 1, got {s.hole_fraction}")
-    if s.distance_mm <= 0 or s.max_offset_mm < 0 or s.outlier_fraction < 0:
-        raise InputError("simulate_scan: distance_mm must be > 0, max_offset_mm and outlier_fraction >= 0")
-    yaw = _angle(yaw_deg, s.yaw_deg_range, rng, "yaw_deg")
-    pitch = _angle(pitch_deg, s.pitch_deg_range, rng, "pitch_deg")
-    roll = _angle(roll_deg, s.roll_deg_range, rng, "roll_deg")
-    rotation = head_rotation(yaw, pitch, roll)
-    translation = rng.uniform(-s.max_offset_mm, s.max_offset_mm, size=3)
-    world = v @ rotation.T + translation
+    _check_settings(s)
+    rotation, translation, world = _place_head(v, s, rng, yaw_deg, pitch_deg, roll_deg)
 
     used = np.unique(f)
     centre = world[used].mean(axis=0)
     camera_position = np.array([centre[0], centre[1], world[used, 2].max() + s.distance_mm])
     cam = (world - camera_position) @ WORLD_TO_CAMERA.T
     depth, face_id = render_depth(cam, f, camera)
-    rendered = np.isfinite(depth)
-
-    # Visibility of the vertices (before dropout): on a rendered pixel and not behind its z-buffer depth.
-    # A vertex whose pixel is empty lies on the silhouette between pixel centres (a grazing or slightly
-    # back-facing vertex): the camera samples no surface there, so it is not seen.
-    with np.errstate(divide="ignore", invalid="ignore"):
-        pu = np.rint(camera.fx * cam[:, 0] / cam[:, 2] + camera.cx).astype(np.int64)
-        pv = np.rint(camera.fy * cam[:, 1] / cam[:, 2] + camera.cy).astype(np.int64)
-    inside = (cam[:, 2] > _NEAR_MM) & (pu >= 0) & (pu < camera.width) & (pv >= 0) & (pv < camera.height)
-    visible = np.zeros(len(v), bool)
-    zb = depth[pv[inside], pu[inside]]
-    visible[inside] = np.isfinite(zb) & (cam[inside, 2] <= zb + 3.0)
-    referenced = np.zeros(len(v), bool)
-    referenced[used] = True
-    visible &= referenced
-
-    valid = rendered.copy()
-    if s.edge_dropout:
-        vv, uu = np.nonzero(rendered)
-        n = face_normals(cam, f[face_id[vv, uu]])
-        ray = _rays(camera, uu.astype(float), vv.astype(float))
-        cosang = np.abs((n * ray).sum(1)) / np.maximum(np.linalg.norm(n, axis=1) * np.linalg.norm(ray, axis=1), 1e-12)
-        grazing = np.zeros_like(rendered)
-        grazing[vv, uu] = cosang < np.cos(np.radians(s.grazing_deg))
-        valid &= ~(grazing | _edge_mask(depth, s.edge_jump_mm))
-    target = float(rng.uniform(lo_h, hi_h))
-    holes = _holes(rendered, target, rng)
-    hole_fraction = float((holes & rendered).sum() / max(rendered.sum(), 1))
-    valid &= ~holes
-
-    # Back-projection with lateral jitter and axial noise.
-    h, w = depth.shape
-    vv, uu = np.mgrid[0:h, 0:w].astype(float)
-    if s.lateral_jitter_px > 0:
-        uu = uu + rng.normal(0.0, s.lateral_jitter_px, size=uu.shape)
-        vv = vv + rng.normal(0.0, s.lateral_jitter_px, size=vv.shape)
-    z = np.where(valid, depth, np.inf)
-    sigma = np.maximum(s.noise_mm_at_1m * (np.where(valid, depth, 0.0) / 1000.0) ** 2, s.noise_floor_mm)
-    noise = rng.normal(0.0, 1.0, size=z.shape) * sigma
-    z = np.where(valid, z + noise, np.inf)
-    points_img = _rays(camera, uu, vv) * np.where(valid, z, 0.0)[..., None]
-    points = points_img[valid]
-    normals = _depth_normals(points_img, valid)[valid] if s.normals else None
-    if normals is not None:
-        fallback = np.linalg.norm(normals, axis=1) == 0
-        normals[fallback] = -points[fallback] / np.linalg.norm(points[fallback], axis=1, keepdims=True)
-
-    # Outliers: flying pixels behind valid pixels, and stray points around the head.
-    n_out = int(round(s.outlier_fraction * len(points)))
-    if n_out:
-        n_fly = n_out // 2
-        pick = rng.integers(len(points), size=n_fly)
-        fly = points[pick] * (1.0 + rng.uniform(0.02, 0.2, size=(n_fly, 1)))
-        lo, hi = cam[used].min(axis=0) - 30.0, cam[used].max(axis=0) + 30.0
-        stray = rng.uniform(lo, hi, size=(n_out - n_fly, 3))
-        extra = np.concatenate([fly, stray])
-        points = np.concatenate([points, extra])
-        if normals is not None:
-            normals = np.concatenate([normals, -extra / np.linalg.norm(extra, axis=1, keepdims=True)])
+    visible = _visible_vertices(cam, used, depth, camera)
+    valid, hole_fraction = drop_pixels(cam, f, depth, face_id, camera, s, rng)
+    z, points, normals = back_project(depth, valid, camera, s, rng)
+    points, normals = add_outliers(points, normals, cam[used], s, rng)
 
     points_world = points @ WORLD_TO_CAMERA + camera_position  # WORLD_TO_CAMERA is its own inverse/transpose
     normals_world = None if normals is None else normals @ WORLD_TO_CAMERA

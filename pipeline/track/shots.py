@@ -21,7 +21,7 @@ import numpy as np
 from rig.errors import InputError
 
 THUMB_WIDTH = 96
-"""Frames are compared at this width (pixels): enough for a change of picture, cheap (~0.1 ms a frame)."""
+"""Frames are compared at this width (pixels): enough for a change of picture, cheap (``docs/track.md``)."""
 CUT_THRESHOLD = 27.0
 """Mean absolute HSV difference (0-255, over the three channels) above which consecutive frames are a cut
 (PySceneDetect's default for its content detector; chosen there on real footage)."""

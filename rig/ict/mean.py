@@ -78,7 +78,7 @@ def replace_joints(
 
 def ict_template(ict: IctModel | None = None) -> IctTemplate:
     """The template with the ICT mean's shape (module docstring); deterministic. Cached for the default
-    model (the registration takes ~15 s)."""
+    model (the registration takes seconds: ``docs/rig.md``)."""
     if ict is None:
         return _default()
     return _build(ict)
