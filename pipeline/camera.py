@@ -159,6 +159,36 @@ def make_camera(
     )
 
 
+_FLIP = torch.tensor(np.array(RIG_TO_OPENCV, np.float64))
+""":data:`RIG_TO_OPENCV` as a tensor."""
+
+
+def head_points_to_pixels(
+    points: torch.Tensor, rotation: torch.Tensor, translation: torch.Tensor, focal: torch.Tensor, centre: torch.Tensor
+) -> torch.Tensor:
+    """Pixels of rig-space points seen under head poses: the batched form of :func:`camera_from_head_pose`
+    followed by the pinhole projection, for fits that vary the pose (every fit's landmark pixels go through it).
+
+    Args:
+        points: ``(B, N, 3)`` rig space, mm.
+        rotation: ``(B, 3, 3)`` head rotations (module docstring). translation: ``(B, 3)`` mm.
+        focal: ``(2,)`` or a scalar, pixels. centre: ``(2,)`` the principal point, pixels.
+
+    Returns:
+        ``(B, N, 2)`` pixels (OpenCV, 0-based); a point less than 1 mm in front of the camera is projected as
+        if at 1 mm (no division by zero or a sign flip behind the lens).
+
+    Example:
+        >>> px = head_points_to_pixels(torch.zeros(1, 1, 3), torch.eye(3)[None], torch.tensor([[0.0, 0.0, 600.0]]),
+        ...                            torch.tensor([896.0, 896.0]), torch.tensor([319.5, 239.5]))
+        >>> px.tolist()
+        [[[319.5, 239.5]]]
+    """
+    flip = _FLIP.to(points.dtype)
+    camera = points @ (flip @ rotation).transpose(1, 2) + translation[:, None]
+    return camera[..., :2] / camera[..., 2:].clamp_min(1.0) * focal + centre
+
+
 def camera_center_in_rig(rotation: np.ndarray, translation: np.ndarray) -> np.ndarray:
     """``(3,)`` the camera's optical centre in rig space (mm) for a head pose."""
     extrinsics = camera_from_head_pose(rotation, translation)

@@ -27,12 +27,12 @@ from kornia.geometry.conversions import axis_angle_to_rotation_matrix
 
 from landmarks.layout import LandmarkLayout, ibug68_layout
 from landmarks.loss import CONTOUR_WEIGHT, project_points
+from pipeline.camera import head_points_to_pixels
 from pipeline.fitting.state import PhotoState
 from pipeline.fitting.terms import Huber, Inputs, Term
 from rig.asset import cached_per_asset
 from rig.errors import InputError
 from rig.expressions import ExpressionModel
-from rig.geometry import RIG_TO_OPENCV
 from rig.lbs import skin_vertices_shared_weights
 from rig.model import JointRig
 
@@ -71,6 +71,33 @@ CONTOUR_UPDATES = 4
 """LM iterations per stage that re-pick the jaw contour's silhouette vertices; later ones keep the last
 pick. A pick is discrete: re-picked every iteration, neighbouring vertices took turns near the minimum and
 the cost cycled (seen on synthetic heads) instead of converging."""
+
+
+def landmark_pixel_term(
+    target: torch.Tensor,
+    weights: torch.Tensor,
+    huber_delta_px: float,
+    weight: float = 1.0,
+    scale: float = 1.0,
+    name: str = "landmarks_px2",
+    key: str = "landmarks_px",
+) -> Term:
+    """The landmark reprojection term of every fit (photo, views, track): ``weight`` times the weighted mean
+    Huber of the pixel errors over ``scale``, ``sum_i w_i huber(|px_i - target_i| / scale) / sum_i w_i``.
+
+    Args:
+        target: ``(N, 2)`` or ``(1, N, 2)`` the detected pixels. weights: ``(N,)`` each point's weight (0: unused).
+        huber_delta_px: the Huber threshold, in the units of ``(px - target) / scale``.
+        weight: the term's weight. scale: image pixels per unit of the term (:func:`face_scale`; 1: pixels).
+        name: the term's name in the logs. key: the input holding the fitted pixels, ``(B, N, 2)``.
+    """
+    target = torch.as_tensor(target).reshape(1, -1, 2)
+
+    def pixel_error(p: Inputs) -> torch.Tensor:
+        px = p[key]
+        return (px - target.to(px.dtype)) / scale
+
+    return Term(name, weight, pixel_error, Huber(huber_delta_px), normaliser="weights", group_weights=weights)
 
 
 class LandmarkTerm:
@@ -116,11 +143,7 @@ class LandmarkTerm:
         Huber of the pixel errors divided by :attr:`scale` (px^2 of a face 100 px between the eye corners with
         :func:`face_scale`), reading the input ``key`` ``(B, N, 2)``."""
 
-        def pixel_error(p: Inputs) -> torch.Tensor:
-            px = p[key]
-            return (px - self.target.to(px.dtype)) / self.scale
-
-        return Term(name, weight, pixel_error, Huber(self.delta), normaliser="weights", group_weights=self.weights)
+        return landmark_pixel_term(self.target, self.weights, self.delta, weight, self.scale, name, key)
 
     def points3d(self, model: PhotoState, v: torch.Tensor) -> torch.Tensor:
         """``(N, 3)`` rig space, mm: the static embedding, the contour points as seen from the camera."""
@@ -165,7 +188,6 @@ class BatchedLandmarks:
         self.centre = cam[[0, 1], [2, 2]]
         self.weights = weights.to(f64)
         self.expressions = expressions64(term.asset)
-        self.flip = torch.tensor(RIG_TO_OPENCV, dtype=f64)
         emb = term.embedding
         self.static_ids = torch.as_tensor(np.asarray(term.faces)[emb.faces], dtype=torch.long)  # (N, 3)
         self.static_bary = torch.as_tensor(emb.barycentric, dtype=f64)  # (N, 3)
@@ -229,5 +251,4 @@ class BatchedLandmarks:
         """``(B, N, 2)`` pixels of landmarks ``points (B, N, 3)`` (rig space, mm) seen with head pose
         ``rotvec (B, 3)``, ``translation (B, 3)`` (:mod:`pipeline.camera`)."""
         rotation = axis_angle_to_rotation_matrix(rotvec)  # (B, 3, 3)
-        cam = points @ (self.flip @ rotation).transpose(1, 2) + translation[:, None]
-        return cam[..., :2] / cam[..., 2:] * self.focal + self.centre
+        return head_points_to_pixels(points, rotation, translation, self.focal, self.centre)

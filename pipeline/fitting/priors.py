@@ -160,6 +160,39 @@ def smoothness_term(weight: float, laplacian: torch.Tensor, template: torch.Tens
     return Term(name, weight, laplacian_of_offset, L2(), normaliser="mean")
 
 
+def sparsity_term(
+    weight: float, mask: torch.Tensor | None = None, name: str = "expressions_sparse", key: str = "c"
+) -> Term:
+    """``weight * sum_i mask_i c_i`` on non-negative coefficients (the input ``key``, ``(B, E)``, held ``>= 0`` by
+    their limits): an L1 prior that keeps the unused coefficients at 0 without holding the used ones back as
+    much as ``|c|^2`` does (``mask`` ``(E,)``: 1 where it applies, default everywhere).
+
+    Written as the squares of ``sqrt(mask_i c_i + 1)``, so that the LM solver stacks it with the exact gradient
+    (``weight * mask_i``) and a Gauss-Newton curvature; its value is therefore ``weight * (sum_i mask_i c_i + E)``,
+    a constant above the prior's (which moves no fit).
+    """
+
+    def root(p: Inputs) -> torch.Tensor:
+        c = p[key]
+        m = torch.ones_like(c) if mask is None else mask.to(c.dtype)
+        return torch.sqrt((c * m).clamp_min(0.0) + 1.0)
+
+    return Term(name, weight, root, L2())
+
+
+def velocity_term(weight: float, last: torch.Tensor, key: str, name: str) -> Term:
+    """``weight * |x - x_1|^2`` of the input ``key`` ``(B, n)`` against the frame before's ``x_1`` ``(n,)``: a
+    sequence's first-order temporal prior."""
+    return Term(name, weight, lambda p: p[key] - last.to(p[key].dtype), L2())
+
+
+def acceleration_term(weight: float, last: torch.Tensor, before: torch.Tensor, key: str, name: str) -> Term:
+    """``weight * |x - 2 x_1 + x_2|^2`` of the input ``key`` ``(B, n)`` against the two frames before (``x_1``,
+    ``x_2``, ``(n,)``): a sequence's second-order temporal prior (steady motion costs nothing)."""
+    step = (last - before).to(torch.float64)
+    return Term(name, weight, lambda p: p[key] - last.to(p[key].dtype) - step.to(p[key].dtype), L2())
+
+
 # ----------------------------------------------------------------------------------------------------
 # The priors of a head model (called by the states)
 # ----------------------------------------------------------------------------------------------------

@@ -7,21 +7,26 @@ With the identity fixed (joints, skinning weights), linear blend skinning is a f
 landmarks lie on (the static points' triangles and the contour's candidates), so a frame's model is a
 52-coefficient expression evaluation on ~1,500 vertices, a rigid motion and a pinhole projection.
 
-The unknowns are ``x = [rotation vector (3, rad, an increment on the current rotation), translation (3, mm),
-coefficients (52)]``; :func:`solve_frame` runs a few projected Gauss-Newton (Levenberg-Marquardt) steps on
+The unknowns are ``x = [rotation vector (3, rad, an increment on the start's rotation), translation (3, mm),
+coefficients (52)]``; :func:`solve_frame` minimises, with the fits' one Levenberg-Marquardt solver
+(:func:`pipeline.fitting.least_squares.levenberg_marquardt`) and the fits' own term definitions
+(:func:`frame_terms`: :mod:`pipeline.fitting.terms`, :mod:`pipeline.fitting.priors`),
 
-    sum_i (w_i / sum_j w_j) huber(|proj_i(x) - obs_i|)              (reprojection, px: the photo fit's term)
-    + lambda_expressions |c|^2 + lambda_sparse sum_i c_i            (coefficients towards rest; c >= 0)
+    sum_i (w_i / sum_j w_j) 2 huber(|proj_i(x) - obs_i|)        (reprojection, px: the photo fit's term)
+    + |s * c|^2 + lambda_sparse sum_i c_i                          (coefficients towards rest, the gaze's weaker;
+                                                                    c >= 0)
     + lambda_velocity |c - c_1|^2 + lambda_acceleration |c - 2 c_1 + c_2|^2       (the last two frames)
     + the same two on the pose (rotation vector in degrees, translation in mm, own weights)
 
-with the coefficients kept inside their limits. The temporal terms are light (a steady warm start); the
+with the coefficients kept inside their limits. :class:`FrameModel` is the fast path of the fixed identity's
+head (its landmarks as affine maps of the coefficients); the terms are the same objects every fit uses, so a
+term or prior changed there changes the track too. The temporal terms are light (a steady warm start); the
 smoothing is :mod:`pipeline.track.smooth`'s, over the whole track.
 
 Example::
 
     model = FrameModel(rig, theta, weights, layout, focal, (width, height))
-    state = solve_frame(model, points, previous=(state1, state2), settings=TrackSettings())
+    state, info = solve_frame(model, points, weights, start, previous=(state1, state2), settings=TrackSettings())
 """
 
 from __future__ import annotations
@@ -31,17 +36,20 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import torch
+from kornia.geometry.conversions import axis_angle_to_rotation_matrix, rotation_matrix_to_axis_angle
 
 from landmarks.layout import LandmarkLayout
-from pipeline.camera import RIG_TO_OPENCV
+from pipeline.camera import camera_center_in_rig, head_points_to_pixels
+from pipeline.fitting.landmark_term import landmark_pixel_term
+from pipeline.fitting.least_squares import LMSettings, forward_difference_jacobian, levenberg_marquardt
+from pipeline.fitting.priors import acceleration_term, expression_term, sparsity_term, velocity_term
+from pipeline.fitting.terms import Inputs, LeastSquaresTerms, Term
 from rig.errors import InputError
 from rig.expressions import EXPRESSION_NAMES, JAW_ANGLE_DEG, JAW_INDEX, ExpressionModel, expression_limits
 from rig.model import JointRig
 
 NUM_EXPRESSIONS = len(EXPRESSION_NAMES)
 JAW_RADIANS = math.radians(JAW_ANGLE_DEG)
-OPENCV = np.asarray(RIG_TO_OPENCV, np.float64)
-"""Rig axes to OpenCV's (:data:`pipeline.camera.RIG_TO_OPENCV`), float64."""
 GAZE_MASK = np.array([n.startswith("eyeLook") for n in EXPRESSION_NAMES])
 """The eight gaze coefficients (eyeLook*)."""
 
@@ -120,16 +128,6 @@ class FrameState:
         return FrameState(self.rotation.copy(), self.translation.copy(), self.coefficients.copy())
 
 
-def rotation_from_vector(v: np.ndarray) -> np.ndarray:
-    """``(3,)`` rotation vector (rad) -> ``(3, 3)`` (Rodrigues)."""
-    v = np.asarray(v, np.float64)
-    angle = float(np.linalg.norm(v))
-    k = np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
-    if angle < 1e-9:
-        return np.eye(3) + k + 0.5 * k @ k
-    return np.eye(3) + math.sin(angle) / angle * k + (1.0 - math.cos(angle)) / angle**2 * (k @ k)
-
-
 def rotation_vector(rotation: np.ndarray) -> np.ndarray:
     """``(3, 3)`` -> ``(3,)`` its rotation vector (rad)."""
     from scipy.spatial.transform import Rotation
@@ -202,7 +200,9 @@ class FrameModel:
             return np.einsum("nk,nk...->n...", bary, per_vertex[corners])
 
         self._static = tuple(combine(x) for x in (self._a, self._b, self._ycos, self._ysin))
-        self._point_arrays = self._static
+        self._use(self._static)
+        self.focal_t = torch.tensor(self.focal, dtype=torch.float64)
+        self.principal_t = torch.as_tensor(self.principal)
         low, high = expression_limits(torch.float64)
         self.low, self.high = low.numpy(), high.numpy()
 
@@ -225,38 +225,131 @@ class FrameModel:
         if len(self._contour):
             for out, per_vertex in zip(arrays, (self._a, self._b, self._ycos, self._ysin), strict=True):
                 out[self._contour] = per_vertex[rows]
-        self._point_arrays = tuple(arrays)
+        self._use(tuple(arrays))
 
-    def points(self, coefficients: np.ndarray, jacobian: bool = False):
-        """``(N, 3)`` the landmarks in rig space (static points on their triangles, contour points on the
-        vertices :meth:`pick_contour` chose); with ``jacobian`` also ``(N, 3, 52)`` their derivative."""
+    def _use(self, arrays: tuple[np.ndarray, ...]) -> None:
+        """The landmarks' affine maps ``(a (N, 3), b (N, 3, E), ycos (N, 3), ysin (N, 3))``, also as tensors."""
+        self._point_arrays = arrays
+        self._point_tensors = tuple(torch.as_tensor(x) for x in arrays)
+
+    def points(self, coefficients: np.ndarray) -> np.ndarray:
+        """``(N, 3)`` the landmarks in rig space of ``coefficients (52,)`` (static points on their triangles,
+        contour points on the vertices :meth:`pick_contour` chose)."""
         a, b, ycos, ysin = self._point_arrays
         c = np.asarray(coefficients, np.float64)
         angle = c[JAW_INDEX] * JAW_RADIANS
-        cos, sin = math.cos(angle), math.sin(angle)
-        points = a + b @ c + ycos * (cos - 1.0) + ysin * sin
-        if not jacobian:
-            return points
-        d = b.copy()
-        d[:, :, JAW_INDEX] += (-ycos * sin + ysin * cos) * JAW_RADIANS
-        return points, d
+        return a + b @ c + ycos * (math.cos(angle) - 1.0) + ysin * math.sin(angle)
 
-    def camera_points(self, state: FrameState, points: np.ndarray) -> np.ndarray:
-        """``(N, 3)`` rig-space ``points`` in the camera frame (OpenCV) under ``state``'s head pose."""
-        return points @ (OPENCV @ state.rotation).T + state.translation
-
-    def project(self, camera: np.ndarray) -> np.ndarray:
-        """``(N, 2)`` pixels of camera-frame points ``(N, 3)``."""
-        return camera[:, :2] / np.maximum(camera[:, 2:3], 1.0) * self.focal + self.principal
+    def points_batch(self, coefficients: torch.Tensor) -> torch.Tensor:
+        """``(B, N, 3)`` float64 the landmarks in rig space of ``coefficients (B, 52)`` (as :meth:`points`)."""
+        a, b, ycos, ysin = self._point_tensors
+        angle = (coefficients[:, JAW_INDEX] * JAW_RADIANS)[:, None, None]
+        return (
+            a + torch.einsum("nie,be->bni", b, coefficients) + ycos * (torch.cos(angle) - 1.0) + ysin * torch.sin(angle)
+        )
 
     def landmarks_px(self, state: FrameState) -> np.ndarray:
-        """``(N, 2)`` the projected landmarks of ``state``."""
-        return self.project(self.camera_points(state, self.points(state.coefficients)))
+        """``(N, 2)`` the projected landmarks of ``state`` (:func:`pipeline.camera.head_points_to_pixels`)."""
+        with torch.no_grad():
+            points = self.points_batch(torch.as_tensor(np.asarray(state.coefficients, np.float64))[None])
+            rotation = torch.as_tensor(np.asarray(state.rotation, np.float64))[None]
+            translation = torch.as_tensor(np.asarray(state.translation, np.float64))[None]
+            return head_points_to_pixels(points, rotation, translation, self.focal_t, self.principal_t)[0].numpy()
 
 
 def camera_centre(state: FrameState) -> np.ndarray:
     """``(3,)`` the camera centre in rig space, mm, of a head pose."""
-    return -state.rotation.T @ (np.asarray(RIG_TO_OPENCV, np.float64).T @ state.translation)
+    return camera_center_in_rig(state.rotation, state.translation)
+
+
+def frame_terms(
+    model: FrameModel,
+    observed: np.ndarray,
+    weights: np.ndarray,
+    previous: tuple[FrameState | None, FrameState | None],
+    settings: TrackSettings,
+) -> tuple[Term, ...]:
+    """The terms of one frame's fit (module docstring), the same definitions as the photo and views fits':
+    the landmark reprojection (:func:`pipeline.fitting.landmark_term.landmark_pixel_term`, twice its weight so
+    that the squared pixel errors weigh 1 as in :class:`TrackSettings`), the coefficients' prior
+    (:func:`pipeline.fitting.priors.expression_term`) and sparsity, and the temporal priors on the frames before.
+
+    The terms read the inputs ``landmarks_px (B, N, 2)``, ``c (B, 52)`` and ``pose_step (B, 6)`` (the turn since
+    the frame before, degrees, as a rotation vector, and the move, mm) that :func:`solve_frame` makes.
+    """
+    s = settings
+    target = torch.as_tensor(np.asarray(observed, np.float64))
+    w = torch.as_tensor(np.asarray(weights, np.float64))
+    terms = [
+        landmark_pixel_term(target, w, s.huber_delta_px, weight=2.0),
+        expression_term(1.0, scale=torch.as_tensor(s.prior_scale())),
+    ]
+    if s.lambda_sparse:
+        terms.append(sparsity_term(s.lambda_sparse, torch.as_tensor(~GAZE_MASK, dtype=torch.float64)))
+    p1, p2 = previous
+    if p1 is not None and s.lambda_velocity > 0:
+        terms.append(velocity_term(s.lambda_velocity, torch.as_tensor(p1.coefficients), "c", "expressions_velocity"))
+    if p1 is not None and p2 is not None and s.lambda_acceleration > 0:
+        c1, c2 = torch.as_tensor(p1.coefficients), torch.as_tensor(p2.coefficients)
+        terms.append(acceleration_term(s.lambda_acceleration, c1, c2, "c", "expressions_acceleration"))
+    if p1 is not None and s.lambda_pose_velocity > 0:
+        terms.append(velocity_term(s.lambda_pose_velocity, torch.zeros(6), "pose_step", "pose_velocity"))
+    if p1 is not None and p2 is not None and s.lambda_pose_acceleration > 0:
+        last_step = torch.as_tensor(pose_step(p1, p2))
+        terms.append(velocity_term(s.lambda_pose_acceleration, last_step, "pose_step", "pose_acceleration"))
+    return tuple(terms)
+
+
+def pose_step(state: FrameState, before: FrameState) -> np.ndarray:
+    """``(6,)`` the head's turn from ``before`` to ``state`` (rotation vector of ``R R_1^T``, degrees) and its
+    move (mm)."""
+    turn = np.degrees(rotation_vector(state.rotation @ before.rotation.T))
+    return np.r_[turn, state.translation - before.translation]
+
+
+class FrameProblem:
+    """One frame's unknowns ``x = [omega (3, rad: the rotation exp(omega) R_0 on the start's), t (3, mm),
+    c (52)]`` and what the terms read at a batch of them (:class:`pipeline.fitting.least_squares.LeastSquaresProblem`).
+
+    Args:
+        model: the frame's :class:`FrameModel` (its contour picked). start: the start (``R_0``).
+        last: the frame before's result, or None (no ``pose_step`` input then).
+    """
+
+    def __init__(self, model: FrameModel, start: FrameState, last: FrameState | None) -> None:
+        self.model = model
+        self.rotation0 = torch.as_tensor(start.rotation)
+        self.start = torch.as_tensor(np.r_[np.zeros(3), start.translation, start.coefficients])
+        self.low = torch.as_tensor(np.r_[np.full(6, -np.inf), model.low])
+        self.high = torch.as_tensor(np.r_[np.full(6, np.inf), model.high])
+        self.last_rotation = None if last is None else torch.as_tensor(last.rotation)
+        self.last_translation = None if last is None else torch.as_tensor(last.translation)
+
+    def rotation(self, x: torch.Tensor) -> torch.Tensor:
+        """``(B, 3, 3)`` the head rotations of ``x (B, 58)``."""
+        return axis_angle_to_rotation_matrix(x[:, :3]) @ self.rotation0
+
+    def inputs(self, x: torch.Tensor) -> Inputs:
+        """The terms' inputs at ``x (B, 58)`` (computed when a term reads them)."""
+        rotation = self.rotation(x)
+        c = x[:, 6:]
+
+        def pixels() -> torch.Tensor:
+            return head_points_to_pixels(
+                self.model.points_batch(c), rotation, x[:, 3:6], self.model.focal_t, self.model.principal_t
+            )
+
+        def step() -> torch.Tensor:
+            turn = rotation_matrix_to_axis_angle(rotation @ self.last_rotation.T) * (180.0 / math.pi)
+            return torch.cat([turn, x[:, 3:6] - self.last_translation], dim=1)
+
+        return Inputs({"c": c}, landmarks_px=pixels, pose_step=step)
+
+    def state(self, x: torch.Tensor) -> FrameState:
+        """The :class:`FrameState` of ``x (58,)``."""
+        x64 = x.double()
+        rotation = self.rotation(x64[None])[0].numpy()
+        return FrameState(rotation, x64[3:6].numpy().copy(), x64[6:].numpy().copy())
 
 
 def solve_frame(
@@ -267,8 +360,9 @@ def solve_frame(
     previous: tuple[FrameState | None, FrameState | None] = (None, None),
     settings: TrackSettings | None = None,
 ) -> tuple[FrameState, dict]:
-    """Fit one frame (module docstring): Levenberg-Marquardt with the analytic Jacobian, the rotation
-    re-linearised at every step (``R = exp(omega) R_k``), the coefficients clipped to their limits.
+    """Fit one frame (module docstring): the frame's terms (:func:`frame_terms`) minimised by the fits' one
+    Levenberg-Marquardt solver (:func:`pipeline.fitting.least_squares.levenberg_marquardt`, the Huber weights
+    re-taken before every Jacobian), the coefficients inside their limits.
 
     Args:
         model: :class:`FrameModel` (its contour picked for this frame).
@@ -279,143 +373,50 @@ def solve_frame(
         settings: :class:`TrackSettings`.
 
     Returns:
-        ``(state, info)``: info has ``rms_px`` (weighted RMS reprojection error), ``cost``, ``steps`` and
-        ``information`` ``(58, 58)``: the Gauss-Newton matrix ``J^T J`` of the reprojection and the
-        coefficients' prior at the result (about ``x = [omega (rad), t (mm), c]``, omega a rotation on the left).
+        ``(state, info)``: info has ``rms_px`` (weighted RMS reprojection error), ``cost`` (the least-squares
+        cost of the terms), ``steps`` (accepted steps) and ``information`` ``(58, 58)``: the Gauss-Newton matrix
+        of the reprojection and the coefficients' prior at the result, in the units of :class:`TrackSettings`
+        (``sum_i w_i e_i^2 / sum_i w_i`` px^2 + ``|prior c|^2``; about ``x = [omega (rad), t (mm), c]``, omega a
+        rotation on the left).
     """
     s = settings or TrackSettings()
     obs = np.asarray(observed, np.float64)
     w = np.asarray(weights, np.float64)
-    base = w / max(w.sum(), 1e-12)  # each point's share, as the photo fit's landmark term
-    prior = s.prior_scale()
-    sparse = np.where(GAZE_MASK, 0.0, s.lambda_sparse) if s.lambda_sparse else None
-    p1, p2 = previous
-    deg = 180.0 / math.pi
-    # the temporal terms' targets: rotation as rotation vectors relative to the last frame (degrees)
-    step1 = None if (p1 is None or p2 is None) else rotation_vector(p1.rotation @ p2.rotation.T) * deg
-    n_c = NUM_EXPRESSIONS
-
-    def evaluate(state: FrameState, jacobian: bool, sw: np.ndarray):
-        c = state.coefficients
-        out = model.points(c, jacobian)
-        points, dpoints = out if jacobian else (out, None)
-        rotated = points @ state.rotation.T  # R p, rig space
-        camera = rotated @ OPENCV.T + state.translation
-        z = np.maximum(camera[:, 2], 1.0)
-        uv = camera[:, :2] / z[:, None] * model.focal + model.principal
-        res = [((uv - obs) * sw[:, None]).ravel(), prior * c]
-        rows = []
-        if jacobian:
-            # d uv / d camera (N, 2, 3)
-            duv = np.zeros((len(z), 2, 3))
-            duv[:, 0, 0] = model.focal / z
-            duv[:, 1, 1] = model.focal / z
-            duv[:, 0, 2] = -model.focal * camera[:, 0] / z**2
-            duv[:, 1, 2] = -model.focal * camera[:, 1] / z**2
-            duv *= sw[:, None, None]
-            d_cam_omega = np.einsum("ij,njk->nik", OPENCV, -_skew(rotated))  # (N, 3, 3)
-            d_cam_c = np.einsum("ij,njk->nik", OPENCV @ state.rotation, dpoints)  # (N, 3, E)
-            j = np.concatenate(
-                [
-                    np.einsum("nij,njk->nik", duv, d_cam_omega),
-                    duv,  # d camera / d t = I
-                    np.einsum("nij,njk->nik", duv, d_cam_c),
-                ],
-                axis=2,
-            ).reshape(-1, 6 + n_c)
-            rows = [j, np.c_[np.zeros((n_c, 6)), np.diag(prior)]]
-        if p1 is not None and s.lambda_velocity > 0:
-            res.append(math.sqrt(s.lambda_velocity) * (c - p1.coefficients))
-            if jacobian:
-                rows.append(np.c_[np.zeros((n_c, 6)), math.sqrt(s.lambda_velocity) * np.eye(n_c)])
-        if p2 is not None and s.lambda_acceleration > 0:
-            res.append(math.sqrt(s.lambda_acceleration) * (c - 2 * p1.coefficients + p2.coefficients))
-            if jacobian:
-                rows.append(np.c_[np.zeros((n_c, 6)), math.sqrt(s.lambda_acceleration) * np.eye(n_c)])
-        if p1 is not None and (s.lambda_pose_velocity > 0 or (step1 is not None and s.lambda_pose_acceleration > 0)):
-            turn = rotation_vector(state.rotation @ p1.rotation.T) * deg  # (3,) degrees since the last frame
-            move = state.translation - p1.translation  # (3,) mm
-            block = np.zeros((6, 6 + n_c))
-            block[:3, :3] = np.eye(3) * deg  # d turn / d omega, small angles
-            block[3:, 3:6] = np.eye(3)
-            if s.lambda_pose_velocity > 0:
-                res.append(math.sqrt(s.lambda_pose_velocity) * np.r_[turn, move])
-                if jacobian:
-                    rows.append(math.sqrt(s.lambda_pose_velocity) * block)
-            if step1 is not None and s.lambda_pose_acceleration > 0:
-                last_move = p1.translation - p2.translation
-                res.append(math.sqrt(s.lambda_pose_acceleration) * np.r_[turn - step1, move - last_move])
-                if jacobian:
-                    rows.append(math.sqrt(s.lambda_pose_acceleration) * block)
-        r = np.concatenate(res)
-        return r, (np.concatenate(rows) if jacobian else None), uv
-
-    def robust(uv: np.ndarray) -> np.ndarray:  # sqrt of each point's weight, Huber reweighted at uv
-        error = np.linalg.norm(uv - obs, axis=1)
-        return np.sqrt(base * np.minimum(1.0, s.huber_delta_px / np.maximum(error, 1e-12)))
-
-    state = start.copy()
-    state.coefficients = np.clip(state.coefficients, model.low, model.high)
-    sw = np.sqrt(base)
-    _, _, uv = evaluate(state, False, sw)
-    sw = robust(uv)
-
-    def total(r: np.ndarray, c: np.ndarray) -> float:  # the squares and the L1 prior's linear term
-        return float(r @ r) + (0.0 if sparse is None else float(sparse @ c))
-
-    r, jac, uv = evaluate(state, True, sw)
-    cost = total(r, state.coefficients)
-    damping = s.damping
-    steps = 0
-    for _ in range(s.iterations):
-        jtj = jac.T @ jac
-        g = jac.T @ r
-        if sparse is not None:
-            g = g.copy()
-            g[6:] += 0.5 * sparse
-        diag = np.maximum(np.diag(jtj), 1e-9)
-        accepted = False
-        for _attempt in range(8):
-            try:
-                step = np.linalg.solve(jtj + damping * np.diag(diag), -g)
-            except np.linalg.LinAlgError:
-                damping *= 10.0
-                continue
-            trial = FrameState(
-                rotation_from_vector(step[:3]) @ state.rotation,
-                state.translation + step[3:6],
-                np.clip(state.coefficients + step[6:], model.low, model.high),
-            )
-            r_trial, _, _ = evaluate(trial, False, sw)
-            trial_cost = total(r_trial, trial.coefficients)
-            if trial_cost <= cost:
-                state, accepted = trial, True
-                damping = max(damping / 3.0, 1e-9)
-                break
-            damping *= 4.0
-        if not accepted:
-            break
-        steps += 1
-        _, _, uv = evaluate(state, False, sw)
-        sw = robust(uv)
-        r, jac, uv = evaluate(state, True, sw)
-        cost = total(r, state.coefficients)
+    terms = frame_terms(model, obs, w, previous, s)
+    rows = LeastSquaresTerms(terms)
+    problem = FrameProblem(model, start, previous[0])
+    lm = LMSettings(
+        max_iterations=s.iterations, damping=s.damping, damping_up=4.0, damping_down=1.0 / 3.0, tolerance=0.0
+    )
+    result = levenberg_marquardt(
+        lambda x: rows.rows(problem.inputs(x)),
+        problem.start,
+        lower=problem.low,
+        upper=problem.high,
+        settings=lm,
+        prepare=lambda x: rows.reweight(problem.inputs(x[None])),
+    )
+    state = problem.state(result.x)
+    # the frame's own information about x (the reprojection and the coefficients' prior, not the temporal terms)
+    # at the result: what :func:`pipeline.track.smooth.smooth_track` weighs this frame's result by
+    at = FrameProblem(model, state, None)
+    data = rows.subset([t.name for t in terms[:2]])
+    with torch.no_grad():
+        jacobian, _ = forward_difference_jacobian(lambda x: data.rows(at.inputs(x)), at.start)
+        uv = at.inputs(at.start[None])["landmarks_px"][0].numpy()
+    information = 0.5 * (jacobian.T @ jacobian).numpy()  # the rows' 0.5 |r|^2 is TrackSettings' |r|^2 / 2
     err2 = ((uv - obs) ** 2).sum(1)
     rms = float(np.sqrt((err2 * w).sum() / max(w.sum(), 1e-12)))
-    # the frame's own information about x (the reprojection and the coefficients' prior, not the temporal
-    # terms): what :func:`pipeline.track.smooth.smooth_track` weighs this frame's result by
-    data_rows = 2 * len(obs) + n_c
-    information = jac[:data_rows].T @ jac[:data_rows]
-    return state, {"rms_px": rms, "cost": cost, "steps": steps, "information": information}
+    return state, {"rms_px": rms, "cost": result.cost, "steps": len(result.costs) - 1, "information": information}
 
 
-def _skew(v: np.ndarray) -> np.ndarray:
-    """``(N, 3)`` -> ``(N, 3, 3)`` cross-product matrices."""
-    out = np.zeros((len(v), 3, 3))
-    out[:, 0, 1], out[:, 0, 2] = -v[:, 2], v[:, 1]
-    out[:, 1, 0], out[:, 1, 2] = v[:, 2], -v[:, 0]
-    out[:, 2, 0], out[:, 2, 1] = -v[:, 1], v[:, 0]
-    return out
-
-
-__all__ = ["FrameModel", "FrameState", "TrackSettings", "camera_centre", "rotation_from_vector", "solve_frame"]
+__all__ = [
+    "FrameModel",
+    "FrameProblem",
+    "FrameState",
+    "TrackSettings",
+    "camera_centre",
+    "frame_terms",
+    "pose_step",
+    "solve_frame",
+]
