@@ -18,6 +18,7 @@ independent fits', coefficient error no worse, pose <= 3 degrees, >= 10 frames/s
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 import time
 from pathlib import Path
@@ -94,10 +95,23 @@ def main(argv=None) -> None:
     parser.add_argument("--smooth", type=float, nargs=3, metavar=("COEF", "ROT_DEG", "TRANS_MM"))
     parser.add_argument("--lambda-expressions", type=float)
     parser.add_argument("--lambda-sparse", type=float)
+    parser.add_argument(
+        "--frame",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="any track.frame setting (TrackSettings' field, e.g. lambda_gaze=0.1); repeatable",
+    )
     parser.add_argument("--keyframe-choice", default=TrackConfig.keyframe_choice, choices=("poses", "time"))
     parser.add_argument("--no-baseline", action="store_true", help="only jnr track (for choosing settings)")
     parser.add_argument("--json", type=Path)
     args = parser.parse_args(argv)
+    frame_overrides = {}
+    for item in args.frame:
+        name, _, value = item.partition("=")
+        if not hasattr(TrackSettings(), name) or not value:
+            parser.error(f"--frame {item!r}: expected NAME=VALUE with NAME a TrackSettings field")
+        frame_overrides[name] = type(getattr(TrackSettings(), name))(value)
     torch.set_num_threads(2)
 
     from landmarks.mediapipe.layout import mediapipe_layout
@@ -127,6 +141,7 @@ def main(argv=None) -> None:
             frame = TrackSettings(lambda_expressions=args.lambda_expressions)
         if args.lambda_sparse is not None:
             frame = TrackSettings(lambda_expressions=frame.lambda_expressions, lambda_sparse=args.lambda_sparse)
+        frame = dataclasses.replace(frame, **frame_overrides)
         smooth = SmoothSettings(*args.smooth) if args.smooth else SmoothSettings()
         config = TrackConfig(
             focal=float(data["focal"]),

@@ -186,7 +186,22 @@ def head_points_to_pixels(
     """
     flip = _FLIP.to(points.dtype)
     camera = points @ (flip @ rotation).transpose(1, 2) + translation[:, None]
-    return camera[..., :2] / camera[..., 2:].clamp_min(1.0) * focal + centre
+    return camera_points_to_pixels(camera, focal, centre)
+
+
+def camera_points_to_pixels(camera, focal, centre):
+    """The pinhole projection of every fit, preview and texture: ``(..., 3)`` camera-frame points (OpenCV, mm)
+    -> ``(..., 2)`` pixels (0-based), torch tensors or numpy arrays alike.
+
+    Args:
+        camera: ``(..., 3)`` points in the camera frame, mm. focal: a scalar or ``(2,)`` pixels. centre: ``(2,)``
+            the principal point, pixels.
+
+    Returns:
+        ``(..., 2)`` pixels; a point less than 1 mm in front of the camera is projected as if at 1 mm (no division
+        by zero or a sign flip behind the lens).
+    """
+    return camera[..., :2] / camera[..., 2:].clip(min=1.0) * focal + centre
 
 
 def camera_center_in_rig(rotation: np.ndarray, translation: np.ndarray) -> np.ndarray:

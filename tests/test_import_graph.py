@@ -1,5 +1,6 @@
 """The packages import each other without cycles (the layers themselves are import-linter's contract in
-pyproject.toml, run by ``make lint``; this checks what a layers contract cannot: cycles inside a layer)."""
+pyproject.toml, run by ``make lint``; this checks what a layers contract cannot: cycles inside a layer, the
+imports made only for type checking counted too)."""
 
 import grimp
 
@@ -40,6 +41,6 @@ def _cycles(graph) -> list[list[str]]:
 
 
 def test_no_import_cycles():
-    graph = grimp.build_graph("rig", "render", "landmarks", "pipeline", exclude_type_checking_imports=True)
+    graph = grimp.build_graph("rig", "render", "landmarks", "pipeline", exclude_type_checking_imports=False)
     assert len(graph.modules) > 100
     assert _cycles(graph) == []

@@ -23,7 +23,7 @@ from kornia.geometry.conversions import axis_angle_to_rotation_matrix
 from scipy.spatial.transform import Rotation
 from torch import nn
 
-from pipeline.camera import camera_center_in_rig
+from pipeline.camera import camera_center_in_rig, camera_points_to_pixels
 from pipeline.fitting.engine import Stage
 from pipeline.fitting.landmark_term import BatchedLandmarks, LandmarkTerm, expressions64
 from pipeline.fitting.least_squares import StateVector
@@ -279,7 +279,7 @@ class MultiViewProblem:
         posed = skin_vertices_shared_weights(rest, self.weights[ids], skinning.double())[0]
         rotation = axis_angle_to_rotation_matrix(s.rotvec[k][None])[0]
         cam = posed @ (self.flip @ rotation).T + s.translation[k]
-        pixels = cam[:, :2] / cam[:, 2:] * (view.focal * s.log_focal[k].exp()) + view.centre
+        pixels = camera_points_to_pixels(cam, view.focal * s.log_focal[k].exp(), view.centre)
         return cam, pixels
 
     def focal_scales(self) -> np.ndarray:

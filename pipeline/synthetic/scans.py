@@ -21,7 +21,14 @@ import numpy as np
 
 from pipeline.files import staged_file
 from pipeline.scan.pointcloud.write import write_point_cloud_ply
-from pipeline.synthetic.depth_sensor import add_outliers, back_project, drop_pixels
+from pipeline.synthetic.depth_sensor import (
+    HIRES_CAMERA,
+    DepthCamera,
+    ScanSettings,
+    add_outliers,
+    back_project,
+    drop_pixels,
+)
 from pipeline.synthetic.expressive import expressive_split
 from rig.asset import load_asset
 from rig.errors import InputError
@@ -43,65 +50,6 @@ WORLD_TO_CAMERA = RIG_TO_OPENCV
 
 _NEAR_MM = 1.0
 _CHUNK_PAIRS = 2_000_000
-
-
-@dataclass(frozen=True)
-class DepthCamera:
-    """Pinhole depth camera (Azure Kinect NFOV-binned-like), OpenCV convention.
-
-    Attributes:
-        width, height: image size, pixels.
-        fx, fy: focal lengths, pixels.
-        cx, cy: principal point, pixels.
-    """
-
-    width: int = 320
-    height: int = 288
-    fx: float = 252.0
-    fy: float = 252.0
-    cx: float = 160.0
-    cy: float = 144.0
-
-
-HIRES_CAMERA = DepthCamera(640, 576, 504.0, 504.0, 320.0, 288.0)
-"""Twice the default resolution (``jnr data scan --hires``: ~15-20k points on a head instead of ~4k)."""
-
-
-@dataclass(frozen=True)
-class ScanSettings:
-    """Placement and sensor model of :func:`simulate_scan`.
-
-    Attributes:
-        distance_mm: camera to the frontmost point of the head, along world Z, mm.
-        yaw_deg_range, pitch_deg_range, roll_deg_range: head rotation ranges (about world Y, X, Z), degrees.
-        max_offset_mm: the head's translation is uniform in ``[-max_offset_mm, max_offset_mm]`` per axis.
-        noise_mm_at_1m: axial noise sigma at 1 m; sigma(z) = max(noise_mm_at_1m (z / 1000)^2, noise_floor_mm).
-        noise_floor_mm: lower bound of the axial noise sigma, mm.
-        lateral_jitter_px: sigma of the per-pixel jitter of the ray (pixels).
-        hole_fraction: ``(low, high)``: the fraction of the face's pixels dropped by random elliptical holes
-            is drawn uniformly from this range.
-        edge_dropout: drop pixels next to depth discontinuities (> ``edge_jump_mm``) or the image's empty
-            background, and pixels seen at grazing angles (> ``grazing_deg``).
-        edge_jump_mm, grazing_deg: thresholds of ``edge_dropout``.
-        outlier_fraction: outliers added, as a fraction of the valid points (half flying pixels behind
-            valid pixels, half uniform in the head's bounding box grown by 30 mm).
-        normals: estimate per-point normals from the depth image.
-    """
-
-    distance_mm: float = 600.0
-    yaw_deg_range: tuple[float, float] = (-45.0, 45.0)
-    pitch_deg_range: tuple[float, float] = (-15.0, 15.0)
-    roll_deg_range: tuple[float, float] = (-10.0, 10.0)
-    max_offset_mm: float = 300.0
-    noise_mm_at_1m: float = 3.0
-    noise_floor_mm: float = 0.5
-    lateral_jitter_px: float = 0.3
-    hole_fraction: tuple[float, float] = (0.05, 0.3)
-    edge_dropout: bool = True
-    edge_jump_mm: float = 15.0
-    grazing_deg: float = 75.0
-    outlier_fraction: float = 0.01
-    normals: bool = True
 
 
 @dataclass(frozen=True)

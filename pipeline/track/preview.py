@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.animation.keyframes import posed_frames
-from pipeline.camera import RIG_TO_OPENCV
+from pipeline.camera import RIG_TO_OPENCV, camera_points_to_pixels
 from pipeline.track.encode import H264Writer
 from pipeline.track.tracker import TrackResult
 from pipeline.track.video import Clip
@@ -44,8 +44,7 @@ def shade_head(
     import cv2
 
     width, height = size
-    z = np.maximum(camera_vertices[:, 2], 1.0)
-    uv = camera_vertices[:, :2] / z[:, None] * focal + np.array([(width - 1) / 2.0, (height - 1) / 2.0])
+    uv = camera_points_to_pixels(camera_vertices, focal, np.array([(width - 1) / 2.0, (height - 1) / 2.0]))
     tri = camera_vertices[faces]
     normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     normal /= np.linalg.norm(normal, axis=1, keepdims=True).clip(1e-12)

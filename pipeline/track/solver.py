@@ -36,7 +36,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import torch
-from kornia.geometry.conversions import axis_angle_to_rotation_matrix, rotation_matrix_to_axis_angle
+from kornia.geometry.conversions import axis_angle_to_rotation_matrix
 
 from landmarks.layout import LandmarkLayout
 from pipeline.camera import camera_center_in_rig, head_points_to_pixels
@@ -66,7 +66,8 @@ class TrackSettings:
         lambda_expressions: weight of ``|c|^2`` against the mean squared pixel error (the photo fit's 0.5 is 1 in
             this normalisation; a fixed identity leaves its errors to the expressions, a stronger prior keeps
             them out). With ``lambda_sparse``, chosen on the validation clip (clip 0 of
-            ``benchmarks/bench_track.py``): 3 and 0.5 among (0.5, 1, 2, 3, 4) x (0, 0.25, 0.5, 1).
+            ``benchmarks/bench_track.py``) for this solver: 4 and 4, the weakest pair at the lowest coefficient
+            error of (2, 3, 4, 6, 8) x (0, 0.25, 0.5, 1, 2, 4) (docs/track.md).
         lambda_gaze: the eight eyeLook* coefficients' instead (the irises show the gaze).
         lambda_sparse: weight of ``sum_i c_i`` (the coefficients are >= 0: an L1 prior, which keeps the unused
             ones at 0 without holding the used ones back as much as ``|c|^2``); not on the gaze.
@@ -78,8 +79,8 @@ class TrackSettings:
     """
 
     huber_delta_px: float = 5.0
-    lambda_expressions: float = 3.0
-    lambda_sparse: float = 0.5
+    lambda_expressions: float = 4.0
+    lambda_sparse: float = 4.0
     lambda_gaze: float = 0.04
     lambda_velocity: float = 0.02
     lambda_acceleration: float = 0.2
@@ -308,21 +309,24 @@ def pose_step(state: FrameState, before: FrameState) -> np.ndarray:
 
 
 class FrameProblem:
-    """One frame's unknowns ``x = [omega (3, rad: the rotation exp(omega) R_0 on the start's), t (3, mm),
-    c (52)]`` and what the terms read at a batch of them (:class:`pipeline.fitting.least_squares.LeastSquaresProblem`).
+    """One frame's unknowns ``x = [omega (3, rad: the rotation exp(omega) R_ref), t (3, mm), c (52)]`` and what
+    the terms read at a batch of them (:class:`pipeline.fitting.least_squares.LeastSquaresProblem`). ``R_ref`` is
+    the frame before's rotation where there is one (so the turn since that frame is ``omega`` itself, no
+    logarithm in the loop), else the start's.
 
     Args:
-        model: the frame's :class:`FrameModel` (its contour picked). start: the start (``R_0``).
+        model: the frame's :class:`FrameModel` (its contour picked). start: the start.
         last: the frame before's result, or None (no ``pose_step`` input then).
     """
 
     def __init__(self, model: FrameModel, start: FrameState, last: FrameState | None) -> None:
         self.model = model
-        self.rotation0 = torch.as_tensor(start.rotation)
-        self.start = torch.as_tensor(np.r_[np.zeros(3), start.translation, start.coefficients])
+        reference = start.rotation if last is None else last.rotation
+        self.rotation0 = torch.as_tensor(np.asarray(reference, np.float64))
+        omega = np.zeros(3) if last is None else rotation_vector(start.rotation @ reference.T)
+        self.start = torch.as_tensor(np.r_[omega, start.translation, start.coefficients])
         self.low = torch.as_tensor(np.r_[np.full(6, -np.inf), model.low])
         self.high = torch.as_tensor(np.r_[np.full(6, np.inf), model.high])
-        self.last_rotation = None if last is None else torch.as_tensor(last.rotation)
         self.last_translation = None if last is None else torch.as_tensor(last.translation)
 
     def rotation(self, x: torch.Tensor) -> torch.Tensor:
@@ -331,17 +335,15 @@ class FrameProblem:
 
     def inputs(self, x: torch.Tensor) -> Inputs:
         """The terms' inputs at ``x (B, 58)`` (computed when a term reads them)."""
-        rotation = self.rotation(x)
         c = x[:, 6:]
 
         def pixels() -> torch.Tensor:
             return head_points_to_pixels(
-                self.model.points_batch(c), rotation, x[:, 3:6], self.model.focal_t, self.model.principal_t
+                self.model.points_batch(c), self.rotation(x), x[:, 3:6], self.model.focal_t, self.model.principal_t
             )
 
         def step() -> torch.Tensor:
-            turn = rotation_matrix_to_axis_angle(rotation @ self.last_rotation.T) * (180.0 / math.pi)
-            return torch.cat([turn, x[:, 3:6] - self.last_translation], dim=1)
+            return torch.cat([x[:, :3] * (180.0 / math.pi), x[:, 3:6] - self.last_translation], dim=1)
 
         return Inputs({"c": c}, landmarks_px=pixels, pose_step=step)
 

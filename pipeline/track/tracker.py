@@ -310,6 +310,60 @@ def track_shots(
     return ShotTracks(shots, tracks, skipped, len(landmarks))
 
 
+def _fit_every_frame(
+    model: FrameModel,
+    landmarks: np.ndarray,
+    observed: np.ndarray,
+    weights: np.ndarray,
+    key_states: dict[int, FrameState],
+    config: TrackConfig,
+    progress: Progress | None,
+) -> tuple[np.ndarray, ...]:
+    """Every frame's fit in order (:func:`pipeline.track.solver.solve_frame`), each started from the frame before
+    (at the clip's start or after a gap: from the nearest keyframe's state, with ``config.cold_iterations``).
+
+    Returns:
+        ``rotations (T, 3, 3)``, ``translations (T, 3)`` mm, ``coefficients (T, 52)``, ``rms (T,)`` px (NaN where
+        no face), ``information (T, 58, 58)`` and ``fit_ms (T,)`` the milliseconds of each frame.
+    """
+    count = len(landmarks)
+    rotations = np.zeros((count, 3, 3))
+    translations = np.zeros((count, 3))
+    coefficients = np.zeros((count, 52))
+    rms = np.full(count, np.nan)
+    fit_ms = np.zeros(count)
+    information = np.zeros((count, 58, 58))
+    previous: list[FrameState | None] = [None, None]
+    settings = config.frame
+    cold = replace(settings, iterations=config.cold_iterations)
+    for index in range(count):
+        tf = time.perf_counter()
+        if not observed[index]:
+            previous = [None, None]
+        else:
+            if previous[0] is None:  # the clip's start or after a gap: from the nearest keyframe
+                nearest = min(key_states, key=lambda k: abs(k - index))
+                start, step_settings = key_states[nearest].copy(), cold
+            else:
+                start, step_settings = previous[0].copy(), settings
+            model.pick_contour(start)
+            state, info = solve_frame(
+                model, landmarks[index].astype(np.float64), weights, start, (previous[0], previous[1]), step_settings
+            )
+            rotations[index], translations[index], coefficients[index] = (
+                state.rotation,
+                state.translation,
+                state.coefficients,
+            )
+            rms[index] = info["rms_px"]
+            information[index] = info["information"]
+            previous = [state, previous[0]]
+        fit_ms[index] = 1e3 * (time.perf_counter() - tf)
+        if progress is not None:
+            progress("fit", index + 1, count)
+    return rotations, translations, coefficients, rms, information, fit_ms
+
+
 def _track_frames(
     clip: Clip,
     landmarks: np.ndarray,
@@ -351,45 +405,13 @@ def _track_frames(
     rig64 = JointRig(rig.asset, dtype=torch.float64)
     model = FrameModel(rig64, identity_fit.theta, head.weights, layout, focal, clip.size)
     weights = layout.weights("detector", 1.0, torch.float64).numpy()
-    count = len(landmarks)
-    rotations = np.zeros((count, 3, 3))
-    translations = np.zeros((count, 3))
-    coefficients = np.zeros((count, 52))
-    rms = np.full(count, np.nan)
-    fit_ms = np.zeros(count)
-    information = np.zeros((count, 58, 58))
     key_states = {
         k: FrameState(v.rotation, v.translation, np.asarray(v.expressions, np.float64))
         for k, v in zip(keys, identity_fit.views, strict=True)
     }
-    previous: list[FrameState | None] = [None, None]
-    settings = config.frame
-    cold = replace(settings, iterations=config.cold_iterations)
-    for index in range(count):
-        tf = time.perf_counter()
-        if not observed[index]:
-            previous = [None, None]
-        else:
-            if previous[0] is None:  # the clip's start or after a gap: from the nearest keyframe
-                nearest = min(key_states, key=lambda k: abs(k - index))
-                start, step_settings = key_states[nearest].copy(), cold
-            else:
-                start, step_settings = previous[0].copy(), settings
-            model.pick_contour(start)
-            state, info = solve_frame(
-                model, landmarks[index].astype(np.float64), weights, start, (previous[0], previous[1]), step_settings
-            )
-            rotations[index], translations[index], coefficients[index] = (
-                state.rotation,
-                state.translation,
-                state.coefficients,
-            )
-            rms[index] = info["rms_px"]
-            information[index] = info["information"]
-            previous = [state, previous[0]]
-        fit_ms[index] = 1e3 * (time.perf_counter() - tf)
-        if progress is not None:
-            progress("fit", index + 1, count)
+    rotations, translations, coefficients, rms, information, fit_ms = _fit_every_frame(
+        model, landmarks, observed, weights, key_states, config, progress
+    )
     smooth_track(rotations, translations, coefficients, information, observed, config.smooth, model.low, model.high)
     bridge(rotations, translations, coefficients, observed)
     seconds["fit"] = time.perf_counter() - t2

@@ -7,15 +7,12 @@ units, and one head's parameters as JSON (:func:`asm_params_to_dict`, :func:`asm
 from __future__ import annotations
 
 from dataclasses import dataclass, fields
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import numpy as np
 import torch
 
 from rig.errors import InputError, SetupError, ShapeError
-
-if TYPE_CHECKING:
-    from rig.skinning.asm.model import AdaptiveSkinning
 
 __all__ = [
     "ASM_CHANNELS",
@@ -171,7 +168,17 @@ def asm_params_to_dict(p: AsmParameters, joint_names: tuple[str, ...]) -> dict:
     }
 
 
-def asm_params_from_dict(data: dict, model: AdaptiveSkinning) -> AsmParameters:
+class _AsmModel(Protocol):
+    """What :func:`asm_params_from_dict` reads of a model (:class:`rig.skinning.asm.AdaptiveSkinning`):
+    its ``components``, ``rig`` (the joint names) and ``initial(batch)``."""
+
+    components: int
+    rig: object
+
+    def initial(self, batch: int) -> AsmParameters: ...
+
+
+def asm_params_from_dict(data: dict, model: _AsmModel) -> AsmParameters:
     """Inverse of :func:`asm_params_to_dict` for ``model`` (batch 1). Bones missing from the file keep
     their initial values.
 
