@@ -135,6 +135,7 @@ def tilted(astronaut):
 class TestDetectors:
     """dlib's CNN (MMOD) detector, on request or when HOG finds nothing (``detector="dlib"``)."""
 
+    @pytest.mark.slow  # 6 s of the fast suite's 6 minutes: CI's make test-slow runs it
     def test_cnn_finds_the_upright_face_where_hog_does(self, astronaut, astronaut_face):
         (face,) = detect_faces(astronaut, detector="cnn")
         assert face.detector == "cnn" and face.score >= CNN_MIN_CONFIDENCE
@@ -143,6 +144,7 @@ class TestDetectors:
         assert inter / (face.area + astronaut_face.area - inter) > 0.5  # the same face
         assert np.abs(face.landmarks - astronaut_face.landmarks).mean() < 5.0
 
+    @pytest.mark.slow  # 6 s of the fast suite's 6 minutes: CI's make test-slow runs it
     def test_dlib_falls_back_to_the_cnn_when_hog_finds_nothing(self, astronaut, astronaut_face, tilted):
         assert detect_faces(tilted, detector="hog") == []
         face = detect_landmarks(tilted, detector="dlib")

@@ -424,7 +424,8 @@ def _alive(pids: list[int]) -> list[int]:
     return alive
 
 
-@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGKILL])
+# SIGKILL in make test-slow (6 s of the fast suite's 6 minutes)
+@pytest.mark.parametrize("sig", [signal.SIGTERM, pytest.param(signal.SIGKILL, marks=pytest.mark.slow)])
 def test_workers_die_with_their_parent(tmp_path, photo_dir, sig):
     """``jnr fit FOLDER --jobs 2``: SIGTERM (or SIGKILL) to the main process ends the workers too, and
     they remove their staged outputs."""

@@ -114,6 +114,7 @@ def test_rig_build_check_matches_committed_asset(capsys, tmp_path):
     assert code == 0
 
 
+@pytest.mark.slow  # 10 s of the fast suite's 6 minutes: CI's make test-slow runs it
 def test_demo_writes_everything(capsys, tmp_path, monkeypatch):
     """The demo's files and figures. Its first step, rebuilding the template from code (17 s), is what the slow
     test_rig_build_check_matches_committed_asset checks; here it returns the committed asset with one vertex

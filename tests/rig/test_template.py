@@ -1,6 +1,7 @@
 """rig.template / rig.asset: MakeHuman's head placed, labelled and rigged; the committed asset rebuilds."""
 
 import numpy as np
+import pytest
 import trimesh
 
 from rig.asset import build_asset
@@ -75,6 +76,7 @@ def test_uvs_are_makehumans_atlas(asset):
     assert spread[0] < 0.1 and spread[1] < 0.1  # no face stretched across a seam
 
 
+@pytest.mark.slow  # 18 s of the fast suite's 6 minutes: CI's make test-slow runs it
 def test_asset_rebuilds_bit_for_bit(asset):
     rebuilt = build_asset()
     np.testing.assert_array_equal(rebuilt.vertices, asset.vertices)

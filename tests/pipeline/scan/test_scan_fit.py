@@ -336,6 +336,7 @@ def test_cli_fit_scan_subsamples_a_dense_scan_and_fits_it(scan_file, asset):
     np.testing.assert_allclose(error_map, cloud.points, atol=1e-4)  # float32 PLY
 
 
+@pytest.mark.slow  # 6 s of the fast suite's 6 minutes: CI's make test-slow runs it
 def test_cli_rejects_two_million_random_points_as_not_a_head_from_a_subsample(tmp_path, capsys):
     points = np.random.default_rng(0).uniform(-125.0, 125.0, (2_000_000, 3))  # head-sized in mm
     code, err = _cli_error(tmp_path, capsys, "noise.npy", points)

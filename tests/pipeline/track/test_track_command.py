@@ -204,6 +204,7 @@ def test_a_damaged_video_is_said_so_in_jnrs_words_only(tmp_path, clip):
     assert len(run.stderr.strip().splitlines()) == 1, run.stderr  # no FFmpeg lines before it
 
 
+@pytest.mark.slow  # 5 s of the fast suite's 6 minutes: CI's make test-slow runs it
 def test_a_shot_cut_splits_the_clip_into_shots_with_their_own_identity(capsys, tmp_path):
     """Issue 38: a clip cut from one person to another was tracked as one identity, the lost frames bridged
     across the cut. Two shots of two held-out heads (other camera, light and background): the cut is found, each

@@ -85,6 +85,7 @@ def test_learned_linear_weights_reduce_error_on_heads_they_can_express(rig32):
     assert (w >= 0).all() and torch.allclose(w.sum(-1), torch.ones(rig32.num_vertices), atol=1e-5)
 
 
+@pytest.mark.slow  # 6 s of the fast suite's 6 minutes: CI's make test-slow runs it
 def test_tiny_training_run_lowers_its_loss_and_fit_uses_z(rig32):
     torch.manual_seed(0)
     g = torch.Generator().manual_seed(0)
