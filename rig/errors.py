@@ -50,6 +50,24 @@ def check_shape(ok: bool, func: str, arg: str, expected: str, got: object) -> No
         raise shape_error(func, arg, expected, got)
 
 
+def check_faces(func: str, faces, num_vertices: int, error: type[InputError] = InputError):
+    """``faces`` as an ``(F, 3)`` int64 array of a mesh of ``num_vertices`` vertices (``F > 0``), or
+    :func:`shape_error` (another shape or dtype) / ``error`` (an index outside the vertices) naming ``func``."""
+    import numpy as np
+
+    f = np.asarray(faces)
+    check_shape(
+        f.ndim == 2 and f.shape[1] == 3 and len(f) > 0 and np.issubdtype(f.dtype, np.integer),
+        func,
+        "faces",
+        "(F, 3) integer with F > 0",
+        f.shape,
+    )
+    if f.min() < 0 or f.max() >= num_vertices:
+        raise error(f"{func}: faces index outside the {num_vertices} vertices")
+    return f.astype(np.int64)
+
+
 __all__ = ["InputError", "JnrError", "SetupError", "ShapeError", "check_shape", "shape_error"]
 
 

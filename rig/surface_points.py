@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rig.errors import InputError, check_shape
+from rig.errors import InputError, check_faces, check_shape
 
 
 def closest_points_on_triangles(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
@@ -138,17 +138,7 @@ def closest_surface_points(
     func = "closest_surface_points"
     p = _finite_points(func, "points", points)
     v = _finite_points(func, "vertices", vertices)
-    f = np.asarray(faces)
-    check_shape(
-        f.ndim == 2 and f.shape[1] == 3 and len(f) > 0 and np.issubdtype(f.dtype, np.integer),
-        func,
-        "faces",
-        "(F, 3) integer with F > 0",
-        f.shape,
-    )
-    if f.min() < 0 or f.max() >= len(v):
-        raise InputError(f"{func}: faces index outside the {len(v)} vertices")
-    tri = v[f.astype(np.int64)]  # (F, 3, 3)
+    tri = v[check_faces(func, faces, len(v))]  # (F, 3, 3)
     centroids = tri.mean(1)
     radius = np.linalg.norm(tri - centroids[:, None], axis=-1).max(1)
     group = np.searchsorted(np.array([4.0, 8.0, 16.0]) * max(float(np.median(radius)), 1e-9) / 3.0, radius)

@@ -14,7 +14,7 @@ import torch
 
 from rig.accessory.influences import contact_attenuation, keep_largest, reduce_influences, smooth_over_points
 from rig.accessory_defaults import DEFAULT_FALLOFF_MM, DEFAULT_SMOOTHING_MM
-from rig.errors import InputError, check_shape
+from rig.errors import InputError, check_faces, check_shape
 from rig.geometry import SurfacePoints, closest_surface_points, surface_values, vertex_normals
 from rig.lbs import skin_vertices_shared_weights
 
@@ -69,17 +69,7 @@ def _points(func: str, arg: str, points) -> np.ndarray:
 
 
 def _faces(func: str, faces, num_vertices: int) -> np.ndarray:
-    f = np.asarray(faces)
-    check_shape(
-        f.ndim == 2 and f.shape[1] == 3 and len(f) > 0 and np.issubdtype(f.dtype, np.integer),
-        func,
-        "faces",
-        "(F, 3) integer with F > 0",
-        f.shape,
-    )
-    if f.min() < 0 or f.max() >= num_vertices:
-        raise AccessoryError(f"{func}: faces index outside the {num_vertices} vertices")
-    return f.astype(np.int64)
+    return check_faces(func, faces, num_vertices, AccessoryError)
 
 
 def transfer_skinning(
