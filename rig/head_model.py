@@ -35,6 +35,7 @@ import torch
 from rig.asset import RigAsset, load_asset
 from rig.errors import InputError, is_number
 from rig.expressions import EXPRESSION_NAMES, ExpressionModel, coefficients_from_dict, expression_limits
+from rig.lbs import skin_vertices, skin_vertices_shared_weights
 from rig.model import JointRig
 from rig.parameters import CHANNELS, params_to_theta, theta_limits, theta_to_params
 from rig.skinning.asm import (
@@ -59,6 +60,7 @@ __all__ = [
     "create_from_dict",
     "head_model_kinds",
     "is_posable",
+    "jnr_vertices",
     "model_entries",
     "register_head_model",
 ]
@@ -146,6 +148,11 @@ class HeadModel(Protocol):
     def initial(self) -> HeadParams: ...
 
     def forward(self, params: HeadParams) -> HeadPose: ...
+
+    def vertices(self, values: Mapping[str, Any], vertex_ids: torch.Tensor | None = None) -> torch.Tensor:
+        """The differentiable, batched forward every fit can call: each group's ``(B, n)`` tensor by group name
+        (ASM: its :class:`rig.skinning.asm.AsmParameters` of batch ``B``) -> ``(B, U, 3)`` posed vertices, mm."""
+        ...
 
     def to_dict(self, params: HeadParams) -> dict: ...
 
@@ -269,6 +276,39 @@ def _require(data: Mapping, keys: tuple[str, ...]) -> None:
         raise HeadModelError(f"parameter file lacks {missing}")
 
 
+def jnr_vertices(
+    rig: JointRig,
+    expressions: ExpressionModel,
+    theta: torch.Tensor,
+    weights: torch.Tensor,
+    coefficients: torch.Tensor,
+    vertex_ids: torch.Tensor | None = None,
+) -> torch.Tensor:
+    """JNR's head, the one place it is computed: the template with the ARKit shapes, skinned by the joints
+    (linear blend skinning, JNR eq. 2). Pure and differentiable in ``theta``, ``weights`` and ``coefficients``.
+
+    Args:
+        rig: the joint rig; expressions: its :class:`rig.expressions.ExpressionModel` (same dtype).
+        theta: ``(B, P)`` joint channels (deg, mm, ``scale - 1``).
+        weights: ``(V, K)`` or ``(B, V, K)`` skinning weights (the neural skinning's, or ``rig.dense_weights()``).
+        coefficients: ``(B, E)`` the ARKit coefficients.
+        vertex_ids: ``(U,)`` int64: only those vertices (a landmark or point subset), or None for all ``V``.
+
+    Returns:
+        ``(B, U, 3)`` the posed vertices, rig space, mm, in the expression model's dtype (the joints' transforms
+        are computed in the rig's).
+    """
+    template = expressions.template if vertex_ids is None else expressions.template[vertex_ids]
+    rest = template + expressions(coefficients, vertex_ids)  # (B, U, 3)
+    _, skinning = rig.joint_transforms(theta.to(rig.template.dtype))
+    skinning, weights = skinning.to(rest.dtype), weights.to(rest.dtype)
+    if vertex_ids is not None:
+        weights = weights[..., vertex_ids, :]
+    if weights.dim() == 2:  # one set of weights for the batch: the blended transforms as one matrix product
+        return skin_vertices_shared_weights(rest, weights, skinning)
+    return skin_vertices(rest, weights, skinning)
+
+
 class JnrHead:
     """JNR's head: 107 joint channels, the neural skinning's latent Z and the 52 ARKit shapes.
 
@@ -359,14 +399,24 @@ class JnrHead:
             out = self.rig(t, weights=torch.as_tensor(weights), vertices=torch.as_tensor(rest))
         return out.vertices[0].numpy()
 
+    def vertices(self, values: Mapping[str, torch.Tensor], vertex_ids: torch.Tensor | None = None) -> torch.Tensor:
+        """The differentiable, batched forward (:func:`jnr_vertices`): ``values`` ``{"joints": (B, P),
+        "latent": (B, 50), "expressions": (B, E)}`` tensors (float32 or float64; gradients flow to each) ->
+        ``(B, U, 3)`` posed vertices in their dtype, mm (``U``: ``vertex_ids`` or every vertex)."""
+        theta = values["joints"]
+        weights = self.neural(values["latent"].to(torch.float64))
+        out = jnr_vertices(self.rig, self.expression_model, theta, weights, values["expressions"], vertex_ids)
+        return out.to(theta.dtype)
+
     def forward(self, params: HeadParams) -> HeadPose:
         self._check(params)
-        rest = self.rest(params["expressions"])
         weights = self.weights(params["latent"])
+        c = torch.as_tensor(_vector(params["expressions"], len(EXPRESSION_NAMES), "expressions"))[None]
+        theta = torch.as_tensor(_vector(params["joints"], len(CHANNELS), "joints"))[None]
         with torch.no_grad():
-            tau = self.rig.channel_transforms(torch.as_tensor(params["joints"])[None])[0].numpy()
-        posed = self.pose(params["joints"], rest, weights)
-        return HeadPose(posed, rest, weights, tau, np.asarray(params["expressions"], np.float64))
+            posed = jnr_vertices(self.rig, self.expression_model, theta, torch.as_tensor(weights), c)[0].numpy()
+            tau = self.rig.channel_transforms(theta)[0].numpy()
+        return HeadPose(posed, self.rest(params["expressions"]), weights, tau, c[0].numpy())
 
     def to_dict(self, params: HeadParams) -> dict:
         self._check(params)
@@ -439,12 +489,20 @@ class AsmHead:
     def _parameters(self, params: HeadParams):
         return AsmParameters(**{k: torch.as_tensor(np.asarray(v, np.float64)) for k, v in params["asm"].items()})
 
+    def vertices(self, values: Mapping, vertex_ids: torch.Tensor | None = None) -> torch.Tensor:
+        """The differentiable, batched forward: ``values`` ``{"asm": AsmParameters of batch B, "expressions":
+        (B, E)}`` -> ``(B, U, 3)`` posed vertices, mm, float64 (``U``: ``vertex_ids`` or every vertex;
+        gradients flow to every ASM parameter and coefficient)."""
+        rest = self._expressions.vertices(values["expressions"].to(torch.float64))
+        posed = self.model(values["asm"], vertices=rest).vertices
+        return posed if vertex_ids is None else posed[:, vertex_ids]
+
     def forward(self, params: HeadParams) -> HeadPose:
         self._check(params)
         c = torch.as_tensor(_vector(params["expressions"], len(EXPRESSION_NAMES), "expressions"))
         with torch.no_grad():
+            posed = self.vertices({"asm": self._parameters(params), "expressions": c[None]})[0].numpy()
             rest = self._expressions.vertices(c[None])[0]
-            posed = self.model(self._parameters(params), vertices=rest).vertices[0].numpy()
         return HeadPose(posed, rest.numpy(), None, None, c.numpy())
 
     def to_dict(self, params: HeadParams) -> dict:

@@ -33,6 +33,7 @@ from pipeline.fitting.terms import Huber, Inputs, Term
 from rig.asset import cached_per_asset
 from rig.errors import InputError
 from rig.expressions import ExpressionModel
+from rig.head_model import jnr_vertices
 from rig.lbs import skin_vertices_shared_weights
 from rig.model import JointRig
 
@@ -203,10 +204,8 @@ class BatchedLandmarks:
         if self.prepared <= CONTOUR_UPDATES or self.contour is None:
             with torch.no_grad():  # only the vertices the contour's pick reads are skinned
                 ids = self.support_ids
-                rest = self.expressions.template[ids] + self.expressions(p["c"], ids)[0]
-                _, skinning = self.rig.joint_transforms(p["theta"])
                 v = torch.zeros(len(self.expressions.template), 3, dtype=torch.float64)
-                v[ids] = skin_vertices_shared_weights(rest, self.weights[ids], skinning)[0]
+                v[ids] = jnr_vertices(self.rig, self.expressions, p["theta"], self.weights, p["c"], ids)[0].double()
                 self.contour = torch.as_tensor(self.term.layout.pick(v.numpy(), camera_center), dtype=torch.long)
         ids = self.static_ids.clone()
         bary = self.static_bary.clone()

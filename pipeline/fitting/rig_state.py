@@ -22,8 +22,8 @@ from pipeline.fitting.identity import IdentityPrior
 from pipeline.fitting.priors import PriorWeights, jnr_prior_terms
 from pipeline.fitting.terms import Inputs, Term
 from rig.expressions import EXPRESSION_NAMES, ExpressionModel, expression_limits
-from rig.head_model import HeadParams
-from rig.lbs import skin_vertices, skin_with_basis, skinning_basis
+from rig.head_model import HeadParams, jnr_vertices
+from rig.lbs import skin_with_basis, skinning_basis
 from rig.model import JointRig
 from rig.parameters import NUM_PARAMETERS, theta_limits
 from rig.skinning.neural import LATENT, LATENT_LIMIT, NeuralSkinning
@@ -204,8 +204,7 @@ class FitState(GroupedParameters):
             return skin_with_basis(self._basis[1], skinning)[0]
         with torch.set_grad_enabled("latent" in free):
             w = self.weights()
-        rest = expr.template + expr(c[None])[0]
-        return skin_vertices(rest, w if "latent" in free else w.detach(), skinning)[0]
+        return jnr_vertices(self.rig, expr, theta[None], w if "latent" in free else w.detach(), c[None])[0]
 
     def clamp_joints(self) -> None:
         """Project the joint channels back into their limits (in place), so every fit is a valid rig pose."""
@@ -275,11 +274,11 @@ def head_vertices(rig: JointRig, neural: NeuralSkinning | None, theta, z, expres
     dtype = rig.template.dtype
     with torch.no_grad():
         c = torch.as_tensor(np.asarray(expressions, np.float64), dtype=dtype)[None]
-        rest = ExpressionModel(rig.asset, dtype=dtype).vertices(c)[0]
         weights = (
             rig.dense_weights()
             if neural is None
             else neural(torch.as_tensor(np.asarray(z, np.float64), dtype=dtype)[None])[0]
         )
         theta = torch.as_tensor(np.asarray(theta, np.float64), dtype=dtype)[None]
-        return rig(theta, weights=weights, vertices=rest).vertices[0].double().numpy()
+        expressions_model = ExpressionModel(rig.asset, dtype=dtype)
+        return jnr_vertices(rig, expressions_model, theta, weights, c)[0].double().numpy()

@@ -58,8 +58,7 @@ from pipeline.photo.multiview_config import AsmConfig, MultiViewConfig, PhotoCon
 from pipeline.photo.multiview_problem import MultiViewProblem, MultiViewStage, initial_state
 from rig.errors import InputError
 from rig.geometry import RIG_TO_OPENCV
-from rig.head_model import HeadParams
-from rig.lbs import skin_vertices_shared_weights
+from rig.head_model import HeadParams, jnr_vertices
 from rig.model import JointRig
 from rig.skinning.neural import LATENT, NeuralSkinning, load_neural
 
@@ -388,10 +387,9 @@ def _view_fits(
 def _vertices(rig: JointRig, weights: torch.Tensor, theta: torch.Tensor, c: torch.Tensor | None) -> np.ndarray:
     """``(V, 3)`` float64 rig-space head of joint channels ``theta (P,)`` and expressions ``c (E,)`` (None: 0)."""
     expr = expressions64(rig.asset)
+    c = torch.zeros(len(expr.names), dtype=torch.float64) if c is None else c.double()
     with torch.no_grad():
-        rest = expr.template if c is None else expr.template + expr(c.double()[None])[0]
-        _, skinning = rig.joint_transforms(theta.double()[None])
-        return skin_vertices_shared_weights(rest, weights, skinning.double())[0].numpy()
+        return jnr_vertices(rig, expr, theta.double()[None], weights, c[None])[0].numpy()
 
 
 def _project_landmarks(vertices: np.ndarray, rotation, translation, focal, width, height, asset):

@@ -34,7 +34,7 @@ from pipeline.photo.landmark_fit import LandmarkFit
 from pipeline.photo.multiview_config import MultiViewConfig
 from rig.expressions import expression_limits
 from rig.geometry import RIG_TO_OPENCV
-from rig.lbs import skin_vertices_shared_weights
+from rig.head_model import jnr_vertices
 from rig.model import JointRig
 from rig.parameters import theta_limits
 
@@ -274,9 +274,7 @@ class MultiViewProblem:
         """View ``k``'s vertices ``ids`` at the state: ``(camera frame (U, 3) mm, pixels (U, 2))``,
         differentiable in its parameters."""
         s, view = self.state, self.views[k]
-        rest = self.expressions.template[ids] + self.expressions(s.c[k][None], ids)[0]
-        _, skinning = s.rig.joint_transforms((s.theta_n * s.span)[None])
-        posed = skin_vertices_shared_weights(rest, self.weights[ids], skinning.double())[0]
+        posed = jnr_vertices(s.rig, self.expressions, (s.theta_n * s.span)[None], self.weights, s.c[k][None], ids)[0]
         rotation = axis_angle_to_rotation_matrix(s.rotvec[k][None])[0]
         cam = posed @ (self.flip @ rotation).T + s.translation[k]
         pixels = camera_points_to_pixels(cam, view.focal * s.log_focal[k].exp(), view.centre)

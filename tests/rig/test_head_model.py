@@ -106,3 +106,66 @@ def test_unknown_kind_and_foreign_parameters_are_refused(models):
         models["asm"].forward(models["jnr"].initial())
     with pytest.raises(HeadModelError, match="lacks"):
         models["jnr"].from_dict({"joints": {}})
+
+
+def _jnr_values(model, rng, batch: int) -> dict[str, torch.Tensor]:
+    joints, latent, expressions = model.groups()
+    return {
+        "joints": torch.as_tensor(np.stack([_random_inside(joints, rng) for _ in range(batch)])),
+        "latent": torch.as_tensor(rng.normal(0, 0.5, (batch, latent.size))),
+        "expressions": torch.as_tensor(np.stack([_random_inside(expressions, rng) for _ in range(batch)])),
+    }
+
+
+def test_the_batched_forward_is_each_head_forward_and_its_subset(models, rng):
+    """``vertices`` of a batch of 3 is :meth:`forward` (the head written to files) of each, and a vertex
+    subset is those rows of the whole head; float32 in gives float32 out, within float32's rounding."""
+    model = models["jnr"]
+    values = _jnr_values(model, rng, 3)
+    with torch.no_grad():
+        batch = model.vertices(values).numpy()
+        ids = torch.as_tensor([0, 17, 2500, 4000])
+        subset = model.vertices(values, ids).numpy()
+        single = model.vertices({k: v.float() for k, v in values.items()})
+    for i in range(3):
+        params = model.params(*(values[g][i].numpy() for g in ("joints", "latent", "expressions")))
+        np.testing.assert_allclose(batch[i], model.forward(params).vertices, atol=1e-9)
+    np.testing.assert_allclose(subset, batch[:, ids.numpy()], atol=1e-12)
+    assert single.dtype == torch.float32
+    np.testing.assert_allclose(single.numpy(), batch, atol=1e-3)
+
+
+def test_the_batched_forward_has_the_gradient_of_finite_differences(models, rng):
+    """d(sum of some vertices' coordinates)/d(a joint channel, a latent, a coefficient) against central
+    differences, float64: every group of the JNR head carries its gradient."""
+    model = models["jnr"]
+    values = {k: v.requires_grad_() for k, v in _jnr_values(model, rng, 1).items()}
+    ids = torch.as_tensor([100, 1200, 3000])
+    probe = torch.as_tensor(rng.normal(size=(3, 3)))
+
+    def objective(vals):
+        return (model.vertices(vals, ids)[0] * probe).sum()
+
+    objective(values).backward()
+    for group, index in (("joints", 5), ("joints", 60), ("latent", 3), ("expressions", 20)):
+        h = 1e-5
+        with torch.no_grad():
+            plus = {k: v.detach().clone() for k, v in values.items()}
+            minus = {k: v.detach().clone() for k, v in values.items()}
+            plus[group][0, index] += h
+            minus[group][0, index] -= h
+            numeric = (objective(plus) - objective(minus)).item() / (2 * h)
+        analytic = values[group].grad[0, index].item()
+        assert abs(analytic - numeric) <= 1e-5 * max(1.0, abs(numeric)), (group, index, analytic, numeric)
+
+
+def test_the_asm_batched_forward_is_its_forward_and_carries_gradients(models, rng):
+    model = models["asm"]
+    params = model.initial()
+    c = _random_inside(model.groups()[1], rng)
+    params = params.replace(expressions=c)
+    p = model._parameters(params).map(lambda t: t.detach().clone().requires_grad_())
+    out = model.vertices({"asm": p, "expressions": torch.as_tensor(c)[None]})
+    np.testing.assert_allclose(out[0].detach().numpy(), model.forward(params).vertices, atol=1e-9)
+    out[0, 1000].sum().backward()
+    assert p.tau.grad is not None and p.tau.grad.abs().sum() > 0
