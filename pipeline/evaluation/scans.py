@@ -42,6 +42,7 @@ from typing import ClassVar
 
 import numpy as np
 
+from pipeline.fitting.state import scan_state_class
 from pipeline.metrics import (
     Column,
     Evaluation,
@@ -217,7 +218,8 @@ def evaluate_scans(
     heads = expressive_split(split, int(seed), n=max(n_neutral, n_expressive), asset=asset)
     # Models loaded once, so that jnr's timing is the fit, not the file loading.
     rig = JointRig(asset)
-    neural = load_neural(rig)[0] if config.use_neural and config.skinning == "jnr" else None
+    state_class = scan_state_class(config.skinning)  # an unknown model fails before any work
+    neural = load_neural(rig)[0] if config.use_neural else None
     expressions = ExpressionModel(asset, dtype=rig.template.dtype)
     face = asset.region_mask(*FACE_REGIONS)
 
@@ -247,7 +249,7 @@ def evaluate_scans(
         al = fit.prealign
         prealigned = float(al.scale) * asset.vertices @ np.asarray(al.rotation).T + np.asarray(al.translation)
         pre_err = float(vertex_errors(prealigned, scan.gt_vertices)[face].mean())
-        method = "jnr" if config.skinning == "jnr" else f"asm_k{config.asm_components}"
+        method = state_class.label(config)
         add(
             **common,
             method=method,

@@ -17,11 +17,13 @@ states that place the head.
 
 from __future__ import annotations
 
+import logging
 import math
 from typing import ClassVar
 
 import numpy as np
 import torch
+from scipy.spatial.transform import Rotation
 from torch import nn
 
 from pipeline.camera import camera_center_in_rig
@@ -33,12 +35,15 @@ from pipeline.fitting.rig_state import GroupedParameters as GroupedParameters
 from pipeline.fitting.rig_state import RigModels as RigModels
 from pipeline.fitting.rig_state import head_vertices as head_vertices
 from pipeline.fitting.terms import Inputs, Term
+from rig.errors import InputError
 from rig.expressions import ExpressionModel
 from rig.geometry import RIG_TO_OPENCV
 from rig.head_model import HeadParams
 from rig.model import JointRig
-from rig.skinning.asm import TAU_UNITS, UV_UNIT, AdaptiveSkinning, AsmParameters
-from rig.skinning.neural import NeuralSkinning
+from rig.skinning.asm import TAU_UNITS, UV_UNIT, AdaptiveSkinning, AsmParameters, asm_params_to_dict
+from rig.skinning.neural import NeuralSkinning, load_neural
+
+_log = logging.getLogger("pipeline.scan.fit")
 
 
 class PhotoState(FitState):
@@ -136,6 +141,55 @@ class ScanState(FitState):
         pose = (("rotvec", "rotation"), ("translation", "translation"))
         self.GROUPS = {**FitState.GROUPS, "pose": pose + ((("log_scale", "log_scale"),) if fit_scale else ())}
 
+    kind: ClassVar[str] = "jnr"
+    """The head model (:mod:`rig.head_model`) this state fits: the ``skinning`` of a scan fit's config."""
+
+    @classmethod
+    def for_scan(
+        cls, rig: JointRig, neural: NeuralSkinning | None, expressions: ExpressionModel, config, *, fit_scale: bool
+    ) -> ScanState:
+        """The state at the identity pose for a scan fit's ``config`` (:class:`pipeline.scan.fit_config.FitScanConfig`):
+        the learned skinning ``neural`` (loaded when ``config.use_neural`` and not given; the rig's own weights
+        without it)."""
+        if config.use_neural and neural is None:
+            neural = load_neural(rig)[0]
+        return cls(
+            rig, neural if config.use_neural else None, expressions, np.eye(3), np.zeros(3), 1.0, fit_scale=fit_scale
+        )
+
+    @staticmethod
+    def label(config) -> str:
+        """The head model's name in the evaluation's records (``jnr``; ASM's with its components)."""
+        return "jnr"
+
+    def set_pose(self, rotation: np.ndarray, translation: np.ndarray, scale: float) -> None:
+        """Place the head in the cloud's frame: ``(3, 3)``, ``(3,)`` mm, scalar (a rigid pre-alignment)."""
+        with torch.no_grad():
+            self.rotvec.copy_(torch.as_tensor(Rotation.from_matrix(rotation).as_rotvec(), dtype=self.dtype))
+            self.translation.copy_(torch.as_tensor(translation, dtype=self.dtype))
+            self.log_scale.fill_(math.log(scale))
+
+    def finish(self) -> dict:
+        """After the fit: project the joint channels the soft limit penalty left outside their limits onto
+        them (in place), so the written head is one its readers accept: ``{name: [fitted, written]}`` in the
+        channel's unit (the scales as factors), logged."""
+        from rig.parameters import CHANNELS
+
+        before = self.theta.detach().double().numpy().copy()
+        self.clamp_joints()
+        after = self.theta.detach().double().numpy()
+        moved = np.flatnonzero(np.abs(after - before) > 1e-9)
+        clamped = {
+            CHANNELS[i].name: [CHANNELS[i].from_theta(before[i]), CHANNELS[i].from_theta(after[i])] for i in moved
+        }
+        if clamped:
+            _log.info("fit-scan: %d joint channel(s) clamped to their limits: %s", len(clamped), ", ".join(clamped))
+        return clamped
+
+    def model_entry(self) -> dict | None:
+        """The head model's own entry of the result beyond ``theta``, ``z`` and the expressions (None here)."""
+        return None
+
     def to_cloud(self, v: torch.Tensor) -> torch.Tensor:
         """``(V, 3)`` rig space -> the cloud's frame, mm."""
         return self.log_scale.exp() * v @ self.rotation().T + self.translation
@@ -190,6 +244,29 @@ class AsmScanState(ScanState):
                 ("chol", "asm_skinning"),
             ),
         }
+
+    kind: ClassVar[str] = "asm"
+
+    @classmethod
+    def for_scan(
+        cls, rig: JointRig, neural: NeuralSkinning | None, expressions: ExpressionModel, config, *, fit_scale: bool
+    ) -> AsmScanState:
+        """The state at the identity pose for a scan fit's ``config``: ASM with ``config.asm_components``
+        Gaussians per bone on ``rig`` (``neural`` does not apply)."""
+        model = AdaptiveSkinning(rig, components=config.asm_components)
+        return cls(model, expressions, np.eye(3), np.zeros(3), 1.0, fit_scale=fit_scale)
+
+    @staticmethod
+    def label(config) -> str:
+        return f"asm_k{config.asm_components}"
+
+    def finish(self) -> dict:
+        """ASM's parameters have no limits to project onto: nothing clamped."""
+        return {}
+
+    def model_entry(self) -> dict:
+        """The fitted ASM parameters by bone (:func:`rig.skinning.asm.asm_params_to_dict`)."""
+        return asm_params_to_dict(self.asm_parameters(()), self.rig.asset.joint_names)
 
     def available(self, free: tuple[str, ...]) -> tuple[str, ...]:
         return free
@@ -250,3 +327,29 @@ class AsmScanState(ScanState):
             self.log_pi.copy_(params.log_pi[0])
             self.mu_n.copy_(params.mu[0] / self.uv_unit)
             self.chol.copy_(params.chol[0])
+
+
+SCAN_STATES: dict[str, type[ScanState]] = {}
+"""The state of a scan fit by head model kind (:func:`register_scan_state`)."""
+
+
+def register_scan_state(state: type[ScanState]) -> None:
+    """Make ``jnr fit-scan`` fit the head model ``state.kind`` with ``state`` (a :class:`ScanState` with
+    :meth:`ScanState.for_scan`, :meth:`ScanState.finish`, :meth:`ScanState.model_entry` and
+    :meth:`ScanState.label`)."""
+    SCAN_STATES[state.kind] = state
+
+
+def scan_state_class(kind: str) -> type[ScanState]:
+    """The registered scan-fit state of head model ``kind``.
+
+    Raises:
+        InputError: no state is registered for ``kind``.
+    """
+    if kind not in SCAN_STATES:
+        raise InputError(f"fit-scan: no fit for the head model {kind!r}; known: {', '.join(SCAN_STATES)}")
+    return SCAN_STATES[kind]
+
+
+register_scan_state(ScanState)
+register_scan_state(AsmScanState)

@@ -49,7 +49,7 @@ import torch
 
 from landmarks.points3d import LandmarkError, check_landmarks_3d, match_landmarks
 from pipeline.fitting.engine import StageLog, run_schedule
-from pipeline.fitting.state import AsmScanState, ScanState
+from pipeline.fitting.state import scan_state_class
 from pipeline.scan.fit_config import FitScanConfig
 from pipeline.scan.objective import ScanObjective
 from pipeline.scan.pointcloud.cloud import CloudError, PointCloud
@@ -68,9 +68,7 @@ from rig.geometry import Similarity
 from rig.head_model import HeadParams
 from rig.model import JointRig
 from rig.optim import Progress, torch_threads
-from rig.parameters import NUM_PARAMETERS
-from rig.skinning.asm import AdaptiveSkinning, asm_params_to_dict
-from rig.skinning.neural import LATENT, NeuralSkinning, load_neural
+from rig.skinning.neural import NeuralSkinning
 from rig.template import FACE_REGIONS
 
 _log = logging.getLogger(__name__)
@@ -194,21 +192,19 @@ def _fit_scan(
     if landmarks:
         landmarks = {name: np.asarray(xyz, np.float64) - origin for name, xyz in landmarks.items()}
     rig = rig or JointRig()
-    asm_model, neural = _head_models(config, rig, neural)
     expressions = expressions or ExpressionModel(rig.asset, dtype=rig.template.dtype)
+    state = scan_state_class(config.skinning).for_scan(rig, neural, expressions, config, fit_scale=config.fit_scale)
     rng = np.random.default_rng(config.seed)
     normals = _cloud_normals(cloud, config)
     # Model -> cloud pairs only come from vertices facing the sensor (None: a cloud all around the head).
     view_dir = view_direction(normals)
-    align, marks = _prealign(cloud, normals, view_dir, config, rig, neural, landmarks, landmarks_source)
+    with torch.no_grad():
+        start_vertices = state.rig_vertices().double().numpy()  # the head the fit starts from, rig space
+    align, marks = _prealign(cloud, normals, view_dir, config, start_vertices, landmarks, landmarks_source, rig.asset)
     border = boundary_mask(cloud.points, k=config.correspondences.boundary_k)
     t_prealign = time.perf_counter() - t_start
 
-    pose = (align.rotation, align.translation, align.scale)
-    if asm_model is not None:
-        state = AsmScanState(asm_model, expressions, *pose, fit_scale=config.fit_scale)
-    else:
-        state = ScanState(rig, neural, expressions, *pose, fit_scale=config.fit_scale)
+    state.set_pose(align.rotation, align.translation, align.scale)
     objective = ScanObjective(state, cloud.points, normals, border, view_dir, config, rng, marks)
     t_fit = time.perf_counter()
     stages = run_schedule(
@@ -220,7 +216,7 @@ def _fit_scan(
         progress=progress,
         before_step=objective.before_step,
     )
-    clamped = {} if asm_model is not None else _clamp_joints(state)
+    clamped = state.finish()
     with torch.no_grad():
         v_rig = state.rig_vertices()
         v_cloud = state.to_cloud(v_rig)
@@ -238,37 +234,10 @@ def _fit_scan(
         prealign=dataclasses.replace(align, translation=align.translation + origin),
         stages=stages,
         timings={"prealign": t_prealign, "fit": t_end - t_fit, "total": t_end - t_start},
-        asm=None if asm_model is None else asm_params_to_dict(state.asm_parameters(()), rig.asset.joint_names),
+        asm=state.model_entry(),
         head=state.head_params(),
         clamped=clamped,
     )
-
-
-def _clamp_joints(state: ScanState) -> dict:
-    """Project the joint channels the soft limit penalty left outside their limits onto them (in place):
-    ``{name: [fitted, written]}`` in the channel's unit (the scales as factors), logged."""
-    from rig.parameters import CHANNELS
-
-    before = state.theta.detach().double().numpy().copy()
-    state.clamp_joints()
-    after = state.theta.detach().double().numpy()
-    moved = np.flatnonzero(np.abs(after - before) > 1e-9)
-    clamped = {CHANNELS[i].name: [CHANNELS[i].from_theta(before[i]), CHANNELS[i].from_theta(after[i])] for i in moved}
-    if clamped:
-        _log.info("fit-scan: %d joint channel(s) clamped to their limits: %s", len(clamped), ", ".join(clamped))
-    return clamped
-
-
-def _head_models(
-    config: FitScanConfig, rig: JointRig, neural: NeuralSkinning | None
-) -> tuple[AdaptiveSkinning | None, NeuralSkinning | None]:
-    """``(ASM model or None, neural skinning or None)`` of the head model ``config.skinning`` (the learned
-    skinning loaded when needed and not given)."""
-    if config.skinning == "asm":
-        return AdaptiveSkinning(rig, components=config.asm_components), None
-    if not config.use_neural:
-        return None, None
-    return None, neural if neural is not None else load_neural(rig)[0]
 
 
 def _prealign(
@@ -276,24 +245,15 @@ def _prealign(
     normals: np.ndarray,
     view_dir: np.ndarray | None,
     config: FitScanConfig,
-    rig: JointRig,
-    neural: NeuralSkinning | None,
+    start_vertices: np.ndarray,
     landmarks: Mapping[str, np.ndarray] | None,
     landmarks_source: str,
+    asset,
 ) -> tuple[RigidAlignment, tuple[np.ndarray, np.ndarray] | None]:
-    """Check the landmarks, align the template rigidly and reject a cloud that is not a head. Returns the
-    alignment and the matched landmarks ``(vertex ids, positions)`` (None without landmarks)."""
-    asset, dtype, points = rig.asset, rig.template.dtype, cloud.points
-    with torch.no_grad():
-        start_vertices = (
-            neural.rig(
-                torch.zeros(1, NUM_PARAMETERS, dtype=dtype), weights=neural(torch.zeros(1, LATENT, dtype=dtype))[0]
-            )
-            .vertices[0]
-            .numpy()
-            if neural is not None
-            else asset.vertices
-        )
+    """Check the landmarks, align the start head ``start_vertices (V, 3)`` (rig space, mm) rigidly and reject a
+    cloud that is not a head. Returns the alignment and the matched landmarks ``(vertex ids, positions)``
+    (None without landmarks)."""
+    points = cloud.points
     marks = None
     if landmarks:
         try:

@@ -146,7 +146,10 @@ class FitScanConfig:
     """``skinning: asm``: Gaussians per bone (K)."""
 
     def __post_init__(self) -> None:
-        if self.skinning not in ("jnr", "asm"):
-            raise InputError(f"skinning must be 'jnr' or 'asm', got {self.skinning!r}")
+        from pipeline.fitting.state import SCAN_STATES  # the head models a scan fit is registered for
+
+        if self.skinning not in SCAN_STATES:
+            known = " or ".join(repr(k) for k in SCAN_STATES)
+            raise InputError(f"skinning must be {known}, got {self.skinning!r}")
         if not isinstance(self.asm_components, int) or not 1 <= self.asm_components <= 8:
             raise InputError(f"asm_components must be an int in [1, 8], got {self.asm_components!r}")

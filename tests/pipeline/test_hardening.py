@@ -116,7 +116,6 @@ def test_a_scan_fit_writes_joint_values_its_readers_accept(tmp_path):
     import torch
 
     from pipeline.fitting.state import ScanState
-    from pipeline.scan.fit import _clamp_joints
     from rig.expressions import ExpressionModel
     from rig.model import JointRig
     from rig.parameters import CHANNELS, params_to_theta, theta_limits
@@ -128,7 +127,7 @@ def test_a_scan_fit_writes_joint_values_its_readers_accept(tmp_path):
     theta = torch.zeros(len(CHANNELS), dtype=torch.float64)
     theta[index] = high[index] + 0.005
     state.load(theta.numpy(), np.zeros(50), np.zeros(52))
-    clamped = _clamp_joints(state)
+    clamped = state.finish()
     assert list(clamped) == ["bottom_lip.scale_z"]
     assert clamped["bottom_lip.scale_z"] == pytest.approx([1.505, 1.5])
     values = {c.name: c.from_theta(float(t)) for c, t in zip(CHANNELS, state.theta.detach().double(), strict=True)}
