@@ -88,15 +88,16 @@ def cmd_eval_capacity(args: argparse.Namespace) -> int:
 
 
 def _run_evaluation(args: argparse.Namespace, label: str, evaluate) -> int:
-    """Shared by the ``jnr eval`` commands over synthetic data: a progress bar over the ``jnr`` records,
-    the Markdown table (or ``--json``), and ``--out``."""
+    """Shared by the ``jnr eval`` commands over synthetic data: a progress bar over the photos or scans (each
+    counted at its first record, whatever the head model or baseline), the Markdown table (or ``--json``), and
+    ``--out``."""
     total = args.neutral + args.expressive
     bars = StageBars(args.quiet)
-    done = []
+    done: set[tuple[str, str]] = set()
 
     def progress(record) -> None:
-        if record.method == "jnr":
-            done.append(record)
+        if (record.name, record.kind) not in done:
+            done.add((record.name, record.kind))
             bars(label, len(done), total)
 
     try:

@@ -9,7 +9,7 @@ import numpy as np
 from pipeline.colour import linear_to_srgb
 from pipeline.head.fitted import FittedHead, fitted_head, fitted_head_from_arrays
 from rig.errors import InputError
-from rig.head_model import JnrHead
+from rig.head_model import HeadParams, JnrHead, is_posable
 from rig.model import JointRig
 
 NOTEBOOK_TASK = "the notebook's sliders"
@@ -34,8 +34,9 @@ def posable_head(fit_or_params, *, rig: JointRig | None = None) -> FittedHead:
     model = JnrHead(rig=rig)
     if isinstance(fit_or_params, Mapping):
         return fitted_head(dict(fit_or_params), model=model, posable_for=NOTEBOOK_TASK)
-    if getattr(fit_or_params, "asm", None):
-        raise InputError("posable_head: an ASM fit has no joint channels to pose (fit with skinning: jnr)")
+    head = getattr(fit_or_params, "head", None)
+    if isinstance(head, HeadParams) and not is_posable(head.kind):
+        raise InputError(f"posable_head: a fit of the {head.kind!r} head model has no joint channels to pose")
     missing = [k for k in ("theta", "z", "expressions") if not hasattr(fit_or_params, k)]
     if missing:
         raise InputError(

@@ -459,3 +459,40 @@ def test_verbose_after_the_subcommand_and_stage_log_lines(caplog):
         bars.close()
     lines = [r.getMessage() for r in caplog.records]
     assert lines[0].startswith("joints: 3/3 steps in ") and lines[1].startswith("latent: 1/2 steps in ")
+
+
+def test_the_eval_progress_bar_counts_each_item_once_whatever_its_head_model(monkeypatch, capsys):
+    """``jnr eval scans --set skinning=asm`` records ``asm_k2`` and the baseline, not ``jnr``: the bar counted
+    only ``jnr`` records and never moved; it counts each scan or photo at its first record."""
+    import argparse
+    from types import SimpleNamespace
+
+    import pipeline.cli.evaluate as evaluate
+
+    seen = []
+
+    class Bars:
+        def __init__(self, quiet):
+            pass
+
+        def __call__(self, label, done, total):
+            seen.append((done, total))
+
+        def close(self):
+            pass
+
+    monkeypatch.setattr(evaluate, "StageBars", Bars)
+    records = [
+        SimpleNamespace(name=name, kind=kind, method=method)
+        for name, kind in (("heldout_000", "neutral"), ("heldout_000", "expressive"))
+        for method in ("asm_k2", "nricp_amberg")
+    ]
+
+    def run(progress):
+        for record in records:
+            progress(record)
+        return SimpleNamespace(records=[], summary=dict, settings={}, table_markdown=lambda: "table")
+
+    args = argparse.Namespace(neutral=1, expressive=1, quiet=True, out=None, json=False, force=False)
+    assert evaluate._run_evaluation(args, "simulated scans", run) == 0
+    assert seen == [(1, 2), (2, 2)]

@@ -27,6 +27,7 @@ from pipeline.notebook.view import head_view, update_head_view
 from pipeline.photo.landmark_fit import LandmarkFitConfig, fit_landmarks
 from rig.errors import InputError, ShapeError
 from rig.expressions import EXPRESSION_NAMES, ExpressionModel, coefficients_from_dict
+from rig.head_model import HeadParams
 from rig.model import JointRig
 from rig.optim import frozen
 from rig.parameters import CHANNEL_INDEX, CHANNELS, params_to_theta, random_theta, theta_to_params
@@ -169,11 +170,11 @@ class TestHeadViewAndSliders:
             sliders.set_values({"nose_tip.translate_z": 1e3})
         with pytest.raises(InputError, match="no slider named 'jawOpen'"):
             sliders.set_values({"jawOpen": 0.5})
-        with pytest.raises(InputError, match="ASM"):
-            posable_head(
-                SimpleNamespace(theta=head.theta, z=np.zeros(LATENT), expressions=head.expressions, asm={"bones": {}}),
-                rig=rig64,
-            )
+        asm_fit = SimpleNamespace(
+            theta=head.theta, z=np.zeros(LATENT), expressions=head.expressions, head=HeadParams("asm", {})
+        )
+        with pytest.raises(InputError, match="'asm' head model has no joint channels"):
+            posable_head(asm_fit, rig=rig64)
         with pytest.raises(InputError, match="without"):
             posable_head(object(), rig=rig64)
         with pytest.raises(ShapeError, match="update_head_view: vertices"):
