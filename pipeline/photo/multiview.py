@@ -53,7 +53,7 @@ from pipeline.fitting.terms import LeastSquaresTerms
 from pipeline.metrics import landmark_errors
 from pipeline.photo.consistency import PhotoConsistency
 from pipeline.photo.landmark_fit import LandmarkFit, check_landmarks_2d_shape, fit_landmarks
-from pipeline.photo.multiview_asm import fit_asm_identity
+from pipeline.photo.multiview_asm import VIEWS_IDENTITY_MODELS
 from pipeline.photo.multiview_config import AsmConfig, MultiViewConfig, PhotoConsistencyConfig
 from pipeline.photo.multiview_problem import MultiViewProblem, MultiViewStage, initial_state
 from rig.errors import InputError
@@ -262,7 +262,9 @@ def fit_multiview(
     if config.refine_iterations > 0:
         refine = MultiViewStage("refine", ("pose", "joints", "expressions", "focal"), config.refine_iterations)
         stages.append(run_lm_stage(problem, rows, refine, config.lm, loss_start=cost0))
-    if config.photometric.enabled and config.photometric.iterations > 0 and config.skinning == "jnr":
+    identity_model = VIEWS_IDENTITY_MODELS.get(config.skinning)  # None: the joints' own (jnr)
+    # the photometric consistency refines the joints' identity, which another identity model replaces
+    if config.photometric.enabled and config.photometric.iterations > 0 and identity_model is None:
         stages.extend(_photo_consistency(problem, rows, images, config.photometric))
 
     if progress is not None:
@@ -274,14 +276,13 @@ def fit_multiview(
     view_vertices = [_vertices(rig, problem.weights, theta, state.c[k].detach()) for k in range(n)]
     poses = (state.rotvec.detach(), state.translation.detach())
     asm_parameters = None
-    if config.skinning == "asm":  # the ASM identity model, registered to the averaged (or refined) JNR head
+    if identity_model is not None:  # e.g. ASM, registered to the averaged (or refined) JNR head
         average = _vertices(rig, problem.weights, torch.as_tensor(theta_mean), None)
-        source = average if config.asm.register_to == "averaged" else identity
-        identity, view_vertices, asm_parameters, asm_logs, asm_state = fit_asm_identity(
-            problem, rows, source, config.asm
+        identity, view_vertices, asm_parameters, model_logs, model_state = identity_model(
+            problem, rows, average, identity, config
         )
-        stages.extend(asm_logs)
-        poses = (asm_state.rotvec.detach(), asm_state.translation.detach())
+        stages.extend(model_logs)
+        poses = (model_state.rotvec.detach(), model_state.translation.detach())
     return MultiViewFit(
         theta=theta.numpy().copy(),
         z=np.zeros(LATENT),

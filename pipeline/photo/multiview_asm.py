@@ -180,3 +180,23 @@ def fit_asm_identity(
         per_view = [model(p, vertices=rest[None]).vertices[0].double().numpy() for rest in objective.rests]
     arrays = {k: v[0].double().numpy() for k, v in p.as_dict().items()}
     return identity, per_view, arrays, logs, state
+
+
+def asm_views_identity(
+    problem: MultiViewProblem,
+    rows: LeastSquaresTerms,
+    averaged: np.ndarray,
+    refined: np.ndarray,
+    config,
+) -> tuple[np.ndarray, list[np.ndarray], dict[str, np.ndarray], list[StageLog], MultiViewAsmState]:
+    """:func:`fit_asm_identity` as the views fit's identity model ``asm``: registered to the averaged JNR head
+    ``averaged (V, 3)`` or the refined one ``refined (V, 3)`` (``config.asm.register_to``), with
+    ``config.asm``'s settings."""
+    source = averaged if config.asm.register_to == "averaged" else refined
+    return fit_asm_identity(problem, rows, source, config.asm)
+
+
+VIEWS_IDENTITY_MODELS = {"asm": asm_views_identity}
+"""The identity models the views fit puts on top of the joints' (``skinning:`` other than ``jnr``), by kind:
+each ``(problem, rows, averaged, refined, config) -> (identity, per-view vertices, parameters, logs, state)``.
+"""
