@@ -67,6 +67,7 @@ from pipeline.photo.landmark_fit import (
 from pipeline.photo.photometric import fit_appearance
 from rig.errors import InputError
 from rig.expressions import ExpressionModel
+from rig.head_model import HeadParams
 from rig.model import JointRig
 from rig.optim import Progress
 from rig.skinning.neural import NeuralSkinning, load_neural
@@ -102,6 +103,9 @@ class PhotoFit:
             rejected at the stage's start), ``light_direction_camera``.
         crop: the photometric crop (None without photometric stages).
         timings: seconds per phase (``landmarks``, ``photometric``, ``total``).
+        head: the fitted head as its head model's parameters (:meth:`pipeline.fitting.state.FitState.head_params`),
+            what the outputs build the fitted head from (None: a record made before it, built from ``theta``,
+            ``z`` and ``expressions``).
     """
 
     theta: np.ndarray
@@ -129,6 +133,7 @@ class PhotoFit:
     timings: dict
     landmarks3d_camera: np.ndarray | None = None
     dense3d_camera: np.ndarray | None = None
+    head: HeadParams | None = None
     dense_layout: str | None = None
 
 
@@ -285,6 +290,7 @@ def fit_photo(
         theta=values["theta"],
         z=values["z"],
         expressions=values["expressions"],
+        head=state.head_params(),
         rotation=rotation,
         translation=translation,
         focal=focal,

@@ -20,7 +20,7 @@ from pipeline.camera import camera_from_head_pose
 from pipeline.config import config_to_dict
 from pipeline.files import json_safe
 from pipeline.head.curves import Curves
-from pipeline.head.fitted import FittedHead, fitted_head, fitted_head_from_arrays
+from pipeline.head.fitted import FittedHead, fitted_head, fitted_head_from_arrays, fitted_head_from_params
 from pipeline.head.params import UNITS, ParamsFileError, load_params_file, read_params
 from pipeline.head.params import params_payload as head_params_payload
 from pipeline.photo.fit import PhotoFit
@@ -150,9 +150,12 @@ def expressions_csv(coefficients) -> str:
 
 
 def photo_head(fit: PhotoFit, model: JnrHead | None = None) -> FittedHead:
-    """The :class:`~pipeline.head.fitted.FittedHead` of a photo fit (float64, from ``model``: default the
-    committed rig and learned skinning)."""
-    return fitted_head_from_arrays(fit.theta, fit.z, fit.expressions, model=model)
+    """The :class:`~pipeline.head.fitted.FittedHead` of a photo fit (float64, from ``model`` when it is of the
+    fit's head model: default the committed rig and learned skinning), from the head model's parameters the fit
+    returned."""
+    if fit.head is None:
+        return fitted_head_from_arrays(fit.theta, fit.z, fit.expressions, model=model)
+    return fitted_head_from_params(fit.head, model=model)
 
 
 def params_payload(
