@@ -188,9 +188,9 @@ def velocity_term(weight: float, last: torch.Tensor, key: str, name: str) -> Ter
 
 def acceleration_term(weight: float, last: torch.Tensor, before: torch.Tensor, key: str, name: str) -> Term:
     """``weight * |x - 2 x_1 + x_2|^2`` of the input ``key`` ``(B, n)`` against the two frames before (``x_1``,
-    ``x_2``, ``(n,)``): a sequence's second-order temporal prior (steady motion costs nothing)."""
-    step = (last - before).to(torch.float64)
-    return Term(name, weight, lambda p: p[key] - last.to(p[key].dtype) - step.to(p[key].dtype), L2())
+    ``x_2``, ``(n,)``): a sequence's second-order temporal prior (steady motion costs nothing): the first-order
+    one towards the steady motion's next value ``2 x_1 - x_2``."""
+    return velocity_term(weight, 2.0 * last.double() - before.double(), key, name)
 
 
 # ----------------------------------------------------------------------------------------------------

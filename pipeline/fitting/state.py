@@ -43,7 +43,7 @@ from rig.model import JointRig
 from rig.skinning.asm import TAU_UNITS, UV_UNIT, AdaptiveSkinning, AsmParameters, asm_params_to_dict
 from rig.skinning.neural import NeuralSkinning, load_neural
 
-_log = logging.getLogger("pipeline.scan.fit")
+_log = logging.getLogger(__name__)
 
 
 class PhotoState(FitState):

@@ -264,7 +264,6 @@ def camera_centre(state: FrameState) -> np.ndarray:
 
 
 def frame_terms(
-    model: FrameModel,
     observed: np.ndarray,
     weights: np.ndarray,
     previous: tuple[FrameState | None, FrameState | None],
@@ -384,7 +383,7 @@ def solve_frame(
     s = settings or TrackSettings()
     obs = np.asarray(observed, np.float64)
     w = np.asarray(weights, np.float64)
-    terms = frame_terms(model, obs, w, previous, s)
+    terms = frame_terms(obs, w, previous, s)
     rows = LeastSquaresTerms(terms)
     problem = FrameProblem(model, start, previous[0])
     lm = LMSettings(

@@ -79,7 +79,7 @@ def test_the_frame_fit_is_a_minimum_of_the_shared_terms(model):
     before2 = FrameState(head_rotation(11.0, -6.0, 4.0), truth.translation - [4.0, 0.0, 6.0], truth.coefficients * 0.8)
     settings = TrackSettings(iterations=40, lambda_pose_velocity=0.01)
     state, _ = solve_frame(model, observed, weights, before, (before, before2), settings)
-    terms = frame_terms(model, observed, weights, (before, before2), settings)
+    terms = frame_terms(observed, weights, (before, before2), settings)
     assert all(isinstance(t, Term) for t in terms) and len(terms) == 7
     assert type(terms[0]) is type(landmark_pixel_term(torch.zeros(478, 2), torch.ones(478), 1.0))
 
