@@ -12,8 +12,11 @@ the face, +X the subject's left). Every model has:
 
 Two models are registered: ``jnr`` (:class:`JnrHead`: the 52-joint rig, 107 channels, neural skinning of a
 50-d latent Z, the 52 ARKit shapes) and ``asm`` (:class:`AsmHead`: the Adaptive Skinning Model's bones and
-UV-space Gaussian-mixture weights on the same template, the same ARKit shapes). A new model is one class
-with these methods plus ``register_head_model(kind, cls)``.
+UV-space Gaussian-mixture weights on the same template, the same ARKit shapes; in :mod:`rig.asm_head`). A new
+model is one class with these methods plus ``register_head_model(kind, cls)``: its parameters then load and save,
+its heads are written by every output, and a model whose groups are flat vectors is fitted to a photo by
+``jnr fit --set model=KIND`` (:mod:`pipeline.fitting.model_state`). The shared types are in :mod:`rig.head_params`
+(re-exported here).
 
 Example:
     >>> model = create("jnr")
@@ -26,25 +29,27 @@ from __future__ import annotations
 
 import copy
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
 from typing import Any, ClassVar, Protocol, runtime_checkable
 
 import numpy as np
 import torch
 
+from rig.asm_head import AsmHead
 from rig.asset import RigAsset, load_asset
-from rig.errors import InputError, is_number
-from rig.expressions import EXPRESSION_NAMES, ExpressionModel, coefficients_from_dict, expression_limits
+from rig.errors import is_number
+from rig.expressions import EXPRESSION_NAMES, ExpressionModel, coefficients_from_dict
+from rig.head_params import (
+    HeadModelError,
+    HeadParams,
+    HeadPose,
+    ParameterGroup,
+    expression_group,
+    require_entries,
+    vector_of,
+)
 from rig.lbs import skin_vertices, skin_vertices_shared_weights
 from rig.model import JointRig
 from rig.parameters import CHANNELS, params_to_theta, theta_limits, theta_to_params
-from rig.skinning.asm import (
-    DEFAULT_COMPONENTS,
-    AdaptiveSkinning,
-    AsmParameters,
-    asm_params_from_dict,
-    asm_params_to_dict,
-)
 from rig.skinning.neural import LATENT, LATENT_LIMIT, NeuralSkinning, load_neural
 
 __all__ = [
@@ -63,74 +68,8 @@ __all__ = [
     "jnr_vertices",
     "model_entries",
     "register_head_model",
+    "unregister_head_model",
 ]
-
-
-class HeadModelError(InputError):
-    """An unknown head model, or parameters that do not belong to the model (exit status 2 on the CLI)."""
-
-
-@dataclass(frozen=True)
-class ParameterGroup:
-    """A named group of a model's parameters.
-
-    Attributes:
-        name: the group (``joints``, ``latent``, ``expressions``, ``asm``).
-        names: ``(n,)`` the name of each float (``nose_tip.translate_y``, ``jawOpen``, ``z_0``).
-        low, high: ``(n,)`` float64 limits (``-inf`` / ``inf`` where there is none).
-        units: what the values are in.
-    """
-
-    name: str
-    names: tuple[str, ...]
-    low: np.ndarray
-    high: np.ndarray
-    units: str
-
-    @property
-    def size(self) -> int:
-        return len(self.names)
-
-
-@dataclass(frozen=True)
-class HeadParams:
-    """One head's parameters.
-
-    Attributes:
-        kind: the model they belong to.
-        values: each group's float64 array by group name (``joints (P,)``, ``latent (50,)``,
-            ``expressions (E,)``; ASM: ``asm``, a dict of its :class:`rig.skinning.asm.AsmParameters`
-            fields as arrays of batch 1, and ``expressions``).
-    """
-
-    kind: str
-    values: Mapping[str, Any]
-
-    def __getitem__(self, group: str):
-        return self.values[group]
-
-    def replace(self, **groups) -> HeadParams:
-        """A copy with some groups replaced."""
-        return HeadParams(self.kind, {**self.values, **groups})
-
-
-@dataclass(frozen=True, eq=False)
-class HeadPose:
-    """A head made by :meth:`HeadModel.forward` (float64, rig space, mm).
-
-    Attributes:
-        vertices: ``(V, 3)`` the posed head.
-        rest: ``(V, 3)`` the template with the expressions applied (the bind shape the joints skin).
-        weights: ``(V, J)`` skinning weights, or None for a model a skinned glTF cannot carry.
-        joint_transforms: ``(J, 4, 4)`` each joint's channel transform (the glTF joints' pose), or None.
-        expressions: ``(E,)`` the ARKit coefficients (:data:`rig.expressions.EXPRESSION_NAMES`).
-    """
-
-    vertices: np.ndarray
-    rest: np.ndarray
-    weights: np.ndarray | None
-    joint_transforms: np.ndarray | None
-    expressions: np.ndarray
 
 
 @runtime_checkable
@@ -170,6 +109,13 @@ _REGISTRY: dict[str, Callable[..., HeadModel]] = {}
 def register_head_model(kind: str, factory: Callable[..., HeadModel]) -> None:
     """Make ``create(kind)`` build ``factory(asset=..., **options)``."""
     _REGISTRY[kind] = factory
+
+
+def unregister_head_model(kind: str) -> None:
+    """Forget ``kind`` (a plug-in's or a test's model); the built-in ``jnr`` and ``asm`` cannot be removed."""
+    if kind in ("jnr", "asm"):
+        raise HeadModelError(f"the built-in head model {kind!r} cannot be unregistered")
+    _REGISTRY.pop(kind, None)
 
 
 def is_posable(kind: str) -> bool:
@@ -229,18 +175,6 @@ def create_from_dict(
     return model, model.from_dict(data)
 
 
-def _expression_group() -> ParameterGroup:
-    low, high = (t.numpy() for t in expression_limits(torch.float64))
-    return ParameterGroup("expressions", tuple(EXPRESSION_NAMES), low, high, "ARKit coefficient")
-
-
-def _vector(values, size: int, what: str) -> np.ndarray:
-    v = np.asarray(values, np.float64)
-    if v.shape != (size,):
-        raise HeadModelError(f"{what} must have {size} values, got shape {v.shape}")
-    return v
-
-
 def _latent(values) -> np.ndarray:
     """``(50,)`` float64 latent Z from a parameter file's list: numbers only, within
     :data:`rig.skinning.neural.LATENT_LIMIT` (the range the decoder was trained on)."""
@@ -268,12 +202,6 @@ def model_entries(kind: str) -> tuple[str, ...] | None:
         raise HeadModelError(f"unknown head model {kind!r}; known: {', '.join(_REGISTRY)}")
     entries = getattr(_REGISTRY[kind], "entries", None)
     return None if entries is None else tuple(entries)
-
-
-def _require(data: Mapping, keys: tuple[str, ...]) -> None:
-    missing = [k for k in keys if k not in data]
-    if missing:
-        raise HeadModelError(f"parameter file lacks {missing}")
 
 
 def jnr_vertices(
@@ -357,7 +285,7 @@ class JnrHead:
         return (
             ParameterGroup("joints", tuple(c.name for c in CHANNELS), low, high, "deg / mm / scale - 1"),
             ParameterGroup("latent", tuple(f"z_{i}" for i in range(LATENT)), -inf, inf, "latent code"),
-            _expression_group(),
+            expression_group(),
         )
 
     def initial(self) -> HeadParams:
@@ -375,26 +303,26 @@ class JnrHead:
         return HeadParams(
             self.kind,
             {
-                "joints": _vector(theta, len(CHANNELS), "joints"),
-                "latent": _vector(z, LATENT, "latent_z"),
-                "expressions": _vector(expressions, len(EXPRESSION_NAMES), "expressions"),
+                "joints": vector_of(theta, len(CHANNELS), "joints"),
+                "latent": vector_of(z, LATENT, "latent_z"),
+                "expressions": vector_of(expressions, len(EXPRESSION_NAMES), "expressions"),
             },
         )
 
     def weights(self, z) -> np.ndarray:
         """``(V, J)`` skinning weights decoded from the latent ``z (50,)``."""
         with torch.no_grad():
-            return self.neural(torch.as_tensor(_vector(z, LATENT, "latent_z"))[None])[0].numpy()
+            return self.neural(torch.as_tensor(vector_of(z, LATENT, "latent_z"))[None])[0].numpy()
 
     def rest(self, expressions) -> np.ndarray:
         """``(V, 3)`` the template with the ARKit coefficients ``expressions (E,)`` applied, mm."""
-        c = torch.as_tensor(_vector(expressions, len(EXPRESSION_NAMES), "expressions"))
+        c = torch.as_tensor(vector_of(expressions, len(EXPRESSION_NAMES), "expressions"))
         with torch.no_grad():
             return self.expression_model.vertices(c[None])[0].numpy()
 
     def pose(self, theta, rest: np.ndarray, weights: np.ndarray) -> np.ndarray:
         """``(V, 3)`` the rest shape ``rest (V, 3)`` skinned with ``weights (V, J)`` by ``theta (P,)``."""
-        t = torch.as_tensor(_vector(theta, len(CHANNELS), "joints"))[None]
+        t = torch.as_tensor(vector_of(theta, len(CHANNELS), "joints"))[None]
         with torch.no_grad():
             out = self.rig(t, weights=torch.as_tensor(weights), vertices=torch.as_tensor(rest))
         return out.vertices[0].numpy()
@@ -411,8 +339,8 @@ class JnrHead:
     def forward(self, params: HeadParams) -> HeadPose:
         self._check(params)
         weights = self.weights(params["latent"])
-        c = torch.as_tensor(_vector(params["expressions"], len(EXPRESSION_NAMES), "expressions"))[None]
-        theta = torch.as_tensor(_vector(params["joints"], len(CHANNELS), "joints"))[None]
+        c = torch.as_tensor(vector_of(params["expressions"], len(EXPRESSION_NAMES), "expressions"))[None]
+        theta = torch.as_tensor(vector_of(params["joints"], len(CHANNELS), "joints"))[None]
         with torch.no_grad():
             posed = jnr_vertices(self.rig, self.expression_model, theta, torch.as_tensor(weights), c)[0].numpy()
             tau = self.rig.channel_transforms(theta)[0].numpy()
@@ -430,7 +358,7 @@ class JnrHead:
         """Raises: HeadModelError (missing keys, a latent of the wrong length, with a value that is not a
         number or beyond :data:`rig.skinning.neural.LATENT_LIMIT`), ParameterError / ExpressionError
         (unknown names, values that are not numbers or outside limits)."""
-        _require(data, ("joints", "expressions", "latent_z"))
+        require_entries(data, ("joints", "expressions", "latent_z"))
         theta = params_to_theta(data["joints"], dtype=torch.float64).numpy()
         c = coefficients_from_dict(data["expressions"], dtype=torch.float64).numpy()
         return self.params(theta, _latent(data["latent_z"]), c)
@@ -442,94 +370,6 @@ class JnrHead:
     @staticmethod
     def options_from_params(params: HeadParams) -> dict:
         return {}
-
-    def _check(self, params: HeadParams) -> None:
-        if params.kind != self.kind:
-            raise HeadModelError(f"{self.kind} head model given {params.kind} parameters")
-
-
-class AsmHead:
-    """The Adaptive Skinning Model (ASM, ICCV 2023; :mod:`rig.skinning.asm`) on the rig's template: 9-DoF
-    bones with dynamic binding and Gaussian-mixture weights in UV space, plus the 52 ARKit shapes. Its
-    weights and bind positions change per head, so it is not :attr:`posable` by the rig's joints.
-
-    Args:
-        asset: the rig asset. components: Gaussians per bone.
-    """
-
-    kind: ClassVar[str] = "asm"
-    posable: ClassVar[bool] = False
-    entries: ClassVar[tuple[str, ...]] = ("asm", "expressions")
-    """The keys of a ``params.json`` this model reads (:meth:`to_dict`)."""
-
-    def __init__(self, asset: RigAsset | None = None, *, components: int | None = None, rig=None) -> None:
-        if rig is None or rig.template.dtype != torch.float64:
-            rig = JointRig(rig.asset if rig is not None else asset or load_asset(), dtype=torch.float64)
-        self.rig = rig
-        self.asset = rig.asset
-        self.model = AdaptiveSkinning(rig, components=components or DEFAULT_COMPONENTS)
-        self._expressions = ExpressionModel(self.asset, dtype=torch.float64)
-
-    def groups(self) -> tuple[ParameterGroup, ...]:
-        p = self.model.initial(1)
-        names, low, high = [], [], []
-        for field, tensor in p.as_dict().items():
-            n = tensor[0].numel()
-            names += [f"{field}[{i}]" for i in range(n)]
-            low.append(np.full(n, -np.inf))
-            high.append(np.full(n, np.inf))
-        group = ParameterGroup("asm", tuple(names), np.concatenate(low), np.concatenate(high), "ASM units")
-        return (group, _expression_group())
-
-    def initial(self) -> HeadParams:
-        p = self.model.initial(1)
-        values = {k: v.detach().numpy() for k, v in p.as_dict().items()}
-        return HeadParams(self.kind, {"asm": values, "expressions": np.zeros(len(EXPRESSION_NAMES))})
-
-    def _parameters(self, params: HeadParams):
-        return AsmParameters(**{k: torch.as_tensor(np.asarray(v, np.float64)) for k, v in params["asm"].items()})
-
-    def vertices(self, values: Mapping, vertex_ids: torch.Tensor | None = None) -> torch.Tensor:
-        """The differentiable, batched forward: ``values`` ``{"asm": AsmParameters of batch B, "expressions":
-        (B, E)}`` -> ``(B, U, 3)`` posed vertices, mm, float64 (``U``: ``vertex_ids`` or every vertex;
-        gradients flow to every ASM parameter and coefficient)."""
-        rest = self._expressions.vertices(values["expressions"].to(torch.float64))
-        posed = self.model(values["asm"], vertices=rest).vertices
-        return posed if vertex_ids is None else posed[:, vertex_ids]
-
-    def forward(self, params: HeadParams) -> HeadPose:
-        self._check(params)
-        c = torch.as_tensor(_vector(params["expressions"], len(EXPRESSION_NAMES), "expressions"))
-        with torch.no_grad():
-            posed = self.vertices({"asm": self._parameters(params), "expressions": c[None]})[0].numpy()
-            rest = self._expressions.vertices(c[None])[0]
-        return HeadPose(posed, rest.numpy(), None, None, c.numpy())
-
-    def to_dict(self, params: HeadParams) -> dict:
-        self._check(params)
-        return {
-            "asm": asm_params_to_dict(self._parameters(params), self.asset.joint_names),
-            "expressions": {n: float(c) for n, c in zip(EXPRESSION_NAMES, params["expressions"])},
-        }
-
-    def from_dict(self, data: Mapping) -> HeadParams:
-        _require(data, ("asm", "expressions"))
-        try:
-            p = asm_params_from_dict(data["asm"], self.model)
-        except ValueError as exc:
-            raise HeadModelError(str(exc)) from None
-        c = coefficients_from_dict(data["expressions"], dtype=torch.float64).numpy()
-        return HeadParams(self.kind, {"asm": {k: v.detach().numpy() for k, v in p.as_dict().items()}, "expressions": c})
-
-    @staticmethod
-    def options_from_params(params: HeadParams) -> dict:
-        return {"components": int(np.asarray(params["asm"]["log_pi"]).shape[-1])}
-
-    @staticmethod
-    def options_from_dict(data: Mapping) -> dict:
-        block = data.get("asm")
-        components = block.get("components", DEFAULT_COMPONENTS) if isinstance(block, Mapping) else None
-        return {"components": int(components)} if isinstance(components, int | float) else {}
 
     def _check(self, params: HeadParams) -> None:
         if params.kind != self.kind:

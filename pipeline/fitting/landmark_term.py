@@ -171,9 +171,75 @@ def expressions64(asset) -> ExpressionModel:
     return ExpressionModel(asset, dtype=torch.float64)
 
 
-class BatchedLandmarks:
-    """:class:`LandmarkTerm`'s landmark pixels for a batch of parameter sets, for the LM solver (module
-    docstring).
+class _LayoutBatch:
+    """What :class:`BatchedLandmarks` and :class:`ModelLandmarks` share: a layout's points for a batch of parameter
+    sets from the vertices they skin (subclasses: :meth:`support_vertices`, :meth:`points`).
+
+    Args:
+        term: the landmarks. free: the groups the batch varies.
+    """
+
+    def __init__(self, term: LandmarkTerm, free: tuple[str, ...]) -> None:
+        f64 = torch.float64
+        self.term, self.free = term, free
+        cam = term.camera.intrinsics[0].to(f64)
+        self.focal = cam[[0, 1], [0, 1]]
+        self.centre = cam[[0, 1], [2, 2]]
+        emb = term.embedding
+        self.static_ids = torch.as_tensor(np.asarray(term.faces)[emb.faces], dtype=torch.long)  # (N, 3)
+        self.static_bary = torch.as_tensor(emb.barycentric, dtype=f64)  # (N, 3)
+        self.support_ids = torch.as_tensor(term.layout.support, dtype=torch.long)
+        self.vertex_count = len(term.asset.vertices)
+        self.prepared, self.contour = 0, None
+
+    def support_vertices(self, p: Mapping[str, torch.Tensor]) -> torch.Tensor:
+        """``(S, 3)`` float64 the vertices :attr:`support_ids` of batch-1 parameters ``p``, rig space, mm."""
+        raise NotImplementedError
+
+    def points(self, p: Mapping[str, torch.Tensor]) -> torch.Tensor:
+        """``(B, N, 3)`` the landmarks in rig space, mm, of a batch of parameters ``p``."""
+        raise NotImplementedError
+
+    def prepared_ids(self) -> None:
+        """Hook: the picked vertices changed (:attr:`vertex_ids`)."""
+
+    def prepare(self, p: Mapping[str, torch.Tensor], camera_center: np.ndarray) -> None:
+        """Re-pick the contour points (the first :data:`CONTOUR_UPDATES` calls) from ``camera_center (3,)`` (rig
+        space, mm) at the batch-1 parameters ``p``."""
+        self.prepared += 1
+        if self.prepared <= CONTOUR_UPDATES or self.contour is None:
+            with torch.no_grad():  # only the vertices the contour's pick reads are made
+                v = torch.zeros(self.vertex_count, 3, dtype=torch.float64)
+                v[self.support_ids] = self.support_vertices(p).double()
+                self.contour = torch.as_tensor(self.term.layout.pick(v.numpy(), camera_center), dtype=torch.long)
+        ids = self.static_ids.clone()
+        bary = self.static_bary.clone()
+        slots = self.term.contour
+        ids[slots] = self.contour[:, None].expand(-1, 3)  # the picked vertex (its weight on the first corner)
+        bary[slots] = torch.tensor([1.0, 0.0, 0.0], dtype=torch.float64)
+        self.vertex_ids, inverse = torch.unique(ids.reshape(-1), return_inverse=True)
+        self.local_ids = inverse.reshape(ids.shape)
+        self.bary = bary
+        self.prepared_ids()
+
+    def interpolate(self, vertices: torch.Tensor) -> torch.Tensor:
+        """``(B, U, 3)`` the vertices :attr:`vertex_ids` -> ``(B, N, 3)`` the landmarks."""
+        return (vertices[:, self.local_ids] * self.bary[..., None]).sum(2)
+
+    def pixels(self, p: Mapping[str, torch.Tensor]) -> torch.Tensor:
+        """``(B, N, 2)`` pixels of ``p``'s ``rotvec (B, 3)``, ``translation (B, 3)`` and head parameters."""
+        return self.to_pixels(self.points(p), p["rotvec"], p["translation"])
+
+    def to_pixels(self, points: torch.Tensor, rotvec: torch.Tensor, translation: torch.Tensor) -> torch.Tensor:
+        """``(B, N, 2)`` pixels of landmarks ``points (B, N, 3)`` (rig space, mm) seen with head pose
+        ``rotvec (B, 3)``, ``translation (B, 3)`` (:mod:`pipeline.camera`)."""
+        rotation = axis_angle_to_rotation_matrix(rotvec)  # (B, 3, 3)
+        return head_points_to_pixels(points, rotation, translation, self.focal, self.centre)
+
+
+class BatchedLandmarks(_LayoutBatch):
+    """:class:`LandmarkTerm`'s landmark pixels of JNR's head for a batch of parameter sets, for the LM solver
+    (module docstring): ``theta (B, P)``, ``c (B, E)``, the skinning weights fixed.
 
     Args:
         term: the landmarks. rig: the rig (its joint hierarchy). weights: ``(V, K)`` skinning weights, fixed.
@@ -182,40 +248,19 @@ class BatchedLandmarks:
     """
 
     def __init__(self, term: LandmarkTerm, rig: JointRig, weights: torch.Tensor, free: tuple[str, ...]) -> None:
-        f64 = torch.float64
-        self.term, self.rig, self.free = term, rig, free
-        cam = term.camera.intrinsics[0].to(f64)
-        self.focal = cam[[0, 1], [0, 1]]
-        self.centre = cam[[0, 1], [2, 2]]
-        self.weights = weights.to(f64)
+        super().__init__(term, free)
+        self.rig = rig
+        self.weights = weights.to(torch.float64)
         self.expressions = expressions64(term.asset)
-        emb = term.embedding
-        self.static_ids = torch.as_tensor(np.asarray(term.faces)[emb.faces], dtype=torch.long)  # (N, 3)
-        self.static_bary = torch.as_tensor(emb.barycentric, dtype=f64)  # (N, 3)
-        self.support_ids = torch.as_tensor(term.layout.support, dtype=torch.long)
-        self.prepared, self.contour = 0, None
         self._rest: torch.Tensor | None = None
         self._skinning: torch.Tensor | None = None
 
-    def prepare(self, p: Mapping[str, torch.Tensor], camera_center: np.ndarray) -> None:
-        """Re-pick the contour points (the first :data:`CONTOUR_UPDATES` calls) from ``camera_center (3,)`` (rig
-        space, mm) at the batch-1 parameters ``p`` (``theta (1, P)``, ``c (1, E)``)."""
-        self.prepared += 1
-        if self.prepared <= CONTOUR_UPDATES or self.contour is None:
-            with torch.no_grad():  # only the vertices the contour's pick reads are skinned
-                ids = self.support_ids
-                v = torch.zeros(len(self.expressions.template), 3, dtype=torch.float64)
-                v[ids] = jnr_vertices(self.rig, self.expressions, p["theta"], self.weights, p["c"], ids)[0].double()
-                self.contour = torch.as_tensor(self.term.layout.pick(v.numpy(), camera_center), dtype=torch.long)
-        ids = self.static_ids.clone()
-        bary = self.static_bary.clone()
-        slots = self.term.contour
-        ids[slots] = self.contour[:, None].expand(-1, 3)  # the picked vertex (its weight on the first corner)
-        bary[slots] = torch.tensor([1.0, 0.0, 0.0], dtype=torch.float64)
-        self.vertex_ids, inverse = torch.unique(ids.reshape(-1), return_inverse=True)
+    def support_vertices(self, p: Mapping[str, torch.Tensor]) -> torch.Tensor:
+        ids = self.support_ids
+        return jnr_vertices(self.rig, self.expressions, p["theta"], self.weights, p["c"], ids)[0]
+
+    def prepared_ids(self) -> None:
         self._rest = None
-        self.local_ids = inverse.reshape(ids.shape)
-        self.bary = bary
         self.rest_weights = self.weights[self.vertex_ids]
 
     def points(self, p: Mapping[str, torch.Tensor]) -> torch.Tensor:
@@ -239,15 +284,27 @@ class BatchedLandmarks:
             skinning = skinning.expand(batch, -1, -1, -1)
         if rest.shape[0] != batch:
             rest = rest.expand(batch, -1, -1)
-        posed = skin_vertices_shared_weights(rest, self.rest_weights, skinning)  # (B, U, 3)
-        return (posed[:, self.local_ids] * self.bary[..., None]).sum(2)
+        return self.interpolate(skin_vertices_shared_weights(rest, self.rest_weights, skinning))  # (B, N, 3)
 
-    def pixels(self, p: Mapping[str, torch.Tensor]) -> torch.Tensor:
-        """``(B, N, 2)`` pixels of ``p``'s ``rotvec (B, 3)``, ``translation (B, 3)``, ``theta``, ``c``."""
-        return self.to_pixels(self.points(p), p["rotvec"], p["translation"])
 
-    def to_pixels(self, points: torch.Tensor, rotvec: torch.Tensor, translation: torch.Tensor) -> torch.Tensor:
-        """``(B, N, 2)`` pixels of landmarks ``points (B, N, 3)`` (rig space, mm) seen with head pose
-        ``rotvec (B, 3)``, ``translation (B, 3)`` (:mod:`pipeline.camera`)."""
-        rotation = axis_angle_to_rotation_matrix(rotvec)  # (B, 3, 3)
-        return head_points_to_pixels(points, rotation, translation, self.focal, self.centre)
+class ModelLandmarks(_LayoutBatch):
+    """:class:`LandmarkTerm`'s landmark pixels of any head model (:class:`rig.head_model.HeadModel`) for a batch
+    of parameter sets: its groups by name in ``p`` (``(B, n)`` each), the vertices by its
+    :meth:`~rig.head_model.HeadModel.vertices`.
+
+    Args:
+        term: the landmarks. model: the head model. groups: its group names. free: the groups the batch varies.
+    """
+
+    def __init__(self, term: LandmarkTerm, model, groups: tuple[str, ...], free: tuple[str, ...]) -> None:
+        super().__init__(term, free)
+        self.model, self.groups = model, groups
+
+    def _values(self, p: Mapping[str, torch.Tensor], rows: int | None = None) -> dict[str, torch.Tensor]:
+        return {g: p[g] if rows is None else p[g][:rows] for g in self.groups}
+
+    def support_vertices(self, p: Mapping[str, torch.Tensor]) -> torch.Tensor:
+        return self.model.vertices(self._values(p, 1), self.support_ids)[0].to(torch.float64)
+
+    def points(self, p: Mapping[str, torch.Tensor]) -> torch.Tensor:
+        return self.interpolate(self.model.vertices(self._values(p), self.vertex_ids).to(torch.float64))

@@ -76,3 +76,23 @@ def write_skinned_head(
         bind=bind,
         bake_morphs=bake,
     )
+
+
+def write_static_head(path: str | Path, asset, vertices: np.ndarray, base_color_texture: bytes | None = None) -> None:
+    """The glTF of a head that the joints do not pose (a head model that is not posable,
+    :attr:`rig.head_model.HeadModel.posable`): ``vertices (V, 3)`` (rig space, mm; written in metres) with the
+    asset's faces and UVs, ``base_color_texture`` (PNG bytes in the asset's UVs) as its base colour, skinned to
+    one root joint at the origin with weight 1 (a mesh every glTF reader loads as it is; no morph targets, since
+    the model's expressions are not the rig's shapes)."""
+    n = len(asset.vertices)
+    export_skinned_gltf(
+        path,
+        np.asarray(vertices, np.float64),
+        asset.faces,
+        joint_names=["head"],
+        parents=np.array([-1]),
+        joint_positions=np.zeros((1, 3)),
+        weights=np.ones((n, 1)),
+        face_uvs=asset.face_uvs,
+        base_color_texture=base_color_texture,
+    )

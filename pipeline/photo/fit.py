@@ -54,6 +54,7 @@ from pipeline.camera import (
 )
 from pipeline.colour import srgb_to_linear
 from pipeline.fitting.engine import StageLog
+from pipeline.fitting.model_state import ModelPhotoState
 from pipeline.fitting.state import PhotoState
 from pipeline.metrics import landmark_errors
 from pipeline.photo.crop import Crop
@@ -64,10 +65,11 @@ from pipeline.photo.landmark_fit import (
     check_landmarks_2d_shape,
     fit_landmarks,
 )
+from pipeline.photo.model_fit import fit_model_landmarks
 from pipeline.photo.photometric import fit_appearance
 from rig.errors import InputError
 from rig.expressions import ExpressionModel
-from rig.head_model import HeadParams
+from rig.head_model import HeadParams, create
 from rig.model import JointRig
 from rig.optim import Progress
 from rig.skinning.neural import NeuralSkinning, load_neural
@@ -155,7 +157,7 @@ def _models(
 ) -> tuple[JointRig, NeuralSkinning | None]:
     """The rig (default: the committed one) and its learned skinning, loaded unless the config fits without it."""
     rig = rig or JointRig()
-    if not config.landmarks.use_neural:
+    if not config.landmarks.use_neural or config.model != "jnr":
         neural = None
     elif neural is None:
         neural, _ = load_neural(rig)
@@ -171,7 +173,8 @@ def _photo_state(rig: JointRig, neural: NeuralSkinning | None, lfit: LandmarkFit
 
 
 def _landmark_terms(
-    rig: JointRig,
+    asset,
+    dtype: torch.dtype,
     lm: np.ndarray,
     dense: tuple[np.ndarray, LandmarkLayout] | None,
     lfit: LandmarkFit,
@@ -182,10 +185,10 @@ def _landmark_terms(
     """The term of the ``(68, 2)`` px iBUG landmarks (reported) and the one fitted: ``dense``'s layout, if given."""
     width, height = size
     landmark = config.landmarks
-    camera = make_camera(width, height, focal, dtype=rig.template.dtype, pose=False)
+    camera = make_camera(width, height, focal, dtype=dtype, pose=False)
     scale = lfit.losses["face_scale"]  # the landmark fit's unit (pixels of a face 100 px between the eye corners)
     term = LandmarkTerm(
-        rig.asset,
+        asset,
         lm,
         camera,
         landmark.huber_delta_px,
@@ -197,7 +200,7 @@ def _landmark_terms(
     if dense is not None:
         fitted, layout = dense
         fit_term = LandmarkTerm(
-            rig.asset,
+            asset,
             fitted,
             camera,
             landmark.huber_delta_px,
@@ -263,28 +266,36 @@ def fit_photo(
     focal = default_focal(width, height) if focal is None else check_focal(focal, width, height)
     rig, neural = _models(config, rig, neural)
     fitted, layout = (lm, None) if dense is None else dense
-    lfit = fit_landmarks(
-        fitted,
-        width,
-        height,
-        focal=focal,
-        config=config.landmarks,
-        rig=rig,
-        neural=neural,
-        progress=progress,
-        layout=layout,
-    )
+    model = None if config.model == "jnr" else create(config.model, asset=rig.asset)
+    if model is None:
+        lfit = fit_landmarks(
+            fitted,
+            width,
+            height,
+            focal=focal,
+            config=config.landmarks,
+            rig=rig,
+            neural=neural,
+            progress=progress,
+            layout=layout,
+        )
+        state: PhotoState | ModelPhotoState = _photo_state(rig, neural, lfit)
+    else:
+        lfit = fit_model_landmarks(
+            fitted, width, height, model, focal=focal, config=config.landmarks, progress=progress, layout=layout
+        )
+        state = ModelPhotoState(model, lfit.rotation, lfit.translation, params=lfit.head)
     t_landmarks = time.perf_counter() - t0
 
-    state = _photo_state(rig, neural, lfit)
-    term, fit_term = _landmark_terms(rig, lm, dense, lfit, (width, height), focal, config)
+    term, fit_term = _landmark_terms(rig.asset, state.dtype, lm, dense, lfit, (width, height), focal, config)
     t1 = time.perf_counter()
     appearance, stages, crop = fit_appearance(photo, lm, focal, state, fit_term, config.photometric, progress)
     t_photo = time.perf_counter() - t1
 
     v, projected, landmarks3d_camera, dense3d_camera, translation = _fitted_points(state, term, fit_term, dense)
-    values = state.arrays()
-    rotation = values["rotation"]
+    values = state.arrays() if model is None else {"theta": lfit.theta, "z": lfit.z, "expressions": lfit.expressions}
+    with torch.no_grad():
+        rotation = state.rotation().double().numpy()
     error, nme = landmark_errors(projected, lm)
     return PhotoFit(
         theta=values["theta"],

@@ -14,6 +14,7 @@ from pipeline.photo.landmark_fit import (
 )
 from rig.asset import REGION_NAMES
 from rig.errors import InputError
+from rig.head_model import head_model_kinds
 from rig.template import FACE_REGIONS
 
 PHOTO_GROUPS = FREE_GROUPS + ("albedo", "light")
@@ -198,9 +199,20 @@ class OutputsConfig:
 class FitPhotoConfig:
     """Settings of :func:`fit_photo` (``configs/fit_photo.yaml`` holds the defaults)."""
 
+    model: str = "jnr"
+    """The head model fitted (a kind registered with :func:`rig.head_model.register_head_model`; the name
+    ``params.json`` records as ``model``): ``jnr`` (the joint rig, its priors and photometric stages) or any other
+    registered model with flat parameter groups, fitted by the same landmark stages on its own groups
+    (:mod:`pipeline.photo.model_fit`; no photometric stages)."""
     landmarks: LandmarkFitConfig = field(default_factory=lambda: LandmarkFitConfig(prior=PHOTO_PRIOR))
     """The landmark fit (Levenberg-Marquardt with the identity prior, :data:`PHOTO_PRIOR`)."""
     photometric: PhotometricConfig = field(default_factory=PhotometricConfig)
     """The photometric stages."""
     outputs: OutputsConfig = field(default_factory=OutputsConfig)
     """The output files (``outputs.units``)."""
+
+    def __post_init__(self) -> None:
+        if self.model not in head_model_kinds():
+            raise InputError(f"model must be one of {list(head_model_kinds())}, got {self.model!r}")
+        if self.model != "jnr" and self.photometric.enabled:
+            raise InputError(f"the photometric stages fit the jnr head only, not model {self.model!r}")

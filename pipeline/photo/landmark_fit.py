@@ -51,6 +51,7 @@ from pipeline.fitting.terms import Inputs, Term, check_unique, term_values
 from pipeline.metrics import landmark_errors
 from rig.errors import InputError
 from rig.expressions import ExpressionModel
+from rig.head_model import HeadParams
 from rig.lbs import ShapeError
 from rig.model import JointRig
 from rig.optim import Progress
@@ -205,6 +206,9 @@ class LandmarkFit:
             unit of the term.
         stages: one :class:`~pipeline.fitting.engine.StageLog` per stage (every loss term at its end).
         seconds: wall time of the whole fit.
+        head: the fitted head as its model's parameters when the model is not JNR's
+            (:func:`pipeline.photo.model_fit.fit_model_landmarks`; ``theta`` and ``z`` are then zeros); None: JNR's,
+            given by ``theta``, ``z`` and ``expressions``.
     """
 
     theta: np.ndarray
@@ -221,6 +225,7 @@ class LandmarkFit:
     stages: tuple[StageLog, ...]
     seconds: float
     layout: str = "ibug68"
+    head: HeadParams | None = None
 
 
 def check_landmarks_2d_shape(landmarks2d, function: str = "fit_landmarks", count: int = NUM_LANDMARKS) -> np.ndarray:

@@ -35,7 +35,7 @@ from pipeline.config import CONFIG_FILE, dump_config
 from pipeline.files import check_output, staged_folder
 from pipeline.head.curves import write_curves
 from pipeline.head.folders import PHOTO_OUTPUT_SETS
-from pipeline.head.skinned import write_skinned_head
+from pipeline.head.skinned import write_skinned_head, write_static_head
 from pipeline.photo.fit import PhotoFit
 from pipeline.photo.fit_config import FitPhotoConfig
 from pipeline.photo.output_payloads import (
@@ -155,6 +155,9 @@ def _write_meshes(job: OutputJob, folder: Path) -> None:
 
 def _write_glb(job: OutputJob, folder: Path, name: str = "mesh.glb", **options) -> None:
     head, png = job.head, job.texture_png
+    if not head.model.posable:  # a head model the joints do not pose: its mesh as it is (both files)
+        write_static_head(folder / name, job.asset, head.vertices, base_color_texture=png)
+        return
     write_skinned_head(
         folder / name, job.asset, head.weights, head.tau, head.expressions, base_color_texture=png, **options
     )
@@ -183,12 +186,13 @@ def _write_config(job: OutputJob, folder: Path) -> None:
 
 def _write_viewer(job: OutputJob, folder: Path) -> None:
     head, name, shared = job.head, job.out_dir.name, job.shared_three
+    posable = head.model.posable
+    rig = {"theta": head.theta, "weights": head.weights} if posable else {"static_vertices": head.vertices}
     write_fit_viewer(
         folder / VIEWER_FILE,
         job.asset,
-        theta=head.theta,
         expressions=head.expressions,
-        weights=head.weights,
+        **rig,
         views=[ViewerView(name, job.params["camera"], job.photo)],
         texture=job.texture.image,
         latent_z=job.fit.z,

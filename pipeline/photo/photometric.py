@@ -75,7 +75,7 @@ def fit_appearance(
     overlay.png show the fitted shape shaded rather than flat."""
     if not (settings.enabled and any(s.iterations > 0 for s in settings.stages)):
         light = np.array([0.3, 0.4, 1.0]) / np.linalg.norm([0.3, 0.4, 1.0])
-        grey = np.full((len(state.rig.asset.vertices), 3), 0.5)
+        grey = np.full((len(term.asset.vertices), 3), 0.5)
         shown = {"albedo": grey, "ambient": np.full(3, 0.35), "irradiance": np.full(3, 2.0), "light_camera": light}
         return shown, (), None
     crop = face_crop(lm, settings.render_size, settings.crop_margin)

@@ -1,0 +1,172 @@
+"""Any registered head model as a fit state: the fits' path for a model that brings no state of its own.
+
+A head model (:class:`rig.head_model.HeadModel`, registered by :func:`rig.head_model.register_head_model`) says
+what it fits (:meth:`~rig.head_model.HeadModel.groups`: named flat groups with limits), where it starts
+(:meth:`~rig.head_model.HeadModel.initial`) and how its parameters make a head
+(:meth:`~rig.head_model.HeadModel.vertices`: differentiable, batched). :class:`ModelPhotoState` turns that into
+what the fitting engine and the Levenberg-Marquardt stages need (:class:`~pipeline.fitting.rig_state.
+GroupedParameters`): one parameter per group, named ``p_<group>``, held in the group's limits, plus the head's pose
+in a photo. So ``jnr fit --set model=KIND`` fits a newly registered model with no other code
+(``tests/pipeline/photo/test_photo_head_model.py``).
+
+A model may add priors by a method ``prior_terms(weights) -> tuple[Term, ...]`` reading the groups by name from
+the terms' inputs (each group ``(1, n)``); without one the fit has the data term only. JNR's own head keeps its
+state (:class:`pipeline.fitting.state.PhotoState`): its fast paths and priors are tuned to it.
+"""
+
+from __future__ import annotations
+
+from typing import ClassVar
+
+import numpy as np
+import torch
+from kornia.geometry.conversions import axis_angle_to_rotation_matrix
+from scipy.spatial.transform import Rotation
+from torch import nn
+
+from pipeline.camera import camera_center_in_rig
+from pipeline.fitting.rig_state import GroupedParameters
+from pipeline.fitting.terms import Inputs, Term
+from rig.geometry import RIG_TO_OPENCV
+from rig.head_model import HeadModel, HeadModelError, HeadParams
+
+LR_FIELDS = ("joints", "latent", "expressions")
+"""Groups whose Adam step has its own field in :class:`pipeline.fitting.engine.LearningRates`; other groups step
+as the joints."""
+
+
+def _flat_initial(model: HeadModel) -> dict[str, np.ndarray]:
+    """Each group's initial values as a float64 vector; HeadModelError for a group that is not one."""
+    initial = model.initial()
+    out = {}
+    for group in model.groups():
+        try:
+            values = np.asarray(initial[group.name], dtype=np.float64)
+        except (TypeError, ValueError, KeyError):
+            values = None
+        if values is None or values.shape != (group.size,):
+            raise HeadModelError(
+                f"head model {model.kind!r}: group {group.name!r} is not a flat vector of {group.size} floats; "
+                "the generic fit takes flat groups only"
+            )
+        out[group.name] = values
+    return out
+
+
+class ModelPhotoState(GroupedParameters):
+    """A head model's parameters and a pose in one photo: ``x_cam = RIG_TO_OPENCV @ R @ x_rig + t`` (mm).
+
+    Args:
+        model: the head model (flat groups: :meth:`~rig.head_model.HeadModel.groups`).
+        rotation: ``(3, 3)`` the head's start rotation; translation: ``(3,)`` mm.
+        params: start values (default the model's :meth:`~rig.head_model.HeadModel.initial`).
+
+    Parameters: ``rotvec (3,)`` radians and ``translation (3,)`` mm (group ``pose``), ``p_<group> (n,)`` for each
+    of the model's groups (group ``<group>``), float64.
+
+    Raises:
+        rig.head_model.HeadModelError: a group that is not a flat vector.
+    """
+
+    def __init__(
+        self, model: HeadModel, rotation: np.ndarray, translation: np.ndarray, params: HeadParams | None = None
+    ) -> None:
+        super().__init__()
+        self.model = model
+        start = _flat_initial(model)
+        if params is not None:
+            start = {name: np.asarray(params[name], np.float64) for name in start}
+        self.group_names = tuple(start)
+        self.rotvec = nn.Parameter(torch.tensor(Rotation.from_matrix(rotation).as_rotvec(), dtype=torch.float64))
+        self.translation = nn.Parameter(torch.tensor(translation, dtype=torch.float64))
+        self.register_buffer("flip", torch.tensor(RIG_TO_OPENCV, dtype=torch.float64))
+        groups: dict[str, tuple[tuple[str, str], ...]] = {
+            "pose": (("rotvec", "rotation"), ("translation", "translation"))
+        }
+        for group in model.groups():
+            setattr(self, f"p_{group.name}", nn.Parameter(torch.tensor(start[group.name], dtype=torch.float64)))
+            self.register_buffer(f"low_{group.name}", torch.as_tensor(group.low, dtype=torch.float64))
+            self.register_buffer(f"high_{group.name}", torch.as_tensor(group.high, dtype=torch.float64))
+            field = group.name if group.name in LR_FIELDS else "joints"
+            groups[group.name] = ((f"p_{group.name}", field),)
+        self.GROUPS = groups
+
+    kind: ClassVar[str] = "model"
+
+    @property
+    def dtype(self) -> torch.dtype:
+        return torch.float64
+
+    # -- groups -------------------------------------------------------------------------------------
+    def available(self, free: tuple[str, ...]) -> tuple[str, ...]:
+        """``free`` without the groups the model does not have."""
+        return tuple(g for g in free if g in self.GROUPS)
+
+    def limits(self, name: str) -> tuple[torch.Tensor, torch.Tensor] | None:
+        """A group's limits (:class:`rig.head_model.ParameterGroup`); None for the pose."""
+        if name.startswith("p_"):
+            group = name[2:]
+            return getattr(self, f"low_{group}"), getattr(self, f"high_{group}")
+        return None
+
+    def project(self, free: tuple[str, ...]) -> None:
+        """After a step: each freed group back into its limits."""
+        with torch.no_grad():
+            for group in free:
+                if group in self.group_names:
+                    p = getattr(self, f"p_{group}")
+                    p.copy_(
+                        torch.maximum(torch.minimum(p, getattr(self, f"high_{group}")), getattr(self, f"low_{group}"))
+                    )
+
+    # -- the head -----------------------------------------------------------------------------------
+    def values(self, free: tuple[str, ...] = ()) -> dict[str, torch.Tensor]:
+        """Each group's ``(1, n)`` values by group name; only the groups in ``free`` carry gradients."""
+        out = {}
+        for group in self.group_names:
+            p = getattr(self, f"p_{group}")
+            out[group] = (p if group in free else p.detach())[None]
+        return out
+
+    def rig_vertices(self, free: tuple[str, ...] = ()) -> torch.Tensor:
+        """``(V, 3)`` the model's head in rig space, mm (:meth:`~rig.head_model.HeadModel.vertices`)."""
+        return self.model.vertices(self.values(free))[0].to(torch.float64)
+
+    def rotation(self) -> torch.Tensor:
+        """``(3, 3)`` head rotation from ``rotvec``."""
+        return axis_angle_to_rotation_matrix(self.rotvec[None])[0]
+
+    def to_camera(self, points: torch.Tensor, free: tuple[str, ...] = ()) -> torch.Tensor:
+        """``(N, 3)`` rig space -> OpenCV camera space, mm; the pose carries gradients if ``pose`` is free."""
+        rot, t = (
+            (self.rotation(), self.translation)
+            if "pose" in free
+            else (self.rotation().detach(), self.translation.detach())
+        )
+        return points.to(torch.float64) @ (self.flip @ rot).T + t
+
+    def camera_center(self) -> np.ndarray:
+        """``(3,)`` float64 camera centre in rig space, mm."""
+        with torch.no_grad():
+            return camera_center_in_rig(self.rotation().numpy(), self.translation.numpy())
+
+    # -- the loss terms -----------------------------------------------------------------------------
+    def term_inputs(self) -> Inputs:
+        """Each group by name, ``(1, n)``, live (gradients flow)."""
+        return Inputs({group: getattr(self, f"p_{group}")[None] for group in self.group_names})
+
+    def prior_terms(self, weights=None, **_) -> tuple[Term, ...]:
+        """The model's own priors (its ``prior_terms(weights)``, if it has one), else none."""
+        own = getattr(self.model, "prior_terms", None)
+        return tuple(own(weights)) if callable(own) else ()
+
+    def head_params(self) -> HeadParams:
+        """The fitted head as the model's :class:`~rig.head_model.HeadParams` (float64)."""
+        with torch.no_grad():
+            return HeadParams(
+                self.model.kind,
+                {group: getattr(self, f"p_{group}").double().numpy().copy() for group in self.group_names},
+            )
+
+
+__all__ = ["LR_FIELDS", "ModelPhotoState"]
