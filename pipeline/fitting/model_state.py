@@ -16,6 +16,7 @@ state (:class:`pipeline.fitting.state.PhotoState`): its fast paths and priors ar
 
 from __future__ import annotations
 
+import math
 from typing import ClassVar
 
 import numpy as np
@@ -27,8 +28,11 @@ from torch import nn
 from pipeline.camera import camera_center_in_rig
 from pipeline.fitting.rig_state import GroupedParameters
 from pipeline.fitting.terms import Inputs, Term
+from rig.expressions import EXPRESSION_NAMES
 from rig.geometry import RIG_TO_OPENCV
-from rig.head_model import HeadModel, HeadModelError, HeadParams
+from rig.head_model import HeadModel, HeadModelError, HeadParams, create
+from rig.parameters import NUM_PARAMETERS
+from rig.skinning.neural import LATENT
 
 LR_FIELDS = ("joints", "latent", "expressions")
 """Groups whose Adam step has its own field in :class:`pipeline.fitting.engine.LearningRates`; other groups step
@@ -53,8 +57,8 @@ def _flat_initial(model: HeadModel) -> dict[str, np.ndarray]:
     return out
 
 
-class ModelPhotoState(GroupedParameters):
-    """A head model's parameters and a pose in one photo: ``x_cam = RIG_TO_OPENCV @ R @ x_rig + t`` (mm).
+class ModelState(GroupedParameters):
+    """A head model's parameters and the head's rotation and translation (the states below say where to).
 
     Args:
         model: the head model (flat groups: :meth:`~rig.head_model.HeadModel.groups`).
@@ -91,11 +95,14 @@ class ModelPhotoState(GroupedParameters):
             groups[group.name] = ((f"p_{group.name}", field),)
         self.GROUPS = groups
 
-    kind: ClassVar[str] = "model"
-
     @property
     def dtype(self) -> torch.dtype:
         return torch.float64
+
+    @property
+    def asset(self):
+        """The model's rig asset (template, faces, regions)."""
+        return self.model.asset
 
     # -- groups -------------------------------------------------------------------------------------
     def available(self, free: tuple[str, ...]) -> tuple[str, ...]:
@@ -136,6 +143,45 @@ class ModelPhotoState(GroupedParameters):
         """``(3, 3)`` head rotation from ``rotvec``."""
         return axis_angle_to_rotation_matrix(self.rotvec[None])[0]
 
+    # -- the loss terms -----------------------------------------------------------------------------
+    def term_inputs(self) -> Inputs:
+        """Each group by name, ``(1, n)``, live (gradients flow)."""
+        return Inputs({group: getattr(self, f"p_{group}")[None] for group in self.group_names})
+
+    def prior_terms(self, weights=None, **_) -> tuple[Term, ...]:
+        """The model's own priors (its ``prior_terms(weights)``, if it has one), else none."""
+        own = getattr(self.model, "prior_terms", None)
+        return tuple(own(weights)) if callable(own) else ()
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """JNR's arrays of a result record: ``theta`` and ``z`` zeros (the template's), ``expressions`` the model's
+        ``expressions`` group when it has one of the rig's length (else zeros), ``rotation (3, 3)``."""
+        values = self.head_params().values
+        expressions = np.zeros(len(EXPRESSION_NAMES))
+        if np.shape(values.get("expressions", ())) == expressions.shape:
+            expressions = np.asarray(values["expressions"], np.float64)
+        with torch.no_grad():
+            rotation = self.rotation().numpy()
+        return {
+            "theta": np.zeros(NUM_PARAMETERS),
+            "z": np.zeros(LATENT),
+            "expressions": expressions,
+            "rotation": rotation,
+        }
+
+    def head_params(self) -> HeadParams:
+        """The fitted head as the model's :class:`~rig.head_model.HeadParams` (float64)."""
+        with torch.no_grad():
+            return HeadParams(
+                self.model.kind,
+                {group: getattr(self, f"p_{group}").double().numpy().copy() for group in self.group_names},
+            )
+
+
+class ModelPhotoState(ModelState):
+    """A head model in one photo: ``x_cam = RIG_TO_OPENCV @ R @ x_rig + t`` (OpenCV camera frame, mm); arguments
+    as :class:`ModelState`."""
+
     def to_camera(self, points: torch.Tensor, free: tuple[str, ...] = ()) -> torch.Tensor:
         """``(N, 3)`` rig space -> OpenCV camera space, mm; the pose carries gradients if ``pose`` is free."""
         rot, t = (
@@ -150,23 +196,58 @@ class ModelPhotoState(GroupedParameters):
         with torch.no_grad():
             return camera_center_in_rig(self.rotation().numpy(), self.translation.numpy())
 
-    # -- the loss terms -----------------------------------------------------------------------------
-    def term_inputs(self) -> Inputs:
-        """Each group by name, ``(1, n)``, live (gradients flow)."""
-        return Inputs({group: getattr(self, f"p_{group}")[None] for group in self.group_names})
 
-    def prior_terms(self, weights=None, **_) -> tuple[Term, ...]:
-        """The model's own priors (its ``prior_terms(weights)``, if it has one), else none."""
-        own = getattr(self.model, "prior_terms", None)
-        return tuple(own(weights)) if callable(own) else ()
+class ModelScanState(ModelState):
+    """A head model in a point cloud's frame: ``x = s R x_rig + t`` (mm), ``s = exp(log_scale)`` (group ``pose``
+    with ``fit_scale``); what :func:`pipeline.scan.fit.fit_scan` needs of a state
+    (:class:`pipeline.fitting.state.ScanState`'s methods), for a model registered as a head model only
+    (:func:`pipeline.fitting.state.scan_state_class`)."""
 
-    def head_params(self) -> HeadParams:
-        """The fitted head as the model's :class:`~rig.head_model.HeadParams` (float64)."""
+    model_kind: ClassVar[str] = ""
+
+    def __init__(self, model: HeadModel, *, fit_scale: bool = True) -> None:
+        super().__init__(model, np.eye(3), np.zeros(3))
+        self.log_scale = nn.Parameter(torch.zeros((), dtype=torch.float64))
+        if fit_scale:
+            self.GROUPS = {**self.GROUPS, "pose": (*self.GROUPS["pose"], ("log_scale", "log_scale"))}
+
+    @classmethod
+    def for_kind(cls, kind: str) -> type[ModelScanState]:
+        """The state class of registered head model ``kind`` (what ``for_scan`` builds)."""
+        return type(f"ModelScanState_{kind}", (cls,), {"kind": kind})
+
+    @classmethod
+    def for_scan(cls, rig, neural, expressions, config, *, fit_scale: bool) -> ModelScanState:
+        """The state at the identity pose: the model ``cls.kind`` on ``rig``'s asset."""
+        return cls(create(cls.kind, asset=rig.asset), fit_scale=fit_scale)
+
+    @staticmethod
+    def label(config) -> str:
+        """The head model's name in the evaluation's records."""
+        return str(config.skinning)
+
+    def set_pose(self, rotation: np.ndarray, translation: np.ndarray, scale: float) -> None:
+        """Place the head in the cloud's frame: ``(3, 3)``, ``(3,)`` mm, scalar."""
         with torch.no_grad():
-            return HeadParams(
-                self.model.kind,
-                {group: getattr(self, f"p_{group}").double().numpy().copy() for group in self.group_names},
-            )
+            self.rotvec.copy_(torch.as_tensor(Rotation.from_matrix(rotation).as_rotvec()))
+            self.translation.copy_(torch.as_tensor(translation, dtype=torch.float64))
+            self.log_scale.fill_(math.log(scale))
+
+    def finish(self) -> dict:
+        """After the fit: the groups are already in their limits (projected after every step): ``{}``."""
+        return {}
+
+    def model_entry(self) -> dict | None:
+        """The model's own entry of the result beyond its parameters: None."""
+        return None
+
+    def to_cloud(self, v: torch.Tensor) -> torch.Tensor:
+        """``(V, 3)`` rig space -> the cloud's frame, mm."""
+        return self.log_scale.exp() * v.to(torch.float64) @ self.rotation().T + self.translation
+
+    @property
+    def scale(self) -> float:
+        return float(self.log_scale.detach().exp())
 
 
-__all__ = ["LR_FIELDS", "ModelPhotoState"]
+__all__ = ["LR_FIELDS", "ModelPhotoState", "ModelScanState", "ModelState"]

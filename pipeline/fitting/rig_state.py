@@ -143,6 +143,11 @@ class FitState(GroupedParameters):
     def dtype(self) -> torch.dtype:
         return self.models.rig.template.dtype
 
+    @property
+    def asset(self):
+        """The rig's asset (template, faces, regions)."""
+        return self.models.rig.asset
+
     # -- groups -------------------------------------------------------------------------------------
     def available(self, free: tuple[str, ...]) -> tuple[str, ...]:
         """``free`` without the groups this state cannot move (``latent`` without neural skinning)."""

@@ -28,6 +28,7 @@ from torch import nn
 
 from pipeline.camera import camera_center_in_rig
 from pipeline.fitting.identity import IdentityPrior
+from pipeline.fitting.model_state import ModelScanState
 from pipeline.fitting.priors import PriorWeights, asm_prior_terms
 from pipeline.fitting.rig_state import FREE_GROUPS as FREE_GROUPS
 from pipeline.fitting.rig_state import FitState as FitState
@@ -38,7 +39,7 @@ from pipeline.fitting.terms import Inputs, Term
 from rig.errors import InputError
 from rig.expressions import ExpressionModel
 from rig.geometry import RIG_TO_OPENCV
-from rig.head_model import HeadParams
+from rig.head_model import HeadParams, head_model_kinds
 from rig.model import JointRig
 from rig.skinning.asm import TAU_UNITS, UV_UNIT, AdaptiveSkinning, AsmParameters, asm_params_to_dict
 from rig.skinning.neural import NeuralSkinning, load_neural
@@ -340,15 +341,24 @@ def register_scan_state(state: type[ScanState]) -> None:
     SCAN_STATES[state.kind] = state
 
 
-def scan_state_class(kind: str) -> type[ScanState]:
-    """The registered scan-fit state of head model ``kind``.
+def scan_kinds() -> tuple[str, ...]:
+    """The head models a scan fit takes: those with a registered state, then every other registered head model
+    (:func:`rig.head_model.head_model_kinds`, fitted by :class:`pipeline.fitting.model_state.ModelScanState`)."""
+    return (*SCAN_STATES, *(k for k in head_model_kinds() if k not in SCAN_STATES))
+
+
+def scan_state_class(kind: str) -> type[ScanState] | type[ModelScanState]:
+    """The scan-fit state of head model ``kind``: its registered state, else the generic state over the registered
+    head model's groups.
 
     Raises:
-        InputError: no state is registered for ``kind``.
+        InputError: ``kind`` is neither.
     """
-    if kind not in SCAN_STATES:
-        raise InputError(f"fit-scan: no fit for the head model {kind!r}; known: {', '.join(SCAN_STATES)}")
-    return SCAN_STATES[kind]
+    if kind in SCAN_STATES:
+        return SCAN_STATES[kind]
+    if kind in head_model_kinds():
+        return ModelScanState.for_kind(kind)
+    raise InputError(f"fit-scan: no fit for the head model {kind!r}; known: {', '.join(scan_kinds())}")
 
 
 register_scan_state(ScanState)

@@ -293,9 +293,8 @@ def fit_photo(
     t_photo = time.perf_counter() - t1
 
     v, projected, landmarks3d_camera, dense3d_camera, translation = _fitted_points(state, term, fit_term, dense)
-    values = state.arrays() if model is None else {"theta": lfit.theta, "z": lfit.z, "expressions": lfit.expressions}
-    with torch.no_grad():
-        rotation = state.rotation().double().numpy()
+    values = state.arrays()
+    rotation = values["rotation"]
     error, nme = landmark_errors(projected, lm)
     return PhotoFit(
         theta=values["theta"],

@@ -29,11 +29,8 @@ from pipeline.fitting.terms import Inputs, Term, check_unique, term_values
 from pipeline.metrics import landmark_errors
 from pipeline.photo.landmark_fit import LandmarkFit, LandmarkFitConfig, check_landmarks_2d_shape
 from rig.errors import InputError
-from rig.expressions import EXPRESSION_NAMES
 from rig.head_model import HeadModel
 from rig.optim import Progress
-from rig.parameters import NUM_PARAMETERS
-from rig.skinning.neural import LATENT
 
 
 class ModelLandmarkProblem:
@@ -162,23 +159,19 @@ def _result(state: ModelPhotoState, term: LandmarkTerm, lm, size, focal, stages,
         projected = term.project(state, v)
         data = float(term(state, v))
         static3d = landmark_positions(v, term.embedding, term.faces)[0].double().numpy()
-        rotation = state.rotation().numpy()
         translation = state.translation.numpy().copy()
-    head = state.head_params()
-    expressions = np.zeros(len(EXPRESSION_NAMES))
-    if "expressions" in head.values and np.shape(head["expressions"]) == expressions.shape:
-        expressions = np.asarray(head["expressions"], np.float64)
+    values = state.arrays()
     losses = {s.name: s.loss_end for s in stages}
     losses["data_px2"] = data
     losses["face_scale"] = term.scale
     error, nme = landmark_errors(projected, lm, term.layout.eye_corners)
     return LandmarkFit(
-        theta=np.zeros(NUM_PARAMETERS),
-        z=np.zeros(LATENT),
-        expressions=expressions,
-        rotation=rotation,
+        theta=values["theta"],
+        z=values["z"],
+        expressions=values["expressions"],
+        rotation=values["rotation"],
         translation=translation,
-        camera=make_camera(width, height, focal, rotation=rotation, translation=translation),
+        camera=make_camera(width, height, focal, rotation=values["rotation"], translation=translation),
         landmarks_px=projected,
         error_px=error,
         nme=nme,
@@ -187,7 +180,7 @@ def _result(state: ModelPhotoState, term: LandmarkTerm, lm, size, focal, stages,
         stages=stages,
         seconds=time.perf_counter() - t_start,
         layout=term.layout.name,
-        head=head,
+        head=state.head_params(),
     )
 
 

@@ -55,6 +55,7 @@ from pipeline.photo.consistency import PhotoConsistency
 from pipeline.photo.landmark_fit import LandmarkFit, check_landmarks_2d_shape, fit_landmarks
 from pipeline.photo.multiview_asm import VIEWS_IDENTITY_MODELS
 from pipeline.photo.multiview_config import AsmConfig, MultiViewConfig, PhotoConsistencyConfig
+from pipeline.photo.multiview_model import model_views_identity
 from pipeline.photo.multiview_problem import MultiViewProblem, MultiViewStage, initial_state
 from rig.errors import InputError
 from rig.geometry import RIG_TO_OPENCV
@@ -118,6 +119,8 @@ class MultiViewFit:
         single_view_fits: the single-view landmark fits it started from.
         skinning: ``jnr`` or ``asm``.
         asm_parameters: with ``skinning="asm"``, the fitted ASM parameters as float64 arrays by field name.
+        head: with another registered head model as ``skinning``, its fitted parameters without expression
+            (:mod:`pipeline.photo.multiview_model`).
         stages: one :class:`~pipeline.fitting.engine.StageLog` per stage (``average``, ``refine``, and
             ``photometric`` / ``asm register`` / ``asm refine`` when run).
         timings: seconds per phase.
@@ -132,6 +135,7 @@ class MultiViewFit:
     stages: tuple[StageLog, ...]
     timings: dict
     asm_parameters: dict | None = None
+    head: HeadParams | None = None
 
     @property
     def mean_error_px(self) -> float:
@@ -148,6 +152,8 @@ class MultiViewFit:
     @property
     def identity(self) -> HeadParams:
         """The shared identity in the fit's identity model (``skinning``) without expression."""
+        if self.head is not None:
+            return self.head
         if self.asm_parameters is None:
             return self.rig_identity
         zeros = np.zeros(len(self.views[0].expressions))
@@ -262,7 +268,7 @@ def fit_multiview(
     if config.refine_iterations > 0:
         refine = MultiViewStage("refine", ("pose", "joints", "expressions", "focal"), config.refine_iterations)
         stages.append(run_lm_stage(problem, rows, refine, config.lm, loss_start=cost0))
-    identity_model = VIEWS_IDENTITY_MODELS.get(config.skinning)  # None: the joints' own (jnr)
+    identity_model = views_identity_model(config.skinning)  # None: the joints' own (jnr)
     # the photometric consistency refines the joints' identity, which another identity model replaces
     if config.photometric.enabled and config.photometric.iterations > 0 and identity_model is None:
         stages.extend(_photo_consistency(problem, rows, images, config.photometric))
@@ -283,6 +289,7 @@ def fit_multiview(
         )
         stages.extend(model_logs)
         poses = (model_state.rotvec.detach(), model_state.translation.detach())
+    head = asm_parameters if isinstance(asm_parameters, HeadParams) else None
     return MultiViewFit(
         theta=theta.numpy().copy(),
         z=np.zeros(LATENT),
@@ -292,8 +299,18 @@ def fit_multiview(
         skinning=config.skinning,
         stages=tuple(stages),
         timings={"single_view": t_single, "total": time.perf_counter() - t_start},
-        asm_parameters=asm_parameters,
+        asm_parameters=None if head is not None else asm_parameters,
+        head=head,
     )
+
+
+def views_identity_model(kind: str):
+    """The identity step of head model ``kind`` on top of the joints' fit: its own
+    (:data:`~pipeline.photo.multiview_asm.VIEWS_IDENTITY_MODELS`), the generic one of a registered head model
+    (:func:`~pipeline.photo.multiview_model.model_views_identity`), or None for ``jnr`` (the joints' own)."""
+    if kind == "jnr":
+        return None
+    return VIEWS_IDENTITY_MODELS.get(kind) or model_views_identity(kind)
 
 
 def _problem(

@@ -10,9 +10,9 @@ from pipeline.photo.fit_config import PHOTO_PRIOR, OutputsConfig
 from pipeline.photo.landmark_fit import LandmarkFitConfig
 from rig.asset import REGION_NAMES
 from rig.errors import InputError
+from rig.head_model import head_model_kinds
 from rig.template import FACE_REGIONS
 
-SKINNING_MODELS = ("jnr", "asm")
 PATCHES = ("1-ring",)
 
 
@@ -127,13 +127,14 @@ class MultiViewConfig:
     photometric: PhotoConsistencyConfig = field(default_factory=PhotoConsistencyConfig)
     """Photometric consistency between views (off by default)."""
     skinning: str = "jnr"
-    """The identity model: ``jnr`` (the rig's joints) or ``asm`` (:mod:`rig.skinning.asm`)."""
+    """The identity model: ``jnr`` (the rig's joints), ``asm`` (:mod:`rig.skinning.asm`) or another registered head
+    model with flat groups (:mod:`pipeline.photo.multiview_model`)."""
     asm: AsmConfig = field(default_factory=AsmConfig)
     """The ASM identity model's settings."""
 
     def __post_init__(self) -> None:
-        if self.skinning not in SKINNING_MODELS:
-            raise InputError(f"skinning must be one of {list(SKINNING_MODELS)}, got {self.skinning!r}")
+        if self.skinning not in head_model_kinds():
+            raise InputError(f"skinning must be one of {list(head_model_kinds())}, got {self.skinning!r}")
         if self.refine_iterations < 0:
             raise InputError(f"refine_iterations must be >= 0, got {self.refine_iterations}")
         if self.lambda_identity < 0 or self.lambda_focal < 0:

@@ -146,10 +146,10 @@ class FitScanConfig:
     """``skinning: asm``: Gaussians per bone (K)."""
 
     def __post_init__(self) -> None:
-        from pipeline.fitting.state import SCAN_STATES  # the head models a scan fit is registered for
+        from pipeline.fitting.state import scan_kinds  # the head models a scan fit takes
 
-        if self.skinning not in SCAN_STATES:
-            known = " or ".join(repr(k) for k in SCAN_STATES)
+        if self.skinning not in scan_kinds():
+            known = " or ".join(repr(k) for k in scan_kinds())
             raise InputError(f"skinning must be {known}, got {self.skinning!r}")
         if not isinstance(self.asm_components, int) or not 1 <= self.asm_components <= 8:
             raise InputError(f"asm_components must be an int in [1, 8], got {self.asm_components!r}")

@@ -94,8 +94,8 @@ class ScanObjective:
         self.landmarks = (
             None if landmarks is None else (torch.as_tensor(landmarks[0]), torch.as_tensor(landmarks[1], dtype=dtype))
         )
-        faces = state.rig.asset.faces
-        self.incident = incident_faces(faces, len(state.rig.asset.vertices))
+        faces = state.asset.faces
+        self.incident = incident_faces(faces, len(state.asset.vertices))
         self.max_d, self.lambda_m, self.previous = c.max_distance_mm, config.prior.lambda_m, None
         self.pairs: Pairs | None = None
 
@@ -108,7 +108,7 @@ class ScanObjective:
 
     def _candidates(self, v_cloud: np.ndarray):
         """Both pair directions, found and rejected (module docstring), with their residuals (mm^2)."""
-        c, faces = self.c, self.state.rig.asset.faces
+        c, faces = self.c, self.state.asset.faces
         vn = vertex_normals(v_cloud, faces)
         _, j1 = cKDTree(v_cloud).query(self.p_sub)
         # cloud -> model: the closest point on the model's surface (around the nearest vertex).
@@ -132,7 +132,7 @@ class ScanObjective:
     def rebuild(self, v_cloud: np.ndarray) -> Pairs:
         """New pairs for the model at ``v_cloud (V, 3)`` (float64, mm); adapts the rejection distance and
         lowers L_m's weight by how far the model moved since the last rebuild."""
-        c, p, faces, dtype = self.c, self.config.prior, self.state.rig.asset.faces, self.state.dtype
+        c, p, faces, dtype = self.c, self.config.prior, self.state.asset.faces, self.state.dtype
         (f1, b1, n1, ok1), (k2, ok2), r = self._candidates(v_cloud)
         if r.size == 0:
             raise CloudError(

@@ -1,4 +1,9 @@
+import numpy as np
 import pytest
+import torch
+
+from rig.expressions import EXPRESSION_NAMES
+from rig.head_model import HeadParams, HeadPose, ParameterGroup
 
 
 @pytest.fixture(scope="session")
@@ -68,3 +73,57 @@ def rig_head_vertices(params: dict, rig=None):
         rest = ExpressionModel(rig.asset, dtype=torch.float64).vertices(c[None])[0]
         weights = load_neural(rig)[0](z[None])[0]
         return rig(theta[None], weights=weights, vertices=rest).vertices[0].numpy()
+
+
+class StretchedHead:
+    """A throwaway head model: the template stretched vertically about its centre by ``1 + grow`` (one float, in a
+    group named ``joints`` so the fit's joint stages free it), not posable, no expressions."""
+
+    kind = "test_stretched"
+    posable = False
+
+    def __init__(self, asset=None) -> None:
+        from rig.asset import load_asset
+
+        self.asset = asset or load_asset()
+        self.template = torch.as_tensor(self.asset.vertices, dtype=torch.float64)
+        self.centre = self.template.mean(0)
+
+    def groups(self):
+        return (ParameterGroup("joints", ("grow",), np.array([-0.3]), np.array([0.3]), "fraction"),)
+
+    def initial(self):
+        return HeadParams("test_stretched", {"joints": np.zeros(1)})
+
+    def vertices(self, values, vertex_ids=None):
+        grow = values["joints"][:, 0].to(torch.float64)
+        v = self.template if vertex_ids is None else self.template[vertex_ids]
+        stretch = torch.stack([torch.ones_like(grow), 1.0 + grow, torch.ones_like(grow)], -1)[:, None]
+        return self.centre + stretch * (v - self.centre)
+
+    def forward(self, params):
+        v = self.vertices({"joints": torch.as_tensor(np.asarray(params["joints"], np.float64))[None]})[0].numpy()
+        return HeadPose(v, v, None, None, np.zeros(len(EXPRESSION_NAMES)))
+
+    def to_dict(self, params):
+        return {"model": "test_stretched", "grow": float(params["joints"][0])}
+
+    def from_dict(self, data):
+        return HeadParams("test_stretched", {"joints": np.array([float(data["grow"])])})
+
+    @staticmethod
+    def options_from_dict(data):
+        return {}
+
+
+@pytest.fixture
+def stretched_model():
+    """:class:`StretchedHead` registered as head model ``test_stretched`` for the test (a fit of it must need no
+    other code: issue 39), its instance on the committed asset."""
+    from rig.head_model import create, register_head_model, unregister_head_model
+
+    register_head_model("test_stretched", StretchedHead)
+    try:
+        yield create("test_stretched")
+    finally:
+        unregister_head_model("test_stretched")

@@ -1,10 +1,13 @@
 """A head model the project has never seen, registered by a test, is fitted by ``fit_scan`` without other code
 (issue 39: a new head model is one file plus its registration)."""
 
+import json
+
 import numpy as np
 import torch
 from torch import nn
 
+from pipeline.cli import main
 from pipeline.fitting.state import SCAN_STATES, ScanState, register_scan_state, scan_state_class
 from pipeline.scan.fit import fit_scan
 from pipeline.scan.fit_config import FitScanConfig
@@ -70,3 +73,25 @@ def test_a_registered_head_model_is_fitted_by_fit_scan_without_other_code(asset)
         assert np.linalg.norm(fit.vertices - (head @ rotation.T + translation), axis=1).mean() < 1.0
     finally:
         SCAN_STATES.pop("test_stretched", None)
+
+
+def test_a_head_model_registered_only_as_a_head_model_is_fitted_by_fit_scan(stretched_model, asset, tmp_path):
+    """No scan state of its own: the generic state over its groups (pipeline.fitting.model_state)."""
+    truth_grow, rotation, translation = -0.06, head_rotation(-10.0, 6.0, -2.0), np.array([-3.0, 5.0, 40.0])
+    centre = asset.vertices.mean(0)
+    head = centre + np.array([1.0, 1.0 + truth_grow, 1.0]) * (asset.vertices - centre)
+    rng = np.random.default_rng(1)
+    points = 1.05 * head[rng.choice(len(head), 3000, replace=False)] @ rotation.T + translation
+    fit = fit_scan(validate_points(points), FitScanConfig(skinning=stretched_model.kind, use_neural=False))
+    assert fit.head.kind == stretched_model.kind and abs(fit.head["joints"][0] - truth_grow) < 0.01
+    assert abs(fit.scale - 1.05) < 0.01
+    assert np.linalg.norm(fit.vertices - (1.05 * head @ rotation.T + translation), axis=1).mean() < 1.0
+    # and by the command, every output written
+    np.savetxt(tmp_path / "scan.xyz", points)
+    out = tmp_path / "out"
+    code = main(
+        ["fit-scan", str(tmp_path / "scan.xyz"), "--out", str(out), "--set", f"skinning={stretched_model.kind}"]
+    )
+    assert code == 0
+    params = json.loads((out / "params.json").read_text())
+    assert params["model"] == stretched_model.kind and abs(params["grow"] - truth_grow) < 0.01
