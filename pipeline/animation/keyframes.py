@@ -16,6 +16,7 @@ from pipeline.head.fitted import FittedHead, read_fit_folder
 from pipeline.head.skinned import write_skinned_head
 from render.preview import render_preview
 from rig.asset import load_asset
+from rig.expressions import ExpressionModel
 from rig.io.atomic import write_bytes_atomic
 from rig.io.gltf import GltfAnimation
 from rig.joints import JOINT_INDEX
@@ -52,11 +53,24 @@ def posed_frames(head: FittedHead, coefficients: np.ndarray, taus: np.ndarray) -
         return skin_vertices(rest, torch.as_tensor(head.weights), skinning).numpy()
 
 
+def static_frames(head: FittedHead, coefficients: np.ndarray) -> np.ndarray:
+    """``(T, V, 3)`` mm: a head the joints do not pose (:attr:`rig.head_model.HeadModel.posable`) with
+    ``coefficients (T, 52)``: its vertices plus the rig's expression offsets (as its glTF's morph targets)."""
+    with torch.no_grad():
+        offsets = ExpressionModel(head.asset, dtype=torch.float64)(torch.as_tensor(coefficients, dtype=torch.float64))
+    return np.asarray(head.vertices, np.float64)[None] + offsets.numpy()
+
+
 def curve_keyframes(head: FittedHead, curves: Curves):
     """The glTF animation of ``curves`` on ``head``: :class:`rig.io.gltf.GltfAnimation` with the morph weights
-    and, with head angles, every joint's transforms (the fit's, ``skull_root``'s turned)."""
+    and, with head angles, every joint's transforms (the fit's, ``skull_root``'s turned; a head the joints do not
+    pose: its one joint's, :func:`pipeline.head.skinned.write_static_head`)."""
     taus = None
-    if curves.head_rotation is not None and np.abs(curves.head_rotation).max() > 0.0:
+    turning = curves.head_rotation is not None and np.abs(curves.head_rotation).max() > 0.0
+    if turning and not head.model.posable:
+        taus = np.tile(np.eye(4), (len(curves.times), 1, 1, 1))
+        taus[:, 0, :3, :3] = head_rotation_matrices(curves.head_rotation)
+    elif turning:
         taus = np.repeat(head.tau[None], len(curves.times), axis=0)
         j = _joint_index(HEAD_JOINT)
         turn = np.tile(np.eye(4), (len(curves.times), 1, 1))

@@ -7,9 +7,11 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from pipeline.head.curves import HEAD_JOINT
 from rig.errors import InputError
 from rig.expressions import EXPRESSION_NAMES, ExpressionModel, morph_targets
 from rig.io.gltf import export_skinned_gltf
+from rig.joints import JOINT_INDEX
 
 
 def write_skinned_head(
@@ -78,21 +80,38 @@ def write_skinned_head(
     )
 
 
-def write_static_head(path: str | Path, asset, vertices: np.ndarray, base_color_texture: bytes | None = None) -> None:
+def write_static_head(
+    path: str | Path,
+    asset,
+    vertices: np.ndarray,
+    base_color_texture: bytes | None = None,
+    *,
+    coefficients: np.ndarray | None = None,
+    animation=None,
+) -> None:
     """The glTF of a head that the joints do not pose (a head model that is not posable,
     :attr:`rig.head_model.HeadModel.posable`): ``vertices (V, 3)`` (rig space, mm; written in metres) with the
     asset's faces and UVs, ``base_color_texture`` (PNG bytes in the asset's UVs) as its base colour, skinned to
-    one root joint at the origin with weight 1 (a mesh every glTF reader loads as it is; no morph targets, since
-    the model's expressions are not the rig's shapes)."""
+    one joint ``head`` at the rig's :data:`~pipeline.head.curves.HEAD_JOINT` with weight 1 (a mesh every glTF reader
+    loads as it is, turned as a whole by an ``animation``). With ``coefficients (E,)`` or an ``animation``
+    (:class:`rig.io.gltf.GltfAnimation`: the morph weights and the joint's transforms ``(T, 1, 4, 4)``), the 52
+    ARKit shapes as morph targets (their offsets on the template, added to the head; ``coefficients`` their
+    default weights)."""
     n = len(asset.vertices)
+    morphs = coefficients is not None or animation is not None
     export_skinned_gltf(
         path,
         np.asarray(vertices, np.float64),
         asset.faces,
         joint_names=["head"],
         parents=np.array([-1]),
-        joint_positions=np.zeros((1, 3)),
+        joint_positions=np.asarray(asset.joint_positions, np.float64)[JOINT_INDEX[HEAD_JOINT]][None],
         weights=np.ones((n, 1)),
         face_uvs=asset.face_uvs,
         base_color_texture=base_color_texture,
+        morph_targets=morph_targets(asset) if morphs else None,
+        morph_names=EXPRESSION_NAMES if morphs else None,
+        morph_weights=coefficients,
+        animation=animation,
+        bake_morphs=False,
     )

@@ -33,7 +33,7 @@ from pipeline.config import CONFIG_FILE, config_to_dict, dump_config
 from pipeline.files import staged_folder
 from pipeline.head.curves import Curves, write_curves
 from pipeline.head.params import params_payload
-from pipeline.head.skinned import write_skinned_head
+from pipeline.head.skinned import write_skinned_head, write_static_head
 from pipeline.track.tracker import ShotTracks, TrackResult
 from pipeline.track.video import Clip
 from rig.geometry import head_angles
@@ -114,14 +114,18 @@ def write_track_outputs(
     with staged_folder(out, force, inputs=inputs, marker={"command": command}) as tmp:
         write_curves(tmp / "livelink.csv", curves, layout="live-link-face", fps=result.fps)
         write_curves(tmp / "curves.csv", curves, layout="plain")
-        write_skinned_head(
-            tmp / "track.glb",
-            head.asset,
-            head.weights,
-            head.tau,
-            curves.coefficients[0],
-            animation=curve_keyframes(head, curves),
-        )
+        if head.model.posable:
+            write_skinned_head(
+                tmp / "track.glb",
+                head.asset,
+                head.weights,
+                head.tau,
+                curves.coefficients[0],
+                animation=curve_keyframes(head, curves),
+            )
+        else:
+            animation = curve_keyframes(head, curves)
+            write_static_head(tmp / "track.glb", head.asset, head.vertices, animation=animation)
         payload = params_payload(
             head.model,
             head.params,

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.animation.keyframes import posed_frames
+from pipeline.animation.keyframes import posed_frames, static_frames
 from pipeline.camera import RIG_TO_OPENCV, camera_points_to_pixels
 from pipeline.track.encode import H264Writer
 from pipeline.track.tracker import TrackResult
@@ -30,8 +30,11 @@ def posed_camera_vertices(result: TrackResult, frames: np.ndarray) -> np.ndarray
     """``(F, V, 3)`` the fitted head of ``frames`` in the camera frame (OpenCV), mm (the identity's joints,
     each frame's coefficients: :func:`pipeline.animation.keyframes.posed_frames`, then the frame's pose)."""
     head = result.head
-    taus = np.repeat(head.tau[None], len(frames), axis=0)
-    posed = posed_frames(head, result.coefficients[frames], taus)
+    if head.model.posable:
+        taus = np.repeat(head.tau[None], len(frames), axis=0)
+        posed = posed_frames(head, result.coefficients[frames], taus)
+    else:
+        posed = static_frames(head, result.coefficients[frames])
     rotation = np.einsum("ij,fjk->fik", RIG_TO_OPENCV, result.rotations[frames])
     return np.einsum("fvk,fik->fvi", posed, rotation) + result.translations[frames][:, None, :]
 

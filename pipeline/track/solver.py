@@ -146,6 +146,9 @@ class FrameModel:
         layout: the landmarks' layout (e.g. :func:`landmarks.mediapipe.layout.mediapipe_layout`).
         focal: pixels; size: ``(width, height)``; principal point: the image centre.
         expression_model: the ARKit shapes (default: built from the rig's asset).
+        rest_offsets: ``(V, 3)`` mm added to the template's expressive shape (the jaw turns the template's points):
+            the identity of a head model the joints do not pose (:class:`pipeline.track.tracker.TrackConfig`'s
+            ``model``; ``theta`` zeros and ``weights`` None then); None: the joints' identity alone.
     """
 
     def __init__(
@@ -157,6 +160,8 @@ class FrameModel:
         focal: float,
         size: tuple[int, int],
         expression_model: ExpressionModel | None = None,
+        *,
+        rest_offsets: np.ndarray | None = None,
     ) -> None:
         asset = rig.asset
         self.layout = layout
@@ -187,11 +192,14 @@ class FrameModel:
         with torch.no_grad():
             basis = model.basis[:, ids].double().numpy()  # (E, U, 3)
             template = model.template[ids].double().numpy()
+            rest = template.copy()
+            if rest_offsets is not None:
+                rest += np.asarray(rest_offsets, np.float64)[self.vertex_ids]
             jaw_weight = model.jaw_weight[ids].double().numpy()
             q = template - model.jaw_pivot.double().numpy()
         linear = m[:, :, :3]
         # per support vertex: x_v(c) = a_v + B_v c + Ycos_v (cos(a) - 1) + Ysin_v sin(a), a = c_jaw * angle
-        self._a = np.einsum("vij,vj->vi", linear, template) + m[:, :, 3]
+        self._a = np.einsum("vij,vj->vi", linear, rest) + m[:, :, 3]
         self._b = np.einsum("vij,evj->vie", linear, basis)  # (U, 3, E)
         zeros = np.zeros(len(q))
         self._ycos = np.einsum("vij,vj->vi", linear, np.stack([zeros, q[:, 1], q[:, 2]], 1) * jaw_weight[:, None])

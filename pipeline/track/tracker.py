@@ -33,7 +33,9 @@ from pipeline.track.smooth import SmoothSettings, smooth_track
 from pipeline.track.solver import FrameModel, FrameState, TrackSettings, solve_frame
 from pipeline.track.video import MAX_FRAMES, Clip
 from rig.errors import InputError
+from rig.head_model import head_model_kinds
 from rig.model import JointRig
+from rig.parameters import NUM_PARAMETERS
 
 _log = logging.getLogger(__name__)
 
@@ -60,6 +62,9 @@ class TrackConfig:
         max_frames: the most frames read.
         frame: the per-frame solve (:class:`~pipeline.track.solver.TrackSettings`).
         smooth: the whole track's smoothing (:class:`~pipeline.track.smooth.SmoothSettings`).
+        model: the head model of the identity (a registered kind, as ``jnr fit``'s ``model``): ``jnr``'s joints,
+            or another model's identity from the keyframes (``jnr fit --views``' ``skinning``) with the rig's
+            52 ARKit shapes on it, each frame posed as a whole.
     """
 
     keyframes: int = 5
@@ -70,8 +75,11 @@ class TrackConfig:
     max_frames: int = MAX_FRAMES
     frame: TrackSettings = field(default_factory=TrackSettings)
     smooth: SmoothSettings = field(default_factory=SmoothSettings)
+    model: str = "jnr"
 
     def __post_init__(self) -> None:
+        if self.model not in head_model_kinds():
+            raise InputError(f"model must be one of {list(head_model_kinds())}, got {self.model!r}")
         if not (isinstance(self.keyframes, int) and 2 <= self.keyframes <= 30):
             raise InputError(f"keyframes must be an integer within [2, 30], got {self.keyframes!r}")
         if self.keyframe_choice not in ("poses", "time"):
@@ -392,18 +400,22 @@ def _track_frames(
         [landmarks[k].astype(np.float64) for k in keys],
         [clip.size] * len(keys),
         focals=[focal] * len(keys),
-        config=MultiViewConfig(fit_focal=False),
+        config=MultiViewConfig(fit_focal=False, skinning=config.model),
         rig=rig,
         layouts=[layout] * len(keys),
         progress=progress,
     )
-    head = fitted_head_from_params(identity_fit.rig_identity)
+    head = fitted_head_from_params(identity_fit.identity)
     seconds["identity"] = time.perf_counter() - t1
 
     # every frame
     t2 = time.perf_counter()
     rig64 = JointRig(rig.asset, dtype=torch.float64)
-    model = FrameModel(rig64, identity_fit.theta, head.weights, layout, focal, clip.size)
+    if head.model.posable:
+        model = FrameModel(rig64, identity_fit.theta, head.weights, layout, focal, clip.size)
+    else:  # another model's identity: the template's frame, the identity as an offset from it
+        offsets = head.vertices - np.asarray(rig.asset.vertices, np.float64)
+        model = FrameModel(rig64, np.zeros(NUM_PARAMETERS), None, layout, focal, clip.size, rest_offsets=offsets)
     weights = layout.weights("detector", 1.0, torch.float64).numpy()
     key_states = {
         k: FrameState(v.rotation, v.translation, np.asarray(v.expressions, np.float64))

@@ -269,3 +269,33 @@ def test_a_stream_without_an_index_warns_that_its_rate_may_be_a_guess(capsys, tm
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         assert open_clip(raw, fps=30.0).fps == 30.0  # a given rate: nothing to warn about
+
+
+def test_a_registered_head_model_is_tracked_without_other_code(capsys, tmp_path, clip, stretched_model):
+    """A throwaway head model (tests/pipeline/conftest.py, registered for this test only) as the clip's identity
+    (``--set model=KIND``): its parameter fitted on the keyframes, every frame's pose and coefficients on it, the
+    preview drawn, and a glTF of its head with the 52 shapes, animated."""
+    import pygltflib
+
+    from rig.geometry import head_angles
+
+    video, _, data = clip
+    out = tmp_path / "track"
+    code, _, err = _run(
+        capsys, "track", video, "--out", out, "--keyframes", "3", "--quiet", "--set", f"model={stretched_model.kind}"
+    )
+    assert code == 0, err
+    params = json.loads((out / "params.json").read_text())
+    assert params["model"] == stretched_model.kind and abs(params["grow"]) < 0.3
+    fitted = np.load(out / "params.npz")
+    assert params["track"]["frames"] == FRAMES and fitted["observed"].all()
+    error = np.abs(fitted["coefficients"] - data["coefficients"]).mean()
+    fitted_yaw = np.array([head_angles(r)[0] for r in fitted["rotations"]])
+    true_yaw = data["angles_deg"][:, 0]
+    assert error < 0.15, error  # the jnr identity: 0.048 (the test above); a stretched template is a worse one
+    assert abs((fitted_yaw[-1] - fitted_yaw[0]) - (true_yaw[-1] - true_yaw[0])) < 3.0
+    gltf = pygltflib.GLTF2().load(str(out / "track.glb"))
+    assert len(gltf.meshes[0].primitives[0].targets) == 52
+    paths = {channel.target.path for channel in gltf.animations[0].channels}
+    assert {"weights", "rotation"} <= paths
+    assert (out / "preview.mp4").stat().st_size > 0
