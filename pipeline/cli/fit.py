@@ -448,8 +448,9 @@ def _add_fit_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--skinning",
-        choices=("jnr", "asm"),
-        help="with --views: the identity model, jnr (the rig's joints, default) or asm (adaptive skinning)",
+        metavar="MODEL",
+        help="with --views: the identity model, jnr (the rig's joints, default), asm (adaptive skinning) or "
+        "another registered head model (one photo: --set model=MODEL)",
     )
     parser.add_argument("--config", help="YAML overriding the fitting settings (e.g. configs/fit_photo.yaml)")
     parser.add_argument("--set", action="append", metavar="KEY=VALUE", help="override one setting (repeatable)")
