@@ -271,7 +271,7 @@ def _method_heads(fit, seconds: float, template: np.ndarray, template_pose: tupl
     lfit = fit.landmark_fit
     t_rot, t_trans = template_pose
     return (
-        ("jnr", fit.rig_vertices, fit.rotation, fit.translation, float(fit.error_px.mean()), seconds),
+        ("jnr", fit.rig_vertices, fit.rotation, fit.translation, float(fit.landmarks.error_px.mean()), seconds),
         (
             "landmarks",
             head_vertices(rig, neural, lfit.theta, lfit.z, lfit.expressions),

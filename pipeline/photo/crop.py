@@ -10,6 +10,8 @@ import numpy as np
 import torch
 from kornia.geometry.camera import PinholeCamera
 
+from pipeline.camera import make_camera
+
 
 @dataclass(frozen=True)
 class Crop:
@@ -31,21 +33,8 @@ class Crop:
         s = self.scale
         cx, cy = (width - 1) / 2.0, (height - 1) / 2.0
         # pixel centres at integers: continuous coordinate u + 0.5 scales about the crop's corner
-        k = torch.tensor(
-            [
-                [focal * s, 0.0, (cx + 0.5 - self.x0) * s - 0.5, 0.0],
-                [0.0, focal * s, (cy + 0.5 - self.y0) * s - 0.5, 0.0],
-                [0.0, 0.0, 1.0, 0.0],
-                [0.0, 0.0, 0.0, 1.0],
-            ],
-            dtype=dtype,
-        )
-        return PinholeCamera(
-            k[None],
-            torch.eye(4, dtype=dtype)[None],
-            torch.tensor([float(self.size)], dtype=dtype),
-            torch.tensor([float(self.size)], dtype=dtype),
-        )
+        principal = ((cx + 0.5 - self.x0) * s - 0.5, (cy + 0.5 - self.y0) * s - 0.5)
+        return make_camera(self.size, self.size, focal * s, principal=principal, dtype=dtype, pose=False)
 
     def cut(self, image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(H, W, C)`` photo -> ``(size, size, C)`` float32 crop (area-averaged) and its ``(size, size)``

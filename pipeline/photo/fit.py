@@ -68,11 +68,53 @@ from pipeline.photo.landmark_fit import (
 from pipeline.photo.model_fit import fit_model_landmarks
 from pipeline.photo.photometric import fit_appearance
 from rig.errors import InputError
-from rig.expressions import ExpressionModel
+from rig.expressions import EXPRESSION_NAMES, ExpressionModel
 from rig.head_model import HeadParams, create
 from rig.model import JointRig
 from rig.optim import Progress
-from rig.skinning.neural import NeuralSkinning, load_neural
+from rig.parameters import NUM_PARAMETERS
+from rig.skinning.neural import LATENT, NeuralSkinning, load_neural
+
+
+@dataclass(frozen=True)
+class PhotoAppearance:
+    """The appearance a photo fit gives the head (fitted by the photometric stages; without them, the default,
+    shown values: grey albedo 0.5, ambient 0.35, irradiance 2 from the camera's upper left, for the pictures).
+
+    Attributes:
+        albedo: ``(V, 3)`` linear RGB per vertex (the start colour where never seen).
+        ambient, irradiance: ``(3,)`` linear RGB of the light.
+        light_camera, light_rig: ``(3,)`` the unit direction the light travels, in the camera frame (OpenCV) and
+            in rig space.
+    """
+
+    albedo: np.ndarray
+    ambient: np.ndarray
+    irradiance: np.ndarray
+    light_camera: np.ndarray
+    light_rig: np.ndarray
+
+
+@dataclass(frozen=True)
+class PhotoLandmarks:
+    """A photo fit's landmarks: the iBUG-68 points given and fitted, and the dense points it fitted, if any.
+
+    Attributes:
+        detected: ``(68, 2)`` the input landmarks; fitted: ``(68, 2)`` the fitted head's, pixels (OpenCV, 0-based).
+        error_px: ``(68,)`` their distances; nme: mean error / outer-eye-corner distance of ``detected``.
+        camera3d: ``(68, 3)`` the fitted landmarks in 3D, camera frame (OpenCV: x right, y down, z forward), mm:
+            the static embedding and the jaw contour as this camera sees it (projected: ``fitted``).
+        dense_camera3d: ``(N, 3)`` the points of the dense layout fitted (e.g. MediaPipe's 478) as ``camera3d``;
+            None when the 68 were fitted. dense_layout: that layout's name.
+    """
+
+    detected: np.ndarray
+    fitted: np.ndarray
+    error_px: np.ndarray
+    nme: float
+    camera3d: np.ndarray | None = None
+    dense_camera3d: np.ndarray | None = None
+    dense_layout: str | None = None
 
 
 @dataclass(frozen=True)
@@ -80,24 +122,13 @@ class PhotoFit:
     """Result of :func:`fit_photo`.
 
     Attributes:
-        theta, z, expressions: joint channels ``(P,)`` (deg, mm, ``scale - 1``), latent ``(50,)``,
-            expression coefficients ``(E,)``.
+        head: the fitted head as its head model's parameters (:class:`rig.head_model.HeadParams`; the outputs
+            build the head from them).
         rotation, translation: head pose, ``x_cam = RIG_TO_OPENCV @ rotation @ x_rig + translation`` (mm).
         focal, width, height: the pinhole (pixels; principal point at the image centre).
-        camera: the fitted ``PinholeCamera`` (world = rig space).
+        camera: the fitted ``PinholeCamera`` (world = rig space; it carries the pose).
         rig_vertices: ``(V, 3)`` the fitted head in rig space, mm.
-        albedo: ``(V, 3)`` linear RGB per vertex (the start colour where never seen).
-        ambient, irradiance: ``(3,)`` linear RGB of the light; light_direction_rig / _camera: ``(3,)``
-            unit direction the light travels, in rig space and in the camera frame. Without photometric
-            stages (the default) these are not fitted: grey albedo 0.5, ambient 0.35, irradiance 2 from the
-            camera's upper left, for the pictures.
-        landmarks2d: ``(68, 2)`` the input landmarks; landmarks_px: ``(68, 2)`` fitted, pixels;
-            error_px ``(68,)``; nme: mean error / outer-eye-corner distance.
-        landmarks3d_camera: ``(68, 3)`` the fitted landmarks in 3D, camera frame (OpenCV: x right, y down,
-            z forward), mm: the static embedding and the jaw contour as this camera sees it; projected with
-            the camera they are ``landmarks_px``.
-        dense3d_camera: ``(N, 3)`` with ``dense``: the fitted points of that layout (e.g. MediaPipe's 478) in
-            3D, camera frame, mm, as ``landmarks3d_camera``; None without. dense_layout: that layout's name.
+        appearance: :class:`PhotoAppearance`. landmarks: :class:`PhotoLandmarks`.
         landmark_fit: the landmark-only fit it started from.
         stages: one :class:`~pipeline.fitting.engine.StageLog` per photometric stage: every loss term,
             and the metrics ``photo`` (mean Charbonnier residual over the counted face pixels, linear RGB),
@@ -105,14 +136,11 @@ class PhotoFit:
             rejected at the stage's start), ``light_direction_camera``.
         crop: the photometric crop (None without photometric stages).
         timings: seconds per phase (``landmarks``, ``photometric``, ``total``).
-        head: the fitted head as its head model's parameters (:meth:`pipeline.fitting.state.FitState.head_params`),
-            what the outputs build the fitted head from (None: a record made before it, built from ``theta``,
-            ``z`` and ``expressions``).
+
+    ``theta``, ``z`` and ``expressions`` read the head's parameters as JNR's arrays (:meth:`jnr_arrays`).
     """
 
-    theta: np.ndarray
-    z: np.ndarray
-    expressions: np.ndarray
+    head: HeadParams
     rotation: np.ndarray
     translation: np.ndarray
     focal: float
@@ -120,23 +148,36 @@ class PhotoFit:
     height: int
     camera: PinholeCamera
     rig_vertices: np.ndarray
-    albedo: np.ndarray
-    ambient: np.ndarray
-    irradiance: np.ndarray
-    light_direction_rig: np.ndarray
-    light_direction_camera: np.ndarray
-    landmarks2d: np.ndarray
-    landmarks_px: np.ndarray
-    error_px: np.ndarray
-    nme: float
+    appearance: PhotoAppearance
+    landmarks: PhotoLandmarks
     landmark_fit: LandmarkFit
     stages: tuple[StageLog, ...]
     crop: Crop | None
     timings: dict
-    landmarks3d_camera: np.ndarray | None = None
-    dense3d_camera: np.ndarray | None = None
-    head: HeadParams | None = None
-    dense_layout: str | None = None
+
+    def jnr_arrays(self) -> dict[str, np.ndarray]:
+        """``theta (P,)`` (deg, mm, ``scale - 1``), ``z (50,)`` and ``expressions (E,)`` (ARKit): JNR's head's
+        parameters; for another head model, zeros but its ``expressions`` group when it has one of the rig's
+        length."""
+        values = self.head.values
+        expressions = np.zeros(len(EXPRESSION_NAMES))
+        if np.shape(values.get("expressions", ())) == expressions.shape:
+            expressions = np.asarray(values["expressions"], np.float64)
+        if self.head.kind == "jnr":
+            return {"theta": values["joints"], "z": values["latent"], "expressions": expressions}
+        return {"theta": np.zeros(NUM_PARAMETERS), "z": np.zeros(LATENT), "expressions": expressions}
+
+    @property
+    def theta(self) -> np.ndarray:
+        return self.jnr_arrays()["theta"]
+
+    @property
+    def z(self) -> np.ndarray:
+        return self.jnr_arrays()["z"]
+
+    @property
+    def expressions(self) -> np.ndarray:
+        return self.jnr_arrays()["expressions"]
 
 
 def check_photo(image) -> np.ndarray:
@@ -293,13 +334,10 @@ def fit_photo(
     t_photo = time.perf_counter() - t1
 
     v, projected, landmarks3d_camera, dense3d_camera, translation = _fitted_points(state, term, fit_term, dense)
-    values = state.arrays()
-    rotation = values["rotation"]
+    rotation = state.arrays()["rotation"]
     error, nme = landmark_errors(projected, lm)
+    light = appearance["light_camera"]
     return PhotoFit(
-        theta=values["theta"],
-        z=values["z"],
-        expressions=values["expressions"],
         head=state.head_params(),
         rotation=rotation,
         translation=translation,
@@ -308,20 +346,18 @@ def fit_photo(
         height=height,
         camera=make_camera(width, height, focal, rotation=rotation, translation=translation),
         rig_vertices=v.double().numpy(),
-        albedo=appearance["albedo"],
-        ambient=appearance["ambient"],
-        irradiance=appearance["irradiance"],
-        light_direction_camera=appearance["light_camera"],
-        light_direction_rig=camera_direction_to_rig(appearance["light_camera"], rotation),
-        landmarks2d=lm,
-        landmarks_px=projected,
-        error_px=error,
-        nme=nme,
+        appearance=PhotoAppearance(
+            appearance["albedo"],
+            appearance["ambient"],
+            appearance["irradiance"],
+            light,
+            camera_direction_to_rig(light, rotation),
+        ),
+        landmarks=PhotoLandmarks(
+            lm, projected, error, nme, landmarks3d_camera, dense3d_camera, None if layout is None else layout.name
+        ),
         landmark_fit=lfit,
         stages=stages,
         crop=crop,
-        landmarks3d_camera=landmarks3d_camera,
-        dense3d_camera=dense3d_camera,
-        dense_layout=None if layout is None else layout.name,
         timings={"landmarks": t_landmarks, "photometric": t_photo, "total": time.perf_counter() - t0},
     )

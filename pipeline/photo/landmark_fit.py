@@ -45,6 +45,7 @@ from pipeline.camera import default_focal, make_camera, solve_pose
 from pipeline.fitting.engine import LearningRates, Loss, Objective, Stage, StageLog, run_schedule
 from pipeline.fitting.landmark_term import NUM_LANDMARKS, BatchedLandmarks, LandmarkTerm, face_scale
 from pipeline.fitting.least_squares import LMSettings, StateVector, run_lm_stage
+from pipeline.fitting.model_state import ModelPhotoState
 from pipeline.fitting.priors import PriorWeights
 from pipeline.fitting.state import PhotoState
 from pipeline.fitting.terms import Inputs, Term, check_unique, term_values
@@ -68,6 +69,7 @@ __all__ = [
     "check_landmarks_2d_shape",
     "fit_landmarks",
     "landmark_inputs",
+    "landmark_result",
     "landmark_schedule",
     "lm_schedule",
 ]
@@ -206,9 +208,9 @@ class LandmarkFit:
             unit of the term.
         stages: one :class:`~pipeline.fitting.engine.StageLog` per stage (every loss term at its end).
         seconds: wall time of the whole fit.
-        head: the fitted head as its model's parameters when the model is not JNR's
-            (:func:`pipeline.photo.model_fit.fit_model_landmarks`; ``theta`` and ``z`` are then zeros); None: JNR's,
-            given by ``theta``, ``z`` and ``expressions``.
+        head: the fitted head as its model's parameters (:class:`rig.head_model.HeadParams`); for another model
+            than JNR's (:func:`pipeline.photo.model_fit.fit_model_landmarks`) ``theta`` and ``z`` are zeros and
+            ``expressions`` its own when it has them (None: a record made without a state).
     """
 
     theta: np.ndarray
@@ -328,7 +330,7 @@ def fit_landmarks(
         stages = _run_lm(state, term, all_terms, config, objective, progress, weights0)
     else:
         stages = run_schedule(state, config.stages, objective, config.lr, label="fit_landmarks", progress=progress)
-    return _landmark_result(state, term, lm, width, height, focal, stages, t_start)
+    return landmark_result(state, term, lm, width, height, focal, stages, t_start)
 
 
 def _check_pose(pose) -> tuple[np.ndarray, np.ndarray]:
@@ -422,8 +424,8 @@ def _run_lm(
     return tuple(logs)
 
 
-def _landmark_result(
-    state: PhotoState,
+def landmark_result(
+    state: PhotoState | ModelPhotoState,
     term: LandmarkTerm,
     lm: np.ndarray,
     width: int,
@@ -432,6 +434,7 @@ def _landmark_result(
     stages: tuple[StageLog, ...],
     t_start: float,
 ) -> LandmarkFit:
+    """The :class:`LandmarkFit` of a fit's ``state`` (JNR's or any head model's) at its end."""
     with torch.no_grad():
         v = state.rig_vertices()
         projected = term.project(state, v)
@@ -458,4 +461,5 @@ def _landmark_result(
         stages=stages,
         seconds=time.perf_counter() - t_start,
         layout=term.layout.name,
+        head=state.head_params(),
     )

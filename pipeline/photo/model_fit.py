@@ -26,8 +26,7 @@ from pipeline.fitting.landmark_term import LandmarkTerm, ModelLandmarks, face_sc
 from pipeline.fitting.least_squares import StateVector, run_lm_stage
 from pipeline.fitting.model_state import ModelPhotoState
 from pipeline.fitting.terms import Inputs, Term, check_unique, term_values
-from pipeline.metrics import landmark_errors
-from pipeline.photo.landmark_fit import LandmarkFit, LandmarkFitConfig, check_landmarks_2d_shape
+from pipeline.photo.landmark_fit import LandmarkFit, LandmarkFitConfig, check_landmarks_2d_shape, landmark_result
 from rig.errors import InputError
 from rig.head_model import HeadModel
 from rig.optim import Progress
@@ -149,39 +148,7 @@ def fit_model_landmarks(
         return Loss(term_values(all_terms, inputs))
 
     stages = _run_stages(state, term, all_terms, config, objective, progress)
-    return _result(state, term, lm, (width, height), focal, stages, t_start)
-
-
-def _result(state: ModelPhotoState, term: LandmarkTerm, lm, size, focal, stages, t_start) -> LandmarkFit:
-    width, height = size
-    with torch.no_grad():
-        v = state.rig_vertices()
-        projected = term.project(state, v)
-        data = float(term(state, v))
-        static3d = landmark_positions(v, term.embedding, term.faces)[0].double().numpy()
-        translation = state.translation.numpy().copy()
-    values = state.arrays()
-    losses = {s.name: s.loss_end for s in stages}
-    losses["data_px2"] = data
-    losses["face_scale"] = term.scale
-    error, nme = landmark_errors(projected, lm, term.layout.eye_corners)
-    return LandmarkFit(
-        theta=values["theta"],
-        z=values["z"],
-        expressions=values["expressions"],
-        rotation=values["rotation"],
-        translation=translation,
-        camera=make_camera(width, height, focal, rotation=values["rotation"], translation=translation),
-        landmarks_px=projected,
-        error_px=error,
-        nme=nme,
-        landmarks3d=static3d,
-        losses=losses,
-        stages=stages,
-        seconds=time.perf_counter() - t_start,
-        layout=term.layout.name,
-        head=state.head_params(),
-    )
+    return landmark_result(state, term, lm, width, height, focal, stages, t_start)
 
 
 __all__ = ["ModelLandmarkProblem", "fit_model_landmarks"]

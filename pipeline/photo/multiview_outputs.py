@@ -31,6 +31,7 @@ from pipeline.head.fitted import FittedHead, fitted_head_from_params
 from pipeline.head.params import params_payload as head_params_payload
 from pipeline.head.skinned import write_skinned_head
 from pipeline.photo.detection import name_photo, photo_landmarks
+from pipeline.photo.fit import PhotoAppearance
 from pipeline.photo.inputs import sidecar_landmarks
 from pipeline.photo.multiview import MultiViewConfig, MultiViewFit, fit_multiview
 from pipeline.photo.outputs import (
@@ -58,10 +59,7 @@ class _ViewLook:
     """What :func:`pipeline.photo.outputs.render_fit` and ``texture_from_fit`` read of a fit, for one view."""
 
     rig_vertices: np.ndarray
-    albedo: np.ndarray
-    ambient: np.ndarray
-    irradiance: np.ndarray
-    light_direction_rig: np.ndarray
+    appearance: PhotoAppearance
     camera: object
     width: int
     height: int
@@ -72,10 +70,13 @@ def _look(view, n_vertices: int) -> _ViewLook:
     light_cam = np.array([0.3, 0.4, 1.0]) / np.linalg.norm([0.3, 0.4, 1.0])  # as the single-photo fit's pictures
     return _ViewLook(
         rig_vertices=view.rig_vertices,
-        albedo=np.full((n_vertices, 3), 0.5),
-        ambient=np.full(3, 0.35),
-        irradiance=np.full(3, 2.0),
-        light_direction_rig=camera_direction_to_rig(light_cam, view.rotation),
+        appearance=PhotoAppearance(
+            np.full((n_vertices, 3), 0.5),
+            np.full(3, 0.35),
+            np.full(3, 2.0),
+            light_cam,
+            camera_direction_to_rig(light_cam, view.rotation),
+        ),
         camera=view.camera,
         width=view.width,
         height=view.height,

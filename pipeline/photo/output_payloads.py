@@ -20,7 +20,7 @@ from pipeline.camera import camera_from_head_pose
 from pipeline.config import config_to_dict
 from pipeline.files import json_safe
 from pipeline.head.curves import Curves
-from pipeline.head.fitted import FittedHead, fitted_head, fitted_head_from_arrays, fitted_head_from_params
+from pipeline.head.fitted import FittedHead, fitted_head, fitted_head_from_params
 from pipeline.head.params import UNITS, ParamsFileError, load_params_file, read_params
 from pipeline.head.params import params_payload as head_params_payload
 from pipeline.photo.fit import PhotoFit
@@ -37,7 +37,7 @@ PHOTO_UNITS = {**UNITS, "pixels": "OpenCV, 0-based"}
 
 def landmarks3d_payload(fit: PhotoFit) -> dict:
     """``landmarks3d.json``: the fitted 3D landmarks in the camera frame (mm), by iBUG-68 name."""
-    points = np.asarray(fit.landmarks3d_camera, np.float64)
+    points = np.asarray(fit.landmarks.camera3d, np.float64)
     return {
         "format": "jnr-landmarks3d/1",
         "frame": "camera (OpenCV: x right, y down, z forward)",
@@ -56,11 +56,11 @@ def mesh_units(units: str) -> tuple[float, str]:
 
 def landmarks3d_mesh_points(fit: PhotoFit, camera_points: np.ndarray | None = None) -> np.ndarray:
     """``(N, 3)`` fitted landmarks in the mesh's own frame (rig space: ``mesh.obj``'s, mm): ``camera_points
-    (N, 3)`` (default ``fit.landmarks3d_camera``, the 68, the jaw contour as the camera saw it) taken back
+    (N, 3)`` (default ``fit.landmarks.camera3d``, the 68, the jaw contour as the camera saw it) taken back
     through the head pose (the inverse of :func:`pipeline.camera.camera_from_head_pose`), so they lie on
     ``mesh.obj``."""
     extrinsics = camera_from_head_pose(fit.rotation, fit.translation)  # rig -> camera
-    camera = np.asarray(fit.landmarks3d_camera if camera_points is None else camera_points, np.float64)
+    camera = np.asarray(fit.landmarks.camera3d if camera_points is None else camera_points, np.float64)
     return (camera - extrinsics[:3, 3]) @ extrinsics[:3, :3]
 
 
@@ -84,13 +84,13 @@ def dense_landmarks_payload(fit: PhotoFit, units: str = "mm") -> dict | None:
     """``landmarks3d_mediapipe.json``: the points of the dense layout the fit used (MediaPipe's 478, in its
     Face Mesh index order; the iris points 468-477 on the eyeballs) in ``mesh.obj``'s frame and ``units``;
     None for a fit of the 68 iBUG points."""
-    if fit.dense3d_camera is None:
+    if fit.landmarks.dense_camera3d is None:
         return None
     scale, _ = mesh_units(units)
-    points = landmarks3d_mesh_points(fit, fit.dense3d_camera) * scale
+    points = landmarks3d_mesh_points(fit, fit.landmarks.dense_camera3d) * scale
     return {
         "format": "jnr-landmarks3d/1",
-        "layout": fit.dense_layout,
+        "layout": fit.landmarks.dense_layout,
         "frame": "mesh (mesh.obj's rig space: x the subject's left, +Y up, +Z out of the face)",
         "units": units,
         "names": [str(i) for i in range(len(points))],
@@ -153,8 +153,6 @@ def photo_head(fit: PhotoFit, model: JnrHead | None = None) -> FittedHead:
     """The :class:`~pipeline.head.fitted.FittedHead` of a photo fit (float64, from ``model`` when it is of the
     fit's head model: default the committed rig and learned skinning), from the head model's parameters the fit
     returned."""
-    if fit.head is None:
-        return fitted_head_from_arrays(fit.theta, fit.z, fit.expressions, model=model)
     return fitted_head_from_params(fit.head, model=model)
 
 
@@ -192,10 +190,10 @@ def params_payload(
         },
         light={
             "model": "ambient + directional, Lambertian: a * ambient + a / pi * irradiance * max(0, n . -d)",
-            "ambient_rgb": [float(x) for x in fit.ambient],
-            "irradiance_rgb": [float(x) for x in fit.irradiance],
-            "direction_rig": [float(x) for x in fit.light_direction_rig],
-            "direction_camera": [float(x) for x in fit.light_direction_camera],
+            "ambient_rgb": [float(x) for x in fit.appearance.ambient],
+            "irradiance_rgb": [float(x) for x in fit.appearance.irradiance],
+            "direction_rig": [float(x) for x in fit.appearance.light_rig],
+            "direction_camera": [float(x) for x in fit.appearance.light_camera],
         },
         albedo="per-vertex linear RGB in mesh.ply / mesh.obj (sRGB-encoded there)",
     )
@@ -252,10 +250,10 @@ def report_payload(
     f = float(image_factor)
     report = {
         "landmarks": {
-            "mean_error_px": f * float(fit.error_px.mean()),
-            "median_error_px": f * float(np.median(fit.error_px)),
-            "max_error_px": f * float(fit.error_px.max()),
-            "nme_inter_ocular": float(fit.nme),
+            "mean_error_px": f * float(fit.landmarks.error_px.mean()),
+            "median_error_px": f * float(np.median(fit.landmarks.error_px)),
+            "max_error_px": f * float(fit.landmarks.error_px.max()),
+            "nme_inter_ocular": float(fit.landmarks.nme),
             "landmark_fit_mean_error_px": f * float(lfit.error_px.mean()),
             "landmark_fit_nme": float(lfit.nme),
             "fitted_at_reduction": int(image_factor),

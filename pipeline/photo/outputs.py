@@ -170,7 +170,7 @@ def _write_render(job: OutputJob, folder: Path) -> None:
 
 def _write_overlay(job: OutputJob, folder: Path) -> None:
     fit = job.fit
-    overlay = overlay_image(job.photo, job.render, job.face_mask, fit.landmarks2d, fit.landmarks_px)
+    overlay = overlay_image(job.photo, job.render, job.face_mask, fit.landmarks.detected, fit.landmarks.fitted)
     _save_png(overlay, folder / "overlay.png")
 
 
@@ -198,7 +198,7 @@ def _write_viewer(job: OutputJob, folder: Path) -> None:
         latent_z=job.fit.z,
         three_src=None if shared is None else shared_three_src(job.out_dir, shared),
         title=f"jnr fit: {name}",
-        subtitle=f"landmark NME {float(job.fit.nme):.3f}",
+        subtitle=f"landmark NME {float(job.fit.landmarks.nme):.3f}",
     )
 
 
@@ -218,8 +218,8 @@ _STAGES = (
             json_output("params.json", lambda job: job.params, always=True),
             PhotoOutput(("render.png",), _write_render),
             PhotoOutput(("overlay.png",), _write_overlay),
-            pts_output("landmarks.pts", lambda fit: fit.landmarks2d),
-            pts_output("landmarks_fitted.pts", lambda fit: fit.landmarks_px),
+            pts_output("landmarks.pts", lambda fit: fit.landmarks.detected),
+            pts_output("landmarks_fitted.pts", lambda fit: fit.landmarks.fitted),
             json_output("landmarks3d.json", lambda job: landmarks3d_payload(job.fit)),
             json_output("landmarks3d_mesh.json", lambda job: landmarks3d_mesh_payload(job.fit, job.units)),
             text_output("landmarks3d.pp", lambda job: meshlab_picked_points(job.mesh_landmarks, IBUG68_NAMES)),

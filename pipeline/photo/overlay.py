@@ -49,11 +49,11 @@ def render_fit(
             raise InputError(f"render_fit: unknown mask_regions {unknown}; the regions are {list(asset.region_names)}")
         region_ids = [asset.region_names.index(r) for r in mask_regions]
     v = torch.as_tensor(fit.rig_vertices, dtype=torch.float32)
-    albedo = torch.as_tensor(fit.albedo, dtype=torch.float32)
+    albedo = torch.as_tensor(fit.appearance.albedo, dtype=torch.float32)
     light = Lighting(
-        torch.as_tensor(fit.ambient, dtype=torch.float32),
-        torch.as_tensor(fit.irradiance, dtype=torch.float32),
-        torch.as_tensor(fit.light_direction_rig, dtype=torch.float32),
+        torch.as_tensor(fit.appearance.ambient, dtype=torch.float32),
+        torch.as_tensor(fit.appearance.irradiance, dtype=torch.float32),
+        torch.as_tensor(fit.appearance.light_rig, dtype=torch.float32),
     )
     renderer = DifferentiableRenderer(
         v,

@@ -133,8 +133,8 @@ def _fit_and_write(
     return {
         "photo": str(photo_path),
         "output": str(out),
-        "mean_error_px": float(fit.error_px.mean()) * k,
-        "nme": float(fit.nme),
+        "mean_error_px": float(fit.landmarks.error_px.mean()) * k,
+        "nme": float(fit.landmarks.nme),
         "seconds": time.perf_counter() - t0,
         "fit_seconds": fit.timings["total"],
         "face": source.get("face_index"),

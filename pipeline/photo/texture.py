@@ -447,7 +447,7 @@ def texture_from_fit(
         )
     intrinsics = fit.camera.intrinsics[0].detach().double().numpy()
     extrinsics = fit.camera.extrinsics[0].detach().double().numpy()
-    fill = linear_to_srgb(np.asarray(fit.albedo, np.float64)) if len(fit.stages) else None
+    fill = linear_to_srgb(np.asarray(fit.appearance.albedo, np.float64)) if len(fit.stages) else None
     skin = None
     if regions is not None and skin_region_ids is not None:
         skin = np.isin(np.asarray(regions)[np.asarray(faces)[:, 0]], list(skin_region_ids))

@@ -51,9 +51,10 @@ def hand_fit(asset):
     from landmarks.ibug68.embedding import ibug68_embedding
     from landmarks.ibug68.positions import landmark_positions
     from pipeline.camera import make_camera
-    from pipeline.photo.fit import PhotoFit
+    from pipeline.photo.fit import PhotoAppearance, PhotoFit, PhotoLandmarks
     from pipeline.photo.landmark_fit import LandmarkFit
     from rig.expressions import EXPRESSION_NAMES
+    from rig.head_model import HeadParams
     from rig.parameters import NUM_PARAMETERS
 
     rotation, translation = head_rotation(20.0, 0.0, 0.0), np.array([0.0, 0.0, 600.0])
@@ -79,10 +80,9 @@ def hand_fit(asset):
         stages=(),
         seconds=0.0,
     )
+    head = HeadParams("jnr", {"joints": theta, "latent": z, "expressions": expressions})
     return PhotoFit(
-        theta=theta,
-        z=z,
-        expressions=expressions,
+        head=head,
         rotation=rotation,
         translation=translation,
         focal=FOCAL,
@@ -90,20 +90,18 @@ def hand_fit(asset):
         height=HEIGHT,
         camera=camera,
         rig_vertices=v,
-        albedo=np.full((len(v), 3), 0.5),
-        ambient=np.full(3, 0.6),
-        irradiance=np.zeros(3),
-        light_direction_rig=np.array([0.0, 0.0, -1.0]),
-        light_direction_camera=np.array([0.0, 0.0, 1.0]),
-        landmarks2d=px,
-        landmarks_px=px,
-        error_px=np.zeros(68),
-        nme=0.0,
+        appearance=PhotoAppearance(
+            albedo=np.full((len(v), 3), 0.5),
+            ambient=np.full(3, 0.6),
+            irradiance=np.zeros(3),
+            light_camera=np.array([0.0, 0.0, 1.0]),
+            light_rig=np.array([0.0, 0.0, -1.0]),
+        ),
+        landmarks=PhotoLandmarks(px, px, np.zeros(68), 0.0, cam),
         landmark_fit=lfit,
         stages=(),
         crop=None,
         timings={},
-        landmarks3d_camera=cam,
     )
 
 
@@ -327,7 +325,8 @@ def test_a_photometric_fit_fills_with_its_albedo(hand_fit, asset):
     from pipeline.colour import linear_to_srgb
     from pipeline.photo.texture import texture_from_fit
 
-    fit = replace(hand_fit, stages=("a stage",), albedo=np.tile([0.2, 0.1, 0.05], (len(asset.vertices), 1)))
+    albedo = np.tile([0.2, 0.1, 0.05], (len(asset.vertices), 1))
+    fit = replace(hand_fit, stages=("a stage",), appearance=replace(hand_fit.appearance, albedo=albedo))
     tex = texture_from_fit(coordinate_photo(), fit, asset.faces, asset.face_uvs, size=128)
     unseen = (tex.face >= 0) & (tex.photo_weight == 0)
     assert tex.fill == "vertex colours" and unseen.sum() > 1000
@@ -369,7 +368,7 @@ class TestOverlay:
         overlay = np.asarray(Image.open(out_dir / "overlay.png"))
         ys, xs = np.mgrid[0:HEIGHT, 0:WIDTH]
         near_marker = np.zeros((HEIGHT, WIDTH), bool)
-        for x, y in hand_fit.landmarks_px:
+        for x, y in hand_fit.landmarks.fitted:
             near_marker |= (xs - x) ** 2 + (ys - y) ** 2 < 6.0**2
         keep = (face == 0) & ~near_marker
         np.testing.assert_array_equal(overlay[keep], coordinate_photo()[keep])
