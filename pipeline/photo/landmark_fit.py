@@ -70,6 +70,7 @@ __all__ = [
     "fit_landmarks",
     "landmark_inputs",
     "landmark_result",
+    "run_lm_stages",
     "landmark_schedule",
     "lm_schedule",
 ]
@@ -408,11 +409,23 @@ def _run_lm(
     end, so both solvers report the same figures."""
     with torch.no_grad():  # the skinning weights of the state's latent (given: those of Z = 0, already decoded)
         weights = (state.weights() if weights is None else weights).double()
+
+    def problem(stage: Stage) -> LandmarkProblem:
+        return LandmarkProblem(state, term, weights, stage.free)
+
+    return run_lm_stages(config.lm_stages, problem, terms, config, objective, progress)
+
+
+def run_lm_stages(
+    stages, make_problem, terms: tuple[Term, ...], config: LandmarkFitConfig, objective: Objective, progress
+) -> tuple[StageLog, ...]:
+    """``stages`` one after another by :func:`pipeline.fitting.least_squares.run_lm_stage` (later stages start
+    where the previous one ended), each on ``make_problem(stage)``'s problem and ``terms``, with
+    ``config.lm``'s settings; every term of ``objective`` logged at each stage's start and end."""
     logs: list[StageLog] = []
-    for stage in config.lm_stages:  # later stages start where the previous one ended
-        problem = LandmarkProblem(state, term, weights, stage.free)
+    for stage in stages:
         log = run_lm_stage(
-            problem,
+            make_problem(stage),
             terms,
             stage,
             config.lm,

@@ -23,30 +23,32 @@ from landmarks.layout import LandmarkLayout, ibug68_layout
 from pipeline.camera import default_focal, make_camera, solve_pose
 from pipeline.fitting.engine import Loss, StageLog, run_schedule
 from pipeline.fitting.landmark_term import LandmarkTerm, ModelLandmarks, face_scale
-from pipeline.fitting.least_squares import StateVector, run_lm_stage
+from pipeline.fitting.least_squares import StateVector
 from pipeline.fitting.model_state import ModelPhotoState
 from pipeline.fitting.terms import Inputs, Term, check_unique, term_values
-from pipeline.photo.landmark_fit import LandmarkFit, LandmarkFitConfig, check_landmarks_2d_shape, landmark_result
+from pipeline.photo.landmark_fit import (
+    LandmarkFit,
+    LandmarkFitConfig,
+    LandmarkProblem,
+    check_landmarks_2d_shape,
+    landmark_result,
+    run_lm_stages,
+)
 from rig.errors import InputError
 from rig.head_model import HeadModel
 from rig.optim import Progress
 
 
-class ModelLandmarkProblem:
+class ModelLandmarkProblem(LandmarkProblem):
     """One LM stage of a head model's landmark fit (:class:`~pipeline.fitting.least_squares.LeastSquaresProblem`):
     ``x`` = the stage's free groups of ``state`` (:class:`~pipeline.fitting.least_squares.StateVector`), the
-    landmark pixels of a batch of ``x`` by :class:`~pipeline.fitting.landmark_term.ModelLandmarks`."""
+    landmark pixels of a batch of ``x`` by :class:`~pipeline.fitting.landmark_term.ModelLandmarks` (the packing,
+    the box and the contour's re-pick are :class:`~pipeline.photo.landmark_fit.LandmarkProblem`'s)."""
 
     def __init__(self, state: ModelPhotoState, term: LandmarkTerm, free: tuple[str, ...]) -> None:
         self.state = state
         self.vector = StateVector(state, free)
         self.landmarks = ModelLandmarks(term, state.model, state.group_names, free)
-
-    def pack(self) -> torch.Tensor:
-        return self.vector.pack()
-
-    def bounds(self) -> tuple[torch.Tensor, torch.Tensor]:
-        return self.vector.bounds()
 
     def inputs(self, x: torch.Tensor) -> Inputs:
         v = self.vector.unpack(x)
@@ -55,14 +57,6 @@ class ModelLandmarkProblem:
         p = Inputs(values, landmarks_px=lambda: self.landmarks.pixels(p))
         return p
 
-    def prepare(self, x: torch.Tensor) -> None:
-        """Write ``x`` into the state and re-pick the contour from its camera centre."""
-        self.vector.write(x)
-        self.landmarks.prepare(self.inputs(x[None]), self.state.camera_center())
-
-    def write(self, x: torch.Tensor) -> None:
-        self.vector.write(x)
-
 
 def _run_stages(
     state: ModelPhotoState, term: LandmarkTerm, terms: tuple[Term, ...], config: LandmarkFitConfig, objective, progress
@@ -70,23 +64,10 @@ def _run_stages(
     if config.solver != "lm":
         stages = tuple(replace(s, free=state.available(s.free)) for s in config.stages)
         return run_schedule(state, stages, objective, config.lr, label="fit_landmarks", progress=progress)
-    logs: list[StageLog] = []
-    for stage in config.lm_stages:
-        free = state.available(stage.free)
-        if not free:
-            continue
-        problem = ModelLandmarkProblem(state, term, free)
-        log = run_lm_stage(
-            problem,
-            terms,
-            replace(stage, free=free),
-            config.lm,
-            objective=objective,
-            loss_start=logs[-1].loss_end if logs else None,
-            progress=progress,
-        )
-        logs.append(log)
-    return tuple(logs)
+    stages = [replace(s, free=state.available(s.free)) for s in config.lm_stages if state.available(s.free)]
+    return run_lm_stages(
+        stages, lambda stage: ModelLandmarkProblem(state, term, stage.free), terms, config, objective, progress
+    )
 
 
 def fit_model_landmarks(
