@@ -13,7 +13,7 @@ def test_python_example_runs(capsys):
     exec(compile(block, "README.md", "exec"), namespace)
     fit, vertices = namespace["fit"], namespace["vertices"]
     assert fit.rig_vertices.shape == (4874, 3) and tuple(vertices.shape) == (1, 4874, 3)
-    assert 0 < fit.nme < 0.2 and fit.landmark_fit.stages and not fit.stages  # photometric off
+    assert 0 < fit.landmarks.nme < 0.2 and fit.landmark_fit.stages and not fit.stages  # photometric off
     assert "landmarks_px2" in fit.landmark_fit.stages[-1].terms
 
 

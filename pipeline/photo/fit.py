@@ -39,6 +39,7 @@ there, as for the landmarks); the light is reported in rig space as well
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -156,14 +157,14 @@ class PhotoFit:
     timings: dict
 
     def jnr_arrays(self) -> dict[str, np.ndarray]:
-        """``theta (P,)`` (deg, mm, ``scale - 1``), ``z (50,)`` and ``expressions (E,)`` (ARKit): JNR's head's
-        parameters; for another head model, zeros but its ``expressions`` group when it has one of the rig's
-        length."""
+        """``theta (P,)`` (deg, mm, ``scale - 1``), ``z (50,)`` and ``expressions (E,)`` (ARKit): the head's
+        ``joints``, ``latent`` and ``expressions`` groups when it has them at the rig's sizes (JNR's head), else
+        zeros."""
         values = self.head.values
         expressions = np.zeros(len(EXPRESSION_NAMES))
         if np.shape(values.get("expressions", ())) == expressions.shape:
             expressions = np.asarray(values["expressions"], np.float64)
-        if self.head.kind == "jnr":
+        if np.shape(values.get("joints", ())) == (NUM_PARAMETERS,) and np.shape(values.get("latent", ())) == (LATENT,):
             return {"theta": values["joints"], "z": values["latent"], "expressions": expressions}
         return {"theta": np.zeros(NUM_PARAMETERS), "z": np.zeros(LATENT), "expressions": expressions}
 
@@ -193,24 +194,45 @@ def check_photo(image) -> np.ndarray:
     return img
 
 
-def _models(
-    config: FitPhotoConfig, rig: JointRig | None, neural: NeuralSkinning | None
-) -> tuple[JointRig, NeuralSkinning | None]:
-    """The rig (default: the committed one) and its learned skinning, loaded unless the config fits without it."""
-    rig = rig or JointRig()
-    if not config.landmarks.use_neural or config.model != "jnr":
+def _jnr_landmark_fit(fitted, size, focal, config: FitPhotoConfig, rig: JointRig, neural, progress, layout):
+    """JNR's own landmark fit (its rig state, the landmark term's fast path, its priors) and the state the
+    photometric stages go on with: ``(LandmarkFit, PhotoState)``."""
+    if not config.landmarks.use_neural:
         neural = None
     elif neural is None:
         neural, _ = load_neural(rig)
-    return rig, neural
-
-
-def _photo_state(rig: JointRig, neural: NeuralSkinning | None, lfit: LandmarkFit) -> PhotoState:
-    """The photometric fit's state (pose, joints, Z, expressions), started where the landmark fit ended."""
+    width, height = size
+    lfit = fit_landmarks(
+        fitted,
+        width,
+        height,
+        focal=focal,
+        config=config.landmarks,
+        rig=rig,
+        neural=neural,
+        progress=progress,
+        layout=layout,
+    )
     dtype = rig.template.dtype
     state = PhotoState(rig, neural, ExpressionModel(rig.asset, dtype=dtype), lfit.rotation, lfit.translation)
     state.load(lfit.theta, lfit.z, lfit.expressions)
-    return state
+    return lfit, state
+
+
+def _model_landmark_fit(fitted, size, focal, config: FitPhotoConfig, rig: JointRig, neural, progress, layout):
+    """Any registered head model's landmark fit (:mod:`pipeline.photo.model_fit`): ``(LandmarkFit,
+    ModelPhotoState)``."""
+    model = create(config.model, asset=rig.asset)
+    lfit = fit_model_landmarks(
+        fitted, *size, model, focal=focal, config=config.landmarks, progress=progress, layout=layout
+    )
+    return lfit, ModelPhotoState(model, lfit.rotation, lfit.translation, params=lfit.head)
+
+
+PHOTO_FITS: dict[str, Callable] = {"jnr": _jnr_landmark_fit}
+"""The head models with a photo fit of their own, by kind (JNR's: its rig state with the photometric stages'
+appearance); every other registered model takes the generic one (:mod:`pipeline.photo.model_fit`), without
+photometric stages."""
 
 
 def _landmark_terms(
@@ -305,27 +327,15 @@ def fit_photo(
     lm = check_landmarks_2d_shape(landmarks2d)
     height, width = photo.shape[:2]
     focal = default_focal(width, height) if focal is None else check_focal(focal, width, height)
-    rig, neural = _models(config, rig, neural)
+    rig = rig or JointRig()
     fitted, layout = (lm, None) if dense is None else dense
-    model = None if config.model == "jnr" else create(config.model, asset=rig.asset)
-    if model is None:
-        lfit = fit_landmarks(
-            fitted,
-            width,
-            height,
-            focal=focal,
-            config=config.landmarks,
-            rig=rig,
-            neural=neural,
-            progress=progress,
-            layout=layout,
+    if config.model not in PHOTO_FITS and config.photometric.enabled:
+        own = ", ".join(PHOTO_FITS)
+        raise InputError(
+            f"the photometric stages fit a model with a photo fit of its own ({own}), not {config.model!r}"
         )
-        state: PhotoState | ModelPhotoState = _photo_state(rig, neural, lfit)
-    else:
-        lfit = fit_model_landmarks(
-            fitted, width, height, model, focal=focal, config=config.landmarks, progress=progress, layout=layout
-        )
-        state = ModelPhotoState(model, lfit.rotation, lfit.translation, params=lfit.head)
+    fit = PHOTO_FITS.get(config.model, _model_landmark_fit)
+    lfit, state = fit(fitted, (width, height), focal, config, rig, neural, progress, layout)
     t_landmarks = time.perf_counter() - t0
 
     term, fit_term = _landmark_terms(rig.asset, state.dtype, lm, dense, lfit, (width, height), focal, config)

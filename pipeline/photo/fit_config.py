@@ -214,5 +214,3 @@ class FitPhotoConfig:
     def __post_init__(self) -> None:
         if self.model not in head_model_kinds():
             raise InputError(f"model must be one of {list(head_model_kinds())}, got {self.model!r}")
-        if self.model != "jnr" and self.photometric.enabled:
-            raise InputError(f"the photometric stages fit the jnr head only, not model {self.model!r}")

@@ -308,9 +308,7 @@ def views_identity_model(kind: str):
     """The identity step of head model ``kind`` on top of the joints' fit: its own
     (:data:`~pipeline.photo.multiview_asm.VIEWS_IDENTITY_MODELS`), the generic one of a registered head model
     (:func:`~pipeline.photo.multiview_model.model_views_identity`), or None for ``jnr`` (the joints' own)."""
-    if kind == "jnr":
-        return None
-    return VIEWS_IDENTITY_MODELS.get(kind) or model_views_identity(kind)
+    return VIEWS_IDENTITY_MODELS[kind] if kind in VIEWS_IDENTITY_MODELS else model_views_identity(kind)
 
 
 def _problem(

@@ -196,7 +196,9 @@ def asm_views_identity(
     return fit_asm_identity(problem, rows, source, config.asm)
 
 
-VIEWS_IDENTITY_MODELS = {"asm": asm_views_identity}
-"""The identity models the views fit puts on top of the joints' (``skinning:`` other than ``jnr``), by kind:
-each ``(problem, rows, averaged, refined, config) -> (identity, per-view vertices, parameters, logs, state)``.
+VIEWS_IDENTITY_MODELS = {"jnr": None, "asm": asm_views_identity}
+"""The head models with a views identity of their own, by kind: None for the joints' (``jnr``: the views fit
+itself), else the identity model the views fit puts on top of the joints', ``(problem, rows, averaged, refined,
+config) -> (identity, per-view vertices, parameters, logs, state)``; any other registered model takes the generic
+one (:mod:`pipeline.photo.multiview_model`).
 """

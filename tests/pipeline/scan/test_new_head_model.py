@@ -4,6 +4,7 @@
 import json
 
 import numpy as np
+import pytest
 import torch
 from torch import nn
 
@@ -75,6 +76,7 @@ def test_a_registered_head_model_is_fitted_by_fit_scan_without_other_code(asset)
         SCAN_STATES.pop("test_stretched", None)
 
 
+@pytest.mark.slow  # 8 s: two scan fits
 def test_a_head_model_registered_only_as_a_head_model_is_fitted_by_fit_scan(stretched_model, asset, tmp_path):
     """No scan state of its own: the generic state over its groups (pipeline.fitting.model_state)."""
     truth_grow, rotation, translation = -0.06, head_rotation(-10.0, 6.0, -2.0), np.array([-3.0, 5.0, 40.0])
