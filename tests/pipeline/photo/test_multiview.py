@@ -286,6 +286,7 @@ def test_cli_skinning_without_views_is_a_one_line_error(capsys, tmp_path, view_p
     assert code == 2 and "--skinning applies to --views" in err and err.strip().count("\n") == 0
 
 
+@pytest.mark.slow  # 10 s: three views' dense fits
 def test_multiview_with_dense_points_beats_the_best_single_view(three_views):
     """The same three views through MediaPipe's 478-point layout (true points, outline picked on each view's
     silhouette, 0.3 px noise): the shared identity is better than every single view's, and each view's

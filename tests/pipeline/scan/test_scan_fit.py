@@ -310,6 +310,7 @@ def test_cli_eval_scans(tmp_path, capsys):
 # ------------------------------------------------------------------------------------ large clouds
 
 
+@pytest.mark.slow  # 7 s: a 1.2 M point scan read and fitted
 def test_cli_fit_scan_subsamples_a_dense_scan_and_fits_it(scan_file, asset):
     """1.2 M points (a simulated scan, jittered copies): subsampled right after reading, so the fit, the
     error map and the report all see the same 50 000 points."""
