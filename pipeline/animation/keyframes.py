@@ -11,12 +11,12 @@ import numpy as np
 import torch
 
 from pipeline.files import check_output, staged_file
+from pipeline.fitting.landmark_term import expressions64
 from pipeline.head.curves import HEAD_JOINT, Curves, head_rotation_matrices
 from pipeline.head.fitted import FittedHead, read_fit_folder
 from pipeline.head.skinned import write_skinned_head
 from render.preview import render_preview
 from rig.asset import load_asset
-from rig.expressions import ExpressionModel
 from rig.io.atomic import write_bytes_atomic
 from rig.io.gltf import GltfAnimation
 from rig.joints import JOINT_INDEX
@@ -57,7 +57,7 @@ def static_frames(head: FittedHead, coefficients: np.ndarray) -> np.ndarray:
     """``(T, V, 3)`` mm: a head the joints do not pose (:attr:`rig.head_model.HeadModel.posable`) with
     ``coefficients (T, 52)``: its vertices plus the rig's expression offsets (as its glTF's morph targets)."""
     with torch.no_grad():
-        offsets = ExpressionModel(head.asset, dtype=torch.float64)(torch.as_tensor(coefficients, dtype=torch.float64))
+        offsets = expressions64(head.asset)(torch.as_tensor(coefficients, dtype=torch.float64))
     return np.asarray(head.vertices, np.float64)[None] + offsets.numpy()
 
 

@@ -57,6 +57,23 @@ def _flat_initial(model: HeadModel) -> dict[str, np.ndarray]:
     return out
 
 
+def jnr_arrays(params: HeadParams) -> dict[str, np.ndarray]:
+    """``theta (P,)`` (deg, mm, ``scale - 1``), ``z (50,)`` and ``expressions (E,)`` (ARKit) of a head's parameters:
+    its ``joints``, ``latent`` and ``expressions`` groups where it has them at the rig's sizes (JNR's head), zeros
+    where not (what a result record of another model holds in JNR's fields)."""
+    values = params.values
+
+    def group(name: str, size: int) -> np.ndarray:
+        value = values.get(name)
+        return np.asarray(value, np.float64) if np.shape(value) == (size,) else np.zeros(size)
+
+    return {
+        "theta": group("joints", NUM_PARAMETERS),
+        "z": group("latent", LATENT),
+        "expressions": group("expressions", len(EXPRESSION_NAMES)),
+    }
+
+
 class ModelState(GroupedParameters):
     """A head model's parameters and the head's rotation and translation (the states below say where to).
 
@@ -139,6 +156,12 @@ class ModelState(GroupedParameters):
         """``(V, 3)`` the model's head in rig space, mm (:meth:`~rig.head_model.HeadModel.vertices`)."""
         return self.model.vertices(self.values(free))[0].to(torch.float64)
 
+    def set_pose(self, rotation: np.ndarray, translation: np.ndarray) -> None:
+        """Place the head: ``(3, 3)``, ``(3,)`` mm."""
+        with torch.no_grad():
+            self.rotvec.copy_(torch.as_tensor(Rotation.from_matrix(rotation).as_rotvec()))
+            self.translation.copy_(torch.as_tensor(translation, dtype=torch.float64))
+
     def rotation(self) -> torch.Tensor:
         """``(3, 3)`` head rotation from ``rotvec``."""
         return axis_angle_to_rotation_matrix(self.rotvec[None])[0]
@@ -154,20 +177,10 @@ class ModelState(GroupedParameters):
         return tuple(own(weights)) if callable(own) else ()
 
     def arrays(self) -> dict[str, np.ndarray]:
-        """JNR's arrays of a result record: ``theta`` and ``z`` zeros (the template's), ``expressions`` the model's
-        ``expressions`` group when it has one of the rig's length (else zeros), ``rotation (3, 3)``."""
-        values = self.head_params().values
-        expressions = np.zeros(len(EXPRESSION_NAMES))
-        if np.shape(values.get("expressions", ())) == expressions.shape:
-            expressions = np.asarray(values["expressions"], np.float64)
+        """JNR's arrays of a result record (:func:`jnr_arrays` of the head) and ``rotation (3, 3)``."""
         with torch.no_grad():
             rotation = self.rotation().numpy()
-        return {
-            "theta": np.zeros(NUM_PARAMETERS),
-            "z": np.zeros(LATENT),
-            "expressions": expressions,
-            "rotation": rotation,
-        }
+        return {**jnr_arrays(self.head_params()), "rotation": rotation}
 
     def head_params(self) -> HeadParams:
         """The fitted head as the model's :class:`~rig.head_model.HeadParams` (float64)."""
@@ -226,11 +239,10 @@ class ModelScanState(ModelState):
         """The head model's name in the evaluation's records."""
         return str(config.skinning)
 
-    def set_pose(self, rotation: np.ndarray, translation: np.ndarray, scale: float) -> None:
+    def set_pose(self, rotation: np.ndarray, translation: np.ndarray, scale: float = 1.0) -> None:
         """Place the head in the cloud's frame: ``(3, 3)``, ``(3,)`` mm, scalar."""
+        super().set_pose(rotation, translation)
         with torch.no_grad():
-            self.rotvec.copy_(torch.as_tensor(Rotation.from_matrix(rotation).as_rotvec()))
-            self.translation.copy_(torch.as_tensor(translation, dtype=torch.float64))
             self.log_scale.fill_(math.log(scale))
 
     def finish(self) -> dict:
@@ -250,4 +262,4 @@ class ModelScanState(ModelState):
         return float(self.log_scale.detach().exp())
 
 
-__all__ = ["LR_FIELDS", "ModelPhotoState", "ModelScanState", "ModelState"]
+__all__ = ["LR_FIELDS", "ModelPhotoState", "ModelScanState", "ModelState", "jnr_arrays"]

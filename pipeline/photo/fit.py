@@ -55,7 +55,7 @@ from pipeline.camera import (
 )
 from pipeline.colour import srgb_to_linear
 from pipeline.fitting.engine import StageLog
-from pipeline.fitting.model_state import ModelPhotoState
+from pipeline.fitting.model_state import ModelPhotoState, jnr_arrays
 from pipeline.fitting.state import PhotoState
 from pipeline.metrics import landmark_errors
 from pipeline.photo.crop import Crop
@@ -69,12 +69,11 @@ from pipeline.photo.landmark_fit import (
 from pipeline.photo.model_fit import fit_model_landmarks
 from pipeline.photo.photometric import fit_appearance
 from rig.errors import InputError
-from rig.expressions import EXPRESSION_NAMES, ExpressionModel
+from rig.expressions import ExpressionModel
 from rig.head_model import HeadParams, create
 from rig.model import JointRig
 from rig.optim import Progress
-from rig.parameters import NUM_PARAMETERS
-from rig.skinning.neural import LATENT, NeuralSkinning, load_neural
+from rig.skinning.neural import NeuralSkinning, load_neural
 
 
 @dataclass(frozen=True)
@@ -157,16 +156,8 @@ class PhotoFit:
     timings: dict
 
     def jnr_arrays(self) -> dict[str, np.ndarray]:
-        """``theta (P,)`` (deg, mm, ``scale - 1``), ``z (50,)`` and ``expressions (E,)`` (ARKit): the head's
-        ``joints``, ``latent`` and ``expressions`` groups when it has them at the rig's sizes (JNR's head), else
-        zeros."""
-        values = self.head.values
-        expressions = np.zeros(len(EXPRESSION_NAMES))
-        if np.shape(values.get("expressions", ())) == expressions.shape:
-            expressions = np.asarray(values["expressions"], np.float64)
-        if np.shape(values.get("joints", ())) == (NUM_PARAMETERS,) and np.shape(values.get("latent", ())) == (LATENT,):
-            return {"theta": values["joints"], "z": values["latent"], "expressions": expressions}
-        return {"theta": np.zeros(NUM_PARAMETERS), "z": np.zeros(LATENT), "expressions": expressions}
+        """``theta``, ``z`` and ``expressions`` of the head (:func:`pipeline.fitting.model_state.jnr_arrays`)."""
+        return jnr_arrays(self.head)
 
     @property
     def theta(self) -> np.ndarray:

@@ -117,7 +117,7 @@ def fit_model_landmarks(
         start = state.rig_vertices().numpy()
     model_points = landmark_positions(start, term.embedding, term.faces)[0]
     rotation0, translation0 = solve_pose(lm, model_points, width, height, focal, exclude=layout.pose_exclude)
-    state = ModelPhotoState(model, rotation0, translation0)
+    state.set_pose(rotation0, translation0)
     if config.face_scale:
         term.scale = face_scale(focal, float(translation0[2]), asset)
     noise = config.noise_for(layout.name)
