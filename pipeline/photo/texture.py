@@ -31,6 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pipeline.camera import camera_points_to_pixels
 from pipeline.colour import linear_to_srgb
 from rig.errors import InputError, shape_error
 from rig.geometry import vertex_normals
@@ -208,6 +209,8 @@ def _check_camera(intrinsics, extrinsics) -> tuple[np.ndarray, np.ndarray]:
         raise shape_error("unwrap_texture", "extrinsics", "(4, 4) or (3, 4)", np.asarray(extrinsics).shape)
     if not (np.isfinite(k).all() and np.isfinite(e).all() and k[0, 0] > 0 and k[1, 1] > 0):
         raise InputError("unwrap_texture: the camera must be finite with a positive focal length")
+    if k[0, 1] != 0.0 or k[1, 0] != 0.0 or not np.allclose(k[2], [0.0, 0.0, 1.0]):
+        raise InputError("unwrap_texture: the intrinsics must be a pinhole without skew ([[fx, 0, cx], [0, fy, cy], [0, 0, 1]])")
     return k, e
 
 
@@ -276,12 +279,13 @@ def _texel_weights(
     z = cam[:, 2]
     in_front = z > 1e-6
     zs = np.where(in_front, z, 1.0)
-    xy = _transform(k[:2, :2], cam[:, :2] / zs[:, None]) + k[:2, 2]
+    focal, centre = np.diag(k)[:2], k[:2, 2]
+    xy = camera_points_to_pixels(cam, focal, centre)
     inside = in_front & (xy[:, 0] > -0.5) & (xy[:, 0] < width - 0.5) & (xy[:, 1] > -0.5) & (xy[:, 1] < height - 0.5)
 
     v_cam = _transform(rot, v) + trans
     vz = v_cam[:, 2]
-    v_px = _transform(k[:2, :2], v_cam[:, :2] / np.where(vz > 1e-6, vz, 1.0)[:, None]) + k[:2, 2]
+    v_px = camera_points_to_pixels(v_cam, focal, centre)
     depth = zbuffer(v_px, vz, f, width, height)
     # the nearest surface around the point: the farthest of the 4 pixel centres around it (a point on the
     # visible surface has it within the tolerance, a hidden one has all 4 on the surface in front of it);

@@ -33,6 +33,16 @@ class DepthCamera:
     cx: float = 160.0
     cy: float = 144.0
 
+    @property
+    def focal(self) -> np.ndarray:
+        """``(2,)`` ``(fx, fy)``, pixels (for :func:`pipeline.camera.camera_points_to_pixels`)."""
+        return np.array([self.fx, self.fy])
+
+    @property
+    def centre(self) -> np.ndarray:
+        """``(2,)`` the principal point ``(cx, cy)``, pixels."""
+        return np.array([self.cx, self.cy])
+
 
 HIRES_CAMERA = DepthCamera(640, 576, 504.0, 504.0, 320.0, 288.0)
 """Twice the default resolution (``jnr data scan --hires``: ~15-20k points on a head instead of ~4k)."""

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pipeline.camera import camera_points_to_pixels
 from pipeline.files import staged_file
 from pipeline.scan.pointcloud.write import write_point_cloud_ply
 from pipeline.synthetic.depth_sensor import (
@@ -122,8 +123,7 @@ def render_depth(
     depth = np.full(h * w, np.inf)
     face_id = np.full(h * w, -1, dtype=np.int64)
     z = v[:, 2]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        uv = np.stack([camera.fx * v[:, 0] / z + camera.cx, camera.fy * v[:, 1] / z + camera.cy], axis=1)
+    uv = camera_points_to_pixels(v, camera.focal, camera.centre)
     keep = (z[f] > _NEAR_MM).all(axis=1)
     fid = np.flatnonzero(keep)
     t = uv[f[fid]]  # (F', 3, 2)
@@ -216,9 +216,7 @@ def _visible_vertices(cam: np.ndarray, used: np.ndarray, depth: np.ndarray, came
     """``(V,)`` vertices (``cam`` mm) seen before dropout: used, on a rendered pixel, within 3 mm of its z-buffer."""
     # A vertex whose pixel is empty lies on the silhouette between pixel centres (a grazing or slightly
     # back-facing vertex): the camera samples no surface there, so it is not seen.
-    with np.errstate(divide="ignore", invalid="ignore"):
-        pu = np.rint(camera.fx * cam[:, 0] / cam[:, 2] + camera.cx).astype(np.int64)
-        pv = np.rint(camera.fy * cam[:, 1] / cam[:, 2] + camera.cy).astype(np.int64)
+    pu, pv = np.rint(camera_points_to_pixels(cam, camera.focal, camera.centre)).astype(np.int64).T
     inside = (cam[:, 2] > _NEAR_MM) & (pu >= 0) & (pu < camera.width) & (pv >= 0) & (pv < camera.height)
     visible = np.zeros(len(cam), bool)
     zb = depth[pv[inside], pu[inside]]

@@ -277,6 +277,8 @@ class TestUnwrap:
             ({"size": 8}, InputError, "size must be an integer in 16-8192"),
             ({"intrinsics": np.zeros((2, 2))}, ShapeError, "intrinsics"),
             ({"extrinsics": np.full((4, 4), np.nan)}, InputError, "finite"),
+            ({"intrinsics": np.array([[1.0, 0.1, 0], [0, 1, 0], [0, 0, 1]])}, InputError, "without skew"),
+            ({"intrinsics": np.diag([10.0, 10.0, 10.0])}, InputError, "without skew"),
             ({"fill_colours": np.full((4, 3), 2.0)}, InputError, r"fill_colours must lie in \[0, 1\]"),
             ({"fill_colours": np.zeros((3, 3))}, ShapeError, "fill_colours"),
         ],
@@ -305,7 +307,7 @@ class TestUnwrap:
                 quad,
                 np.array([[0, 1, 2]]),
                 np.array([[[0.0, 0], [1, 0], [1, 1]]]),
-                intrinsics=np.eye(3) * 10,
+                intrinsics=np.diag([10.0, 10.0, 1.0]),
                 extrinsics=e,
                 size=16,
             )
