@@ -18,7 +18,8 @@ Conventions:
   ``u = (col + 0.5) / S``, ``v = 1 - (row + 0.5) / S`` in OBJ / OpenGL UVs (``v`` up, the template's
   ``face_uvs``); glTF's ``TEXCOORD_0`` is ``(u, 1 - v)`` for the same image.
 - **Camera**: ``x_cam = extrinsics @ [x_rig, 1]`` (OpenCV axes: x right, y down, z forward, mm), pixel
-  ``= K @ x_cam / z`` with pixel centres at integer coordinates (:mod:`pipeline.camera`).
+  ``= K @ x_cam / z`` (no skew) with pixel centres at integer coordinates
+  (:func:`pipeline.camera.camera_points_to_pixels`).
 
 Seams need nothing special: the UVs are per face corner, so each triangle is rasterised with its own
 corners' UVs and a vertex on a seam is sampled from both sides.
@@ -210,7 +211,9 @@ def _check_camera(intrinsics, extrinsics) -> tuple[np.ndarray, np.ndarray]:
     if not (np.isfinite(k).all() and np.isfinite(e).all() and k[0, 0] > 0 and k[1, 1] > 0):
         raise InputError("unwrap_texture: the camera must be finite with a positive focal length")
     if k[0, 1] != 0.0 or k[1, 0] != 0.0 or not np.allclose(k[2], [0.0, 0.0, 1.0]):
-        raise InputError("unwrap_texture: the intrinsics must be a pinhole without skew ([[fx, 0, cx], [0, fy, cy], [0, 0, 1]])")
+        raise InputError(
+            "unwrap_texture: the intrinsics must be a pinhole without skew ([[fx, 0, cx], [0, fy, cy], [0, 0, 1]])"
+        )
     return k, e
 
 
