@@ -17,9 +17,8 @@ Conventions:
 - **Texture** ``(S, S, 3)`` uint8 sRGB, rows from the top: texel ``(row, col)`` has its centre at
   ``u = (col + 0.5) / S``, ``v = 1 - (row + 0.5) / S`` in OBJ / OpenGL UVs (``v`` up, the template's
   ``face_uvs``); glTF's ``TEXCOORD_0`` is ``(u, 1 - v)`` for the same image.
-- **Camera**: ``x_cam = extrinsics @ [x_rig, 1]`` (OpenCV axes: x right, y down, z forward, mm), pixel
-  ``= K @ x_cam / z`` (no skew) with pixel centres at integer coordinates
-  (:func:`pipeline.camera.camera_points_to_pixels`).
+- **Camera**: ``x_cam = extrinsics @ [x_rig, 1]`` (OpenCV axes, mm), pixel ``= K @ x_cam / z`` (no skew), pixel
+  centres at integer coordinates (:func:`pipeline.camera.camera_points_to_pixels`).
 
 Seams need nothing special: the UVs are per face corner, so each triangle is rasterised with its own
 corners' UVs and a vertex on a seam is sampled from both sides.
@@ -211,9 +210,7 @@ def _check_camera(intrinsics, extrinsics) -> tuple[np.ndarray, np.ndarray]:
     if not (np.isfinite(k).all() and np.isfinite(e).all() and k[0, 0] > 0 and k[1, 1] > 0):
         raise InputError("unwrap_texture: the camera must be finite with a positive focal length")
     if k[0, 1] != 0.0 or k[1, 0] != 0.0 or not np.allclose(k[2], [0.0, 0.0, 1.0]):
-        raise InputError(
-            "unwrap_texture: the intrinsics must be a pinhole without skew ([[fx, 0, cx], [0, fy, cy], [0, 0, 1]])"
-        )
+        raise InputError("unwrap_texture: the intrinsics must be [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] (no skew)")
     return k, e
 
 
@@ -274,8 +271,7 @@ def _texel_weights(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Photo pixel ``(T, 2)`` of each texel point ``(T, 3)`` mm and the photo's weight there: 0 where unseen."""
     rot, trans = e[:3, :3], e[:3, 3]
-    cam_centre = -rot.T @ trans
-    to_camera = cam_centre - points
+    to_camera = -rot.T @ trans - points
     distance = np.linalg.norm(to_camera, axis=1).clip(1e-12)
     cos = (normals * to_camera).sum(1) / distance
     cam = _transform(rot, points) + trans
@@ -404,8 +400,7 @@ def unwrap_texture(
 
 
 def _transform(matrix: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """``(N, d)`` ``matrix @ p`` of every row ``p`` of ``points``; einsum, as a BLAS product with an inner size of
-    2-3 costs ~10x more here (thread start-up on a busy machine)."""
+    """``(N, d)`` ``matrix @ p`` of every row ``p`` of ``points`` (einsum: BLAS costs ~10x more at this size)."""
     return np.einsum("ed,nd->ne", matrix, points)
 
 
