@@ -254,11 +254,11 @@ class PhotometricObjective:
     def photo_term(self) -> Term:
         """``photo``: ``lambda_photo`` times the mean Charbonnier distance of the linear-RGB residual over the
         inlier face pixels (inputs ``image (B, S, S, 3)``, ``pixel_weights (S * S,)``)."""
-        s = self.settings
+        s, target = self.settings, self.target  # not ``self``: a term holding its objective is a reference cycle
 
         def residual(p: Inputs) -> torch.Tensor:
             image = p["image"]
-            return (image - self.target).reshape(image.shape[0], -1, 3)
+            return (image - target).reshape(image.shape[0], -1, 3)
 
         return Term(
             "photo",
@@ -274,7 +274,7 @@ class PhotometricObjective:
         """``albedo_smooth``, ``albedo_symmetry``, ``albedo_mean``: mean squared differences of the albedo
         (input ``albedo (V, 3)``, the parameter itself: each term reads it as the optimiser sees it) along mesh
         edges, to the mirror vertex and to the start colour."""
-        w, edges, mirror = self.settings.albedo_prior, self.edges, self.mirror
+        w, edges, mirror, start = self.settings.albedo_prior, self.edges, self.mirror, self.start_colour
 
         def along_edges(p: Inputs) -> torch.Tensor:
             return (p["albedo"][edges[:, 0]] - p["albedo"][edges[:, 1]])[None]
@@ -283,7 +283,7 @@ class PhotometricObjective:
             return (p["albedo"] - p["albedo"][mirror])[None]
 
         def to_start(p: Inputs) -> torch.Tensor:
-            return (p["albedo"] - self.start_colour)[None]
+            return (p["albedo"] - start)[None]
 
         return (
             Term("albedo_smooth", w.smooth, along_edges, L2(), normaliser="mean"),
