@@ -450,7 +450,8 @@ def _add_fit_arguments(parser: argparse.ArgumentParser) -> None:
         "--skinning",
         metavar="MODEL",
         help="with --views: the identity model, jnr (the rig's joints, default), asm (adaptive skinning) or "
-        "another registered head model (one photo: --set model=MODEL)",
+        "another registered head model (one photo: --set model=MODEL, for a model of flat parameter groups; "
+        "asm's are not)",
     )
     parser.add_argument("--config", help="YAML overriding the fitting settings (e.g. configs/fit_photo.yaml)")
     parser.add_argument("--set", action="append", metavar="KEY=VALUE", help="override one setting (repeatable)")

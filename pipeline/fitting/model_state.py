@@ -50,8 +50,9 @@ def _flat_initial(model: HeadModel) -> dict[str, np.ndarray]:
             values = None
         if values is None or values.shape != (group.size,):
             raise HeadModelError(
-                f"head model {model.kind!r}: group {group.name!r} is not a flat vector of {group.size} floats; "
-                "the generic fit takes flat groups only"
+                f"head model {model.kind!r}: group {group.name!r} is not a flat vector of {group.size} floats, and the "
+                "generic fit (one photo) takes flat groups only; fit it from several views (jnr fit --views "
+                f"--skinning {model.kind}) or a scan (jnr fit-scan --skinning {model.kind}) if it brings its own fits"
             )
         out[group.name] = values
     return out

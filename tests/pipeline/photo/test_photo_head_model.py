@@ -75,6 +75,16 @@ def test_an_unknown_model_and_a_built_in_ones_removal_are_errors(tmp_path, capsy
         unregister_head_model("jnr")
 
 
+def test_a_model_of_structured_groups_asked_for_one_photo_says_which_fits_take_it():
+    """ASM's parameters are one structured group (bones, mixtures): the one-photo fit refuses it with the fits that
+    take it, not a bare shape complaint."""
+    from rig.head_model import create
+
+    px = np.random.default_rng(0).uniform(100, 300, (478, 2))
+    with pytest.raises(HeadModelError, match=r"--views --skinning asm.*fit-scan --skinning asm"):
+        fit_model_landmarks(px, 512, 512, create("asm"), layout=mediapipe_layout(create("jnr").asset))
+
+
 def test_a_registered_head_model_is_the_identity_of_jnr_fit_views(stretched_model, tmp_path, capsys):
     size, truth = 384, 0.08
     focal = default_focal(size, size)
