@@ -390,13 +390,25 @@ sys.exit(main(sys.argv[1:]))
 @pytest.mark.parametrize("sig, code, word", [(signal.SIGTERM, 143, "terminated"), (signal.SIGINT, 130, "interrupted")])
 def test_a_signal_while_writing_leaves_nothing_behind(tmp_path, command, sig, code, word):
     argv = [a.format(out=tmp_path / "out") for a in command]
+    # SIGINT at its default in the child: a shell without job control starts background jobs (``make test &``)
+    # with SIGINT ignored, and Python then installs no KeyboardInterrupt handler
     proc = subprocess.Popen(
-        [sys.executable, "-c", SLOW_WRITER, *argv], cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+        [sys.executable, "-c", SLOW_WRITER, *argv],
+        cwd=REPO,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
     )
-    assert proc.stdout.readline().strip() == "WRITING"
-    assert leftovers(tmp_path)  # the staging file/folder exists now
-    proc.send_signal(sig)
-    assert proc.wait(30) == code
+    try:
+        assert proc.stdout.readline().strip() == "WRITING"
+        assert leftovers(tmp_path)  # the staging file/folder exists now
+        proc.send_signal(sig)
+        assert proc.wait(30) == code
+    finally:
+        if proc.poll() is None:  # never leave the writer behind for the tests after this one
+            proc.kill()
+            proc.wait()
     err = proc.stderr.read()
     assert len(err.strip().splitlines()) == 1 and word in err, err
     assert list(tmp_path.iterdir()) == []
