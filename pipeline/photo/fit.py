@@ -331,7 +331,8 @@ def fit_photo(
 
     term, fit_term = _landmark_terms(rig.asset, state.dtype, lm, dense, lfit, (width, height), focal, config)
     t1 = time.perf_counter()
-    appearance, stages, crop = fit_appearance(photo, lm, focal, state, fit_term, config.photometric, progress)
+    noise_px = config.landmarks.noise_for(fit_term.layout.name)
+    appearance, stages, crop = fit_appearance(photo, lm, focal, state, fit_term, config.photometric, progress, noise_px)
     t_photo = time.perf_counter() - t1
 
     v, projected, landmarks3d_camera, dense3d_camera, translation = _fitted_points(state, term, fit_term, dense)

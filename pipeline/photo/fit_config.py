@@ -112,7 +112,8 @@ class PhotometricConfig:
     lambda_photo: float = 200.0
     """Weight of the photometric term (linear RGB, Charbonnier)."""
     lambda_landmarks: float = 1.0
-    """Weight of the landmark term (px^2 of the photo) during the photometric stages."""
+    """Weight of the landmark term during the photometric stages, in the landmark fit's units (px^2 of a face 100 px
+    between the eye corners, over the detector's error squared: ``landmarks.noise_px`` / ``dense_noise_px``)."""
     charbonnier_eps: float = 0.01
     """``eps`` of the Charbonnier distance, linear RGB."""
     outlier_mads: float = 3.0

@@ -68,18 +68,21 @@ def fit_appearance(
     term: LandmarkTerm,
     settings: PhotometricConfig,
     progress: Progress | None,
+    noise_px: float = 1.0,
 ) -> tuple[dict[str, np.ndarray], tuple[StageLog, ...], Crop | None]:
     """The photometric stages when enabled (updating ``state``): ``({albedo, ambient, irradiance,
-    light_camera}, stage logs, crop)``. Without them nothing of the appearance is fitted: a grey albedo and a
-    key light from the camera's upper left (travelling right, down and forward) + fill, so that render.png and
-    overlay.png show the fitted shape shaded rather than flat."""
+    light_camera}, stage logs, crop)``; ``noise_px``: the landmarks' error (the landmark term is divided by its
+    square, as in the landmark fit: :meth:`~pipeline.photo.landmark_fit.LandmarkFitConfig.noise_for`). Without
+    them nothing of the appearance is fitted: a grey albedo and a key light from the camera's upper left
+    (travelling right, down and forward) + fill, so that render.png and overlay.png show the fitted shape shaded
+    rather than flat."""
     if not (settings.enabled and any(s.iterations > 0 for s in settings.stages)):
         light = np.array([0.3, 0.4, 1.0]) / np.linalg.norm([0.3, 0.4, 1.0])
         grey = np.full((len(term.asset.vertices), 3), 0.5)
         shown = {"albedo": grey, "ambient": np.full(3, 0.35), "irradiance": np.full(3, 2.0), "light_camera": light}
         return shown, (), None
     crop = face_crop(lm, settings.render_size, settings.crop_margin)
-    light, stages = _photometric(photo, crop, focal, state, term, settings, progress)
+    light, stages = _photometric(photo, crop, focal, state, term, settings, progress, noise_px)
     appearance = {
         "albedo": state.albedo.detach().double().numpy(),
         "ambient": state.ambient.detach().double().numpy(),
@@ -97,12 +100,13 @@ def _photometric(
     term: LandmarkTerm,
     settings: PhotometricConfig,
     progress: Progress | None,
+    noise_px: float = 1.0,
 ):
     """The photometric stages; updates ``state`` in place. Returns the light direction (camera frame)
     and the stage logs."""
     # torch's CPU scatter-adds (index backward) are order-dependent on several threads too
     with torch_threads(1 if settings.reproducible else None), reproducible(settings.reproducible):
-        fit = PhotometricObjective(photo, crop, focal, state, term, settings)
+        fit = PhotometricObjective(photo, crop, focal, state, term, settings, noise_px)
         stages = run_schedule(
             state,
             settings.stages,
@@ -131,6 +135,7 @@ class PhotometricObjective:
         state: PhotoState,
         term: LandmarkTerm,
         settings: PhotometricConfig,
+        noise_px: float = 1.0,
     ) -> None:
         self.state, self.term, self.settings = state, term, settings
         asset = state.rig.asset
@@ -175,7 +180,7 @@ class PhotometricObjective:
         self.stages_started = 0
         self.terms = (
             self.photo_term(),
-            term.term(settings.lambda_landmarks, name="landmarks"),
+            term.term(settings.lambda_landmarks / noise_px**2, name="landmarks"),
             *state.prior_terms(settings.prior),
             *self.albedo_prior_terms(),
         )
