@@ -197,15 +197,18 @@ def test_a_photometric_fit_frees_its_renderer_without_the_garbage_collector(know
     base = _short_config()
     config = replace(base, photometric=replace(base.photometric, stages=photo_schedule(1, 1, 0, 0, 0), render_size=32))
     gc.collect()
+    before = {id(o) for o in gc.get_objects() if isinstance(o, DifferentiableRenderer)}  # other tests' live ones
     gc.disable()
     try:
-        fit = fit_photo(known_photo.image, known_photo.landmarks2d, focal=known_photo.focal, config=config)
-        assert len(fit.stages) == 2
-        del fit
-        alive = [o for o in gc.get_objects() if isinstance(o, DifferentiableRenderer)]
+        for _ in range(3):
+            fit = fit_photo(known_photo.image, known_photo.landmarks2d, focal=known_photo.focal, config=config)
+            assert len(fit.stages) == 2
+            del fit
+        left = [o for o in gc.get_objects() if isinstance(o, DifferentiableRenderer) and id(o) not in before]
     finally:
         gc.enable()
-    assert not alive
+    # at most the last one (Dr.Jit may hold the last fit's objects until the next); never one per fit
+    assert len(left) <= 1, len(left)
 
 
 def test_the_photometric_stages_weigh_dense_points_as_the_landmark_fit_does(known_photo):
