@@ -13,6 +13,7 @@ from rig.skinning.joint_fit import fit_joints
 RESULTS = Path(__file__).resolve().parents[3] / "benchmarks" / "results"
 
 
+@pytest.mark.slow  # 5 s: make test-slow
 def test_population_is_not_the_rigs_own_span(rig32):
     """The best joint fit with the initial weights leaves a clearly non-zero error on synthetic heads,
     while heads made by the rig itself are recovered (the control)."""

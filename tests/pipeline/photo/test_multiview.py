@@ -100,6 +100,7 @@ def three_view_fit(three_views):
     return fit_multiview(lms, sizes)
 
 
+@pytest.mark.slow  # 8.5 s: make test-slow (the fast suite stays under 6 minutes)
 def test_multiview_fit_beats_the_mean_single_view_and_matches_the_best(three_views, three_view_fit):
     """Measured (docs/multiview.md): with 3 views the shared identity is better than a single view's on
     average, about as good as the best of the three (an oracle pick), not reliably better than it."""

@@ -7,7 +7,10 @@ from rig.geometry import Similarity, vertex_normals
 from rig.template import FACE_REGIONS
 
 
-@pytest.mark.parametrize("yaw", [-45.0, 0.0, 40.0])
+# 4 s each: the two large yaws in make test-slow
+@pytest.mark.parametrize(
+    "yaw", [pytest.param(-45.0, marks=pytest.mark.slow), 0.0, pytest.param(40.0, marks=pytest.mark.slow)]
+)
 def test_rigid_prealign_finds_a_yawed_offset_partial_head(asset, rng, yaw):
     v, f = asset.vertices, asset.faces
     n = vertex_normals(v, f)
