@@ -68,7 +68,7 @@ def fit_appearance(
     term: LandmarkTerm,
     settings: PhotometricConfig,
     progress: Progress | None,
-    noise_px: float = 1.0,
+    noise_px: float,
 ) -> tuple[dict[str, np.ndarray], tuple[StageLog, ...], Crop | None]:
     """The photometric stages when enabled (updating ``state``): ``({albedo, ambient, irradiance,
     light_camera}, stage logs, crop)``; ``noise_px``: the landmarks' error (the landmark term is divided by its
@@ -100,7 +100,7 @@ def _photometric(
     term: LandmarkTerm,
     settings: PhotometricConfig,
     progress: Progress | None,
-    noise_px: float = 1.0,
+    noise_px: float,
 ):
     """The photometric stages; updates ``state`` in place. Returns the light direction (camera frame)
     and the stage logs."""
@@ -135,7 +135,7 @@ class PhotometricObjective:
         state: PhotoState,
         term: LandmarkTerm,
         settings: PhotometricConfig,
-        noise_px: float = 1.0,
+        noise_px: float,
     ) -> None:
         self.state, self.term, self.settings = state, term, settings
         asset = state.rig.asset
