@@ -21,6 +21,7 @@ from torch import nn
 from pipeline.fitting.identity import IdentityPrior
 from pipeline.fitting.priors import PriorWeights, jnr_prior_terms
 from pipeline.fitting.terms import Inputs, Term
+from rig.errors import InputError
 from rig.expressions import EXPRESSION_NAMES, ExpressionModel, expression_limits
 from rig.head_model import HeadParams, jnr_vertices
 from rig.lbs import skin_with_basis, skinning_basis
@@ -128,6 +129,9 @@ class FitState(GroupedParameters):
         self.theta_n = nn.Parameter(torch.zeros(NUM_PARAMETERS, dtype=dtype))
         self.z = nn.Parameter(torch.zeros(LATENT, dtype=dtype))
         self.c = nn.Parameter(torch.zeros(len(EXPRESSION_NAMES), dtype=dtype))
+        # the identity subspace (:meth:`set_identity_subspace`): none until a fit asks for it
+        self.register_buffer("identity_basis", torch.zeros(NUM_PARAMETERS, 0, dtype=dtype))
+        self.identity_c = nn.Parameter(torch.zeros(0, dtype=dtype))
         self._basis: tuple[tuple[int, int], torch.Tensor] | None = None
 
     # -- the models ---------------------------------------------------------------------------------
@@ -176,14 +180,40 @@ class FitState(GroupedParameters):
         if "latent" in free and self.neural is not None:
             with torch.no_grad():
                 self.z.clamp_(-LATENT_LIMIT, LATENT_LIMIT)
-        if "joints" in free and self.hard_joint_limits:
+        if "identity" in free:
+            self._fold_identity()
+        if ("joints" in free or "identity" in free) and self.hard_joint_limits:
             self.clamp_joints()
 
+    def set_identity_subspace(self, prior: IdentityPrior, k: int) -> None:
+        """Let the group ``identity`` move the joint channels along the ``k`` main directions of the identity prior,
+        each step in units of that direction's standard deviation: ``theta_n + B c``, ``B (P, k)`` = the
+        principal directions times the square roots of their variances, ``c (k,)`` the parameter
+        ``identity_c``. After each step :meth:`project` folds ``B c`` into ``theta_n`` and sets ``c`` back to 0
+        (Adam's step does not depend on the parameter's value, so this is the same optimisation)."""
+        k = min(int(k), prior.rank)
+        if k < 1:
+            raise InputError(f"set_identity_subspace: need at least one direction, got k={k}")
+        basis = prior.components[:k].T * np.sqrt(prior.variances[:k])
+        self.identity_basis = torch.as_tensor(basis, dtype=self.dtype)
+        self.identity_c = nn.Parameter(torch.zeros(k, dtype=self.dtype))
+
+    def _fold_identity(self) -> None:
+        with torch.no_grad():
+            self.theta_n.add_(self.identity_basis @ self.identity_c)
+            self.identity_c.zero_()
+
     # -- the head -----------------------------------------------------------------------------------
+    def joints_n(self) -> torch.Tensor:
+        """``(P,)`` joint channels over their span: ``theta_n`` plus the identity subspace's step (live)."""
+        if self.identity_c.numel() == 0:
+            return self.theta_n
+        return self.theta_n + self.identity_basis @ self.identity_c
+
     @property
     def theta(self) -> torch.Tensor:
         """``(P,)`` joint channels (deg, mm, ``scale - 1``)."""
-        return self.theta_n * self.span
+        return self.joints_n() * self.span
 
     def weights(self) -> torch.Tensor:
         """``(V, K)`` skinning weights: neural of ``z``, or the rig's own."""
@@ -195,7 +225,7 @@ class FitState(GroupedParameters):
 
     def rig_vertices(self, free: tuple[str, ...] = ()) -> torch.Tensor:
         """``(V, 3)`` rig-space vertices, mm; only the groups in ``free`` carry gradients."""
-        theta = self.theta if "joints" in free else self.theta.detach()
+        theta = self.theta if ("joints" in free or "identity" in free) else self.theta.detach()
         c = self.c if "expressions" in free else self.c.detach()
         expr = self.models.expressions
         _, skinning = self.rig.joint_transforms(theta[None])
@@ -234,7 +264,7 @@ class FitState(GroupedParameters):
         """The parameters as batch-1 tensors by the names the terms read (:mod:`pipeline.fitting.terms`):
         ``theta_n``, ``theta`` (joint units), ``z``, ``c``; live, so gradients flow to every parameter."""
         return Inputs(
-            theta_n=lambda: self.theta_n[None],
+            theta_n=lambda: self.joints_n()[None],
             theta=lambda: self.theta[None],
             z=lambda: self.z[None],
             c=lambda: self.c[None],

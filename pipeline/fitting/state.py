@@ -55,7 +55,9 @@ class PhotoState(FitState):
         rig, neural, expressions, rotation: as :class:`FitState`.
         translation: ``(3,)`` head position in the camera frame, mm.
 
-    Extra parameters: ``translation (3,)`` mm (group ``pose``); ``albedo (V, 3)`` linear RGB (group
+    Extra parameters: ``translation (3,)`` mm (group ``pose``); ``identity_c (k,)`` (group ``identity``: the
+    joint channels along the identity prior's main directions, :meth:`~FitState.set_identity_subspace`);
+    ``albedo (V, 3)`` linear RGB (group
     ``albedo``), ``ambient (3,)``, ``irradiance (3,)`` and ``sh (9, 3)`` (group ``light``), set by
     :meth:`add_appearance`.
     """
@@ -63,6 +65,7 @@ class PhotoState(FitState):
     GROUPS: ClassVar[dict[str, tuple[tuple[str, str], ...]]] = {
         **FitState.GROUPS,
         "pose": (("rotvec", "rotation"), ("translation", "translation")),
+        "identity": (("identity_c", "identity"),),
         "albedo": (("albedo", "albedo"),),
         "light": (("ambient", "light"), ("irradiance", "light"), ("sh", "light")),
     }

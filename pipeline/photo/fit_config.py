@@ -17,7 +17,7 @@ from rig.errors import InputError
 from rig.head_model import head_model_kinds
 from rig.template import FACE_REGIONS
 
-PHOTO_GROUPS = FREE_GROUPS + ("albedo", "light")
+PHOTO_GROUPS = FREE_GROUPS + ("identity", "albedo", "light")
 LIGHT_MODELS = ("directional", "sh")
 
 
@@ -42,9 +42,18 @@ MAX_SPP = 1024
 @dataclass(frozen=True)
 class PhotoStage(Stage):
     """One stage of the photometric schedule: ``free`` is a subset of ``pose``, ``joints``, ``latent``,
-    ``expressions``, ``albedo``, ``light``."""
+    ``expressions``, ``identity`` (the joint channels along the identity prior's main directions,
+    :attr:`PhotometricConfig.identity_components`), ``albedo``, ``light``."""
 
     groups: ClassVar[tuple[str, ...]] = PHOTO_GROUPS
+
+
+def identity_schedule(iterations: int = 40) -> tuple[PhotoStage, ...]:
+    """The default photometric schedule: one stage of ``iterations`` steps that moves the identity along the
+    prior's main directions (``identity``), the albedo held at the face's median colour and the light
+    re-fitted before it (``docs/fit_photo.md``: where the albedo is free it takes up the shading that tells the
+    shape)."""
+    return (PhotoStage("photo identity", ("identity",), iterations),) if iterations > 0 else ()
 
 
 def photo_schedule(
@@ -54,8 +63,9 @@ def photo_schedule(
     expression_iterations: int = 25,
     final_joint_iterations: int = 25,
 ) -> tuple[PhotoStage, ...]:
-    """The default photometric schedule (120 steps): albedo + light; then JNR 4.3's alternation
-    (pose + joints, Z, pose + expressions, pose + joints), each with albedo and light. 0 leaves a stage out."""
+    """JNR 4.3's photometric schedule (120 steps; the default before issue 37): albedo + light; then JNR 4.3's
+    alternation (pose + joints, Z, pose + expressions, pose + joints), each with albedo and light. 0 leaves a stage
+    out."""
     look = ("albedo", "light")
     stages = (
         PhotoStage("appearance", look, appearance_iterations),
@@ -76,6 +86,8 @@ class PhotoLearningRates(LearningRates):
     """Per-vertex albedo, linear RGB."""
     light: float = 0.05
     """Ambient and irradiance of the light, linear RGB."""
+    identity: float = 0.05
+    """The identity subspace's coefficients, in standard deviations of the prior along each direction."""
 
 
 PHOTO_LEARNING_RATES = PhotoLearningRates(rotation=0.003, translation=0.5, joints=0.004, latent=0.02, expressions=0.02)
@@ -101,16 +113,20 @@ class PhotometricConfig:
     enabled: bool = False
     """Run them (``jnr fit --photometric``). Off by default: on synthetic photos rendered with another light
     model they did not improve the geometry over the landmark fit and cost far more time (``docs/fit_photo.md``)."""
-    stages: tuple[PhotoStage, ...] = field(default_factory=photo_schedule)
+    stages: tuple[PhotoStage, ...] = field(default_factory=identity_schedule)
+    """The schedule: :func:`identity_schedule` (one stage of the identity along the prior's main directions);
+    :func:`photo_schedule` is JNR 4.3's alternation with a per-vertex albedo."""
     render_size: int = 128
     """Side of the square face crop the photometric loss is computed on, pixels."""
     crop_margin: float = 0.25
     """Margin around the landmarks' bounding box (fraction of its size; the top gets twice as much, for
     the forehead)."""
-    spp: int = 2
-    """Renderer samples per pixel (interior and silhouette)."""
-    lambda_photo: float = 200.0
-    """Weight of the photometric term (linear RGB, Charbonnier)."""
+    spp: int = 8
+    """Renderer samples per pixel (interior and silhouette). 8, not 2: at 2 the loss's Monte Carlo noise from step
+    to step is larger than what a step of the identity changes (``docs/fit_photo.md``)."""
+    lambda_photo: float = 60.0
+    """Weight of the photometric term (linear RGB, Charbonnier); chosen on validation photos (``docs/fit_photo.md``:
+    20, 60 and 200 tried against the landmark and identity terms)."""
     lambda_landmarks: float = 1.0
     """Weight of the landmark term during the photometric stages, in the landmark fit's units (px^2 of a face 100 px
     between the eye corners, over the detector's error squared: ``landmarks.noise_px`` / ``dense_noise_px``)."""
@@ -132,6 +148,9 @@ class PhotometricConfig:
     """Ridge weight of the SH least squares (relative to the design's mean diagonal)."""
     light_directions: int = 64
     """Candidate light directions re-picked before each stage."""
+    identity_components: int = 20
+    """How many of the identity prior's main directions the group ``identity`` moves the joint channels along
+    (:meth:`~pipeline.fitting.rig_state.FitState.set_identity_subspace`)."""
     seed: int = 0
     """Renderer sampling seed."""
     reproducible: bool = True
@@ -148,6 +167,8 @@ class PhotometricConfig:
             raise InputError(f"crop_margin must be >= 0, got {self.crop_margin}")
         if self.light_model not in LIGHT_MODELS:
             raise InputError(f"light_model must be one of {list(LIGHT_MODELS)}, got {self.light_model!r}")
+        if self.identity_components < 1:
+            raise InputError(f"identity_components must be >= 1, got {self.identity_components}")
         if self.light_directions < 1:
             raise InputError(f"light_directions must be >= 1, got {self.light_directions}")
         bad = [r for r in self.face_regions if r not in REGION_NAMES]

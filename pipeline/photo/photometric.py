@@ -9,6 +9,7 @@ import numpy as np
 import torch
 
 from pipeline.fitting.engine import Loss, Stage, StageLog, run_schedule
+from pipeline.fitting.priors import cached_identity_prior
 from pipeline.fitting.state import FREE_GROUPS, PhotoState
 from pipeline.fitting.terms import L2, Charbonnier, Inputs, Term, term_values
 from pipeline.photo.crop import Crop, face_crop
@@ -171,6 +172,8 @@ class PhotometricObjective:
         state.add_appearance(
             self.start_colour.repeat(n_vertices, 1), torch.full((3,), 1.0, dtype=dtype), torch.zeros(3, dtype=dtype)
         )
+        if any("identity" in s.free for s in settings.stages):
+            state.set_identity_subspace(cached_identity_prior(), settings.identity_components)
         self.direction = np.array([0.0, 0.0, 1.0])
         self.faces = torch.as_tensor(np.asarray(asset.faces, np.int64))
         self.edges = torch.as_tensor(mesh_edges(asset.faces))
@@ -299,7 +302,7 @@ class PhotometricObjective:
     def __call__(self, free: tuple[str, ...]) -> Loss:
         """One step's loss: render -> Charbonnier over the inlier face pixels, landmarks, priors."""
         state = self.state
-        geometry = tuple(g for g in free if g in FREE_GROUPS)
+        geometry = tuple(g for g in free if g in FREE_GROUPS or g == "identity")
         v = state.rig_vertices(geometry)
         v_cam = state.to_camera(v, geometry).to(self.dtype)
         out = self.renderer.render(v_cam, self.shaded_albedo(v_cam, state.albedo), self.light(), aovs=True)

@@ -103,7 +103,7 @@ def test_parameter_groups_come_from_names_and_learning_rate_fields(models):
     assert len(scaled.parameter_groups(("pose",), lr)) == 3 and len(fixed.parameter_groups(("pose",), lr)) == 2
     assert scaled.scale == pytest.approx(1.1)
     # The models are not parameters of the fit: the optimiser can only see the state's own tensors.
-    assert {n for n, _ in photo.named_parameters()} == {"rotvec", "theta_n", "z", "c", "translation"}
+    assert {n for n, _ in photo.named_parameters()} == {"rotvec", "theta_n", "identity_c", "z", "c", "translation"}
 
 
 def test_prior_terms_match_the_rig_losses(models):

@@ -151,7 +151,9 @@ def _short_config(**kw):
     base = FitPhotoConfig()  # the default landmark fit (LM, ~0.3 s), short photometric stages
     return FitPhotoConfig(
         landmarks=base.landmarks,
-        photometric=replace(base.photometric, enabled=True, stages=photo_schedule(8, 8, 0, 8, 0), render_size=64, **kw),
+        photometric=replace(
+            base.photometric, enabled=True, stages=photo_schedule(8, 8, 0, 8, 0), render_size=64, **{"spp": 2, **kw}
+        ),
     )
 
 
