@@ -2,7 +2,7 @@
 leakage and identity, for the detector's own points and for the true points.
 
     .venv/bin/python benchmarks/diagnose_photo_fit.py [--first 20] [--heads 10] [--seed 0]
-        [--sources true478,mediapipe] [--conditions default,true_focal,true_pose,no_expressions]
+        [--sources true478,mediapipe] [--conditions default,true_focal,true_pose,no_expressions[,photometric]]
         [--set landmarks.prior.lambda_identity=0.1 ...] [--json FILE]
 
 Photos: held-out heads ``first .. first + heads - 1`` (the fit's settings are chosen on heads 0-9, never on
@@ -21,7 +21,9 @@ Conditions, each adding one piece of truth to the one before:
 * ``true_focal``: the photo's true focal length;
 * ``true_pose``: and the true head pose, held (stages without ``pose``);
 * ``no_expressions``: and no expression coefficients (for the neutral photos that is the truth; for the
-  expressive ones it shows what the expressions buy).
+  expressive ones it shows what the expressions buy);
+* ``photometric`` (not in the default list): ``default`` followed by the photometric stages (``jnr fit
+  --photometric``, i.e. :func:`pipeline.photo.fit.fit_photo` with ``photometric.enabled``): what the pixels add.
 
 Per fit: the face-region s2m median against the head as photographed (NoW-style, :func:`pipeline.evaluation.
 photos.face_error`), the **identity error** (the fitted head with its expression coefficients set to 0 against
@@ -69,7 +71,7 @@ from rig.skinning.neural import LATENT  # noqa: E402
 FOCAL_FACTORS = (1.0, 1.4, 2.0, 3.0)
 """The photos' focal lengths over the image side, cycled over the heads (the default's 1.4 among them)."""
 SOURCES = ("true478", "mediapipe", "true68")
-CONDITIONS = ("default", "true_focal", "true_pose", "no_expressions")
+CONDITIONS = ("default", "true_focal", "true_pose", "no_expressions", "photometric")
 
 
 @dataclass
@@ -82,6 +84,8 @@ class Photo:
     photo: object
     neutral: np.ndarray
     points: dict
+    detected68: np.ndarray | None = None
+    """MediaPipe's 68 iBUG points (the photometric fit's face crop when its points are MediaPipe's)."""
 
 
 def photo_settings(focal_factor: float) -> PhotoSettings:
@@ -128,6 +132,7 @@ def make_photos(first: int, heads: int, seed: int, sources: tuple[str, ...], ass
             )
             rng = np.random.default_rng(scan_seed(seed, "diagnose-noise-" + kind, index))
             points: dict = {}
+            detected68 = None
             for source in sources:
                 if source == "true68":
                     points[source] = (photo.landmarks2d, None)
@@ -140,7 +145,8 @@ def make_photos(first: int, heads: int, seed: int, sources: tuple[str, ...], ass
                         points[source] = None
                         continue
                     points[source] = (face.dense[:, :2], layout)
-            photos.append(Photo(photo.name, kind, factor, photo, np.asarray(neutral_heads[index]), points))
+                    detected68 = np.asarray(face.landmarks)
+            photos.append(Photo(photo.name, kind, factor, photo, np.asarray(neutral_heads[index]), points, detected68))
             print(f"  rendered {photo.name:20s} focal {factor:.1f} x  yaw {photo.yaw_deg:6.1f}", flush=True)
     return photos
 
@@ -166,13 +172,35 @@ def condition_config(config: FitPhotoConfig, condition: str, source: str):
     return lm
 
 
+def fit_photometric(photo, landmarks68, target, layout, config: FitPhotoConfig, rig, neural):
+    """``default`` + the photometric stages: the landmark fit's fields (theta, z, expressions, rotation,
+    translation, error_px) of the whole photo fit; ``landmarks68`` place its face crop (the source's own)."""
+    from types import SimpleNamespace
+
+    from pipeline.photo.fit import fit_photo
+
+    config = replace(config, photometric=replace(config.photometric, enabled=True))
+    dense = None if layout is None else (target, layout)
+    fit = fit_photo(photo.image, landmarks68, config=config, rig=rig, neural=neural, dense=dense)
+    return SimpleNamespace(
+        theta=fit.theta,
+        z=fit.z,
+        expressions=fit.expressions,
+        rotation=fit.rotation,
+        translation=fit.translation,
+        error_px=fit.landmark_fit.error_px,
+    )
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--first", type=int, default=20, help="first held-out head (default 20)")
     parser.add_argument("--heads", type=int, default=10, help="heads, each photographed neutral and expressive")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--sources", default="true478,mediapipe", help=f"comma-separated, of {list(SOURCES)}")
-    parser.add_argument("--conditions", default=",".join(CONDITIONS), help=f"comma-separated, of {list(CONDITIONS)}")
+    parser.add_argument(
+        "--conditions", default=",".join(CONDITIONS[:4]), help=f"comma-separated, of {list(CONDITIONS)}"
+    )
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="FitPhotoConfig overrides")
     parser.add_argument("--json", type=Path, default=None)
     args = parser.parse_args()
@@ -204,17 +232,22 @@ def main() -> None:
                 focal = default_focal(p.width, p.height) if condition == "default" else p.focal
                 pose = (p.rotation, p.translation) if condition in ("true_pose", "no_expressions") else None
                 t1 = time.perf_counter()
-                fit = fit_landmarks(
-                    target,
-                    p.width,
-                    p.height,
-                    focal=focal,
-                    config=condition_config(config, condition, source),
-                    rig=rig,
-                    neural=neural,
-                    layout=layout,
-                    pose=pose,
-                )
+                if condition == "photometric":
+                    lm_config = replace(config, landmarks=condition_config(config, "default", source))
+                    own68 = p.landmarks2d if source.startswith("true") else ph.detected68
+                    fit = fit_photometric(p, own68, target, layout, lm_config, rig, neural)
+                else:
+                    fit = fit_landmarks(
+                        target,
+                        p.width,
+                        p.height,
+                        focal=focal,
+                        config=condition_config(config, condition, source),
+                        rig=rig,
+                        neural=neural,
+                        layout=layout,
+                        pose=pose,
+                    )
                 seconds = time.perf_counter() - t1
                 v = head_vertices(rig, neural, fit.theta, fit.z, fit.expressions)
                 v_id = head_vertices(rig, neural, fit.theta, fit.z, np.zeros(len(EXPRESSION_NAMES)))

@@ -329,9 +329,9 @@ FIT_DESCRIPTION = (
     "face's landmarks (MediaPipe's 478 points with the irises; dlib's 68 iBUG points when MediaPipe finds no "
     "face), place a pinhole camera (--focal, default 1.4 x the image's larger side) by solvePnP, then fit the "
     "landmarks by Levenberg-Marquardt (~0.5 s) with an identity prior learned from the synthetic head "
-    "population. --photometric adds stages with a robust photometric loss on the "
-    "face pixels (Mitsuba 3 on the CPU; a per-vertex albedo, ambient + directional or SH light, the "
-    "latent Z of the neural skinning), ~20 s, which did not improve the geometry on validation photos."
+    "population. --photometric adds a stage that renders the head (Mitsuba 3 on the CPU; the face's median "
+    "colour, ambient + directional or SH light) and moves its identity along the prior's main directions to "
+    "match the face pixels, ~13 s; it helped on validation photos but not on held-out ones (docs/fit_photo.md)."
 )
 FIT_EPILOG = (
     "Inputs: one or more image files (.jpg .jpeg .png .bmp .gif .tif .tiff .webp .ppm .pgm .pnm) or "
@@ -435,9 +435,8 @@ def _add_fit_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--photometric",
         action="store_true",
-        help="after the landmark fit, the photometric stages (render + photo loss, ~20 s a photo; off by "
-        "default: on synthetic validation photos they did not improve the geometry, see "
-        "docs/fit_photo.md)",
+        help="after the landmark fit, the photometric identity stage (render + photo loss, ~13 s a photo; off by "
+        "default: it improved synthetic validation photos but not held-out ones, see docs/fit_photo.md)",
     )
     parser.add_argument(
         "--views",

@@ -111,8 +111,8 @@ class PhotometricConfig:
     """The photometric stages of :func:`fit_photo` (``photometric:`` in YAML)."""
 
     enabled: bool = False
-    """Run them (``jnr fit --photometric``). Off by default: on synthetic photos rendered with another light
-    model they did not improve the geometry over the landmark fit and cost far more time (``docs/fit_photo.md``)."""
+    """Run them (``jnr fit --photometric``). Off by default: the identity stage improved the fit on synthetic
+    validation photos but not on held-out ones, for 13-14 s a photo (``docs/fit_photo.md``)."""
     stages: tuple[PhotoStage, ...] = field(default_factory=identity_schedule)
     """The schedule: :func:`identity_schedule` (one stage of the identity along the prior's main directions);
     :func:`photo_schedule` is JNR 4.3's alternation with a per-vertex albedo."""
@@ -125,8 +125,8 @@ class PhotometricConfig:
     """Renderer samples per pixel (interior and silhouette). 8, not 2: at 2 the loss's Monte Carlo noise from step
     to step is larger than what a step of the identity changes (``docs/fit_photo.md``)."""
     lambda_photo: float = 60.0
-    """Weight of the photometric term (linear RGB, Charbonnier); chosen on validation photos (``docs/fit_photo.md``:
-    20, 60 and 200 tried against the landmark and identity terms)."""
+    """Weight of the photometric term (linear RGB, Charbonnier); chosen on validation photos for the identity stage
+    (``docs/fit_photo.md``: 6, 20, 60 and 200 tried against the landmark and identity terms)."""
     lambda_landmarks: float = 1.0
     """Weight of the landmark term during the photometric stages, in the landmark fit's units (px^2 of a face 100 px
     between the eye corners, over the detector's error squared: ``landmarks.noise_px`` / ``dense_noise_px``)."""
@@ -148,7 +148,7 @@ class PhotometricConfig:
     """Ridge weight of the SH least squares (relative to the design's mean diagonal)."""
     light_directions: int = 64
     """Candidate light directions re-picked before each stage."""
-    identity_components: int = 20
+    identity_components: int = 40
     """How many of the identity prior's main directions the group ``identity`` moves the joint channels along
     (:meth:`~pipeline.fitting.rig_state.FitState.set_identity_subspace`)."""
     seed: int = 0
