@@ -126,8 +126,8 @@ class PhotometricObjective:
     Builds the renderer of the crop, starts the albedo from the median face colour seen from the
     landmark fit's pose and adds the appearance parameters to ``state``
     (:meth:`~pipeline.fitting.state.PhotoState.add_appearance`) and, when a stage frees ``identity``, the identity
-    prior's ``settings.identity_components`` main directions (:meth:`~pipeline.fitting.state.FitState.
-    set_identity_subspace`).
+    prior's ``settings.identity_components`` main directions
+    (:meth:`~pipeline.fitting.rig_state.FitState.set_identity_subspace`).
     """
 
     def __init__(
