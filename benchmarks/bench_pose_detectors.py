@@ -25,7 +25,6 @@ import time
 from pathlib import Path
 
 import numpy as np
-import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -36,15 +35,14 @@ from landmarks.detect import detect_landmarks
 from landmarks.detector import NoFaceError
 from landmarks.ibug68.positions import landmark_positions
 from landmarks.layout import ibug68_layout
-from landmarks.loss import project_points
 from landmarks.mediapipe.layout import mediapipe_layout
-from pipeline.camera import camera_center_in_rig, make_camera, solve_pose
+from pipeline.camera import solve_pose
 from pipeline.evaluation.photos import face_error, pose_error_angles
 from pipeline.evaluation.scans import scan_seed
 from pipeline.fitting.state import head_vertices
 from pipeline.photo.fit_config import FitPhotoConfig
 from pipeline.photo.landmark_fit import fit_landmarks
-from pipeline.synthetic.photos.simulate import synthetic_photo
+from pipeline.synthetic.photos.simulate import synthetic_photo, true_layout_points
 
 SOURCES = ("true68", "true478", "dlib", "mediapipe")
 
@@ -54,14 +52,9 @@ def _angle(a: np.ndarray, b: np.ndarray) -> float:
 
 
 def dense_points(photo, layout, faces: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """The photo's MediaPipe-layout points: the true head's embedded points, the outline picked on the
-    silhouette seen from the camera, projected, + 1 px noise."""
-    v = torch.as_tensor(photo.gt_vertices, dtype=torch.float64)
-    points = layout.points3d(v, faces, camera_center_in_rig(photo.rotation, photo.translation))
-    camera = make_camera(
-        photo.width, photo.height, photo.focal, rotation=photo.rotation, translation=photo.translation, dtype=v.dtype
-    )
-    return project_points(points[None], camera)[0].numpy() + rng.normal(0.0, 1.0, (layout.count, 2))
+    """The photo's MediaPipe-layout points (:func:`~pipeline.synthetic.photos.simulate.true_layout_points`) + 1 px
+    noise."""
+    return true_layout_points(photo, layout, faces) + rng.normal(0.0, 1.0, (layout.count, 2))
 
 
 def main() -> None:

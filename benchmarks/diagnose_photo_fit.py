@@ -41,7 +41,6 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
-import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -50,9 +49,8 @@ from common import finish, load_models  # noqa: E402
 
 from landmarks.detect import detect_landmarks  # noqa: E402
 from landmarks.detector import NoFaceError  # noqa: E402
-from landmarks.loss import project_points  # noqa: E402
 from landmarks.mediapipe.layout import mediapipe_layout  # noqa: E402
-from pipeline.camera import camera_center_in_rig, default_focal, make_camera  # noqa: E402
+from pipeline.camera import default_focal  # noqa: E402
 from pipeline.config import load_config, parse_overrides  # noqa: E402
 from pipeline.evaluation.photos import face_error, pose_error_deg  # noqa: E402
 from pipeline.evaluation.scans import scan_seed  # noqa: E402
@@ -61,7 +59,7 @@ from pipeline.fitting.state import head_vertices  # noqa: E402
 from pipeline.photo.fit_config import FitPhotoConfig  # noqa: E402
 from pipeline.photo.landmark_fit import fit_landmarks  # noqa: E402
 from pipeline.synthetic.photos.settings import PhotoSettings  # noqa: E402
-from pipeline.synthetic.photos.simulate import synthetic_photo  # noqa: E402
+from pipeline.synthetic.photos.simulate import synthetic_photo, true_layout_points  # noqa: E402
 from pipeline.synthetic.population import population_split  # noqa: E402
 from rig.asset import load_asset  # noqa: E402
 from rig.expressions import EXPRESSION_NAMES  # noqa: E402
@@ -101,19 +99,9 @@ def photo_settings(focal_factor: float) -> PhotoSettings:
 
 
 def true_dense_points(photo, layout, faces, rng: np.random.Generator) -> np.ndarray:
-    """The true head's points of ``layout``, the outline picked on the silhouette seen from the camera,
-    projected, + 1 px Gaussian noise."""
-    v = torch.as_tensor(photo.gt_vertices, dtype=torch.float64)
-    points = layout.points3d(v, faces, camera_center_in_rig(photo.rotation, photo.translation))
-    camera = make_camera(
-        photo.width,
-        photo.height,
-        photo.focal,
-        rotation=photo.rotation,
-        translation=photo.translation,
-        dtype=torch.float64,
-    )
-    px = project_points(points[None], camera)[0].numpy()
+    """The true head's points of ``layout`` (:func:`~pipeline.synthetic.photos.simulate.true_layout_points`) + 1 px
+    Gaussian noise."""
+    px = true_layout_points(photo, layout, faces)
     return px + rng.normal(0.0, 1.0, px.shape)
 
 

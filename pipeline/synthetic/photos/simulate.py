@@ -1,5 +1,6 @@
 """Photographing a head: random pose, camera, light, albedo and background, the true landmarks, path-traced
-(:func:`simulate_photo`), and the photo of a held-out head (:func:`synthetic_photo`)."""
+(:func:`simulate_photo`), the photo of a held-out head (:func:`synthetic_photo`), and any landmark layout's true
+points on a photo (:func:`true_layout_points`)."""
 
 from __future__ import annotations
 
@@ -15,6 +16,7 @@ import torch
 from landmarks.ibug68.contour import contour_landmarks
 from landmarks.ibug68.embedding import ibug68_embedding
 from landmarks.ibug68.positions import landmark_positions
+from landmarks.loss import project_points
 from pipeline.camera import RIG_TO_OPENCV, camera_center_in_rig, make_camera
 from pipeline.colour import linear_to_srgb
 from pipeline.synthetic.expressive import expressive_split
@@ -136,6 +138,18 @@ def simulate_photo(
         roll_deg=d.roll,
         mask=mask,
     )
+
+
+def true_layout_points(photo: SyntheticPhoto, layout, faces: np.ndarray) -> np.ndarray:
+    """``(N, 2)`` float64 pixels (OpenCV) of a landmark layout's points on the true head of ``photo``, projected
+    exactly (no noise): each point's embedding on ``photo.gt_vertices``, a sliding outline picked on the silhouette
+    seen from the photo's camera (:meth:`landmarks.layout.LandmarkLayout.points3d`, e.g. MediaPipe's 478)."""
+    v = torch.as_tensor(photo.gt_vertices, dtype=torch.float64)
+    points = layout.points3d(v, faces, camera_center_in_rig(photo.rotation, photo.translation))
+    camera = make_camera(
+        photo.width, photo.height, photo.focal, rotation=photo.rotation, translation=photo.translation, dtype=v.dtype
+    )
+    return project_points(points[None], camera)[0].numpy()
 
 
 def _checked_vertices(vertices, asset: RigAsset) -> np.ndarray:

@@ -293,11 +293,10 @@ def test_multiview_with_dense_points_beats_the_best_single_view(three_views):
     silhouette, 0.3 px noise): the shared identity is better than every single view's, and each view's
     landmarks are still reported as the 68 iBUG points (mapped from the mesh). Measured on 6 heads x 10 views:
     0.70 / 0.64 mm for 3 / 10 views against 0.71 mm for the best single view (docs/multiview.md)."""
-    from landmarks.loss import project_points
     from landmarks.mediapipe.layout import mediapipe_layout
-    from pipeline.camera import camera_center_in_rig, make_camera
     from pipeline.evaluation.photos import face_error
     from pipeline.fitting.state import head_vertices
+    from pipeline.synthetic.photos.simulate import true_layout_points
     from rig.model import JointRig
     from rig.skinning.neural import load_neural
 
@@ -307,10 +306,7 @@ def test_multiview_with_dense_points_beats_the_best_single_view(three_views):
     rng = np.random.default_rng(478)
     lms = []
     for p in three_views.photos:
-        v = torch.as_tensor(p.gt_vertices, dtype=torch.float64)
-        points = layout.points3d(v, rig.asset.faces, camera_center_in_rig(p.rotation, p.translation))
-        camera = make_camera(p.width, p.height, p.focal, rotation=p.rotation, translation=p.translation, dtype=v.dtype)
-        lms.append(project_points(points[None], camera)[0].numpy() + rng.normal(0.0, 0.3, (478, 2)))
+        lms.append(true_layout_points(p, layout, rig.asset.faces) + rng.normal(0.0, 0.3, (478, 2)))
     sizes = [(p.width, p.height) for p in three_views.photos]
     fit = fit_multiview(lms, sizes, rig=rig, neural=neural, layouts=[layout] * 3)
     truth = three_views.neutral_vertices

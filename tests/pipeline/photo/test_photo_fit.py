@@ -219,26 +219,16 @@ def test_the_photometric_stages_weigh_dense_points_as_the_landmark_fit_does(know
     put it. Before, its landmark term ignored MediaPipe's 3 px error and pulled the identity 9x harder onto the
     points (an image term then moved the shape away from the truth even on renders of the fit's own model)."""
     from landmarks.mediapipe.layout import mediapipe_layout
-    from pipeline.camera import camera_center_in_rig
     from pipeline.fitting.state import head_vertices
     from pipeline.photo.fit import fit_photo
+    from pipeline.synthetic.photos.simulate import true_layout_points
     from rig.asset import load_asset
     from rig.model import JointRig
     from rig.skinning.neural import load_neural
 
     asset = load_asset()
     layout = mediapipe_layout(asset)
-    v = torch.as_tensor(known_photo.gt_vertices, dtype=torch.float64)
-    centre = camera_center_in_rig(known_photo.rotation, known_photo.translation)
-    camera = make_camera(
-        known_photo.width,
-        known_photo.height,
-        known_photo.focal,
-        rotation=known_photo.rotation,
-        translation=known_photo.translation,
-        dtype=torch.float64,
-    )
-    points = project_points(layout.points3d(v, asset.faces, centre)[None], camera)[0].numpy()
+    points = true_layout_points(known_photo, layout, asset.faces)
     points += np.random.default_rng(5).normal(0.0, 2.0, points.shape)  # a detector's few pixels
     base = _short_config(lambda_photo=0.0)
     stages = (PhotoStage("look", ("albedo", "light"), 2), PhotoStage("joints", ("joints", "albedo", "light"), 25))
