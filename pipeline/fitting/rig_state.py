@@ -31,6 +31,11 @@ from rig.skinning.neural import LATENT, LATENT_LIMIT, NeuralSkinning
 
 FREE_GROUPS = ("pose", "joints", "latent", "expressions")
 """The groups of the geometry: head pose, joint channels, latent Z, expression coefficients."""
+JOINT_GROUPS = ("joints", "identity")
+"""The groups that move the joint channels: all of them (``joints``), or along the identity prior's main directions
+(``identity``, :meth:`FitState.set_identity_subspace`)."""
+GEOMETRY_GROUPS = FREE_GROUPS + ("identity",)
+"""Every group that moves or places the head's vertices."""
 
 
 @dataclass(frozen=True)
@@ -182,7 +187,7 @@ class FitState(GroupedParameters):
                 self.z.clamp_(-LATENT_LIMIT, LATENT_LIMIT)
         if "identity" in free:
             self._fold_identity()
-        if ("joints" in free or "identity" in free) and self.hard_joint_limits:
+        if any(g in free for g in JOINT_GROUPS) and self.hard_joint_limits:
             self.clamp_joints()
 
     def set_identity_subspace(self, prior: IdentityPrior, k: int) -> None:
@@ -225,7 +230,7 @@ class FitState(GroupedParameters):
 
     def rig_vertices(self, free: tuple[str, ...] = ()) -> torch.Tensor:
         """``(V, 3)`` rig-space vertices, mm; only the groups in ``free`` carry gradients."""
-        theta = self.theta if ("joints" in free or "identity" in free) else self.theta.detach()
+        theta = self.theta if any(g in free for g in JOINT_GROUPS) else self.theta.detach()
         c = self.c if "expressions" in free else self.c.detach()
         expr = self.models.expressions
         _, skinning = self.rig.joint_transforms(theta[None])

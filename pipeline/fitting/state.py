@@ -10,9 +10,9 @@ A *group* is what a stage frees (``pose``, ``joints``, ``latent``, ``expressions
 fit, ``albedo``, ``light``); :meth:`FitState.parameter_groups` turns a stage's groups and a
 learning-rate config into the optimiser's parameter groups, one per tensor, by name.
 
-The rig-space part (:data:`FREE_GROUPS`, :class:`RigModels`, :class:`GroupedParameters`, :class:`FitState`,
-:func:`head_vertices`) is in :mod:`pipeline.fitting.rig_state` and re-exported here; this module holds the
-states that place the head.
+The rig-space part (:data:`FREE_GROUPS`, :data:`GEOMETRY_GROUPS`, :data:`JOINT_GROUPS`, :class:`RigModels`,
+:class:`GroupedParameters`, :class:`FitState`, :func:`head_vertices`) is in :mod:`pipeline.fitting.rig_state`
+and re-exported here; this module holds the states that place the head.
 """
 
 from __future__ import annotations
@@ -31,6 +31,8 @@ from pipeline.fitting.identity import IdentityPrior
 from pipeline.fitting.model_state import ModelScanState
 from pipeline.fitting.priors import PriorWeights, asm_prior_terms
 from pipeline.fitting.rig_state import FREE_GROUPS as FREE_GROUPS
+from pipeline.fitting.rig_state import GEOMETRY_GROUPS as GEOMETRY_GROUPS
+from pipeline.fitting.rig_state import JOINT_GROUPS as JOINT_GROUPS
 from pipeline.fitting.rig_state import FitState as FitState
 from pipeline.fitting.rig_state import GroupedParameters as GroupedParameters
 from pipeline.fitting.rig_state import RigModels as RigModels

@@ -10,7 +10,7 @@ import torch
 
 from pipeline.fitting.engine import Loss, Stage, StageLog, run_schedule
 from pipeline.fitting.priors import cached_identity_prior
-from pipeline.fitting.state import FREE_GROUPS, PhotoState
+from pipeline.fitting.state import GEOMETRY_GROUPS, PhotoState
 from pipeline.fitting.terms import L2, Charbonnier, Inputs, Term, term_values
 from pipeline.photo.crop import Crop, face_crop
 from pipeline.photo.fit_config import PhotometricConfig
@@ -304,7 +304,7 @@ class PhotometricObjective:
     def __call__(self, free: tuple[str, ...]) -> Loss:
         """One step's loss: render -> Charbonnier over the inlier face pixels, landmarks, priors."""
         state = self.state
-        geometry = tuple(g for g in free if g in FREE_GROUPS or g == "identity")
+        geometry = tuple(g for g in free if g in GEOMETRY_GROUPS)
         v = state.rig_vertices(geometry)
         v_cam = state.to_camera(v, geometry).to(self.dtype)
         out = self.renderer.render(v_cam, self.shaded_albedo(v_cam, state.albedo), self.light(), aovs=True)
