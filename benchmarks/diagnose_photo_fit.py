@@ -39,6 +39,7 @@ import sys
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 
@@ -56,6 +57,7 @@ from pipeline.evaluation.photos import face_error, pose_error_deg  # noqa: E402
 from pipeline.evaluation.scans import scan_seed  # noqa: E402
 from pipeline.fitting.engine import Stage  # noqa: E402
 from pipeline.fitting.state import head_vertices  # noqa: E402
+from pipeline.photo.fit import fit_photo  # noqa: E402
 from pipeline.photo.fit_config import FitPhotoConfig  # noqa: E402
 from pipeline.photo.landmark_fit import fit_landmarks  # noqa: E402
 from pipeline.synthetic.photos.settings import PhotoSettings  # noqa: E402
@@ -163,10 +165,6 @@ def condition_config(config: FitPhotoConfig, condition: str, source: str):
 def fit_photometric(photo, landmarks68, target, layout, config: FitPhotoConfig, rig, neural):
     """``default`` + the photometric stages: the landmark fit's fields (theta, z, expressions, rotation,
     translation, error_px) of the whole photo fit; ``landmarks68`` place its face crop (the source's own)."""
-    from types import SimpleNamespace
-
-    from pipeline.photo.fit import fit_photo
-
     config = replace(config, photometric=replace(config.photometric, enabled=True))
     dense = None if layout is None else (target, layout)
     fit = fit_photo(photo.image, landmarks68, config=config, rig=rig, neural=neural, dense=dense)
