@@ -40,7 +40,8 @@ def main() -> None:
     parser.add_argument("--json", type=Path)
     args = parser.parse_args()
     rig, neural = load_models()
-    base = MultiViewConfig()
+    # the true points + 1 px: their own error, independent between views (bench_multiview.py does the same)
+    base = MultiViewConfig(view_correlation=0.0, view_yaw_deg=0.0)
     records = []
     for head in args.heads:
         views = synthetic_views(head, max(args.views), settings=MultiViewSettings(photo=PhotoSettings(spp=args.spp)))

@@ -118,6 +118,15 @@ class MultiViewConfig:
     """Damping and stopping of the joint refinement (``max_iterations`` comes from ``refine_iterations``)."""
     lambda_identity: float = 0.03
     """Weight of the identity prior, counted once against the landmark terms summed over the views."""
+    view_correlation: float = 1.0
+    """How much the detector's errors are shared between the views of one face, in [0, 1]: every view's landmark
+    term is weighed by ``1 / (1 + (N - 1) view_correlation)``, so 0 counts the ``N`` views as independent evidence
+    about the identity (their terms summed, as before issue 37) and 1 as one view's worth (their mean). 1: chosen
+    on validation views with MediaPipe's points, whose errors the views share (docs/multiview.md)."""
+    view_yaw_deg: float = 30.0
+    """Each view's landmark term is also weighed by ``1 / (1 + (|yaw| / view_yaw_deg)^4)`` over the largest such
+    weight of the set, ``yaw`` the head's yaw in the view's single fit: a detector's points on a face turned
+    past ~30 degrees are worse (docs/multiview.md). 0: every view alike."""
     fit_focal: bool = True
     """Fit each view's focal length (``s_k``); False: keep ``f0_k``."""
     outputs: OutputsConfig = field(default_factory=OutputsConfig)
@@ -139,3 +148,7 @@ class MultiViewConfig:
             raise InputError(f"refine_iterations must be >= 0, got {self.refine_iterations}")
         if self.lambda_identity < 0 or self.lambda_focal < 0:
             raise InputError("lambda_identity and lambda_focal must be >= 0")
+        if self.view_yaw_deg < 0:
+            raise InputError(f"view_yaw_deg must be >= 0, got {self.view_yaw_deg}")
+        if not 0.0 <= self.view_correlation <= 1.0:
+            raise InputError(f"view_correlation must be within [0, 1], got {self.view_correlation}")

@@ -33,7 +33,7 @@ from pipeline.fitting.terms import L2, Inputs, Term
 from pipeline.photo.landmark_fit import LandmarkFit
 from pipeline.photo.multiview_config import MultiViewConfig
 from rig.expressions import expression_limits
-from rig.geometry import RIG_TO_OPENCV
+from rig.geometry import RIG_TO_OPENCV, head_angles
 from rig.head_model import jnr_vertices
 from rig.model import JointRig
 from rig.parameters import theta_limits
@@ -52,6 +52,28 @@ class MultiViewStage(Stage):
 def focal_term(weight: float) -> Term:
     """``0.5 weight sum_k s_k^2``: the prior on each view's log focal change (input ``log_focal (B, N)``)."""
     return Term("focal", 0.5 * weight, lambda p: p["log_focal"], L2())
+
+
+def view_weights(yaw_deg: np.ndarray, correlation: float, yaw_scale_deg: float) -> np.ndarray:
+    """``(N,)`` the weights of ``N`` views' landmark terms (:class:`~pipeline.photo.multiview_config.MultiViewConfig`'s
+    ``view_correlation`` and ``view_yaw_deg``).
+
+    Each view ``k`` gets ``u_k / max(u) / (1 + (N - 1) correlation)``, ``u_k = 1 / (1 + (|yaw_k| / yaw_scale_deg)^4)``
+    (``u = 1`` when ``yaw_scale_deg`` is 0): a turned face's points count less than a frontal one's, and errors
+    the views share (``correlation`` 1) are counted once, not ``N`` times.
+
+    Args:
+        yaw_deg: ``(N,)`` the head's yaw in each view, degrees. correlation: in [0, 1]. yaw_scale_deg: >= 0.
+
+    Example:
+        >>> view_weights(np.array([0.0, 30.0, -60.0]), 1.0, 30.0).round(4).tolist()
+        [0.3333, 0.1667, 0.0196]
+        >>> view_weights(np.array([0.0, 30.0]), 0.0, 0.0).tolist()
+        [1.0, 1.0]
+    """
+    yaw = np.abs(np.asarray(yaw_deg, np.float64))
+    u = 1.0 / (1.0 + (yaw / yaw_scale_deg) ** 4) if yaw_scale_deg > 0 else np.ones_like(yaw)
+    return u / u.max() / (1.0 + (len(yaw) - 1) * correlation)
 
 
 class MultiViewState(GroupedParameters):
@@ -184,6 +206,10 @@ class MultiViewProblem:
         self, state: MultiViewState, terms: list[LandmarkTerm], weights: torch.Tensor, config: MultiViewConfig
     ) -> None:
         self.state, self.landmark_terms, self.config = state, terms, config
+        with torch.no_grad():
+            rotations = axis_angle_to_rotation_matrix(state.rotvec.detach())
+        yaws = np.array([head_angles(r.numpy())[0] for r in rotations])
+        self.view_weights = view_weights(yaws, config.view_correlation, config.view_yaw_deg)
         self.weights = weights.double()
         self.vector = StateVector(state, self.FREE)
         self.views = [BatchedLandmarks(t, state.rig, self.weights, ("pose", "joints", "expressions")) for t in terms]
@@ -198,10 +224,10 @@ class MultiViewProblem:
         weights = replace(
             config.landmarks.prior, lambda_identity=config.lambda_identity, lambda_m=0.0, lambda_symmetry=0.0
         )
+        # each view over its points' error squared, as in the single-view fit, and by view_weights
         landmarks = tuple(
-            # each view over its points' error squared, as in the single-view fit
-            t.term(1.0 / config.landmarks.noise_for(t.layout.name) ** 2, name=f"landmarks_{k}", key=f"landmarks_px_{k}")
-            for k, t in enumerate(self.landmark_terms)
+            t.term(w / config.landmarks.noise_for(t.layout.name) ** 2, name=f"landmarks_{k}", key=f"landmarks_px_{k}")
+            for k, (t, w) in enumerate(zip(self.landmark_terms, self.view_weights))
         )
         return (*landmarks, *self.state.prior_terms(weights), focal_term(config.lambda_focal))
 
