@@ -386,3 +386,22 @@ def test_turned_views_count_less_than_a_frontal_one(three_views):
 def test_bad_view_weight_settings_are_rejected(key, value):
     with pytest.raises(InputError, match=key):
         MultiViewConfig(**{key: value})
+
+
+def test_cli_views_with_a_bad_view_weight_is_a_one_line_error(capsys, tmp_path, view_photos):
+    root, _ = view_photos
+    photos = [str(root / f"v{k}.png") for k in range(2)]
+    code, _, err = run(
+        capsys,
+        "fit",
+        *photos,
+        "--views",
+        "--landmarks",
+        "auto",
+        "--set",
+        "view_correlation=2",
+        "--out",
+        str(tmp_path / "x"),
+    )
+    assert code == 2 and err.strip().count("\n") == 0 and "view_correlation" in err, err
+    assert not (tmp_path / "x").exists()
