@@ -85,6 +85,9 @@ class ViewFit:
         rig_vertices: ``(V, 3)`` the head with this view's expression, rig space, mm.
         landmarks2d: ``(68, 2)`` input landmarks; landmarks_px ``(68, 2)`` fitted, px; error_px ``(68,)``;
             nme: mean error / outer-eye-corner distance.
+        weight: the weight of this view's landmark term in the joint refinement (before its points' error
+            squared; :func:`~pipeline.photo.multiview_problem.view_weights`: the views' terms averaged, a turned
+            view's weighed less).
     """
 
     rotation: np.ndarray
@@ -99,6 +102,7 @@ class ViewFit:
     landmarks_px: np.ndarray
     error_px: np.ndarray
     nme: float
+    weight: float = 1.0
 
     @property
     def camera(self):
@@ -395,6 +399,7 @@ def _view_fits(
                 landmarks_px=px,
                 error_px=error,
                 nme=nme,
+                weight=float(problem.view_weights[k]),
             )
         )
     return views

@@ -202,6 +202,7 @@ def write_multiview_outputs(
                 "single_view_mean_error_px": float(s.error_px.mean()) * f,
                 "focal_px": float(v.focal) * f,
                 "yaw_pitch_roll_deg": [float(a) for a in head_angles(v.rotation)],
+                "landmark_weight": v.weight,
             }
             for p, v, s, f in zip(photos, fit.views, fit.single_view_fits, factors)
         ],

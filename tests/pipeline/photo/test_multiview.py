@@ -224,6 +224,12 @@ def test_cli_views_writes_per_view_overlays_and_poses(capsys, tmp_path, view_pho
         assert set(view["camera"]) >= {"focal_px", "extrinsics_rig_to_camera"} and len(view["expressions"]) == 52
     report = json.loads((out / "report.json").read_text())
     assert [s["name"] for s in report["stages"]] == ["average", "refine", "photometric"]
+    # each view's weight in the refinement: three views' terms averaged, the most frontal one in full, the one
+    # turned most (37 degrees against 5 and 7) least
+    weights = [v["landmark_weight"] for v in report["views"]]
+    turned = int(np.argmax(np.abs(views.yaw_deg)))
+    assert max(weights) == pytest.approx(1 / 3) and int(np.argmin(weights)) == turned, weights
+    assert 0.05 < weights[turned] < 0.2, weights
 
 
 def test_cli_views_with_one_photo_is_a_one_line_error(capsys, tmp_path, view_photos):
