@@ -397,17 +397,7 @@ def test_bad_view_weight_settings_are_rejected(key, value):
 def test_cli_views_with_a_bad_view_weight_is_a_one_line_error(capsys, tmp_path, view_photos):
     root, _ = view_photos
     photos = [str(root / f"v{k}.png") for k in range(2)]
-    code, _, err = run(
-        capsys,
-        "fit",
-        *photos,
-        "--views",
-        "--landmarks",
-        "auto",
-        "--set",
-        "view_correlation=2",
-        "--out",
-        str(tmp_path / "x"),
-    )
+    bad = ["--set", "view_correlation=2"]
+    code, _, err = run(capsys, "fit", *photos, "--views", "--landmarks", "auto", *bad, "--out", str(tmp_path / "x"))
     assert code == 2 and err.strip().count("\n") == 0 and "view_correlation" in err, err
     assert not (tmp_path / "x").exists()
