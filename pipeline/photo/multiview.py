@@ -14,13 +14,16 @@ image centre).
    (:func:`pipeline.fitting.least_squares.run_lm_stage`) on the identity and every view's pose, expressions and
    focal, minimising the terms of :meth:`~pipeline.photo.multiview_problem.MultiViewProblem.terms`
 
-       sum_k landmarks_k + 0.5 lambda_identity |M (theta / span - mu)|^2 + sum_k lambda_expressions |c_k|^2
+       sum_k w_k landmarks_k + 0.5 lambda_identity |M (theta / span - mu)|^2 + sum_k lambda_expressions |c_k|^2
        + sum_k 0.5 lambda_focal s_k^2
 
    where ``landmarks_k`` is view ``k``'s landmark term exactly as in the single-photo fit
    (:class:`~pipeline.fitting.landmark_term.LandmarkTerm`: detector weights, Huber by IRLS, the jaw contour
-   re-picked from view ``k``'s camera centre). The landmark terms are **summed** over views, the identity prior
-   counted once: each view is more evidence about the one identity.
+   re-picked from view ``k``'s camera centre) and ``w_k`` its weight
+   (:func:`~pipeline.photo.multiview_problem.view_weights`): by default the views' terms are **averaged**, as a
+   detector's errors are largely shared by the views of one face, and a view turned past ~30 degrees counts
+   less (``view_correlation`` 0 and ``view_yaw_deg`` 0 sum them, for points with independent errors). The
+   identity prior is counted once.
 3. **Photometric consistency** (optional, ASM eqs. 21-22, :class:`PhotoConsistencyConfig`,
    :mod:`pipeline.photo.consistency`): an Adam stage on the shared identity and the per-view poses, minimising
    the step-2 cost plus ``lambda_pc * (1 - mean over view pairs of LNCC)``.

@@ -91,8 +91,9 @@ class AsmConfig:
     """Adam step of the poses' translations, mm."""
     lambda_regularizer: float = 0.1
     """Weight of ASM's eq. 19 regulariser (the paper's per-term weights 1, 0.1, 0.1, 0.1, 0.1 in
-    :class:`rig.skinning.asm.AsmRegularizer`'s units) against the landmark cost summed over views; a smaller one
-    lets ASM's capacity chase the landmark noise (docs/multiview.md "Settings")."""
+    :class:`rig.skinning.asm.AsmRegularizer`'s units) against the views' weighted landmark cost (chosen when it was
+    their sum, with true points); a smaller one lets ASM's capacity chase the landmark noise (docs/multiview.md
+    "Settings")."""
     register_to: str = "averaged"
     """``averaged``: register to the averaged single-view JNR head (ASM App. D.1); ``refined``: to the JNR
     multi-view head after the joint landmark refinement."""
@@ -117,7 +118,8 @@ class MultiViewConfig:
     lm: LMSettings = field(default_factory=LMSettings)
     """Damping and stopping of the joint refinement (``max_iterations`` comes from ``refine_iterations``)."""
     lambda_identity: float = 0.03
-    """Weight of the identity prior, counted once against the landmark terms summed over the views."""
+    """Weight of the identity prior, counted once against the views' weighted landmark terms (``view_correlation``,
+    ``view_yaw_deg``)."""
     view_correlation: float = 1.0
     """How much the detector's errors are shared between the views of one face, in [0, 1]: every view's landmark
     term is weighed by ``1 / (1 + (N - 1) view_correlation)``, so 0 counts the ``N`` views as independent evidence

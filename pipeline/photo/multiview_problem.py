@@ -217,9 +217,9 @@ class MultiViewProblem:
         self.flip = torch.tensor(RIG_TO_OPENCV, dtype=torch.float64)
 
     def terms(self) -> tuple[Term, ...]:
-        """Each view's landmark term (``landmarks_<k>``, summed over the views: each view is more evidence
-        about the one identity), the state's priors with the identity prior's weight ``lambda_identity``
-        (counted once), and the focal prior."""
+        """Each view's landmark term (``landmarks_<k>``, weighed by :attr:`view_weights`: averaged over the views
+        and a turned view's less by default), the state's priors with the identity prior's weight
+        ``lambda_identity`` (counted once), and the focal prior."""
         config = self.config
         weights = replace(
             config.landmarks.prior, lambda_identity=config.lambda_identity, lambda_m=0.0, lambda_symmetry=0.0
