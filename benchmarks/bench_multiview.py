@@ -1,6 +1,7 @@
 """Multi-view uncalibrated reconstruction on synthetic views with known truth (issue 15, ASM 4.2 / Table 6).
 
     .venv/bin/python benchmarks/bench_multiview.py [--heads 5] [--first 20] [--photometric] [--asm]
+                                                   [--landmarks ibug68|mediapipe|detected] [--set KEY=VALUE ...]
                                                    [--json benchmarks/results/multiview_bench.json] [--figure FILE.png]
     .venv/bin/python benchmarks/bench_multiview.py --merge RUN1.json RUN2.json
                                                    --json benchmarks/results/multiview_bench.json
@@ -36,6 +37,7 @@ from bench_pose_detectors import dense_points
 from common import finish, load_models
 
 from landmarks.mediapipe.layout import mediapipe_layout
+from pipeline.config import ConfigError, load_config, parse_overrides
 from pipeline.evaluation.photos import face_error
 from pipeline.fitting.state import head_vertices
 from pipeline.photo.multiview import MultiViewConfig, fit_multiview
@@ -63,6 +65,13 @@ def main() -> None:
         "outline picked on each view's silhouette, fitted with their true error: dense_noise_px 1); or 'detected': "
         "MediaPipe's own 478 points on the rendered views (views where it finds no face are left out)",
     )
+    parser.add_argument(
+        "--set",
+        action="append",
+        metavar="KEY=VALUE",
+        help="a multi-view setting (MultiViewConfig, as jnr fit --views --set), after the --landmarks defaults; "
+        "e.g. --set view_correlation=0 --set view_yaw_deg=0 (the views' terms summed, as before issue 37)",
+    )
     parser.add_argument("--json", type=Path)
     parser.add_argument("--figure", type=Path, help="grey renders (front, side) of the first head's fits")
     parser.add_argument("--merge", type=Path, nargs="+", help="only merge the records of these runs' JSON files")
@@ -72,11 +81,16 @@ def main() -> None:
         return
     rig, neural = load_models()
     settings = MultiViewSettings(photo=PhotoSettings(spp=args.spp))
-    base = MultiViewConfig()
+    overrides: dict = {}
     if args.landmarks != "detected":  # the true points + 1 px: their own error, independent between views
-        base = replace(base, view_correlation=0.0, view_yaw_deg=0.0)
+        overrides.update(view_correlation=0.0, view_yaw_deg=0.0)
     if args.landmarks == "mediapipe":
-        base = replace(base, landmarks=replace(base.landmarks, dense_noise_px=1.0))
+        overrides["landmarks.dense_noise_px"] = 1.0
+    overrides.update(parse_overrides(args.set))
+    try:
+        base = load_config(MultiViewConfig, None, overrides)
+    except ConfigError as exc:
+        parser.error(str(exc))
     methods = {"jnr": base}
     if args.photometric:
         methods["jnr + photometric"] = replace(base, photometric=replace(base.photometric, enabled=True))
