@@ -53,10 +53,8 @@ def _build(cls: type[T], values: dict, where: str) -> T:
     out: dict[str, Any] = {}
     fields = {f.name: f for f in dataclasses.fields(cls)}
     for name, value in values.items():
-        base = _default(fields[name])
-        if isinstance(value, dict) and dataclasses.is_dataclass(base):
-            # a partial mapping for a nested config overrides that field's own default, not its class's
-            value = {**{f.name: getattr(base, f.name) for f in dataclasses.fields(base)}, **value}
+        # a partial mapping for a nested config overrides that field's own default, not its class's
+        value = _merged(_default(fields[name]), value)
         out[name] = _coerce(hints[name], value, f"{where}.{name}")
         if _negative(out[name]) and not fields[name].metadata.get("signed"):
             raise ConfigError(f"{where}.{name}: must not be negative, got {value!r}")
@@ -64,6 +62,19 @@ def _build(cls: type[T], values: dict, where: str) -> T:
         return cls(**out)
     except (TypeError, ValueError) as exc:
         raise ConfigError(f"{where}: {exc}") from exc
+
+
+def _merged(base, value):
+    """``value`` (a partial mapping) over a nested config's default instance ``base``, level by level: a mapping
+    for a field that is itself a config keeps that field's values in ``base`` (e.g. the photo fit's landmark
+    prior), not its class's defaults. Anything else: ``value`` as given."""
+    if not (isinstance(value, dict) and dataclasses.is_dataclass(base) and not isinstance(base, type)):
+        return value
+    names = {f.name for f in dataclasses.fields(base)}
+    out = {name: getattr(base, name) for name in names}
+    for key, item in value.items():
+        out[key] = _merged(getattr(base, key), item) if key in names else item  # unknown keys: _build's error
+    return out
 
 
 def _default(f: dataclasses.Field):

@@ -14,8 +14,10 @@ from landmarks.loss import project_points
 from pipeline.camera import camera_direction_to_rig, make_camera
 from pipeline.colour import linear_to_srgb, srgb_to_linear
 from pipeline.config import ConfigError, load_config
+from pipeline.fitting.priors import PriorWeights
 from pipeline.photo.crop import Crop, face_crop
 from pipeline.photo.fit_config import FitPhotoConfig, PhotometricConfig, PhotoStage
+from pipeline.photo.multiview_config import MultiViewConfig
 from pipeline.photo.photometric import fit_light, hemisphere_directions
 
 ROOT = Path(__file__).resolve().parents[3]
@@ -115,6 +117,22 @@ class TestConfig:
         assert c.landmarks.prior.lambda_m == 0.7 and c.photometric.spp == 3 and c.photometric.lr.albedo == 0.5
         assert c.landmarks.prior.lambda_x == FitPhotoConfig().landmarks.prior.lambda_x  # the rest keep their defaults
         assert PhotoStage("a", ("albedo",), 2).iterations == 2
+
+    def test_a_nested_override_keeps_the_parents_defaults_not_the_nested_class_defaults(self, tmp_path):
+        # the photo fit's landmark prior (PHOTO_PRIOR: the identity prior, no L_m) is not PriorWeights()'s: setting
+        # one of its weights must leave the others at the photo fit's values, from --set as from a YAML file
+        default = FitPhotoConfig().landmarks.prior
+        assert default != PriorWeights()  # otherwise this test could not fail
+        want = replace(default, lambda_expressions=0.7)
+        by_set = load_config(FitPhotoConfig, None, {"landmarks.prior.lambda_expressions": 0.7})
+        partial = tmp_path / "partial.yaml"
+        partial.write_text("landmarks:\n  prior:\n    lambda_expressions: 0.7\n")
+        by_file = load_config(FitPhotoConfig, partial)
+        for c in (by_set, by_file):
+            assert c.landmarks.prior == want
+            assert c.landmarks == replace(FitPhotoConfig().landmarks, prior=want)
+        views = load_config(MultiViewConfig, None, {"landmarks.prior.lambda_identity": 0.1})
+        assert views.landmarks.prior == replace(MultiViewConfig().landmarks.prior, lambda_identity=0.1)
 
 
 # ----------------------------------------------------------------------------------------------------
