@@ -111,8 +111,9 @@ class PhotometricConfig:
     """The photometric stages of :func:`fit_photo` (``photometric:`` in YAML)."""
 
     enabled: bool = False
-    """Run them (``jnr fit --photometric``). Off by default: the identity stage improved the fit on synthetic
-    validation photos but not on held-out ones, for 13-14 s a photo (``docs/fit_photo.md``)."""
+    """Run them (``jnr fit --photometric``). Off by default: on 100 synthetic photos the identity stage (a quarter of
+    its step, :attr:`identity_step`) brings the fit about 1 % closer to the person, for 12-14 s a photo
+    (``docs/fit_photo.md``)."""
     stages: tuple[PhotoStage, ...] = field(default_factory=identity_schedule)
     """The schedule: :func:`identity_schedule` (one stage of the identity along the prior's main directions);
     :func:`photo_schedule` is JNR 4.3's alternation with a per-vertex albedo."""
@@ -151,6 +152,12 @@ class PhotometricConfig:
     identity_components: int = 40
     """How many of the identity prior's main directions the group ``identity`` moves the joint channels along
     (:meth:`~pipeline.fitting.rig_state.FitState.set_identity_subspace`)."""
+    identity_step: float = 0.25
+    """The fraction of the photometric stages' change of the joint channels that is kept: they end at the landmark
+    fit's plus ``identity_step`` times that change (pose, expressions and appearance as the stages leave them). The
+    stage's full step is closer to the person on average but farther on more photos; a quarter of it was the
+    largest gain on validation photos that left no more photos worse than the template than the landmark fit did
+    (``docs/fit_photo.md``: 0.25, 0.5, 0.75 and 1 on 60 photos)."""
     seed: int = 0
     """Renderer sampling seed."""
     reproducible: bool = True
@@ -167,6 +174,8 @@ class PhotometricConfig:
             raise InputError(f"crop_margin must be >= 0, got {self.crop_margin}")
         if self.light_model not in LIGHT_MODELS:
             raise InputError(f"light_model must be one of {list(LIGHT_MODELS)}, got {self.light_model!r}")
+        if not 0.0 < self.identity_step <= 1.0:
+            raise InputError(f"identity_step must be within (0, 1], got {self.identity_step}")
         if self.identity_components < 1:
             raise InputError(f"identity_components must be >= 1, got {self.identity_components}")
         if self.light_directions < 1:

@@ -108,6 +108,7 @@ def _photometric(
     # torch's CPU scatter-adds (index backward) are order-dependent on several threads too
     with torch_threads(1 if settings.reproducible else None), reproducible(settings.reproducible):
         fit = PhotometricObjective(photo, crop, focal, state, term, settings, noise_px)
+        start = state.theta_n.detach().clone()
         stages = run_schedule(
             state,
             settings.stages,
@@ -117,7 +118,17 @@ def _photometric(
             progress=progress,
             before_stage=fit.before_stage,
         )
+        keep_step(state, start, settings.identity_step)
         return np.asarray(fit.direction, float), stages
+
+
+def keep_step(state: PhotoState, start: torch.Tensor, fraction: float) -> None:
+    """Set the joint channels (``state.theta_n``, in place) to ``start + fraction * (theta_n - start)``: keep that
+    fraction of what the photometric stages changed (:attr:`PhotometricConfig.identity_step`); ``start (P,)``
+    the channels before them, over their span."""
+    with torch.no_grad():
+        state.theta_n.copy_(start + fraction * (state.joints_n() - start))
+        state.identity_c.zero_()
 
 
 class PhotometricObjective:

@@ -72,6 +72,9 @@ def test_the_identity_prior_term_sees_the_live_step():
 def test_bad_identity_settings_are_rejected():
     with pytest.raises(InputError, match="identity_components"):
         PhotometricConfig(identity_components=0)
+    for step in (0.0, 1.5, -0.25):
+        with pytest.raises(InputError, match="identity_step"):
+            PhotometricConfig(identity_step=step)
     with pytest.raises(InputError, match="at least one direction"):
         _state().set_identity_subspace(cached_identity_prior(), 0)
     assert [s.free for s in identity_schedule(5)] == [("identity",)] and identity_schedule(0) == ()
@@ -129,6 +132,7 @@ def test_the_identity_stage_moves_the_head_towards_the_truth_from_the_pixels_alo
         render_size=96,
         spp=8,
         lambda_photo=60.0,
+        identity_step=1.0,  # the stage's whole step (the default keeps a quarter of it)
     )
     config = replace(base, landmarks=landmarks, photometric=photometric)
     fit = fit_photo(photo.image, photo.landmarks2d, focal=photo.focal, config=config, rig=rig, neural=None)
@@ -138,3 +142,16 @@ def test_the_identity_stage_moves_the_head_towards_the_truth_from_the_pixels_alo
     assert [s.name for s in fit.stages] == ["photo identity"]
     # measured 1.91 -> 0.90 mm (the s2m median 0.40 -> 0.24)
     assert after["vertex_mean_mm"] < 0.7 * before["vertex_mean_mm"], (before, after)
+
+    # identity_step keeps that fraction of the stage's change of the joint channels (the same repeatable stage)
+    half = replace(config, photometric=replace(photometric, identity_step=0.5))
+    fit_half = fit_photo(photo.image, photo.landmarks2d, focal=photo.focal, config=half, rig=rig, neural=None)
+    np.testing.assert_allclose(fit_half.landmark_fit.theta, lf.theta)
+    np.testing.assert_allclose(fit_half.theta, lf.theta + 0.5 * (fit.theta - lf.theta), rtol=1e-5, atol=1e-4)
+    assert np.abs(fit.theta - lf.theta).max() > 0.1  # the stage moved the channels
+    from rig.skinning.neural import load_neural
+
+    neural, _ = load_neural(rig)  # the landmark config's use_neural: the fit skins with it
+    expected = head_vertices(rig, neural, fit_half.theta, fit_half.z, fit_half.expressions)
+    np.testing.assert_allclose(fit_half.rig_vertices, expected, atol=1e-3)
+    np.testing.assert_allclose(fit_half.rotation, fit.rotation, atol=1e-6)
