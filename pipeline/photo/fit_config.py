@@ -112,7 +112,7 @@ class PhotometricConfig:
 
     enabled: bool = False
     """Run them (``jnr fit --photometric``). Off by default: on 100 synthetic photos the identity stage (a quarter of
-    its step, :attr:`identity_step`) brings the fit about 1 % closer to the person, for 12-14 s a photo
+    its step, :attr:`identity_step`) brings the fit about 1 % closer to the person, for 11-14 s a photo
     (``docs/fit_photo.md``)."""
     stages: tuple[PhotoStage, ...] = field(default_factory=identity_schedule)
     """The schedule: :func:`identity_schedule` (one stage of the identity along the prior's main directions);
