@@ -157,7 +157,8 @@ class PhotometricConfig:
     fit's plus ``identity_step`` times that change (pose, expressions and appearance as the stages leave them). The
     stage's full step is closer to the person on average but farther on more photos; a quarter of it was the
     largest gain on validation photos that left no more photos worse than the template than the landmark fit did
-    (``docs/fit_photo.md``: 0.25, 0.5, 0.75 and 1 on 60 photos)."""
+    (``docs/fit_photo.md``: 0.25, 0.5, 0.75 and 1 on 60 photos). The stages' logs (``report.json``) are those of
+    the stages as they ran, to their whole step."""
     seed: int = 0
     """Renderer sampling seed."""
     reproducible: bool = True
