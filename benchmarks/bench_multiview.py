@@ -41,6 +41,7 @@ from pipeline.config import ConfigError, load_config, parse_overrides
 from pipeline.evaluation.photos import face_error
 from pipeline.fitting.state import head_vertices
 from pipeline.photo.multiview import MultiViewConfig, fit_multiview
+from pipeline.photo.multiview_config import INDEPENDENT_VIEWS
 from pipeline.synthetic.multiview import MultiViewSettings, synthetic_views
 from pipeline.synthetic.photos.settings import PhotoSettings
 
@@ -83,7 +84,7 @@ def main() -> None:
     settings = MultiViewSettings(photo=PhotoSettings(spp=args.spp))
     overrides: dict = {}
     if args.landmarks != "detected":  # the true points + 1 px: their own error, independent between views
-        overrides.update(view_correlation=0.0, view_yaw_deg=0.0)
+        overrides.update(INDEPENDENT_VIEWS)
     if args.landmarks == "mediapipe":
         overrides["landmarks.dense_noise_px"] = 1.0
     overrides.update(parse_overrides(args.set))

@@ -27,6 +27,7 @@ from common import finish, load_models
 
 from pipeline.evaluation.photos import face_error
 from pipeline.photo.multiview import MultiViewConfig, fit_multiview
+from pipeline.photo.multiview_config import INDEPENDENT_VIEWS
 from pipeline.synthetic.multiview import MultiViewSettings, synthetic_views
 from pipeline.synthetic.photos.settings import PhotoSettings
 
@@ -41,7 +42,7 @@ def main() -> None:
     args = parser.parse_args()
     rig, neural = load_models()
     # the true points + 1 px: their own error, independent between views (bench_multiview.py does the same)
-    base = MultiViewConfig(view_correlation=0.0, view_yaw_deg=0.0)
+    base = MultiViewConfig(**INDEPENDENT_VIEWS)
     records = []
     for head in args.heads:
         views = synthetic_views(head, max(args.views), settings=MultiViewSettings(photo=PhotoSettings(spp=args.spp)))

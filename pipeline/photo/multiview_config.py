@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from types import MappingProxyType
 
 from pipeline.config import SIGNED
 from pipeline.fitting.least_squares import LMSettings
@@ -154,3 +155,9 @@ class MultiViewConfig:
             raise InputError(f"view_yaw_deg must be >= 0, got {self.view_yaw_deg}")
         if not 0.0 <= self.view_correlation <= 1.0:
             raise InputError(f"view_correlation must be within [0, 1], got {self.view_correlation}")
+
+
+INDEPENDENT_VIEWS = MappingProxyType({"view_correlation": 0.0, "view_yaw_deg": 0.0})
+"""The :class:`MultiViewConfig` settings for points whose errors are independent between the views (the true
+points + noise, points placed by hand, a tracker's keyframes): every view's landmark term counted in full, as before
+issue 37 (``MultiViewConfig(**INDEPENDENT_VIEWS)``; ``--set view_correlation=0 --set view_yaw_deg=0``)."""

@@ -123,9 +123,9 @@ def _photometric(
 
 
 def keep_step(state: PhotoState, start: torch.Tensor, fraction: float) -> None:
-    """Set the joint channels (``state.theta_n``, in place) to ``start + fraction * (theta_n - start)``: keep that
-    fraction of what the photometric stages changed (:attr:`PhotometricConfig.identity_step`); ``start (P,)``
-    the channels before them, over their span."""
+    """Set the joint channels over their span (``state.theta_n``, in place, the identity subspace's step folded in)
+    to ``start + fraction * (now - start)``: keep that fraction of what the photometric stages changed
+    (:attr:`PhotometricConfig.identity_step`); ``start (P,)`` the channels before them."""
     with torch.no_grad():
         state.theta_n.copy_(start + fraction * (state.joints_n() - start))
         state.identity_c.zero_()

@@ -26,7 +26,7 @@ from landmarks.mediapipe.layout import mediapipe_layout
 from pipeline.camera import default_focal
 from pipeline.head.fitted import FittedHead, fitted_head_from_params
 from pipeline.photo.multiview import MultiViewFit, fit_multiview
-from pipeline.photo.multiview_config import MultiViewConfig
+from pipeline.photo.multiview_config import INDEPENDENT_VIEWS, MultiViewConfig
 from pipeline.track.follow import FaceFollower
 from pipeline.track.shots import CutDetector, Shot, split_shots
 from pipeline.track.smooth import SmoothSettings, smooth_track
@@ -403,7 +403,7 @@ def _track_frames(
         # every keyframe counts in full: an identity that takes up the detector's error shared by the frames keeps
         # it out of their expressions (the views' averaged, yaw-weighed terms, measured on the bench_track clips
         # 1-2: all 52 coefficients 0.044 / 0.051 -> 0.049 / 0.059, docs/track.md)
-        config=MultiViewConfig(fit_focal=False, skinning=config.model, view_correlation=0.0, view_yaw_deg=0.0),
+        config=MultiViewConfig(fit_focal=False, skinning=config.model, **INDEPENDENT_VIEWS),
         rig=rig,
         layouts=[layout] * len(keys),
         progress=progress,
