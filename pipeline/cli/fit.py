@@ -439,7 +439,7 @@ def _add_fit_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--photometric",
         action="store_true",
-        help="after the landmark fit, the photometric identity stage (render + photo loss, ~15 s a photo; off by "
+        help="after the landmark fit, the photometric identity stage (render + photo loss, ~8 s a photo; off by "
         "default: about 1 %% closer to the person on synthetic photos, see docs/fit_photo.md)",
     )
     parser.add_argument(

@@ -169,6 +169,7 @@ class PhotometricObjective:
             crop.camera(focal, width, height, dtype=dtype),
             Lighting(torch.full((3,), 1.0), torch.zeros(3), torch.tensor([0.0, 0.0, 1.0])),
             spp=settings.spp,
+            spp_primary=settings.spp_silhouette,
             seed=settings.seed,
             regions=asset.regions,
         )

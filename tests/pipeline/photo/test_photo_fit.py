@@ -109,6 +109,9 @@ class TestConfig:
             PhotometricConfig(render_size=4)
         with pytest.raises(ValueError, match="face_regions"):
             PhotometricConfig(face_regions=("forehead", "moustache"))
+        for spp in (0, 10_000):
+            with pytest.raises(ValueError, match="spp_silhouette"):
+                PhotometricConfig(spp_silhouette=spp)
 
     def test_nested_override(self):
         c = load_config(
@@ -229,6 +232,27 @@ def test_a_photometric_fit_frees_its_renderer_without_the_garbage_collector(know
         gc.enable()
     # at most the last one (Dr.Jit may hold the last fit's objects until the next); never one per fit
     assert len(left) <= 1, len(left)
+
+
+def test_the_photometric_renderer_takes_the_shading_and_silhouette_samples_from_the_config(known_photo, monkeypatch):
+    """``spp`` sets the shading's samples per pixel and ``spp_silhouette`` the silhouettes' (Mitsuba's ``sppp``):
+    each reaches the renderer the fit builds, neither replaced by the other."""
+    import pipeline.photo.photometric as photometric
+    from pipeline.photo.fit import fit_photo
+    from pipeline.photo.fit_config import photo_schedule
+
+    built = []
+
+    class Recording(photometric.DifferentiableRenderer):
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, **kwargs)
+            built.append((self.spp, self.spp_primary))
+
+    monkeypatch.setattr(photometric, "DifferentiableRenderer", Recording)
+    base = _short_config(spp=2, spp_silhouette=3)
+    config = replace(base, photometric=replace(base.photometric, stages=photo_schedule(1, 1, 0, 0, 0), render_size=32))
+    fit_photo(known_photo.image, known_photo.landmarks2d, focal=known_photo.focal, config=config)
+    assert built == [(2, 3)]
 
 
 def test_the_photometric_stages_weigh_dense_points_as_the_landmark_fit_does(known_photo):
