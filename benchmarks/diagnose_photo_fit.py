@@ -262,23 +262,9 @@ def main() -> None:
                 pose_err = pose_error_deg(
                     v, fit.rotation, fit.translation, p.gt_vertices, p.rotation, p.translation, asset
                 )
-                record = {
-                    "name": ph.name,
-                    "kind": ph.kind,
-                    "focal_factor": ph.focal_factor,
-                    "yaw_deg": float(p.yaw_deg),
-                    "source": source,
-                    "condition": condition,
-                    "s2m_median_mm": s2m,
-                    "template_mm": tmpl,
-                    "ratio": s2m / tmpl,
-                    "identity_mm": ident,
-                    "template_identity_mm": tmpl_id,
-                    "identity_ratio": ident / tmpl_id,
-                    "pose_error_deg": pose_err,
-                    "landmark_error_px": float(fit.error_px.mean()),
-                    "seconds": seconds,
-                }
+                record = photo_record(
+                    ph, source, condition, (s2m, tmpl), (ident, tmpl_id), pose_err, float(fit.error_px.mean()), seconds
+                )
                 records.append(record)
                 print(
                     f"  {ph.name:20s} f {ph.focal_factor:.1f} {source:9s} {condition:14s} s2m {s2m:5.3f} "
@@ -363,21 +349,30 @@ def capacity_record(ph: Photo, fits, tmpl: float, tmpl_id: float, rig, neural, a
         f"x{s2m / tmpl:5.2f})  identity {ident:5.3f} (x{ident / tmpl_id:5.2f})",
         flush=True,
     )
+    return photo_record(ph, "capacity", "rig_best", (s2m, tmpl), (ident, tmpl_id), None, None, seconds)  # no pose
+
+
+def photo_record(
+    ph: Photo, source: str, condition: str, face: tuple, identity: tuple, pose_err, landmark_px, seconds: float
+) -> dict:
+    """One record of the benchmark's JSON: ``face`` and ``identity`` are ``(fit, template)`` s2m medians (mm); the
+    pose (deg) and landmark (px) errors are None where nothing was fitted to points."""
+    (s2m, tmpl), (ident, tmpl_id) = face, identity
     return {
         "name": ph.name,
         "kind": ph.kind,
         "focal_factor": ph.focal_factor,
         "yaw_deg": float(ph.photo.yaw_deg),
-        "source": "capacity",
-        "condition": "rig_best",
+        "source": source,
+        "condition": condition,
         "s2m_median_mm": s2m,
         "template_mm": tmpl,
         "ratio": s2m / tmpl,
         "identity_mm": ident,
         "template_identity_mm": tmpl_id,
         "identity_ratio": ident / tmpl_id,
-        "pose_error_deg": None,  # no pose is fitted
-        "landmark_error_px": None,
+        "pose_error_deg": pose_err,
+        "landmark_error_px": landmark_px,
         "seconds": seconds,
     }
 
