@@ -107,12 +107,13 @@ def main() -> None:
         t0 = time.perf_counter()
         views = synthetic_views(head, most, settings=settings, render=args.photometric or args.landmarks == "detected")
         truth = views.neutral_vertices
-        lms, layouts = [p.landmarks2d for p in views.photos], None
+        lms, layouts, points3d = [p.landmarks2d for p in views.photos], None, None
         if args.landmarks == "detected":
             layout = mediapipe_layout(rig.asset)
             found = [(p, _detected(p.image)) for p in views.photos]
             views = replace(views, photos=tuple(p for p, d in found if d is not None))
-            lms = [d for _, d in found if d is not None]
+            lms = [d[:, :2] for _, d in found if d is not None]
+            points3d = [d for _, d in found if d is not None]  # with MediaPipe's depth: the identity regressor's
             layouts = [layout] * len(lms)
             print(f"  head {head}: MediaPipe found {len(lms)} of {len(found)} views", flush=True)
         elif args.landmarks == "mediapipe":
@@ -122,7 +123,9 @@ def main() -> None:
             layouts = [layout] * len(lms)
         sizes = [(p.width, p.height) for p in views.photos]
         images = [p.image for p in views.photos] if args.photometric else None
-        all_fit = fit_multiview(lms, sizes, rig=rig, neural=neural, config=base, min_views=1, layouts=layouts)
+        all_fit = fit_multiview(
+            lms, sizes, rig=rig, neural=neural, config=base, min_views=1, layouts=layouts, points3d=points3d
+        )
         singles = all_fit.single_view_fits
         single_errors = [
             face_error(head_vertices(rig, neural, s.theta, np.zeros(50), np.zeros(52)), truth)["s2m_median_mm"]
@@ -168,6 +171,7 @@ def main() -> None:
                         min_views=1,
                         single_view_fits=tuple(singles[i] for i in index),
                         layouts=None if layouts is None else [layouts[i] for i in index],
+                        points3d=None if points3d is None else [points3d[i] for i in index],
                     )
                 )
                 err = face_error(fit.identity_vertices, truth)
@@ -218,12 +222,13 @@ def main() -> None:
 
 
 def _detected(image):
-    """MediaPipe's 478 points ``(478, 2)`` on one view, or None when it finds no face."""
+    """MediaPipe's 478 points ``(478, 3)`` on one view (pixels and its relative depth), or None when it finds no
+    face."""
     from landmarks.detect import detect_landmarks
     from landmarks.detector import NoFaceError
 
     try:
-        return np.asarray(detect_landmarks(image, detector="mediapipe").dense[:, :2], np.float64)
+        return np.asarray(detect_landmarks(image, detector="mediapipe").dense, np.float64)
     except NoFaceError:
         return None
 

@@ -64,7 +64,7 @@ from pipeline.fitting.state import head_vertices  # noqa: E402
 from pipeline.photo.fit import fit_photo  # noqa: E402
 from pipeline.photo.fit_config import FitPhotoConfig  # noqa: E402
 from pipeline.photo.landmark_fit import fit_landmarks  # noqa: E402
-from pipeline.synthetic.photos.settings import PhotoSettings  # noqa: E402
+from pipeline.synthetic.photos.settings import focal_settings  # noqa: E402
 from pipeline.synthetic.photos.simulate import synthetic_photo, true_layout_points  # noqa: E402
 from pipeline.synthetic.population import population_split  # noqa: E402
 from rig.asset import load_asset  # noqa: E402
@@ -92,18 +92,9 @@ class Photo:
     points: dict
     detected68: np.ndarray | None = None
     """MediaPipe's 68 iBUG points (the photometric fit's face crop when its points are MediaPipe's)."""
-
-
-def photo_settings(focal_factor: float) -> PhotoSettings:
-    """The photo benchmark's settings at one focal length, the distance scaled with it (the face's size in the
-    frame stays that of the default 1.2-1.7 x range at 450-650 mm)."""
-    base = PhotoSettings()
-    k = focal_factor / 1.45
-    return replace(
-        base,
-        focal_factor_range=(focal_factor, focal_factor),
-        distance_mm_range=(base.distance_mm_range[0] * k, base.distance_mm_range[1] * k),
-    )
+    points3d: np.ndarray | None = None
+    """MediaPipe's 478 points with their depth (``(478, 3)``), what the identity regressor reads
+    (``--set landmarks.regression.enabled=true``)."""
 
 
 def true_dense_points(photo, layout, faces, rng: np.random.Generator) -> np.ndarray:
@@ -124,11 +115,11 @@ def make_photos(first: int, heads: int, seed: int, sources: tuple[str, ...], ass
                 index,
                 expressive=kind == "expressive",
                 seed=scan_seed(seed, "diagnose-" + kind, index),
-                settings=photo_settings(factor),
+                settings=focal_settings(factor),
             )
             rng = np.random.default_rng(scan_seed(seed, "diagnose-noise-" + kind, index))
             points: dict = {}
-            detected68 = None
+            detected68 = points3d = None
             for source in sources:
                 if source == "capacity":
                     continue  # needs no points
@@ -144,7 +135,9 @@ def make_photos(first: int, heads: int, seed: int, sources: tuple[str, ...], ass
                         continue
                     points[source] = (face.dense[:, :2], layout)
                     detected68 = np.asarray(face.landmarks)
-            photos.append(Photo(photo.name, kind, factor, photo, np.asarray(neutral_heads[index]), points, detected68))
+                    points3d = np.asarray(face.dense)
+            neutral = np.asarray(neutral_heads[index])
+            photos.append(Photo(photo.name, kind, factor, photo, neutral, points, detected68, points3d))
             print(f"  rendered {photo.name:20s} focal {factor:.1f} x  yaw {photo.yaw_deg:6.1f}", flush=True)
     return photos
 
@@ -170,12 +163,12 @@ def condition_config(config: FitPhotoConfig, condition: str, source: str):
     return lm
 
 
-def fit_photometric(photo, landmarks68, target, layout, config: FitPhotoConfig, rig, neural):
+def fit_photometric(photo, landmarks68, target, layout, config: FitPhotoConfig, rig, neural, points3d=None):
     """``default`` + the photometric stages: the landmark fit's fields (theta, z, expressions, rotation,
     translation, error_px) of the whole photo fit; ``landmarks68`` place its face crop (the source's own)."""
     config = replace(config, photometric=replace(config.photometric, enabled=True))
     dense = None if layout is None else (target, layout)
-    fit = fit_photo(photo.image, landmarks68, config=config, rig=rig, neural=neural, dense=dense)
+    fit = fit_photo(photo.image, landmarks68, config=config, rig=rig, neural=neural, dense=dense, points3d=points3d)
     return SimpleNamespace(
         theta=fit.theta,
         z=fit.z,
@@ -234,6 +227,7 @@ def main() -> None:
                 print(f"  {ph.name}: {source} found no face", flush=True)
                 continue
             target, layout = ph.points[source]
+            points3d = ph.points3d if source == "mediapipe" else None
             for condition in conditions:
                 focal = default_focal(p.width, p.height) if condition == "default" else p.focal
                 pose = (p.rotation, p.translation) if condition in ("true_pose", "no_expressions") else None
@@ -241,7 +235,7 @@ def main() -> None:
                 if condition == "photometric":
                     lm_config = replace(config, landmarks=condition_config(config, "default", source))
                     own68 = p.landmarks2d if source.startswith("true") else ph.detected68
-                    fit = fit_photometric(p, own68, target, layout, lm_config, rig, neural)
+                    fit = fit_photometric(p, own68, target, layout, lm_config, rig, neural, points3d)
                 else:
                     fit = fit_landmarks(
                         target,
@@ -253,6 +247,7 @@ def main() -> None:
                         neural=neural,
                         layout=layout,
                         pose=pose,
+                        points3d=points3d,
                     )
                 seconds = time.perf_counter() - t1
                 v = head_vertices(rig, neural, fit.theta, fit.z, fit.expressions)

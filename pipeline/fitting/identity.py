@@ -115,15 +115,34 @@ class IdentityPrior:
         """Write the prior as one ``.npz`` of named float64 arrays (atomic)."""
         write_npz_atomic(
             path,
-            {
-                "mean": self.mean,
-                "components": self.components,
-                "variances": self.variances,
-                "noise": np.array(self.noise),
-                "span": self.span,
-                "meta_json": np.array(json.dumps(self.meta)),
-            },
+            {"mean": self.mean, **gaussian_arrays(self.components, self.variances, self.noise, self.span, self.meta)},
         )
+
+
+def gaussian_arrays(components, variances, noise: float, span, meta: dict) -> dict[str, np.ndarray]:
+    """The arrays a PPCA Gaussian is saved as (its ``meta`` as JSON), shared by the priors' files."""
+    return {
+        "components": components,
+        "variances": variances,
+        "noise": np.array(noise),
+        "span": span,
+        "meta_json": np.array(json.dumps(meta)),
+    }
+
+
+def read_asset_arrays(path: Path, what: str, command: str) -> dict:
+    """Every array of the ``.npz`` asset ``path`` (``meta_json`` decoded as ``meta``, ``noise`` a float).
+
+    Raises:
+        rig.asset.AssetError: the file is missing (the message names ``what`` and the ``command`` that makes it).
+    """
+    if not path.is_file():
+        raise AssetError(f"{what} not found: {path} (make it with `{command}`)")
+    with np.load(path, allow_pickle=False) as data:
+        arrays = {k: data[k] for k in data.files}
+    arrays["meta"] = json.loads(str(arrays.pop("meta_json")))
+    arrays["noise"] = float(arrays["noise"])
+    return arrays
 
 
 def load_identity_prior(path: str | Path | None = None) -> IdentityPrior:
@@ -133,17 +152,7 @@ def load_identity_prior(path: str | Path | None = None) -> IdentityPrior:
         rig.asset.AssetError: the file is missing or does not match the rig's parameters.
     """
     path = Path(path) if path else default_identity_prior_path()
-    if not path.is_file():
-        raise AssetError(f"identity prior not found: {path} (make it with `jnr train --identity-prior`)")
-    with np.load(path, allow_pickle=False) as data:
-        prior = IdentityPrior(
-            mean=data["mean"],
-            components=data["components"],
-            variances=data["variances"],
-            noise=float(data["noise"]),
-            span=data["span"],
-            meta=json.loads(str(data["meta_json"])),
-        )
+    prior = IdentityPrior(**read_asset_arrays(path, "identity prior", "jnr train --identity-prior"))
     if prior.mean.shape != (NUM_PARAMETERS,) or prior.components.shape[1:] != (NUM_PARAMETERS,):
         raise AssetError(f"{path} has {prior.mean.shape[0]} joint channels, the rig {NUM_PARAMETERS}; rebuild it")
     return prior

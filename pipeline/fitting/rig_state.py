@@ -138,6 +138,10 @@ class FitState(GroupedParameters):
         self.register_buffer("identity_basis", torch.zeros(NUM_PARAMETERS, 0, dtype=dtype))
         self.identity_c = nn.Parameter(torch.zeros(0, dtype=dtype))
         self._basis: tuple[tuple[int, int], torch.Tensor] | None = None
+        self.identity_prior: IdentityPrior | None = None
+        """The identity prior of :meth:`prior_terms` when none is passed (None: the committed population prior);
+        a photo fit sets the conditional one read from the detector's 3D points
+        (:meth:`pipeline.fitting.identity_regression.IdentityRegressor.prior`)."""
 
     # -- the models ---------------------------------------------------------------------------------
     @property
@@ -286,6 +290,7 @@ class FitState(GroupedParameters):
         """The priors of this head model with ``weights`` (:func:`pipeline.fitting.priors.jnr_prior_terms`:
         L_m, L_x, latent, expressions, identity, symmetry); ``lambda_m`` overrides L_m's weight; ``gaze``: the
         data sees the irises (the eyeLook* coefficients get ``lambda_gaze``)."""
+        identity = identity or self.identity_prior
         return jnr_prior_terms(weights, self.low, self.high, lambda_m=lambda_m, identity=identity, gaze=gaze)
 
     def head_params(self) -> HeadParams:

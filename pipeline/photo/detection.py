@@ -68,10 +68,11 @@ class DetectedFaces:
         }
 
     def dense(self, index: int) -> np.ndarray | None:
-        """``(478, 2)`` MediaPipe's dense points of face ``index`` in the working image's pixels, or None
-        (a detector without them)."""
+        """``(478, 3)`` MediaPipe's dense points of face ``index``: ``x, y`` in the working image's pixels, ``z``
+        its relative depth in the same scale (:attr:`landmarks.detector.FaceDetection.dense`); or None (a
+        detector without them)."""
         points = self.faces[index].dense
-        return None if points is None else np.array(points[:, :2], np.float64)
+        return None if points is None else np.array(points, np.float64)
 
 
 MIN_DETECTION_SIDE = 32
@@ -110,13 +111,14 @@ def detect_photo_faces(photo: LoadedImage, detector: str) -> DetectedFaces:
 def photo_landmarks(
     photo: LoadedImage, landmarks_path: Path | None, face: int | None, detector: str = DEFAULT_DETECTOR
 ) -> tuple[np.ndarray, dict, np.ndarray | None]:
-    """``(landmarks (68, 2), report.json's description of their source, dense (N, 2) or None)``, points in
+    """``(landmarks (68, 2), report.json's description of their source, dense (N, 2|3) or None)``, points in
     the working image's pixels: read from ``landmarks_path`` (the photo file's pixels; 68 iBUG points, or
     MediaPipe's 468 or 478, whose 68 iBUG points are mapped from the mesh
     (:func:`landmarks.mediapipe.ibug68_map.mesh_to_ibug68`); checked to be a plausible face in or near the
     image), or detected: face ``face`` (0, the largest, when None) of :func:`detect_photo_faces`, the
     description listing every face found (box in the photo's pixels, score, detector); ``dense``:
-    MediaPipe's points when the file or the detector gives them.
+    MediaPipe's points when the file (``(N, 2)``) or the detector (``(478, 3)``, with its relative depth) gives
+    them.
 
     Raises:
         InputError: a bad landmarks file; DetectionError: no face, or ``face`` out of range.

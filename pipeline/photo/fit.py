@@ -185,7 +185,9 @@ def check_photo(image) -> np.ndarray:
     return img
 
 
-def _jnr_landmark_fit(fitted, size, focal, config: FitPhotoConfig, rig: JointRig, neural, progress, layout):
+def _jnr_landmark_fit(
+    fitted, size, focal, config: FitPhotoConfig, rig: JointRig, neural, progress, layout, points3d=None
+):
     """JNR's own landmark fit (its rig state, the landmark term's fast path, its priors) and the state the
     photometric stages go on with: ``(LandmarkFit, PhotoState)``."""
     if not config.landmarks.use_neural:
@@ -203,16 +205,20 @@ def _jnr_landmark_fit(fitted, size, focal, config: FitPhotoConfig, rig: JointRig
         neural=neural,
         progress=progress,
         layout=layout,
+        points3d=points3d,
     )
     dtype = rig.template.dtype
     state = PhotoState(rig, neural, ExpressionModel(rig.asset, dtype=dtype), lfit.rotation, lfit.translation)
     state.load(lfit.theta, lfit.z, lfit.expressions)
+    state.identity_prior = lfit.identity
     return lfit, state
 
 
-def _model_landmark_fit(fitted, size, focal, config: FitPhotoConfig, rig: JointRig, neural, progress, layout):
+def _model_landmark_fit(
+    fitted, size, focal, config: FitPhotoConfig, rig: JointRig, neural, progress, layout, points3d=None
+):
     """Any registered head model's landmark fit (:mod:`pipeline.photo.model_fit`): ``(LandmarkFit,
-    ModelPhotoState)``."""
+    ModelPhotoState)``; ``points3d`` is not read (the identity regressor maps to JNR's joints)."""
     model = create(config.model, asset=rig.asset)
     lfit = fit_model_landmarks(
         fitted, *size, model, focal=focal, config=config.landmarks, progress=progress, layout=layout
@@ -289,6 +295,7 @@ def fit_photo(
     neural: NeuralSkinning | None = None,
     progress: Progress | None = None,
     dense: tuple[np.ndarray, LandmarkLayout] | None = None,
+    points3d: np.ndarray | None = None,
 ) -> PhotoFit:
     """Reconstruct the head in one photo (module docstring).
 
@@ -304,6 +311,9 @@ def fit_photo(
         dense: ``(points (N, 2) pixels, layout)``: fit these landmarks of another layout instead
             (:class:`landmarks.layout.LandmarkLayout`, e.g. MediaPipe's 478 points); ``landmarks2d`` is then
             only reported.
+        points3d: ``(478, 3)`` the detector's 3D points (MediaPipe's pixels and relative depth): the identity
+            regressor reads them when ``config.landmarks.regression.enabled``
+            (:class:`pipeline.photo.landmark_fit.IdentityRegressionConfig`).
 
     Returns:
         :class:`PhotoFit`.
@@ -326,7 +336,7 @@ def fit_photo(
             f"the photometric stages fit a model with a photo fit of its own ({own}), not {config.model!r}"
         )
     fit = PHOTO_FITS.get(config.model, _model_landmark_fit)
-    lfit, state = fit(fitted, (width, height), focal, config, rig, neural, progress, layout)
+    lfit, state = fit(fitted, (width, height), focal, config, rig, neural, progress, layout, points3d)
     t_landmarks = time.perf_counter() - t0
 
     term, fit_term = _landmark_terms(rig.asset, state.dtype, lm, dense, lfit, (width, height), focal, config)

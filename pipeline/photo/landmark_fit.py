@@ -32,7 +32,7 @@ There is no global scale: from one photo it is interchangeable with the distance
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import torch
@@ -43,6 +43,8 @@ from landmarks.layout import LandmarkLayout, ibug68_layout
 from landmarks.loss import CONTOUR_WEIGHT, WEIGHTINGS
 from pipeline.camera import default_focal, make_camera, solve_pose
 from pipeline.fitting.engine import LearningRates, Loss, Objective, Stage, StageLog, run_schedule
+from pipeline.fitting.identity import IdentityPrior
+from pipeline.fitting.identity_regression import IdentityRegressionConfig, conditional_identity
 from pipeline.fitting.landmark_term import NUM_LANDMARKS, BatchedLandmarks, LandmarkTerm, face_scale
 from pipeline.fitting.least_squares import LMSettings, StateVector, run_lm_stage
 from pipeline.fitting.model_state import ModelPhotoState
@@ -52,6 +54,7 @@ from pipeline.fitting.terms import Inputs, Term, check_unique, term_values
 from pipeline.metrics import landmark_errors
 from rig.errors import InputError
 from rig.expressions import ExpressionModel
+from rig.geometry import head_angles
 from rig.head_model import HeadParams
 from rig.lbs import ShapeError
 from rig.model import JointRig
@@ -61,6 +64,7 @@ from rig.skinning.neural import LATENT, NeuralSkinning, load_neural
 
 __all__ = [
     "NUM_LANDMARKS",
+    "IdentityRegressionConfig",
     "SOLVERS",
     "LandmarkFit",
     "LandmarkFitConfig",
@@ -133,6 +137,8 @@ class LandmarkFitConfig:
     """Adam steps per parameter group."""
     prior: PriorWeights = field(default_factory=PriorWeights)
     """Weights of the rig priors against the reprojection loss in px^2 (:mod:`pipeline.fitting.priors`)."""
+    regression: IdentityRegressionConfig = field(default_factory=IdentityRegressionConfig)
+    """The identity prior read from the detector's 3D points (:class:`IdentityRegressionConfig`)."""
     huber_delta_px: float = 5.0
     """Huber threshold of the reprojection loss, pixels (of a face 100 px between the outer eye corners with
     ``face_scale``)."""
@@ -229,6 +235,9 @@ class LandmarkFit:
     seconds: float
     layout: str = "ibug68"
     head: HeadParams | None = None
+    identity: IdentityPrior | None = None
+    """The conditional identity prior the fit used (:attr:`LandmarkFitConfig.regression`), or None: the
+    population's."""
 
 
 def check_landmarks_2d_shape(landmarks2d, function: str = "fit_landmarks", count: int = NUM_LANDMARKS) -> np.ndarray:
@@ -259,6 +268,7 @@ def fit_landmarks(
     terms: tuple[Term, ...] = (),
     layout: LandmarkLayout | None = None,
     pose: tuple[np.ndarray, np.ndarray] | None = None,
+    points3d: np.ndarray | None = None,
 ) -> LandmarkFit:
     """Fit pose, joints, Z and expressions of the rig to the landmarks of one photo (the 68 iBUG points by
     default, or another ``layout``'s, e.g. MediaPipe's 478 as ``jnr fit`` passes them).
@@ -278,6 +288,8 @@ def fit_landmarks(
         pose: ``(rotation (3, 3), translation (3,) mm)``, the head pose to start from
             (``x_cam = RIG_TO_OPENCV @ rotation @ x_rig + translation``) instead of solvePnP's; with stages that do
             not free ``pose`` it is held (the diagnostic benchmark's known pose).
+        points3d: ``(478, 3)`` the detector's 3D points (MediaPipe's pixels and relative depth), read by the
+            identity regressor when ``config.regression.enabled`` (:class:`IdentityRegressionConfig`).
 
     Returns:
         :class:`LandmarkFit`.
@@ -318,9 +330,18 @@ def fit_landmarks(
     if config.face_scale:
         term.scale = face_scale(focal, float(translation0[2]), asset)
     state = PhotoState(rig, neural, ExpressionModel(asset, dtype=dtype), rotation0, translation0)
+    weights = config.prior
+    identity = conditional_identity(config.regression, points3d, head_angles(rotation0)[0])
+    if identity is not None:
+        state.identity_prior = identity
+        weights = replace(weights, lambda_identity=config.regression.lambda_identity)
+        if config.regression.start:
+            with torch.no_grad():
+                start_theta = torch.as_tensor(identity.mean_theta, dtype=dtype).clamp(state.low, state.high)
+                state.theta_n.copy_(start_theta / state.span)
     # the data term, the head model's priors and the caller's: one list, minimised by either solver
     noise = config.noise_for(layout.name)
-    all_terms = (term.term(1.0 / noise**2), *state.prior_terms(config.prior, gaze=layout.sees_irises), *terms)
+    all_terms = (term.term(1.0 / noise**2), *state.prior_terms(weights, gaze=layout.sees_irises), *terms)
     check_unique(all_terms)
 
     def objective(free: tuple[str, ...]) -> Loss:
@@ -331,7 +352,7 @@ def fit_landmarks(
         stages = _run_lm(state, term, all_terms, config, objective, progress, weights0)
     else:
         stages = run_schedule(state, config.stages, objective, config.lr, label="fit_landmarks", progress=progress)
-    return landmark_result(state, term, lm, width, height, focal, stages, t_start)
+    return replace(landmark_result(state, term, lm, width, height, focal, stages, t_start), identity=identity)
 
 
 def _check_pose(pose) -> tuple[np.ndarray, np.ndarray]:

@@ -37,7 +37,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import torch
@@ -50,6 +50,7 @@ from landmarks.loss import project_points
 from landmarks.mediapipe.ibug68_map import mesh_to_ibug68
 from pipeline.camera import camera_center_in_rig, check_focal, default_focal, make_camera
 from pipeline.fitting.engine import LearningRates, StageLog, run_schedule
+from pipeline.fitting.identity import IdentityPrior
 from pipeline.fitting.landmark_term import NUM_LANDMARKS, LandmarkTerm, expressions64, face_scale
 from pipeline.fitting.least_squares import run_lm_stage
 from pipeline.fitting.terms import LeastSquaresTerms
@@ -215,6 +216,7 @@ def fit_multiview(
     min_views: int = 2,
     layouts: Sequence[LandmarkLayout | None] | None = None,
     progress=None,
+    points3d: Sequence[np.ndarray | None] | None = None,
 ) -> MultiViewFit:
     """Reconstruct one head from ``N >= 2`` uncalibrated photos of it (module docstring).
 
@@ -233,6 +235,10 @@ def fit_multiview(
             None: every view iBUG-68. The views' :class:`ViewFit` landmarks are iBUG-68 either way (a dense
             view's 68 mapped from its mesh, :func:`landmarks.mediapipe.ibug68_map.mesh_to_ibug68`).
         progress: ``progress("identity", done, N + 1)`` after each view's single fit and the joint refinement.
+        points3d: per view the detector's ``(478, 3)`` points with their depth, or None: with
+            ``config.landmarks.regression.enabled`` each single-view fit reads its identity from them
+            (:mod:`pipeline.fitting.identity_regression`) and the joint refinement's identity prior is centred
+            on the mean of the views' regressed heads.
 
     Returns:
         :class:`MultiViewFit`.
@@ -254,8 +260,12 @@ def fit_multiview(
     t0 = time.perf_counter()
     steps = n + 1  # progress: each view's single fit, then the joint refinement
 
+    points3d = [None] * n if points3d is None else list(points3d)
+
     def single(k, lm, w, h, f, layout):
-        fit = fit_landmarks(lm, w, h, focal=f, config=config.landmarks, rig=rig, neural=neural, layout=layout)
+        fit = fit_landmarks(
+            lm, w, h, focal=f, config=config.landmarks, rig=rig, neural=neural, layout=layout, points3d=points3d[k]
+        )
         if progress is not None:
             progress("identity", k + 1, steps)
         return fit
@@ -267,6 +277,7 @@ def fit_multiview(
     t_single = time.perf_counter() - t0
     theta_mean = np.mean([s.theta for s in singles], 0)
     problem = _problem(lms, sizes, f0, singles, theta_mean, config, rig, neural, layouts)
+    problem.identity = views_identity_prior(singles)
     rows = LeastSquaresTerms(problem.terms())
     cost0 = _start_cost(problem, rows)
     stages = [StageLog("average", ("joints",), 0, cost0, cost0, metrics={"views": n}, seconds=t_single)]
@@ -309,6 +320,16 @@ def fit_multiview(
         asm_parameters=None if head is not None else asm_parameters,
         head=head,
     )
+
+
+def views_identity_prior(singles) -> IdentityPrior | None:
+    """The conditional identity prior of several views: the views' own (:attr:`LandmarkFit.identity`, those that
+    have one) with their means averaged; their errors are of one person's face, so not independent: the
+    spread stays one view's. None when no view has one."""
+    priors = [s.identity for s in singles if s.identity is not None]
+    if not priors:
+        return None
+    return replace(priors[0], mean=np.mean([p.mean for p in priors], 0), meta={**priors[0].meta, "views": len(priors)})
 
 
 def views_identity_model(kind: str):

@@ -290,7 +290,7 @@ def fit_multiview_files(
     check_output(out, force=force, inputs=inputs)
     config = config or MultiViewConfig()
     rig = rig or JointRig()
-    images, points, layouts, sources, sizes, focals, factors = [], [], [], [], [], [], []
+    images, points, layouts, sources, sizes, focals, factors, points3d = [], [], [], [], [], [], [], []
     for path, sidecar in zip(paths, sidecars):
         try:
             photo = load_working_image(path)
@@ -303,11 +303,12 @@ def fit_multiview_files(
         k = photo.factor
         images.append(photo.image)
         if dense is not None and config.landmarks.dense:  # MediaPipe's points, as for one photo
-            points.append(dense)
+            points.append(dense[:, :2])
             layouts.append(mediapipe_layout_for(rig.asset, len(dense)))
         else:
             points.append(lm)
             layouts.append(None)
+        points3d.append(dense if dense is not None and dense.shape[1] == 3 else None)  # the detector's depth
         sources.append(
             {"photo": str(path.absolute()), **{key: value for key, value in source.items() if key != "faces"}}
         )
@@ -316,7 +317,15 @@ def fit_multiview_files(
         factors.append(k)
     try:
         fit = fit_multiview(
-            points, sizes, images=images, focals=focals, config=config, rig=rig, neural=neural, layouts=layouts
+            points,
+            sizes,
+            images=images,
+            focals=focals,
+            config=config,
+            rig=rig,
+            neural=neural,
+            layouts=layouts,
+            points3d=points3d,
         )
     except FloatingPointError as exc:
         raise FloatingPointError(f"{', '.join(map(str, paths))}: {exc}") from None

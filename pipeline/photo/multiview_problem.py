@@ -25,6 +25,7 @@ from torch import nn
 
 from pipeline.camera import camera_center_in_rig, camera_points_to_pixels
 from pipeline.fitting.engine import Stage
+from pipeline.fitting.identity import IdentityPrior
 from pipeline.fitting.landmark_term import BatchedLandmarks, LandmarkTerm, expressions64
 from pipeline.fitting.least_squares import StateVector
 from pipeline.fitting.priors import PriorWeights, jnr_prior_terms
@@ -149,10 +150,11 @@ class MultiViewState(GroupedParameters):
             if "expressions" in free:
                 self.c.copy_(torch.maximum(torch.minimum(self.c, self.c_high), self.c_low))
 
-    def prior_terms(self, weights: PriorWeights) -> tuple[Term, ...]:
+    def prior_terms(self, weights: PriorWeights, identity: IdentityPrior | None = None) -> tuple[Term, ...]:
         """The identity's priors (:func:`pipeline.fitting.priors.jnr_prior_terms` without a latent: the neural
-        skinning stays at ``Z = 0``), every view's expressions in one ``expressions`` term."""
-        return jnr_prior_terms(weights, self.low, self.high, latent=False)
+        skinning stays at ``Z = 0``; ``identity``: the identity prior, default the population's), every view's
+        expressions in one ``expressions`` term."""
+        return jnr_prior_terms(weights, self.low, self.high, latent=False, identity=identity)
 
     def camera_center(self, k: int) -> np.ndarray:
         """``(3,)`` view ``k``'s camera centre in rig space, mm, from its pose rounded to the rig's dtype (where
@@ -215,21 +217,23 @@ class MultiViewProblem:
         self.views = [BatchedLandmarks(t, state.rig, self.weights, ("pose", "joints", "expressions")) for t in terms]
         self.expressions = expressions64(state.rig.asset)
         self.flip = torch.tensor(RIG_TO_OPENCV, dtype=torch.float64)
+        self.identity: IdentityPrior | None = None
+        """The conditional identity prior of the views' 3D points (their regressed heads' mean), or None."""
 
     def terms(self) -> tuple[Term, ...]:
         """Each view's landmark term (``landmarks_<k>``, weighed by :attr:`view_weights`: averaged over the views
         and a turned view's less by default), the state's priors with the identity prior's weight
         ``lambda_identity`` (counted once), and the focal prior."""
         config = self.config
-        weights = replace(
-            config.landmarks.prior, lambda_identity=config.lambda_identity, lambda_m=0.0, lambda_symmetry=0.0
-        )
+        conditional = self.identity is not None
+        lambda_identity = config.landmarks.regression.lambda_identity if conditional else config.lambda_identity
+        weights = replace(config.landmarks.prior, lambda_identity=lambda_identity, lambda_m=0.0, lambda_symmetry=0.0)
         # each view over its points' error squared, as in the single-view fit, and by view_weights
         landmarks = tuple(
             t.term(w / config.landmarks.noise_for(t.layout.name) ** 2, name=f"landmarks_{k}", key=f"landmarks_px_{k}")
             for k, (t, w) in enumerate(zip(self.landmark_terms, self.view_weights))
         )
-        return (*landmarks, *self.state.prior_terms(weights), focal_term(config.lambda_focal))
+        return (*landmarks, *self.state.prior_terms(weights, self.identity), focal_term(config.lambda_focal))
 
     # -- the LM problem ------------------------------------------------------------------------------
     def pack(self) -> torch.Tensor:

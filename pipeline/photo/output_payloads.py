@@ -258,6 +258,7 @@ def report_payload(
             "landmark_fit_nme": float(lfit.nme),
             "fitted_at_reduction": int(image_factor),
         },
+        "identity_prior": "population" if lfit.identity is None else "regressed from the detector's 3D points",
         "landmark_stages": lfit.losses,
         "landmark_stage_logs": [asdict(s) for s in lfit.stages],
         "photometric_stages": [asdict(s) for s in fit.stages],

@@ -75,9 +75,10 @@ def _fit_and_write(
     width, height = photo.original_size
     k = photo.factor
     rig = rig or JointRig()
-    fitted = None
+    fitted = points3d = None
     if dense is not None and config.landmarks.dense:
-        fitted = (dense, mediapipe_layout_for(rig.asset, len(dense)))
+        fitted = (dense[:, :2], mediapipe_layout_for(rig.asset, len(dense)))
+        points3d = dense if dense.shape[1] == 3 else None  # the detector's, with its depth
     try:
         fit = fit_photo(
             photo.image,
@@ -88,6 +89,7 @@ def _fit_and_write(
             neural=neural,
             progress=progress,
             dense=fitted,
+            points3d=points3d,
         )
     except FloatingPointError as exc:  # a diverged fit
         raise FloatingPointError(f"{label}: {exc}") from None

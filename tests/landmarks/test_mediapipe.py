@@ -328,12 +328,13 @@ def test_detection_tiles_cover_wide_and_large_images():
 def test_a_face_below_the_detector_threshold_is_found_when_its_mesh_confirms_it(detector):
     """Issue 37: a clear synthetic face (a held-out head at a 1.4 x focal) scores 0.56 in the full-range detector,
     under MediaPipe's 0.6, and was reported as no face; the retry finds it, at the true face's place."""
+    from dataclasses import replace
+
     from pipeline.evaluation.scans import scan_seed
-    from pipeline.synthetic.photos.settings import PhotoSettings
+    from pipeline.synthetic.photos.settings import focal_settings
     from pipeline.synthetic.photos.simulate import synthetic_photo
 
-    k = 1.4 / 1.45  # the diagnostic benchmark's 1.4 x photo: the camera's distance scaled with the focal
-    settings = PhotoSettings(focal_factor_range=(1.4, 1.4), distance_mm_range=(450.0 * k, 650.0 * k), spp=16)
+    settings = replace(focal_settings(1.4), spp=16)  # the diagnostic benchmark's 1.4 x photo
     photo = synthetic_photo(1, seed=scan_seed(0, "diagnose-neutral", 1), settings=settings)
     assert detector.detect_boxes(photo.image) == []  # the detector's own threshold drops it
     faces = detector.detect(photo.image)

@@ -150,8 +150,10 @@ def test_demo_writes_everything(capsys, tmp_path, monkeypatch):
     for fit in ("astronaut", "synthetic"):
         assert (out / fit / "overlay.png").stat().st_size > 0 and (out / fit / "params.json").is_file()
     assert summary["astronaut"]["nme"] < 0.2  # 5 landmark steps here; the full fit reaches 0.03
-    found = json.loads((out / "astronaut" / "report.json").read_text())["input"]
+    report = json.loads((out / "astronaut" / "report.json").read_text())
+    found = report["input"]
     assert found["detector"] == "mediapipe" and found["detector_option"] == "auto"  # MediaPipe found it: no dlib run
+    assert report["identity_prior"] == "regressed from the detector's 3D points"  # its depth reached the fit
     assert len(found["faces"]) == 1 and found["faces"][0]["box"] == found["face_box"] and found["face_index"] == 0
     assert 0 < summary["synthetic"]["s2m_median_mm"] < 2.0 and (out / "inputs" / "synthetic" / "truth.ply").is_file()
     assert "astronaut portrait" in stdout and "known truth" in stdout

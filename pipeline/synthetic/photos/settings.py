@@ -4,7 +4,7 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -180,6 +180,18 @@ class SyntheticPhoto:
     mask: np.ndarray
 
 
+def focal_settings(focal_factor: float, base: PhotoSettings | None = None) -> PhotoSettings:
+    """``base`` (default :class:`PhotoSettings`) at one focal length over the image side, the camera's distance
+    scaled with it so the face keeps the size it has at the default 1.2-1.7 x range and 450-650 mm."""
+    base = base or PhotoSettings()
+    k = float(focal_factor) / 1.45
+    return replace(
+        base,
+        focal_factor_range=(float(focal_factor), float(focal_factor)),
+        distance_mm_range=(base.distance_mm_range[0] * k, base.distance_mm_range[1] * k),
+    )
+
+
 def _as_generator(rng, func: str) -> np.random.Generator:
     if isinstance(rng, np.random.Generator):
         return rng
@@ -188,4 +200,4 @@ def _as_generator(rng, func: str) -> np.random.Generator:
     raise InputError(f"{func}: rng must be a numpy Generator or a non-negative integer seed, got {rng!r}")
 
 
-__all__ = ["PhotoSettings", "SyntheticPhoto"]
+__all__ = ["PhotoSettings", "SyntheticPhoto", "focal_settings"]

@@ -93,3 +93,20 @@ def test_committed_artifacts_reproduce_the_committed_table():
 def test_configs_train_yaml_is_the_committed_schedule():
     root = Path(__file__).resolve().parents[3]
     assert load_config(root / "configs" / "train.yaml") == TrainConfig()
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--identity-regressor", "--set", "heads=10"], "--identity-regressor takes only --out, --cache"),
+        (["--identity-regressor", "--identity-prior"], "takes only"),
+        (["--identity-prior", "--cache", "x"], "--identity-prior takes only --out, --force"),
+        (["--cache", "x"], "--cache applies to --identity-regressor only"),
+    ],
+)
+def test_train_options_that_do_not_go_together_are_refused(tmp_path, capsys, args, message):
+    """``jnr train``: each artifact option takes only its own options; nothing is written."""
+    out = tmp_path / "out.npz"
+    code = main(["train", "--out", str(out), "--quiet", *args])
+    assert code == 2 and message in capsys.readouterr().err
+    assert not out.exists()

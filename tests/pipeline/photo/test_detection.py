@@ -116,7 +116,7 @@ def _dense_points(photo_dir) -> np.ndarray:
 
 def test_dense_points_from_a_detector_or_a_478_point_file_fit_the_same(capsys, tmp_path, photo_dir):
     """A detector's 478 dense points are what the fit uses (report: ``fitted_layout``), the same as those points
-    in a landmark file; ``landmarks.dense=false`` fits their 68 iBUG points instead; a 468-point file (no
+    in a landmark file (without the identity read from the detector's depth, which a file does not have); ``landmarks.dense=false`` fits their 68 iBUG points instead; a 468-point file (no
     irises) fits too; a file of another count is one line."""
     from landmarks.formats import write_landmarks
     from landmarks.mediapipe.ibug68_map import mesh_to_ibug68
@@ -137,7 +137,8 @@ def test_dense_points_from_a_detector_or_a_478_point_file_fit_the_same(capsys, t
         write_landmarks(tmp_path / "p468.csv", dense[:468, :2])
         write_landmarks(tmp_path / "p100.csv", dense[:100, :2])
         for name, args in (
-            ("detected", ["--detector", "dense"]),
+            # without the identity read from the detector's depth (a file has none): the same fit as the file's
+            ("detected", ["--detector", "dense", "--set", "landmarks.regression.enabled=false"]),
             ("file", ["--landmarks", tmp_path / "p478.json"]),
             ("ibug", ["--detector", "dense", "--set", "landmarks.dense=false"]),
             ("mesh", ["--landmarks", tmp_path / "p468.csv"]),
@@ -146,7 +147,9 @@ def test_dense_points_from_a_detector_or_a_478_point_file_fit_the_same(capsys, t
             code = main([str(a) for a in ("fit", photo_dir / "face0.png", *args, "--out", out, *fast_fit_args())])
             assert code == 0, capsys.readouterr().err
             runs[name] = out
-        layouts = {k: json.loads((v / "report.json").read_text())["input"]["fitted_layout"] for k, v in runs.items()}
+        reports = {k: json.loads((v / "report.json").read_text()) for k, v in runs.items()}
+        assert {r["identity_prior"] for r in reports.values()} == {"population"}
+        layouts = {k: r["input"]["fitted_layout"] for k, r in reports.items()}
         assert layouts == {"detected": "mediapipe", "file": "mediapipe", "ibug": "ibug68", "mesh": "mediapipe468"}
         # the dense points in 3D, mesh.obj's frame: all of them (478 / 468), on the fitted mesh's surface
         import trimesh

@@ -111,6 +111,7 @@ def identity_photo():
     return rig, head, photo
 
 
+@pytest.mark.slow  # 16 s: `make test-slow`
 def test_the_identity_stage_moves_the_head_towards_the_truth_from_the_pixels_alone(identity_photo):
     """The landmark fit only places the head (its identity stays the prior's mean); the identity stage, its
     landmark term off, then brings the face closer to the truth from the image alone."""

@@ -1,0 +1,350 @@
+"""The identity read from a face detector's 3D mesh by a map learned from many rendered heads (issue 37).
+
+A landmark fit treats the detector's points as the person's surface; their errors lean towards the average
+face (docs/fit_photo.md, "Where the photo fit loses the shape"), so the fitted identity moves only a little
+of the way from the template. Here the detector's 3D mesh (MediaPipe's 478 points with its relative depth) is
+instead mapped to the rig's joint channels by a ridge regression learned from photos of thousands of sampled
+ICT heads (:mod:`pipeline.identity_training`, ``jnr train --identity-regressor``):
+
+1. the points are similarity-normalised (:func:`normalise_points`: centred, unit RMS size, rotated onto the
+   training set's Procrustes mean by Kabsch), so the camera's distance, the head's pose and the image's size
+   drop out;
+2. the ``3 N`` normalised coordinates are mapped linearly to range-normalised joint channels
+   ``u = theta / span`` (the units of :class:`pipeline.fitting.identity.IdentityPrior`), the ridge penalty
+   chosen by cross-validation;
+3. the regression's cross-validated residuals give a Gaussian of the truth around the prediction
+   (probabilistic PCA like the population prior), so :meth:`IdentityRegressor.prior` is a **conditional
+   identity prior** ``p(theta | the detector's mesh)``: the photo fit's identity term then pulls towards the
+   regressed head, with the uncertainty the regression has in each direction, instead of towards the mean.
+
+The committed map is ``rig/assets/jnr_identity_regressor_v<version>.npz``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cached_property
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.fitting.identity import (
+    PRIOR_COMPONENTS,
+    IdentityPrior,
+    build_identity_prior,
+    gaussian_arrays,
+    read_asset_arrays,
+)
+from rig.asset import ASSET_DIR, TEMPLATE_VERSION, AssetError, write_npz_atomic
+from rig.errors import InputError
+from rig.lbs import ShapeError
+from rig.parameters import NUM_PARAMETERS
+
+RIDGE_ALPHAS = (1e-5, 3e-5, 1e-4, 3e-4, 1e-3, 3e-3, 0.01, 0.03, 0.1, 0.3, 1.0)
+"""The ridge penalties tried by :func:`fit_identity_regressor`'s cross-validation (on features of unit RMS
+point size, so they are comparable between point sets)."""
+
+
+def default_identity_regressor_path() -> Path:
+    """The committed map (``rig/assets/jnr_identity_regressor_v<template version>.npz``)."""
+    return ASSET_DIR / f"jnr_identity_regressor_v{TEMPLATE_VERSION}.npz"
+
+
+def _check_points(points, count: int | None, function: str) -> np.ndarray:
+    p = np.asarray(points, dtype=np.float64)
+    if p.ndim not in (2, 3) or p.shape[-1] != 3 or (count is not None and p.shape[-2] != count):
+        want = f"({count}, 3)" if count is not None else "(N, 3)"
+        raise ShapeError(f"{function}: points must be {want} or (B, {want[1:]}, got {p.shape}")
+    if not np.isfinite(p).all():
+        raise InputError(f"{function}: the points must be finite (NaN or inf found)")
+    return p
+
+
+def normalise_points(points, reference: np.ndarray | None = None) -> np.ndarray:
+    """Points without position, size and (given a ``reference``) rotation.
+
+    Args:
+        points: ``(N, 3)`` or ``(B, N, 3)``, any unit and frame (a detector's pixels and depth).
+        reference: ``(N, 3)`` points of unit RMS radius about their centroid; None: only centre and scale.
+
+    Returns:
+        The same shape: centred on the centroid, scaled to unit RMS radius, and rotated (a proper rotation,
+        Kabsch) onto ``reference`` when given.
+
+    Raises:
+        ShapeError: not ``(..., N, 3)``; InputError: not finite, or all points at one place.
+    """
+    p = _check_points(points, None if reference is None else len(reference), "normalise_points")
+    one = p.ndim == 2
+    p = p[None] if one else p
+    p = p - p.mean(1, keepdims=True)
+    size = np.sqrt((p * p).sum(-1).mean(-1))
+    if (size <= 1e-12).any():
+        raise InputError("normalise_points: the points have no extent (all at one place)")
+    p = p / size[:, None, None]
+    if reference is not None:
+        h = np.einsum("bni,nj->bij", p, reference)  # covariance of the points against the reference
+        u, _, vt = np.linalg.svd(h)
+        d = np.sign(np.linalg.det(u @ vt))
+        u[:, :, -1] *= d[:, None]  # a proper rotation (no reflection)
+        p = p @ (u @ vt)
+    return p[0] if one else p
+
+
+def procrustes_mean(points, iterations: int = 10) -> np.ndarray:
+    """``(N, 3)`` generalised Procrustes mean of point sets ``(B, N, 3)`` (unit RMS radius, centred): each set
+    rotated onto the current mean, the mean re-estimated; the first set is the start."""
+    p = normalise_points(_check_points(points, None, "procrustes_mean"))
+    if p.ndim != 3:
+        raise ShapeError(f"procrustes_mean: points must be (B, N, 3), got {p.shape}")
+    mean = p[0]
+    for _ in range(iterations):
+        mean = normalise_points(normalise_points(p, mean).mean(0))
+    return mean
+
+
+@dataclass(frozen=True)
+class IdentityRegressor:
+    """A linear map from a detector's normalised 3D points to the rig's joint channels (module docstring).
+
+    Attributes:
+        reference: ``(N, 3)`` the points' Procrustes mean (unit RMS radius), what every input is rotated onto.
+        weights: ``(3 N, P)`` from normalised coordinates (minus ``feature_mean``) to ``u = theta / span``.
+        feature_mean: ``(3 N,)`` the training features' mean.
+        intercept: ``(P,)`` ``u`` at ``feature_mean``.
+        components, variances, noise: the residual Gaussian, PPCA in ``u`` units (as
+            :class:`~pipeline.fitting.identity.IdentityPrior`).
+        span: ``(P,)`` each channel's range (deg, mm, scale), the unit of ``u``.
+        meta: how it was made (photos, the cross-validation tables, seconds).
+    """
+
+    reference: np.ndarray
+    weights: np.ndarray
+    feature_mean: np.ndarray
+    intercept: np.ndarray
+    components: np.ndarray
+    variances: np.ndarray
+    noise: float
+    span: np.ndarray
+    meta: dict
+
+    @property
+    def count(self) -> int:
+        """The number of points it reads."""
+        return len(self.reference)
+
+    def features(self, points) -> np.ndarray:
+        """``(B, 3 N)`` normalised coordinates of ``points (N, 3)`` or ``(B, N, 3)``."""
+        p = normalise_points(_check_points(points, self.count, "IdentityRegressor"), self.reference)
+        return p.reshape(-1, 3 * self.count)
+
+    def predict_u(self, points) -> np.ndarray:
+        """``(B, P)`` predicted range-normalised channels ``u = theta / span``."""
+        return (self.features(points) - self.feature_mean) @ self.weights + self.intercept
+
+    def predict(self, points) -> np.ndarray:
+        """Joint channels ``(P,)`` for ``points (N, 3)``, ``(B, P)`` for ``(B, N, 3)`` (deg, mm, ``scale - 1``)."""
+        theta = self.predict_u(points) * self.span
+        return theta[0] if np.ndim(points) == 2 else theta
+
+    def prior(self, points) -> IdentityPrior:
+        """The conditional identity prior given one point set ``(N, 3)``: the residual Gaussian centred on the
+        prediction (an :class:`~pipeline.fitting.identity.IdentityPrior`, usable wherever the population's is)."""
+        if np.ndim(points) != 2:
+            raise ShapeError(f"IdentityRegressor.prior: one point set ({self.count}, 3), got {np.shape(points)}")
+        return IdentityPrior(
+            self.predict_u(points)[0],
+            self.components,
+            self.variances,
+            self.noise,
+            self.span,
+            {"conditional": True, **{k: self.meta[k] for k in ("photos",) if k in self.meta}},
+        )
+
+    @cached_property
+    def residual_prior(self) -> IdentityPrior:
+        """The residual Gaussian with zero mean (its log-likelihood scores a residual)."""
+        return IdentityPrior(
+            np.zeros_like(self.intercept), self.components, self.variances, self.noise, np.ones_like(self.span), {}
+        )
+
+    def save(self, path: str | Path) -> None:
+        """Write the map as one ``.npz`` of named arrays (atomic)."""
+        write_npz_atomic(
+            path,
+            {
+                "reference": self.reference,
+                "weights": self.weights.astype(np.float32),
+                "feature_mean": self.feature_mean,
+                "intercept": self.intercept,
+                **gaussian_arrays(self.components, self.variances, self.noise, self.span, self.meta),
+            },
+        )
+
+
+def load_identity_regressor(path: str | Path | None = None) -> IdentityRegressor:
+    """Read a map written by :meth:`IdentityRegressor.save` (default: :func:`default_identity_regressor_path`).
+
+    Raises:
+        rig.asset.AssetError: the file is missing or does not match the rig's parameters.
+    """
+    path = Path(path) if path else default_identity_regressor_path()
+    arrays = read_asset_arrays(path, "identity regressor", "jnr train --identity-regressor")
+    reg = IdentityRegressor(**{**arrays, "weights": arrays["weights"].astype(np.float64)})
+    if reg.intercept.shape != (NUM_PARAMETERS,) or reg.weights.shape != (3 * reg.count, NUM_PARAMETERS):
+        raise AssetError(
+            f"{path} maps to {reg.intercept.shape[0]} joint channels, the rig has {NUM_PARAMETERS}; rebuild it"
+        )
+    return reg
+
+
+def _ridge_solutions(x: np.ndarray, y: np.ndarray, alphas) -> list[np.ndarray]:
+    """Ridge weights ``(F, P)`` of centred ``x (n, F)``, ``y (n, P)`` for each alpha (one SVD)."""
+    u, s, vt = np.linalg.svd(x, full_matrices=False)
+    uty = u.T @ y
+    return [vt.T @ ((s / (s * s + a))[:, None] * uty) for a in alphas]
+
+
+def fit_identity_regressor(
+    points,
+    theta: np.ndarray,
+    span: np.ndarray,
+    *,
+    alphas: tuple[float, ...] = RIDGE_ALPHAS,
+    components: tuple[int, ...] = PRIOR_COMPONENTS,
+    folds: int = 5,
+    seed: int = 0,
+    noise_floor: float = 1e-4,
+    extra_residuals: np.ndarray | None = None,
+    meta: dict | None = None,
+) -> IdentityRegressor:
+    """Learn the map from point sets to joint channels.
+
+    Args:
+        points: ``(n, N, 3)`` a detector's 3D points of ``n`` photos.
+        theta: ``(n, P)`` the photographed heads' joint channels (deg, mm, ``scale - 1``).
+        span: ``(P,)`` the channels' ranges (:func:`rig.skinning.joint_fit.parameter_span`).
+        alphas: ridge penalties tried by ``folds``-fold cross-validation (mean squared error in ``u``).
+        components: PPCA ranks tried for the residual Gaussian (cross-validated log-likelihood, as
+            :func:`pipeline.fitting.identity.build_identity_prior`).
+        seed: of the fold split. noise_floor: the residual Gaussian's least isotropic variance (``u^2``).
+        extra_residuals: ``(m, P)`` more residuals in ``u`` (e.g. of the targets themselves against the rig's
+            fits), added to the regression's as an independent error (each regression residual plus a random
+            one of these rows).
+        meta: recorded with the map (the cross-validation tables are added).
+
+    Returns:
+        :class:`IdentityRegressor` fitted on all photos with the best penalty; its residual Gaussian is that
+        of the cross-validated residuals.
+    """
+    theta = np.asarray(theta, np.float64)
+    span = np.asarray(span, np.float64)
+    p = _check_points(points, None, "fit_identity_regressor")
+    if p.ndim != 3 or theta.shape != (len(p), len(span)):
+        raise ShapeError(
+            f"fit_identity_regressor: points (n, N, 3) and theta (n, {len(span)}); got {p.shape}, {theta.shape}"
+        )
+    if len(p) < 2 * folds:
+        raise InputError(f"fit_identity_regressor: need at least {2 * folds} photos, got {len(p)}")
+    reference = procrustes_mean(p)
+    x = normalise_points(p, reference).reshape(len(p), -1)
+    u = theta / span
+    order = np.random.default_rng(seed).permutation(len(p))
+    cv_pred = np.zeros((len(alphas), *u.shape))
+    for f in range(folds):
+        test = order[f::folds]
+        train = np.setdiff1d(order, test)
+        xm, um = x[train].mean(0), u[train].mean(0)
+        for i, w in enumerate(_ridge_solutions(x[train] - xm, u[train] - um, alphas)):
+            cv_pred[i, test] = (x[test] - xm) @ w + um
+    mse = ((cv_pred - u) ** 2).sum(-1).mean(-1)
+    best = int(np.argmin(mse))
+    residual = u - cv_pred[best]
+    if extra_residuals is not None:
+        extra = np.asarray(extra_residuals, np.float64)
+        residual = residual + extra[np.random.default_rng(seed + 1).integers(0, len(extra), len(residual))]
+    # the residuals' Gaussian: the population prior's PPCA with its rank by cross-validated likelihood
+    gauss = build_identity_prior(
+        residual, np.ones(u.shape[1]), components=components, folds=folds, seed=seed + 2, noise_floor=noise_floor
+    )
+    comp, var, noise = gauss.components, gauss.variances, gauss.noise
+    xm, um = x.mean(0), u.mean(0)
+    (w,) = _ridge_solutions(x - xm, u - um, (alphas[best],))
+    total = float(((u - um) ** 2).sum(-1).mean())
+    return IdentityRegressor(
+        reference=reference,
+        weights=w,
+        feature_mean=xm,
+        intercept=um,
+        components=comp,
+        variances=var,
+        noise=noise,
+        span=span,
+        meta={
+            **(meta or {}),
+            "photos": int(len(p)),
+            "alpha": float(alphas[best]),
+            "cv_mse_u": {str(a): float(m) for a, m in zip(alphas, mse)},
+            "cv_explained": float(1.0 - mse[best] / total),
+            "residual_rank": int(len(var)),
+            "residual_cv_log_likelihood": gauss.meta["cv_log_likelihood"],
+        },
+    )
+
+
+_REGRESSOR: list[IdentityRegressor] = []
+
+
+def cached_identity_regressor() -> IdentityRegressor:
+    """The committed identity regressor, read once per process."""
+    if not _REGRESSOR:
+        _REGRESSOR.append(load_identity_regressor())
+    return _REGRESSOR[0]
+
+
+@dataclass(frozen=True)
+class IdentityRegressionConfig:
+    """The identity read from the detector's 3D points (:mod:`pipeline.fitting.identity_regression`): with
+    ``enabled`` and a detector that gives them (MediaPipe's 478 points with their depth), the identity prior of the
+    fit is the conditional one, centred on the regressed head with the regression's uncertainty, instead of the
+    population's; photos without them (dlib's points, a landmarks file) keep the population prior."""
+
+    enabled: bool = True
+    """Use it (chosen on the validation photos of heldout heads 0-9 and 30-49: the fit's identity 0.890 x the
+    template's against 0.966 x with the population prior; ``docs/fit_photo.md``)."""
+    lambda_identity: float = 0.1
+    """The conditional prior's weight (instead of ``prior.lambda_identity``; of 0.03 / 0.1 / 0.3 on the validation
+    photos: identity 0.892 / 0.890 / 0.895 x the template, 4 / 4 / 3 photos worse by more than 0.05 mm)."""
+    start: bool = False
+    """Start the joints at the regressed head (else at the template; the same fit on the validation photos)."""
+    max_yaw_deg: float = 30.0
+    """The regressor learned from photos of faces turned up to 30 deg; a face turned further (the yaw of the fit's
+    first pose) keeps the population prior. On the views of validation heads 0-2 (yaw up to 60 deg) the conditional
+    prior's fit was worse than the population prior's on 12 of the 17 views estimated past 30 deg (+0.18 mm on
+    average) and better on 9 of the 13 within it (-0.07 mm) (``docs/fit_photo.md``)."""
+
+    def __post_init__(self) -> None:
+        for name in ("enabled", "start"):
+            if not isinstance(getattr(self, name), bool):
+                raise InputError(f"landmarks.regression.{name} must be true or false, got {getattr(self, name)!r}")
+        for name in ("lambda_identity", "max_yaw_deg"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not (0 <= value < float("inf")):
+                raise InputError(f"landmarks.regression.{name} must be a finite number >= 0, got {value!r}")
+
+
+def conditional_identity(
+    config: IdentityRegressionConfig, points3d, yaw_deg: float | None = None
+) -> IdentityPrior | None:
+    """The conditional identity prior of the detector's 3D points ``points3d (478, 3)`` when ``config.enabled``,
+    the points are MediaPipe's 478 (:func:`cached_identity_regressor`) and the face's yaw ``yaw_deg`` (degrees,
+    None: not known) is within ``config.max_yaw_deg``; None otherwise (the fit keeps the population prior)."""
+    if not config.enabled or points3d is None:
+        return None
+    if yaw_deg is not None and abs(yaw_deg) > config.max_yaw_deg:
+        return None
+    regressor = cached_identity_regressor()
+    points = np.asarray(points3d, np.float64)
+    if points.shape != (regressor.count, 3):
+        return None
+    return regressor.prior(points)

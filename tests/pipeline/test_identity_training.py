@@ -1,0 +1,46 @@
+"""Training the identity regressor (issue 37): its heads are none of the splits', the coefficient map is
+recovered, the photos are cached and resumed."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pipeline import identity_training as it
+from pipeline.synthetic.population import split_seeds
+
+
+def test_training_heads_are_their_own_and_do_not_depend_on_how_many():
+    seeds = it.training_seeds(500)
+    used = set().union(*(set(split_seeds(s, 0).tolist()) for s in ("train", "val", "test", "heldout")))
+    assert len(set(seeds.tolist())) == 500 and not used & set(seeds.tolist())
+    assert np.array_equal(it.training_seeds(40), seeds[:40])  # a cache of a smaller run is reused
+    assert not np.array_equal(it.training_seeds(40, seed=1), seeds[:40])
+
+
+def test_the_coefficient_map_recovers_a_known_linear_map():
+    rng = np.random.default_rng(0)
+    c = rng.normal(size=(1000, 100))
+    a, b = rng.normal(size=(100, 7)), rng.normal(size=7)
+    theta = c @ a + b + rng.normal(0, 0.01, (1000, 7))
+    a_fit, b_fit = it.coefficient_map(c, theta)
+    assert np.abs(a_fit - a).max() < 0.02 and np.abs(b_fit - b).max() < 0.02
+    resid = it.coefficient_map_residuals(c, theta)
+    assert 0.005 < resid.std() < 0.02  # held-out residuals: the noise, a little more
+
+
+def test_training_photos_are_read_and_cached(tmp_path, monkeypatch):
+    """Two chunks of one photo each (spp 2): MediaPipe reads both faces, the second expressive; a second call
+    reads the cache instead of rendering."""
+    monkeypatch.setattr(it, "CHUNK", 1)
+    data = it.training_photos(2, tmp_path, spp=2)
+    assert data["points"].shape == (2, 478, 3) and data["found"].all()
+    assert data["expressive"].tolist() == [False, True]
+    assert np.isfinite(data["points"]).all() and data["coefficients"].shape == (2, 100)
+    assert len(list(tmp_path.glob("*.npz"))) == 2
+
+    def no_render(*args):
+        raise AssertionError("rendered again")
+
+    monkeypatch.setattr(it, "render_chunk", no_render)
+    again = it.training_photos(2, tmp_path, spp=2)
+    assert np.array_equal(again["points"], data["points"])
