@@ -116,8 +116,9 @@ def _dense_points(photo_dir) -> np.ndarray:
 
 def test_dense_points_from_a_detector_or_a_478_point_file_fit_the_same(capsys, tmp_path, photo_dir):
     """A detector's 478 dense points are what the fit uses (report: ``fitted_layout``), the same as those points
-    in a landmark file (without the identity read from the detector's depth, which a file does not have); ``landmarks.dense=false`` fits their 68 iBUG points instead; a 468-point file (no
-    irises) fits too; a file of another count is one line."""
+    in a landmark file (without the identity read from the detector's depth, which a file does not have);
+    ``landmarks.dense=false`` fits their 68 iBUG points instead; a 468-point file (no irises) fits too; a file of
+    another count is one line."""
     from landmarks.formats import write_landmarks
     from landmarks.mediapipe.ibug68_map import mesh_to_ibug68
 
