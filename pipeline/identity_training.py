@@ -101,6 +101,8 @@ def training_photos(
         The concatenated arrays of :func:`render_chunk` over ``heads`` heads.
     """
     cache = Path(cache)
+    if cache.exists() and not cache.is_dir():
+        raise InputError(f"the photos' cache {cache} is a file, not a folder")
     cache.mkdir(parents=True, exist_ok=True)
     seeds = training_seeds(heads, seed)
     parts = []

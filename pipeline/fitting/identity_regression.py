@@ -22,8 +22,7 @@ The committed map is ``rig/assets/jnr_identity_regressor_v<version>.npz``.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from functools import cached_property
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -112,9 +111,8 @@ class IdentityRegressor:
         weights: ``(3 N, P)`` from normalised coordinates (minus ``feature_mean``) to ``u = theta / span``.
         feature_mean: ``(3 N,)`` the training features' mean.
         intercept: ``(P,)`` ``u`` at ``feature_mean``.
-        components, variances, noise: the residual Gaussian, PPCA in ``u`` units (as
-            :class:`~pipeline.fitting.identity.IdentityPrior`).
-        span: ``(P,)`` each channel's range (deg, mm, scale), the unit of ``u``.
+        residual: the Gaussian of the truth around a prediction (an
+            :class:`~pipeline.fitting.identity.IdentityPrior` with zero mean; its ``span`` is the unit of ``u``).
         meta: how it was made (photos, the cross-validation tables, seconds).
     """
 
@@ -122,10 +120,7 @@ class IdentityRegressor:
     weights: np.ndarray
     feature_mean: np.ndarray
     intercept: np.ndarray
-    components: np.ndarray
-    variances: np.ndarray
-    noise: float
-    span: np.ndarray
+    residual: IdentityPrior
     meta: dict
 
     @property
@@ -144,7 +139,7 @@ class IdentityRegressor:
 
     def predict(self, points) -> np.ndarray:
         """Joint channels ``(P,)`` for ``points (N, 3)``, ``(B, P)`` for ``(B, N, 3)`` (deg, mm, ``scale - 1``)."""
-        theta = self.predict_u(points) * self.span
+        theta = self.predict_u(points) * self.residual.span
         return theta[0] if np.ndim(points) == 2 else theta
 
     def prior(self, points) -> IdentityPrior:
@@ -152,24 +147,11 @@ class IdentityRegressor:
         prediction (an :class:`~pipeline.fitting.identity.IdentityPrior`, usable wherever the population's is)."""
         if np.ndim(points) != 2:
             raise ShapeError(f"IdentityRegressor.prior: one point set ({self.count}, 3), got {np.shape(points)}")
-        return IdentityPrior(
-            self.predict_u(points)[0],
-            self.components,
-            self.variances,
-            self.noise,
-            self.span,
-            {"conditional": True, **{k: self.meta[k] for k in ("photos",) if k in self.meta}},
-        )
-
-    @cached_property
-    def residual_prior(self) -> IdentityPrior:
-        """The residual Gaussian with zero mean (its log-likelihood scores a residual)."""
-        return IdentityPrior(
-            np.zeros_like(self.intercept), self.components, self.variances, self.noise, np.ones_like(self.span), {}
-        )
+        return replace(self.residual, mean=self.predict_u(points)[0], meta={"conditional": True})
 
     def save(self, path: str | Path) -> None:
         """Write the map as one ``.npz`` of named arrays (atomic)."""
+        r = self.residual
         write_npz_atomic(
             path,
             {
@@ -177,7 +159,7 @@ class IdentityRegressor:
                 "weights": self.weights.astype(np.float32),
                 "feature_mean": self.feature_mean,
                 "intercept": self.intercept,
-                **gaussian_arrays(self.components, self.variances, self.noise, self.span, self.meta),
+                **gaussian_arrays(r.components, r.variances, r.noise, r.span, self.meta),
             },
         )
 
@@ -190,7 +172,17 @@ def load_identity_regressor(path: str | Path | None = None) -> IdentityRegressor
     """
     path = Path(path) if path else default_identity_regressor_path()
     arrays = read_asset_arrays(path, "identity regressor", "jnr train --identity-regressor")
-    reg = IdentityRegressor(**{**arrays, "weights": arrays["weights"].astype(np.float64)})
+    residual = IdentityPrior(
+        np.zeros_like(arrays["intercept"]), *(arrays[k] for k in ("components", "variances", "noise", "span")), {}
+    )
+    reg = IdentityRegressor(
+        arrays["reference"],
+        arrays["weights"].astype(np.float64),
+        arrays["feature_mean"],
+        arrays["intercept"],
+        residual,
+        arrays["meta"],
+    )
     if reg.intercept.shape != (NUM_PARAMETERS,) or reg.weights.shape != (3 * reg.count, NUM_PARAMETERS):
         raise AssetError(
             f"{path} maps to {reg.intercept.shape[0]} joint channels, the rig has {NUM_PARAMETERS}; rebuild it"
@@ -267,7 +259,6 @@ def fit_identity_regressor(
     gauss = build_identity_prior(
         residual, np.ones(u.shape[1]), components=components, folds=folds, seed=seed + 2, noise_floor=noise_floor
     )
-    comp, var, noise = gauss.components, gauss.variances, gauss.noise
     xm, um = x.mean(0), u.mean(0)
     (w,) = _ridge_solutions(x - xm, u - um, (alphas[best],))
     total = float(((u - um) ** 2).sum(-1).mean())
@@ -276,17 +267,14 @@ def fit_identity_regressor(
         weights=w,
         feature_mean=xm,
         intercept=um,
-        components=comp,
-        variances=var,
-        noise=noise,
-        span=span,
+        residual=replace(gauss, mean=np.zeros(u.shape[1]), span=span, meta={}),
         meta={
             **(meta or {}),
             "photos": int(len(p)),
             "alpha": float(alphas[best]),
             "cv_mse_u": {str(a): float(m) for a, m in zip(alphas, mse)},
             "cv_explained": float(1.0 - mse[best] / total),
-            "residual_rank": int(len(var)),
+            "residual_rank": gauss.rank,
             "residual_cv_log_likelihood": gauss.meta["cv_log_likelihood"],
         },
     )

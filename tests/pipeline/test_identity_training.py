@@ -44,3 +44,14 @@ def test_training_photos_are_read_and_cached(tmp_path, monkeypatch):
     monkeypatch.setattr(it, "render_chunk", no_render)
     again = it.training_photos(2, tmp_path, spp=2)
     assert np.array_equal(again["points"], data["points"])
+
+
+def test_a_cache_that_is_a_file_is_refused(tmp_path):
+    import pytest
+
+    from rig.errors import InputError
+
+    (tmp_path / "f").write_text("x")
+    with pytest.raises(InputError, match="not a folder"):
+        it.training_photos(2, tmp_path / "f")
+    assert (tmp_path / "f").read_text() == "x"

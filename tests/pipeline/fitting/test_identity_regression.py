@@ -11,6 +11,7 @@ import torch
 from scipy.spatial.transform import Rotation
 
 from pipeline.fitting import identity_regression as ir
+from pipeline.fitting.identity import IdentityPrior
 from pipeline.fitting.identity_regression import (
     IdentityRegressor,
     fit_identity_regressor,
@@ -95,7 +96,7 @@ def test_the_residual_gaussian_adds_the_targets_own_error():
     plain = fit_identity_regressor(points, u, span, components=(2, 4))
     extra = rng.normal(0, 0.5, (100, u.shape[1]))
     wider = fit_identity_regressor(points, u, span, components=(2, 4), extra_residuals=extra)
-    total = lambda r: r.variances.sum() + r.noise * (u.shape[1] - len(r.variances))  # noqa: E731
+    total = lambda r: r.residual.variances.sum() + r.residual.noise * (u.shape[1] - r.residual.rank)  # noqa: E731
     assert total(wider) > total(plain) + 0.5 * u.shape[1] * 0.25
 
 
@@ -138,10 +139,7 @@ def _fake_regressor(theta_true: np.ndarray, sd: float) -> IdentityRegressor:
         weights=np.zeros((3 * 478, p)),
         feature_mean=np.zeros(3 * 478),
         intercept=theta_true / span,
-        components=np.zeros((0, p)),
-        variances=np.zeros(0),
-        noise=sd**2,
-        span=span,
+        residual=IdentityPrior(np.zeros(p), np.zeros((0, p)), np.zeros(0), sd**2, span, {}),
         meta={},
     )
 
