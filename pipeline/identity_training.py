@@ -41,6 +41,7 @@ from pipeline.synthetic.population import ict_coefficients, ict_heads, split_see
 from rig.asset import load_asset, write_npz_atomic
 from rig.errors import InputError
 from rig.optim import Progress
+from rig.parameters import mirror_theta
 from rig.skinning.joint_fit import parameter_span
 
 FOCAL_FACTORS = (1.0, 1.4, 2.0, 3.0)
@@ -148,12 +149,13 @@ def coefficient_map_residuals(coefficients: np.ndarray, theta: np.ndarray, folds
 def train_identity_regressor(
     out_path: str | Path | None = None,
     *,
-    heads: int = 3000,
+    heads: int = 6000,
     map_heads: int = 300,
     seed: int = 0,
     spp: int = 64,
     iterations: int = 400,
     cache: str | Path | None = None,
+    mirror: bool = True,
     progress: Progress | None = None,
 ) -> IdentityRegressor:
     """Render, read and fit the identity regressor; write it (default: the committed asset path).
@@ -162,7 +164,9 @@ def train_identity_regressor(
         out_path: where to write the map. heads: training photos (one per head). map_heads: heads whose rig fit
             teaches the coefficient-to-channel map (the first ones). seed: of the heads and photos. spp: the
             photos' samples per pixel. iterations: Adam steps of each rig fit. cache: folder of the rendered
-            points (default ``.cache/identity_regressor`` in the working directory). progress: reports.
+            points (default ``.cache/identity_regressor`` in the working directory). mirror: learn from every
+            photo's mirror image too (:func:`~pipeline.fitting.identity_regression.fit_identity_regressor`).
+            progress: reports.
     """
     from pipeline.train import fit_population_joints
 
@@ -187,6 +191,7 @@ def train_identity_regressor(
         span,
         seed=seed,
         extra_residuals=map_residual,
+        mirror=(lambda t: mirror_theta(torch.from_numpy(t)).numpy()) if mirror else None,
         meta={
             "seed": seed,
             "heads": int(heads),

@@ -136,9 +136,10 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     tr.add_argument(
         "--identity-regressor",
         action="store_true",
-        help="instead: photograph 3,000 ICT heads drawn afresh (half with an expression; random pose, skin, "
-        "light and focal length), read each with MediaPipe, and learn the map from its 478 3D points to the "
-        "joints that the photo fit's conditional identity prior uses (~45 min on 2 cores; "
+        help="instead: photograph 6,000 ICT heads drawn afresh (half with an expression; random pose, skin, "
+        "light and focal length), read each with MediaPipe, and learn the map from its 478 3D points (and from "
+        "their mirror images) to the joints that the photo fit's conditional identity prior uses (~90 min on 2 "
+        "cores; "
         "rig/assets/jnr_identity_regressor_v3.npz unless --out is given)",
     )
     tr.add_argument(

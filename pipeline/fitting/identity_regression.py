@@ -9,7 +9,8 @@ ICT heads (:mod:`pipeline.identity_training`, ``jnr train --identity-regressor``
 1. the points are similarity-normalised (:func:`normalise_points`: centred, unit RMS size, rotated onto the
    training set's Procrustes mean by Kabsch), so the camera's distance, the head's pose and the image's size
    drop out;
-2. the ``3 N`` normalised coordinates are mapped linearly to range-normalised joint channels
+2. the ``3 N`` normalised coordinates (every training photo also learned from as its mirror image, the
+   mirrored head's channels as its target: :func:`mirror_permutation`) are mapped linearly to range-normalised joint channels
    ``u = theta / span`` (the units of :class:`pipeline.fitting.identity.IdentityPrior`), the ridge penalty
    chosen by cross-validation;
 3. the regression's cross-validated residuals give a Gaussian of the truth around the prediction
@@ -22,6 +23,7 @@ The committed map is ``rig/assets/jnr_identity_regressor_v<version>.npz``.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -100,6 +102,57 @@ def procrustes_mean(points, iterations: int = 10) -> np.ndarray:
     for _ in range(iterations):
         mean = normalise_points(normalise_points(p, mean).mean(0))
     return mean
+
+
+def mirror_permutation(reference: np.ndarray, iterations: int = 10) -> np.ndarray:
+    """The left-right partner of every point of a mirror-symmetric point set (its own index on the midline).
+
+    A symmetric shape's plane of symmetry is normal to one of its principal axes; for each axis the points
+    are reflected in it and matched to themselves (a one-to-one assignment of the reflected points to the
+    originals by least squared distance, Hungarian, alternated with the rotation that best aligns them,
+    Kabsch, until the assignment stops changing); the axis whose pairs fit best wins.
+
+    Args:
+        reference: ``(N, 3)`` a left-right symmetric layout's points (e.g. the regressor's Procrustes mean), in
+            any position, size and orientation.
+
+    Returns:
+        ``(N,)`` int ``perm``: point ``perm[i]`` is point ``i``'s mirror partner (``perm[perm]`` the identity).
+
+    Raises:
+        InputError: the points are not mirror symmetric (no one-to-one pairing, or the pairs more than 5 % of
+            the points' RMS radius apart after the reflection).
+    """
+    from scipy.optimize import linear_sum_assignment
+
+    r = normalise_points(reference)
+    best = (np.inf, None)
+    for axis in np.linalg.svd(r, full_matrices=False)[2]:
+        reflected = r - 2.0 * np.outer(r @ axis, axis)
+        moved, perm = reflected, None
+        for _ in range(iterations):
+            _, col = linear_sum_assignment(((moved[:, None] - r[None]) ** 2).sum(-1))
+            new = np.empty_like(col)
+            new[col] = np.arange(len(col))  # point j's partner is reflected point new[j]
+            if perm is not None and (new == perm).all():
+                break
+            perm = new
+            u, _, vt = np.linalg.svd(reflected[perm].T @ r)
+            u[:, -1] *= np.sign(np.linalg.det(u @ vt))
+            moved = reflected @ (u @ vt)
+        error = float(np.sqrt(((moved[perm] - r) ** 2).sum(-1).mean()))
+        if error < best[0]:
+            best = (error, perm)
+    error, perm = best
+    if not (perm[perm] == np.arange(len(perm))).all() or error > 0.05:
+        raise InputError(f"mirror_permutation: the points are not mirror symmetric (pairs {error:.3f} apart)")
+    return perm
+
+
+def mirror_points(points, perm: np.ndarray) -> np.ndarray:
+    """The mirror image of point sets ``(..., N, 3)``: x negated and every point swapped with its partner
+    (``perm`` of :func:`mirror_permutation`), so point ``i`` is again point ``i`` of the layout."""
+    return (np.asarray(points, np.float64) * np.array([-1.0, 1.0, 1.0]))[..., perm, :]
 
 
 @dataclass(frozen=True)
@@ -208,6 +261,7 @@ def fit_identity_regressor(
     seed: int = 0,
     noise_floor: float = 1e-4,
     extra_residuals: np.ndarray | None = None,
+    mirror: Callable[[np.ndarray], np.ndarray] | None = None,
     meta: dict | None = None,
 ) -> IdentityRegressor:
     """Learn the map from point sets to joint channels.
@@ -223,6 +277,12 @@ def fit_identity_regressor(
         extra_residuals: ``(m, P)`` more residuals in ``u`` (e.g. of the targets themselves against the rig's
             fits), added to the regression's as an independent error (each regression residual plus a random
             one of these rows).
+        mirror: ``theta (n, P) -> (n, P)`` the channels of the mirror-image heads (e.g.
+            :func:`rig.parameters.mirror_theta`); given, every photo is also learned from as its mirror image (the
+            points by :func:`mirror_points`, the layout's pairs found by :func:`mirror_permutation`, the reference
+            made symmetric), so the map is left-right equivariant (a mirrored photo reads as the mirrored head)
+            and learns from twice the photos; a photo and its mirror image stay in one fold, and the residuals
+            are the real photos'.
         meta: recorded with the map (the cross-validation tables are added).
 
     Returns:
@@ -239,15 +299,30 @@ def fit_identity_regressor(
     if len(p) < 2 * folds:
         raise InputError(f"fit_identity_regressor: need at least {2 * folds} photos, got {len(p)}")
     reference = procrustes_mean(p)
+    if mirror is not None:  # a symmetric reference: a mirrored photo's features are then its mirror image's
+        perm = mirror_permutation(reference)
+        reference = normalise_points(reference + normalise_points(mirror_points(reference, perm), reference))
     x = normalise_points(p, reference).reshape(len(p), -1)
     u = theta / span
+    if mirror is not None:
+        xm_all = normalise_points(mirror_points(p, perm), reference).reshape(len(p), -1)
+        um_all = np.asarray(mirror(theta), np.float64) / span
+        if um_all.shape != u.shape:
+            raise ShapeError(f"fit_identity_regressor: mirror gave {um_all.shape}, expected {u.shape}")
+
+    def learned(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The training features and targets of photos ``rows`` (with their mirror images)."""
+        if mirror is None:
+            return x[rows], u[rows]
+        return np.concatenate([x[rows], xm_all[rows]]), np.concatenate([u[rows], um_all[rows]])
+
     order = np.random.default_rng(seed).permutation(len(p))
     cv_pred = np.zeros((len(alphas), *u.shape))
     for f in range(folds):
         test = order[f::folds]
-        train = np.setdiff1d(order, test)
-        xm, um = x[train].mean(0), u[train].mean(0)
-        for i, w in enumerate(_ridge_solutions(x[train] - xm, u[train] - um, alphas)):
+        xt, ut = learned(np.setdiff1d(order, test))
+        xm, um = xt.mean(0), ut.mean(0)
+        for i, w in enumerate(_ridge_solutions(xt - xm, ut - um, alphas)):
             cv_pred[i, test] = (x[test] - xm) @ w + um
     mse = ((cv_pred - u) ** 2).sum(-1).mean(-1)
     best = int(np.argmin(mse))
@@ -259,9 +334,10 @@ def fit_identity_regressor(
     gauss = build_identity_prior(
         residual, np.ones(u.shape[1]), components=components, folds=folds, seed=seed + 2, noise_floor=noise_floor
     )
-    xm, um = x.mean(0), u.mean(0)
-    (w,) = _ridge_solutions(x - xm, u - um, (alphas[best],))
-    total = float(((u - um) ** 2).sum(-1).mean())
+    xt, ut = learned(np.arange(len(p)))
+    xm, um = xt.mean(0), ut.mean(0)
+    (w,) = _ridge_solutions(xt - xm, ut - um, (alphas[best],))
+    total = float(((u - u.mean(0)) ** 2).sum(-1).mean())
     return IdentityRegressor(
         reference=reference,
         weights=w,
@@ -274,6 +350,7 @@ def fit_identity_regressor(
             "alpha": float(alphas[best]),
             "cv_mse_u": {str(a): float(m) for a, m in zip(alphas, mse)},
             "cv_explained": float(1.0 - mse[best] / total),
+            "mirror_augmented": mirror is not None,
             "residual_rank": gauss.rank,
             "residual_cv_log_likelihood": gauss.meta["cv_log_likelihood"],
         },
@@ -298,11 +375,12 @@ class IdentityRegressionConfig:
     population's; photos without them (dlib's points, a landmarks file) keep the population prior."""
 
     enabled: bool = True
-    """Use it (chosen on the validation photos of heldout heads 0-9 and 30-49: the fit's identity 0.890 x the
+    """Use it (chosen on the validation photos of heldout heads 0-9 and 30-49: the fit's identity 0.878 x the
     template's against 0.966 x with the population prior; ``docs/fit_photo.md``)."""
     lambda_identity: float = 0.1
     """The conditional prior's weight (instead of ``prior.lambda_identity``; of 0.03 / 0.1 / 0.3 on the validation
-    photos: identity 0.892 / 0.890 / 0.895 x the template, 4 / 4 / 3 photos worse by more than 0.05 mm)."""
+    photos, with the first map of 3,000 photos: identity 0.892 / 0.890 / 0.895 x the template, 4 / 4 / 3 photos
+    worse by more than 0.05 mm)."""
     start: bool = False
     """Start the joints at the regressed head (else at the template; the same fit on the validation photos)."""
     max_yaw_deg: float = 30.0

@@ -100,6 +100,54 @@ def test_the_residual_gaussian_adds_the_targets_own_error():
     assert total(wider) > total(plain) + 0.5 * u.shape[1] * 0.25
 
 
+def _symmetric_population(rng, n: int, pairs: int = 12, midline: int = 6, q: int = 3, m: int = 2, noise=0.002):
+    """Mirror-symmetric point sets (x across the face: ``pairs`` points and their reflections, ``midline`` points
+    at x = 0) deformed by ``q`` one-sided fields, their ``q`` mirror images and ``m`` symmetric fields, driven by
+    ``u (n, 2 q + m)``; each set placed at random. Returns the sets, ``u``, the true partner of every point, and
+    the mirror map of ``u`` (the one-sided channels swapped with their mirror images')."""
+    left = rng.normal(size=(pairs, 3)) + np.array([1.5, 0, 0])
+    mid = rng.normal(size=(midline, 3)) * np.array([0.0, 1, 1])
+    base = np.concatenate([left, left * [-1, 1, 1], mid])
+    perm = np.concatenate([np.arange(pairs, 2 * pairs), np.arange(pairs), 2 * pairs + np.arange(midline)])
+    flip = lambda f: (f * np.array([-1.0, 1, 1]))[..., perm, :]  # noqa: E731
+    one_sided = rng.normal(scale=0.05, size=(q, len(base), 3))
+    sym = rng.normal(scale=0.05, size=(m, len(base), 3))
+    fields = np.concatenate([one_sided, flip(one_sided), (sym + flip(sym)) / 2])
+    u = rng.normal(size=(n, 2 * q + m))
+    sets = base + np.einsum("np,pkd->nkd", u, fields) + rng.normal(0, noise, (n, len(base), 3))
+    swap = np.concatenate([np.arange(q, 2 * q), np.arange(q), 2 * q + np.arange(m)])
+    return np.stack([_similar(s, rng) for s in sets]), u, perm, lambda t: t[..., swap]
+
+
+def test_mirror_partners_are_found_in_any_placement_and_refused_without_symmetry():
+    rng = np.random.default_rng(7)
+    points, _, perm, _ = _symmetric_population(rng, 1, q=0, noise=0.0)  # symmetric fields only
+    assert np.array_equal(ir.mirror_permutation(points[0]), perm)
+    shuffle = rng.permutation(len(perm))  # the same shape, its points in another order
+    found = ir.mirror_permutation(points[0][shuffle])
+    assert np.array_equal(shuffle[found], perm[shuffle])
+    mirrored = ir.mirror_points(points[0], perm)
+    assert np.allclose(normalise_points(mirrored, normalise_points(points[0])), normalise_points(points[0]), atol=1e-9)
+    with pytest.raises(InputError, match="not mirror symmetric"):
+        ir.mirror_permutation(rng.normal(size=(30, 3)))
+
+
+def test_learning_from_mirror_images_gives_an_equivariant_and_better_map():
+    rng = np.random.default_rng(8)
+    points, u, perm, mirror_u = _symmetric_population(rng, 215, noise=0.01)
+    span = np.full(u.shape[1], 2.0)
+    train, test = slice(0, 15), slice(15, None)  # few photos: the mirror images double them
+    plain = fit_identity_regressor(points[train], u[train] * span, span, components=(2,))
+    both = fit_identity_regressor(points[train], u[train] * span, span, components=(2,), mirror=mirror_u)
+    assert both.meta["mirror_augmented"] and not plain.meta["mirror_augmented"]
+    # a mirrored photo reads as the mirrored head
+    flipped = ir.mirror_points(points[test], ir.mirror_permutation(both.reference))
+    assert np.allclose(both.predict(flipped), mirror_u(both.predict(points[test])), atol=1e-6)
+    assert not np.allclose(plain.predict(flipped), mirror_u(plain.predict(points[test])), atol=2e-2)
+    err = lambda r: np.sqrt(((r.predict(points[test]) / span - u[test]) ** 2).mean())  # noqa: E731
+    assert err(both) < 0.85 * err(plain), (err(both), err(plain))
+
+
 def test_save_and_load_give_the_same_predictions(tmp_path, monkeypatch):
     rng = np.random.default_rng(4)
     points, u = _linear_population(rng, 60, p=107)
