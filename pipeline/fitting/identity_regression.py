@@ -9,10 +9,10 @@ ICT heads (:mod:`pipeline.identity_training`, ``jnr train --identity-regressor``
 1. the points are similarity-normalised (:func:`normalise_points`: centred, unit RMS size, rotated onto the
    training set's Procrustes mean by Kabsch), so the camera's distance, the head's pose and the image's size
    drop out;
-2. the ``3 N`` normalised coordinates (every training photo also learned from as its mirror image, the
-   mirrored head's channels as its target: :func:`mirror_permutation`) are mapped linearly to range-normalised joint channels
-   ``u = theta / span`` (the units of :class:`pipeline.fitting.identity.IdentityPrior`), the ridge penalty
-   chosen by cross-validation;
+2. the ``3 N`` normalised coordinates are mapped linearly to range-normalised joint channels ``u = theta / span``
+   (the units of :class:`pipeline.fitting.identity.IdentityPrior`), the ridge penalty chosen by cross-validation;
+   every training photo is also learned from as its mirror image, the mirrored head's channels its target
+   (:func:`mirror_permutation`);
 3. the regression's cross-validated residuals give a Gaussian of the truth around the prediction
    (probabilistic PCA like the population prior), so :meth:`IdentityRegressor.prior` is a **conditional
    identity prior** ``p(theta | the detector's mesh)``: the photo fit's identity term then pulls towards the
