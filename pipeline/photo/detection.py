@@ -75,6 +75,13 @@ class DetectedFaces:
         return None if points is None else np.array(points, np.float64)
 
 
+def dense_fit_points(dense: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+    """MediaPipe's points of :func:`photo_landmarks` split for the fit: ``(pixels (N, 2), points3d (N, 3) or
+    None)``, the second the detector's points with their relative depth (what the identity regressor reads), None
+    for a landmarks file's ``(N, 2)``."""
+    return dense[:, :2], (dense if dense.shape[1] == 3 else None)
+
+
 MIN_DETECTION_SIDE = 32
 """Photos with a side shorter than this (pixels) are not given to a detector (dlib's CNN crashes on a
 1-2 px side; no detector finds a face in so few pixels)."""

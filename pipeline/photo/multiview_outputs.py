@@ -30,7 +30,7 @@ from pipeline.files import check_output, json_safe, staged_folder
 from pipeline.head.fitted import FittedHead, fitted_head_from_params
 from pipeline.head.params import params_payload as head_params_payload
 from pipeline.head.skinned import write_skinned_head
-from pipeline.photo.detection import name_photo, photo_landmarks
+from pipeline.photo.detection import dense_fit_points, name_photo, photo_landmarks
 from pipeline.photo.fit import PhotoAppearance
 from pipeline.photo.inputs import sidecar_landmarks
 from pipeline.photo.multiview import MultiViewConfig, MultiViewFit, fit_multiview
@@ -303,12 +303,14 @@ def fit_multiview_files(
         k = photo.factor
         images.append(photo.image)
         if dense is not None and config.landmarks.dense:  # MediaPipe's points, as for one photo
-            points.append(dense[:, :2])
+            pixels, depth = dense_fit_points(dense)
+            points.append(pixels)
             layouts.append(mediapipe_layout_for(rig.asset, len(dense)))
         else:
             points.append(lm)
             layouts.append(None)
-        points3d.append(dense if dense is not None and dense.shape[1] == 3 else None)  # the detector's depth
+            depth = None
+        points3d.append(depth)
         sources.append(
             {"photo": str(path.absolute()), **{key: value for key, value in source.items() if key != "faces"}}
         )

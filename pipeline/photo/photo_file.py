@@ -34,6 +34,7 @@ from pipeline.photo.detection import (
     FACE_ALL,
     DetectedFaces,
     check_face,
+    dense_fit_points,
     detect_photo_faces,
     name_photo,
     photo_landmarks,
@@ -77,8 +78,8 @@ def _fit_and_write(
     rig = rig or JointRig()
     fitted = points3d = None
     if dense is not None and config.landmarks.dense:
-        fitted = (dense[:, :2], mediapipe_layout_for(rig.asset, len(dense)))
-        points3d = dense if dense.shape[1] == 3 else None  # the detector's, with its depth
+        pixels, points3d = dense_fit_points(dense)
+        fitted = (pixels, mediapipe_layout_for(rig.asset, len(dense)))
     try:
         fit = fit_photo(
             photo.image,

@@ -255,3 +255,14 @@ def test_outputs_sets_write_only_their_files_and_resume_with_them(capsys, tmp_pa
     stdout = capsys.readouterr().out
     assert "kept 2 (fitted earlier)" in stdout, stdout
     assert not (fits / "face0" / "mesh.obj").exists()
+
+
+def test_the_detectors_depth_travels_and_a_files_2d_points_have_none():
+    from pipeline.photo.detection import dense_fit_points
+
+    detected = np.arange(478 * 3, dtype=float).reshape(478, 3)
+    pixels, points3d = dense_fit_points(detected)
+    assert np.array_equal(pixels, detected[:, :2]) and np.array_equal(points3d, detected)
+    from_file = detected[:, :2].copy()
+    pixels, points3d = dense_fit_points(from_file)
+    assert np.array_equal(pixels, from_file) and points3d is None
