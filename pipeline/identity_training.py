@@ -14,6 +14,10 @@ population prior is made) and a ridge map from the 100 ICT coefficients to the c
 fits, gives every head's target; its own residuals (the rig's fits against the map) are added to the
 regression's uncertainty.
 
+Real people are not drawn from ICT's N(0, I): the training heads can include a second set drawn from a wider
+distribution (``wide_heads`` heads, every mode's standard deviation ``wide_spread`` times ICT's, seeds of stream
+``seed + 1``), so the map does not pull an unusual face towards the ICT population's middle.
+
 The rendered points are kept in ``cache`` (one ``.npz`` per chunk of photos), so an interrupted run resumes.
 """
 
@@ -46,37 +50,46 @@ from rig.skinning.joint_fit import parameter_span
 
 FOCAL_FACTORS = (1.0, 1.4, 2.0, 3.0)
 """The training photos' focal lengths over the image side, cycled over the heads (wide phone to tele)."""
+WIDE_SPREAD = 1.5
+"""The wide training heads' ICT coefficients' spread over ICT's own (the held-out split's widest is 1.5)."""
 CHUNK = 20
 """Photos per cache file."""
 _STREAM = zlib.crc32(b"identity-regressor")
 
 
 def training_seeds(n: int, seed: int = 0) -> np.ndarray:
-    """``(n,)`` head seeds of the regressor's own stream, none of them a split's."""
-    used = set().union(*(set(split_seeds(s, seed).tolist()) for s in ("train", "val", "test", "heldout")))
+    """``(n,)`` head seeds of the regressor's stream ``seed``, none of them a split's (of split seed 0, the
+    benchmarks', or ``seed``)."""
+    used = set().union(
+        *(set(split_seeds(s, k).tolist()) for s in ("train", "val", "test", "heldout") for k in {0, int(seed)})
+    )
     ss = np.random.SeedSequence([int(seed), _STREAM])
     seeds = [int(s) for s in ss.generate_state(n + 64, dtype=np.uint32) if int(s) not in used]
     return np.asarray(seeds[:n], dtype=np.int64)
 
 
-def render_chunk(seeds: np.ndarray, first: int, seed: int, spp: int) -> dict[str, np.ndarray]:
-    """Photograph heads ``first..first + len(seeds) - 1`` (head ``i`` of seed ``seeds[i - first]``) and read them.
+def render_chunk(seeds: np.ndarray, first: int, seed: int, spp: int, spread: float = 1.0) -> dict[str, np.ndarray]:
+    """Photograph heads ``first..first + len(seeds) - 1`` (head ``i`` of seed ``seeds[i - first]``, its ICT
+    coefficients' spread ``spread`` times ICT's) and read them.
 
     Returns:
         ``coefficients (n, 100)``, ``expressive (n,)`` bool, ``found (n,)`` bool, ``points (n, 478, 3)``
-        MediaPipe's dense points (NaN where no face was found).
+        MediaPipe's dense points (NaN where no face was found), ``seconds (n,)`` each photo's render and
+        detection wall time.
     """
     from landmarks.detect import detect_landmarks
     from landmarks.detector import NoFaceError
 
     asset = load_asset()
     n = len(seeds)
-    coefficients = np.stack([ict_coefficients(int(s), asset=asset) for s in seeds])
+    coefficients = np.stack([ict_coefficients(int(s), asset=asset, spread=spread) for s in seeds])
     neutral = ict_heads(coefficients, asset)
     expressive = (np.arange(first, first + n) % 2) == 1
     points = np.full((n, 478, 3), np.nan)
     found = np.zeros(n, bool)
+    seconds = np.zeros(n)
     for j in range(n):
+        t0 = time.perf_counter()
         i = first + j
         rng = np.random.default_rng(np.random.SeedSequence([int(seed), _STREAM, i]))
         vertices = neutral[j]
@@ -86,21 +99,42 @@ def render_chunk(seeds: np.ndarray, first: int, seed: int, spp: int) -> dict[str
         photo = simulate_photo(vertices, rng, settings, asset)
         try:
             face = detect_landmarks(photo.image, detector="mediapipe")
+            points[j] = face.dense
+            found[j] = True
         except NoFaceError:
-            continue
-        points[j] = face.dense
-        found[j] = True
-    return {"coefficients": coefficients, "expressive": expressive, "found": found, "points": points}
+            pass
+        seconds[j] = time.perf_counter() - t0
+    return {
+        "coefficients": coefficients,
+        "expressive": expressive,
+        "found": found,
+        "points": points,
+        "seconds": seconds,
+    }
 
 
 def training_photos(
-    heads: int, cache: str | Path, *, seed: int = 0, spp: int = 64, progress: Progress | None = None
+    heads: int,
+    cache: str | Path,
+    *,
+    seed: int = 0,
+    spp: int = 64,
+    spread: float = 1.0,
+    progress: Progress | None = None,
 ) -> dict[str, np.ndarray]:
     """The training photos' points, rendered chunk by chunk into ``cache`` (chunks already there are read).
 
+    Args:
+        heads: how many (one photo each). cache: folder of the chunks. seed: the heads' and photos' stream.
+        spp: samples per pixel. spread: the heads' ICT coefficients' spread over ICT's own (1: N(0, I)).
+        progress: reports.
+
     Returns:
-        The concatenated arrays of :func:`render_chunk` over ``heads`` heads.
+        The concatenated arrays of :func:`render_chunk` over ``heads`` heads (``seconds`` NaN for photos of
+        a cache written before their times were kept).
     """
+    if not (np.isfinite(spread) and spread > 0):
+        raise InputError(f"training_photos: spread must be a positive number, got {spread}")
     cache = Path(cache)
     if cache.exists() and not cache.is_dir():
         raise InputError(f"the photos' cache {cache} is a file, not a folder")
@@ -108,7 +142,7 @@ def training_photos(
     seeds = training_seeds(heads, seed)
     parts = []
     for first in range(0, heads, CHUNK):
-        path = cache / f"photos_s{seed}_spp{spp}_{first:06d}.npz"
+        path = cache / f"photos_s{seed}{'' if spread == 1.0 else f'_sd{spread:g}'}_spp{spp}_{first:06d}.npz"
         chunk_seeds = seeds[first : first + CHUNK]
         part = None
         if path.is_file():
@@ -116,8 +150,10 @@ def training_photos(
                 part = {k: data[k] for k in data.files}
             if len(part["coefficients"]) != len(chunk_seeds):
                 part = None
+            elif "seconds" not in part:
+                part["seconds"] = np.full(len(chunk_seeds), np.nan)
         if part is None:
-            part = render_chunk(chunk_seeds, first, seed, spp)
+            part = render_chunk(chunk_seeds, first, seed, spp, spread)
             write_npz_atomic(path, part)
         parts.append(part)
         if progress is not None:
@@ -156,6 +192,8 @@ def train_identity_regressor(
     iterations: int = 400,
     cache: str | Path | None = None,
     mirror: bool = True,
+    wide_heads: int = 0,
+    wide_spread: float = WIDE_SPREAD,
     progress: Progress | None = None,
 ) -> IdentityRegressor:
     """Render, read and fit the identity regressor; write it (default: the committed asset path).
@@ -166,17 +204,22 @@ def train_identity_regressor(
             photos' samples per pixel. iterations: Adam steps of each rig fit. cache: folder of the rendered
             points (default ``.cache/identity_regressor`` in the working directory). mirror: learn from every
             photo's mirror image too (:func:`~pipeline.fitting.identity_regression.fit_identity_regressor`).
-            progress: reports.
+            wide_heads: more training photos of heads from a wider distribution (stream ``seed + 1``, every ICT
+            mode's spread ``wide_spread`` times ICT's; module docstring). progress: reports.
     """
     from pipeline.train import fit_population_joints
 
-    if heads < 50 or map_heads < 20 or map_heads > heads:
+    if heads < 50 or map_heads < 20 or map_heads > heads or wide_heads < 0:
         raise InputError(
-            f"train_identity_regressor: need heads >= 50 and 20 <= map_heads <= heads, got {heads}, {map_heads}"
+            "train_identity_regressor: need heads >= 50, 20 <= map_heads <= heads and wide_heads >= 0, got "
+            f"{heads}, {map_heads}, {wide_heads}"
         )
     t0 = time.perf_counter()
-    data = training_photos(heads, cache or Path(".cache") / "identity_regressor", seed=seed, spp=spp, progress=progress)
-    t_photos = time.perf_counter() - t0
+    cache = cache or Path(".cache") / "identity_regressor"
+    data = training_photos(heads, cache, seed=seed, spp=spp, progress=progress)
+    if wide_heads:
+        wide = training_photos(wide_heads, cache, seed=seed + 1, spp=spp, spread=wide_spread, progress=progress)
+        data = {k: np.concatenate([data[k], wide[k]]) for k in data}
     fitted = clip_to_limits(
         fit_population_joints(ict_heads(data["coefficients"][:map_heads]), iterations=iterations, progress=progress)
     )
@@ -195,6 +238,8 @@ def train_identity_regressor(
         meta={
             "seed": seed,
             "heads": int(heads),
+            "wide_heads": int(wide_heads),
+            "wide_spread": float(wide_spread) if wide_heads else None,
             "faces_found": int(found.sum()),
             "expressive": int(data["expressive"][found].sum()),
             "map_heads": int(map_heads),
@@ -208,7 +253,12 @@ def train_identity_regressor(
         regressor,
         meta={
             **regressor.meta,
-            "seconds": {"photos": round(t_photos, 1), "total": round(time.perf_counter() - t0, 1)},
+            "seconds": {
+                # the photos' own render + detection times, kept in the cache (not this run's reading of it)
+                "photos": round(float(np.nansum(data["seconds"])), 1),
+                "photos_untimed": int(np.isnan(data["seconds"]).sum()),
+                "total": round(time.perf_counter() - t0, 1),
+            },
         },
     )
     regressor.save(out_path or default_identity_regressor_path())

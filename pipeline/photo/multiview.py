@@ -276,8 +276,7 @@ def fit_multiview(
     singles = tuple(singles)
     t_single = time.perf_counter() - t0
     theta_mean = np.mean([s.theta for s in singles], 0)
-    problem = _problem(lms, sizes, f0, singles, theta_mean, config, rig, neural, layouts)
-    problem.identity = views_identity_prior(singles)
+    problem = _problem(lms, sizes, f0, singles, theta_mean, config, rig, neural, layouts, views_identity_prior(singles))
     rows = LeastSquaresTerms(problem.terms())
     cost0 = _start_cost(problem, rows)
     stages = [StageLog("average", ("joints",), 0, cost0, cost0, metrics={"views": n}, seconds=t_single)]
@@ -340,9 +339,10 @@ def views_identity_model(kind: str):
 
 
 def _problem(
-    lms, sizes, f0, singles, theta_mean, config: MultiViewConfig, rig: JointRig, neural, layouts
+    lms, sizes, f0, singles, theta_mean, config: MultiViewConfig, rig: JointRig, neural, layouts, identity=None
 ) -> MultiViewProblem:
-    """The joint refinement's problem, started from the single-view fits (module docstring, step 1)."""
+    """The joint refinement's problem, started from the single-view fits (module docstring, step 1), with the
+    views' conditional identity prior ``identity`` (None: the population prior)."""
     dtype = rig.template.dtype
     landmark = config.landmarks
     terms = [
@@ -362,7 +362,7 @@ def _problem(
     with torch.no_grad():
         weights = neural(torch.zeros(1, LATENT, dtype=dtype))[0].double()
     state = initial_state(singles, theta_mean, rig, config.fit_focal)
-    return MultiViewProblem(state, terms, weights, config)
+    return MultiViewProblem(state, terms, weights, config, identity)
 
 
 def _start_cost(problem: MultiViewProblem, rows: LeastSquaresTerms) -> float:

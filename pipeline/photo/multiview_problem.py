@@ -200,12 +200,19 @@ class MultiViewProblem:
         state: the unknowns. terms: each view's :class:`~pipeline.fitting.landmark_term.LandmarkTerm`.
         weights: ``(V, K)`` skinning weights (the neural skinning at ``Z = 0``).
         config: the fit's settings (the priors' weights).
+        identity: the conditional identity prior of the views' 3D points (their regressed heads' mean,
+            :func:`pipeline.photo.multiview.views_identity_prior`), or None for the population prior.
     """
 
     FREE = ("joints", "pose", "expressions", "focal")
 
     def __init__(
-        self, state: MultiViewState, terms: list[LandmarkTerm], weights: torch.Tensor, config: MultiViewConfig
+        self,
+        state: MultiViewState,
+        terms: list[LandmarkTerm],
+        weights: torch.Tensor,
+        config: MultiViewConfig,
+        identity: IdentityPrior | None = None,
     ) -> None:
         self.state, self.landmark_terms, self.config = state, terms, config
         with torch.no_grad():
@@ -217,7 +224,7 @@ class MultiViewProblem:
         self.views = [BatchedLandmarks(t, state.rig, self.weights, ("pose", "joints", "expressions")) for t in terms]
         self.expressions = expressions64(state.rig.asset)
         self.flip = torch.tensor(RIG_TO_OPENCV, dtype=torch.float64)
-        self.identity: IdentityPrior | None = None
+        self.identity = identity
         """The conditional identity prior of the views' 3D points (their regressed heads' mean), or None."""
 
     def terms(self) -> tuple[Term, ...]:

@@ -4,9 +4,11 @@ recovered, the photos are cached and resumed."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from pipeline import identity_training as it
 from pipeline.synthetic.population import split_seeds
+from rig.errors import InputError
 
 
 def test_training_heads_are_their_own_and_do_not_depend_on_how_many():
@@ -36,6 +38,7 @@ def test_training_photos_are_read_and_cached(tmp_path, monkeypatch):
     assert data["points"].shape == (2, 478, 3) and data["found"].all()
     assert data["expressive"].tolist() == [False, True]
     assert np.isfinite(data["points"]).all() and data["coefficients"].shape == (2, 100)
+    assert data["seconds"].shape == (2,) and (data["seconds"] > 0).all()  # each photo's render + detection
     assert len(list(tmp_path.glob("*.npz"))) == 2
 
     def no_render(*args):
@@ -46,11 +49,37 @@ def test_training_photos_are_read_and_cached(tmp_path, monkeypatch):
     assert np.array_equal(again["points"], data["points"])
 
 
+def test_wide_training_heads_have_their_own_stream_and_files(tmp_path, monkeypatch):
+    """A wider spread draws the stream's heads wider and keeps its chunks apart from the N(0, I) ones."""
+    calls = []
+
+    def fake_render(seeds, first, seed, spp, spread=1.0):
+        calls.append((seed, spread))
+        n = len(seeds)
+        return {
+            "coefficients": np.stack([it.ict_coefficients(int(s), spread=spread) for s in seeds]),
+            "expressive": np.zeros(n, bool),
+            "found": np.ones(n, bool),
+            "points": np.zeros((n, 478, 3)),
+        }
+
+    monkeypatch.setattr(it, "render_chunk", fake_render)
+    plain = it.training_photos(3, tmp_path, seed=1)
+    wide = it.training_photos(3, tmp_path, seed=1, spread=1.5)
+    assert calls == [(1, 1.0), (1, 1.5)]
+    assert sorted(p.name for p in tmp_path.iterdir()) == [
+        "photos_s1_sd1.5_spp64_000000.npz",
+        "photos_s1_spp64_000000.npz",
+    ]
+    assert not np.array_equal(plain["coefficients"], wide["coefficients"])
+    assert wide["coefficients"].std() > 1.2 * plain["coefficients"].std()
+    for bad in (0.0, float("nan")):
+        with pytest.raises(InputError, match="spread"):
+            it.training_photos(3, tmp_path / "bad", spread=bad)
+    assert not (tmp_path / "bad").exists()
+
+
 def test_a_cache_that_is_a_file_is_refused(tmp_path):
-    import pytest
-
-    from rig.errors import InputError
-
     (tmp_path / "f").write_text("x")
     with pytest.raises(InputError, match="not a folder"):
         it.training_photos(2, tmp_path / "f")

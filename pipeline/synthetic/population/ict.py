@@ -46,15 +46,20 @@ SHIFTED_MODE_SD = np.where(np.arange(NUM_IDENTITY_MODES) < 30, 1.25, 1.5)
 MAX_DRAWS = 100
 
 
-def ict_coefficients(seed: int, shifted: bool = False, asset: RigAsset | None = None) -> np.ndarray:
+def ict_coefficients(
+    seed: int, shifted: bool = False, asset: RigAsset | None = None, spread: float = 1.0
+) -> np.ndarray:
     """``(100,)`` coefficients of the head of ``seed``: with ``rng = default_rng(seed)``,
-    ``rng.standard_normal(100)`` times :data:`MODE_SD` (or :data:`SHIFTED_MODE_SD`), drawn again from the
-    same ``rng`` while the head folds its visible skin (module docstring)."""
+    ``rng.standard_normal(100)`` times :data:`MODE_SD` (or :data:`SHIFTED_MODE_SD`) times ``spread``, drawn
+    again from the same ``rng`` while the head folds its visible skin (module docstring). ``spread`` widens
+    the distribution for other uses than the splits (the identity regressor's wide training heads)."""
     from pipeline.synthetic.population.heads import flipped_against
 
     asset = load_asset() if asset is None else asset
     rng = np.random.default_rng(int(seed))
-    sd = SHIFTED_MODE_SD if shifted else MODE_SD
+    if not (np.isfinite(spread) and spread > 0):
+        raise InputError(f"ict_coefficients: spread must be a positive number, got {spread}")
+    sd = (SHIFTED_MODE_SD if shifted else MODE_SD) * float(spread)
     for _ in range(MAX_DRAWS):
         c = rng.standard_normal(NUM_IDENTITY_MODES) * sd
         if flipped_against(ict_heads(c, asset), asset.vertices, asset) == 0:

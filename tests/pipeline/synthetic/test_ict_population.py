@@ -28,6 +28,7 @@ from pipeline.synthetic.population import (
 from pipeline.synthetic.population.heads import flipped_against
 from pipeline.synthetic.population.ict import MAX_DRAWS
 from rig.asset import load_asset
+from rig.errors import InputError
 from rig.geometry import face_normals
 from rig.template import HIDDEN_REGIONS
 
@@ -169,6 +170,20 @@ def test_heldout_has_a_wider_spread(splits):
         return float(np.sqrt(((v - v.mean(0)) ** 2).sum(-1).mean()))
 
     assert spread(splits["heldout"]) > 1.1 * spread(splits["train"])  # mm: the heads vary more too
+
+
+def test_a_wider_spread_scales_the_same_draws(asset):
+    """``spread`` multiplies each draw of the head's own stream (the identity regressor's wide training heads);
+    a spread that is not a positive number is refused."""
+    for seed in (3, 11):
+        c = ict_coefficients(seed, asset=asset, spread=1.5)
+        rng = np.random.default_rng(seed)
+        draws = [rng.standard_normal(100) * 1.5 for _ in range(MAX_DRAWS)]
+        assert any(np.array_equal(d, c) for d in draws)
+        assert np.array_equal(ict_coefficients(seed, asset=asset, spread=1.0), ict_coefficients(seed, asset=asset))
+    for bad in (0.0, -1.0, float("nan")):
+        with pytest.raises(InputError, match="spread"):
+            ict_coefficients(3, asset=asset, spread=bad)
 
 
 def test_the_eyeball_centre_stays_where_the_templates_is(asset, template, splits):
