@@ -192,7 +192,7 @@ def train_identity_regressor(
     iterations: int = 400,
     cache: str | Path | None = None,
     mirror: bool = True,
-    wide_heads: int = 0,
+    wide_heads: int = 6000,
     wide_spread: float = WIDE_SPREAD,
     progress: Progress | None = None,
 ) -> IdentityRegressor:

@@ -84,3 +84,51 @@ def test_a_cache_that_is_a_file_is_refused(tmp_path):
     with pytest.raises(InputError, match="not a folder"):
         it.training_photos(2, tmp_path / "f")
     assert (tmp_path / "f").read_text() == "x"
+
+
+def test_the_map_is_learned_from_both_head_sets_and_reads_a_new_head(tmp_path, monkeypatch):
+    """The whole training on stand-ins for the renders and the rig fits: points linear in the ICT coefficients
+    (plus noise), channels linear in the heads. The wide set comes from stream ``seed + 1`` at ``wide_spread``,
+    the coefficient map recovers the channels, and the learned map reads a head of neither set."""
+    import pipeline.train
+
+    rng = np.random.default_rng(0)
+    basis = rng.normal(0, 0.05, (100, 478 * 3))
+    shape = rng.normal(0, 1.0, (478, 3))
+    calls = []
+
+    def points_of(c, noise_rng):
+        return shape + (c @ basis).reshape(478, 3) + noise_rng.normal(0, 0.002, (478, 3))
+
+    def fake_render(seeds, first, seed, spp, spread=1.0):
+        calls.append((seed, spread))
+        c = np.stack([it.ict_coefficients(int(s), spread=spread) for s in seeds])
+        noise = np.random.default_rng(first + 1000 * seed)
+        return {
+            "coefficients": c,
+            "expressive": np.zeros(len(c), bool),
+            "found": np.ones(len(c), bool),
+            "points": np.stack([points_of(x, noise) for x in c]),
+            "seconds": np.full(len(c), 0.5),
+        }
+
+    span = it.parameter_span().numpy()
+    template = it.ict_heads(np.zeros(100))
+    pick = rng.choice(template.size, len(span), replace=False)
+
+    def fake_fit(vertices, iterations=400, progress=None):  # channels: a fixed linear read of the head
+        return (vertices.reshape(len(vertices), -1) - template.reshape(-1))[:, pick] * 0.1 * span
+
+    monkeypatch.setattr(it, "render_chunk", fake_render)
+    monkeypatch.setattr(it, "clip_to_limits", lambda theta: theta)
+    monkeypatch.setattr(pipeline.train, "fit_population_joints", fake_fit)
+    reg = it.train_identity_regressor(
+        tmp_path / "map.npz", heads=200, wide_heads=60, map_heads=160, seed=3, cache=tmp_path / "c", mirror=False
+    )
+    assert sorted(set(calls)) == [(3, 1.0), (4, it.WIDE_SPREAD)]
+    assert reg.meta["photos"] == 260 and reg.meta["wide_heads"] == 60 and reg.meta["seconds"]["photos"] == 130.0
+    assert reg.meta["cv_explained"] > 0.9
+    c = it.ict_coefficients(123456, spread=1.5)
+    truth = fake_fit(it.ict_heads(c)[None])[0]
+    err = np.abs(reg.predict(points_of(c, np.random.default_rng(9))) - truth) / span
+    assert np.sqrt((err**2).mean()) < 0.1 * np.sqrt(((truth / span) ** 2).mean())
