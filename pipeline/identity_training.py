@@ -192,7 +192,7 @@ def train_identity_regressor(
     iterations: int = 400,
     cache: str | Path | None = None,
     mirror: bool = True,
-    wide_heads: int = 6000,
+    wide_heads: int | None = None,
     wide_spread: float = WIDE_SPREAD,
     progress: Progress | None = None,
 ) -> IdentityRegressor:
@@ -204,11 +204,13 @@ def train_identity_regressor(
             photos' samples per pixel. iterations: Adam steps of each rig fit. cache: folder of the rendered
             points (default ``.cache/identity_regressor`` in the working directory). mirror: learn from every
             photo's mirror image too (:func:`~pipeline.fitting.identity_regression.fit_identity_regressor`).
-            wide_heads: more training photos of heads from a wider distribution (stream ``seed + 1``, every ICT
-            mode's spread ``wide_spread`` times ICT's; module docstring). progress: reports.
+            wide_heads: more training photos of heads from a wider distribution (default: as many as ``heads``;
+            0: none; stream ``seed + 1``, every ICT mode's spread ``wide_spread`` times ICT's; module docstring).
+            progress: reports.
     """
     from pipeline.train import fit_population_joints
 
+    wide_heads = heads if wide_heads is None else wide_heads
     if heads < 50 or map_heads < 20 or map_heads > heads or wide_heads < 0:
         raise InputError(
             "train_identity_regressor: need heads >= 50, 20 <= map_heads <= heads and wide_heads >= 0, got "

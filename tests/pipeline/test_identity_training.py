@@ -123,12 +123,16 @@ def test_the_map_is_learned_from_both_head_sets_and_reads_a_new_head(tmp_path, m
     monkeypatch.setattr(it, "clip_to_limits", lambda theta: theta)
     monkeypatch.setattr(pipeline.train, "fit_population_joints", fake_fit)
     reg = it.train_identity_regressor(
-        tmp_path / "map.npz", heads=200, wide_heads=60, map_heads=160, seed=3, cache=tmp_path / "c", mirror=False
+        tmp_path / "map.npz", heads=200, map_heads=160, seed=3, cache=tmp_path / "c", mirror=False
     )
     assert sorted(set(calls)) == [(3, 1.0), (4, it.WIDE_SPREAD)]
-    assert reg.meta["photos"] == 260 and reg.meta["wide_heads"] == 60 and reg.meta["seconds"]["photos"] == 130.0
+    # as many wide heads as heads by default
+    assert reg.meta["photos"] == 400 and reg.meta["wide_heads"] == 200 and reg.meta["seconds"]["photos"] == 200.0
     assert reg.meta["cv_explained"] > 0.9
     c = it.ict_coefficients(123456, spread=1.5)
     truth = fake_fit(it.ict_heads(c)[None])[0]
     err = np.abs(reg.predict(points_of(c, np.random.default_rng(9))) - truth) / span
     assert np.sqrt((err**2).mean()) < 0.1 * np.sqrt(((truth / span) ** 2).mean())
+    with pytest.raises(InputError, match="wide_heads"):
+        it.train_identity_regressor(tmp_path / "bad.npz", heads=200, wide_heads=-1, cache=tmp_path / "c")
+    assert not (tmp_path / "bad.npz").exists()
