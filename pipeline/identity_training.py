@@ -51,7 +51,8 @@ from rig.skinning.joint_fit import parameter_span
 FOCAL_FACTORS = (1.0, 1.4, 2.0, 3.0)
 """The training photos' focal lengths over the image side, cycled over the heads (wide phone to tele)."""
 WIDE_SPREAD = 1.5
-"""The wide training heads' ICT coefficients' spread over ICT's own (the held-out split's widest is 1.5)."""
+"""The wide training heads' ICT coefficients' spread over ICT's own (set, not tuned; the held-out split's fine
+modes have this spread too: ``docs/fit_photo.md`` says what that means for its figures)."""
 CHUNK = 20
 """Photos per cache file."""
 _STREAM = zlib.crc32(b"identity-regressor")
