@@ -141,9 +141,10 @@ def training_photos(
         raise InputError(f"the photos' cache {cache} is a file, not a folder")
     cache.mkdir(parents=True, exist_ok=True)
     seeds = training_seeds(heads, seed)
+    tag = "" if spread == 1.0 else f"_sd{spread:g}"  # the N(0, I) chunks keep their first names
     parts = []
     for first in range(0, heads, CHUNK):
-        path = cache / f"photos_s{seed}{'' if spread == 1.0 else f'_sd{spread:g}'}_spp{spp}_{first:06d}.npz"
+        path = cache / f"photos_s{seed}{tag}_spp{spp}_{first:06d}.npz"
         chunk_seeds = seeds[first : first + CHUNK]
         part = None
         if path.is_file():
@@ -217,6 +218,8 @@ def train_identity_regressor(
             "train_identity_regressor: need heads >= 50, 20 <= map_heads <= heads and wide_heads >= 0, got "
             f"{heads}, {map_heads}, {wide_heads}"
         )
+    if wide_heads and not (np.isfinite(wide_spread) and wide_spread > 0):  # before hours of the first set's renders
+        raise InputError(f"train_identity_regressor: wide_spread must be a positive number, got {wide_spread}")
     t0 = time.perf_counter()
     cache = cache or Path(".cache") / "identity_regressor"
     data = training_photos(heads, cache, seed=seed, spp=spp, progress=progress)

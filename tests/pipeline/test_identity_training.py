@@ -49,21 +49,29 @@ def test_training_photos_are_read_and_cached(tmp_path, monkeypatch):
     assert np.array_equal(again["points"], data["points"])
 
 
+def _stand_in_render(calls: list, points_of):
+    """A stand-in for :func:`identity_training.render_chunk`: the heads' real coefficients, every face found,
+    ``points_of(coefficients, rng)`` as its points, 0.5 s a photo; each call's ``(seed, spread)`` kept in ``calls``."""
+
+    def render(seeds, first, seed, spp, spread=1.0):
+        calls.append((seed, spread))
+        c = np.stack([it.ict_coefficients(int(s), spread=spread) for s in seeds])
+        noise = np.random.default_rng(first + 1000 * seed)
+        return {
+            "coefficients": c,
+            "expressive": np.zeros(len(c), bool),
+            "found": np.ones(len(c), bool),
+            "points": np.stack([points_of(x, noise) for x in c]),
+            "seconds": np.full(len(c), 0.5),
+        }
+
+    return render
+
+
 def test_wide_training_heads_have_their_own_stream_and_files(tmp_path, monkeypatch):
     """A wider spread draws the stream's heads wider and keeps its chunks apart from the N(0, I) ones."""
     calls = []
-
-    def fake_render(seeds, first, seed, spp, spread=1.0):
-        calls.append((seed, spread))
-        n = len(seeds)
-        return {
-            "coefficients": np.stack([it.ict_coefficients(int(s), spread=spread) for s in seeds]),
-            "expressive": np.zeros(n, bool),
-            "found": np.ones(n, bool),
-            "points": np.zeros((n, 478, 3)),
-        }
-
-    monkeypatch.setattr(it, "render_chunk", fake_render)
+    monkeypatch.setattr(it, "render_chunk", _stand_in_render(calls, lambda c, rng: np.zeros((478, 3))))
     plain = it.training_photos(3, tmp_path, seed=1)
     wide = it.training_photos(3, tmp_path, seed=1, spread=1.5)
     assert calls == [(1, 1.0), (1, 1.5)]
@@ -100,18 +108,6 @@ def test_the_map_is_learned_from_both_head_sets_and_reads_a_new_head(tmp_path, m
     def points_of(c, noise_rng):
         return shape + (c @ basis).reshape(478, 3) + noise_rng.normal(0, 0.002, (478, 3))
 
-    def fake_render(seeds, first, seed, spp, spread=1.0):
-        calls.append((seed, spread))
-        c = np.stack([it.ict_coefficients(int(s), spread=spread) for s in seeds])
-        noise = np.random.default_rng(first + 1000 * seed)
-        return {
-            "coefficients": c,
-            "expressive": np.zeros(len(c), bool),
-            "found": np.ones(len(c), bool),
-            "points": np.stack([points_of(x, noise) for x in c]),
-            "seconds": np.full(len(c), 0.5),
-        }
-
     span = it.parameter_span().numpy()
     template = it.ict_heads(np.zeros(100))
     pick = rng.choice(template.size, len(span), replace=False)
@@ -119,7 +115,7 @@ def test_the_map_is_learned_from_both_head_sets_and_reads_a_new_head(tmp_path, m
     def fake_fit(vertices, iterations=400, progress=None):  # channels: a fixed linear read of the head
         return (vertices.reshape(len(vertices), -1) - template.reshape(-1))[:, pick] * 0.1 * span
 
-    monkeypatch.setattr(it, "render_chunk", fake_render)
+    monkeypatch.setattr(it, "render_chunk", _stand_in_render(calls, points_of))
     monkeypatch.setattr(it, "clip_to_limits", lambda theta: theta)
     monkeypatch.setattr(pipeline.train, "fit_population_joints", fake_fit)
     reg = it.train_identity_regressor(
@@ -135,4 +131,9 @@ def test_the_map_is_learned_from_both_head_sets_and_reads_a_new_head(tmp_path, m
     assert np.sqrt((err**2).mean()) < 0.1 * np.sqrt(((truth / span) ** 2).mean())
     with pytest.raises(InputError, match="wide_heads"):
         it.train_identity_regressor(tmp_path / "bad.npz", heads=200, wide_heads=-1, cache=tmp_path / "c")
-    assert not (tmp_path / "bad.npz").exists()
+    calls.clear()
+    with pytest.raises(InputError, match="wide_spread"):  # refused before any photo is rendered
+        it.train_identity_regressor(
+            tmp_path / "bad.npz", heads=200, map_heads=160, wide_spread=0.0, cache=tmp_path / "new"
+        )
+    assert not (tmp_path / "bad.npz").exists() and calls == []
