@@ -196,6 +196,7 @@ def train_identity_regressor(
     mirror: bool = True,
     wide_heads: int | None = None,
     wide_spread: float = WIDE_SPREAD,
+    yaw_interaction: bool = True,
     progress: Progress | None = None,
 ) -> IdentityRegressor:
     """Render, read and fit the identity regressor; write it (default: the committed asset path).
@@ -208,7 +209,8 @@ def train_identity_regressor(
             photo's mirror image too (:func:`~pipeline.fitting.identity_regression.fit_identity_regressor`).
             wide_heads: more training photos of heads from a wider distribution (default: as many as ``heads``;
             0: none; stream ``seed + 1``, every ICT mode's spread ``wide_spread`` times ICT's; module docstring).
-            progress: reports.
+            yaw_interaction: the map's weights change linearly with the face's yaw
+            (:func:`~pipeline.fitting.identity_regression.regression_features`). progress: reports.
     """
     from pipeline.train import fit_population_joints
 
@@ -241,6 +243,7 @@ def train_identity_regressor(
         seed=seed,
         extra_residuals=map_residual,
         mirror=(lambda t: mirror_theta(torch.from_numpy(t)).numpy()) if mirror else None,
+        yaw_interaction=yaw_interaction,
         meta={
             "seed": seed,
             "heads": int(heads),

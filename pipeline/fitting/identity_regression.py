@@ -28,6 +28,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from pipeline.fitting.identity import (
     PRIOR_COMPONENTS,
@@ -75,6 +76,12 @@ def normalise_points(points, reference: np.ndarray | None = None) -> np.ndarray:
     Raises:
         ShapeError: not ``(..., N, 3)``; InputError: not finite, or all points at one place.
     """
+    return _normalised_and_rotation(points, reference)[0]
+
+
+def _normalised_and_rotation(points, reference: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`normalise_points` and the ``(B, 3, 3)`` rotations it applied (``p @ R``; identity without a
+    reference)."""
     p = _check_points(points, None if reference is None else len(reference), "normalise_points")
     one = p.ndim == 2
     p = p[None] if one else p
@@ -83,13 +90,30 @@ def normalise_points(points, reference: np.ndarray | None = None) -> np.ndarray:
     if (size <= 1e-12).any():
         raise InputError("normalise_points: the points have no extent (all at one place)")
     p = p / size[:, None, None]
+    rotation = np.broadcast_to(np.eye(3), (len(p), 3, 3))
     if reference is not None:
         h = np.einsum("bni,nj->bij", p, reference)  # covariance of the points against the reference
         u, _, vt = np.linalg.svd(h)
         d = np.sign(np.linalg.det(u @ vt))
         u[:, :, -1] *= d[:, None]  # a proper rotation (no reflection)
-        p = p @ (u @ vt)
-    return p[0] if one else p
+        rotation = u @ vt
+        p = p @ rotation
+    return (p[0] if one else p), rotation
+
+
+def regression_features(points, reference: np.ndarray, yaw_interaction: bool = False) -> np.ndarray:
+    """The identity map's inputs: ``(B, 3 N)`` normalised coordinates of ``points (N, 3)`` or ``(B, N, 3)``
+    (:func:`normalise_points` onto ``reference``), and with ``yaw_interaction`` ``(B, 6 N)``: followed by their
+    difference from ``reference`` times the face's yaw (radians; the vertical component of the rotation vector
+    that turned the points onto ``reference``), so the map's weights can change linearly with the turn of the
+    face (MediaPipe's errors on a turned face are not those on a frontal one). A mirrored face has the opposite
+    yaw, so a map learned from mirror images stays left-right equivariant."""
+    p, rotation = _normalised_and_rotation(points, reference)
+    x = p.reshape(-1, p.shape[-2] * 3)
+    if not yaw_interaction:
+        return x
+    yaw = Rotation.from_matrix(rotation).as_rotvec()[:, 1]
+    return np.concatenate([x, (x - reference.reshape(1, -1)) * yaw[:, None]], 1)
 
 
 def procrustes_mean(points, iterations: int = 10) -> np.ndarray:
@@ -167,6 +191,8 @@ class IdentityRegressor:
         residual: the Gaussian of the truth around a prediction (an
             :class:`~pipeline.fitting.identity.IdentityPrior` with zero mean; its ``span`` is the unit of ``u``).
         meta: how it was made (photos, the cross-validation tables, seconds).
+        yaw_interaction: its features include the coordinates times the face's yaw
+            (:func:`regression_features`; ``weights`` then ``(6 N, P)``).
     """
 
     reference: np.ndarray
@@ -175,6 +201,7 @@ class IdentityRegressor:
     intercept: np.ndarray
     residual: IdentityPrior
     meta: dict
+    yaw_interaction: bool = False
 
     @property
     def count(self) -> int:
@@ -182,9 +209,9 @@ class IdentityRegressor:
         return len(self.reference)
 
     def features(self, points) -> np.ndarray:
-        """``(B, 3 N)`` normalised coordinates of ``points (N, 3)`` or ``(B, N, 3)``."""
-        p = normalise_points(_check_points(points, self.count, "IdentityRegressor"), self.reference)
-        return p.reshape(-1, 3 * self.count)
+        """``(B, F)`` the map's inputs for ``points (N, 3)`` or ``(B, N, 3)`` (:func:`regression_features`)."""
+        p = _check_points(points, self.count, "IdentityRegressor")
+        return regression_features(p, self.reference, self.yaw_interaction)
 
     def predict_u(self, points) -> np.ndarray:
         """``(B, P)`` predicted range-normalised channels ``u = theta / span``."""
@@ -212,6 +239,7 @@ class IdentityRegressor:
                 "weights": self.weights.astype(np.float32),
                 "feature_mean": self.feature_mean,
                 "intercept": self.intercept,
+                "yaw_interaction": np.asarray(self.yaw_interaction),
                 **gaussian_arrays(r.components, r.variances, r.noise, r.span, self.meta),
             },
         )
@@ -235,19 +263,24 @@ def load_identity_regressor(path: str | Path | None = None) -> IdentityRegressor
         arrays["intercept"],
         residual,
         arrays["meta"],
+        bool(arrays.get("yaw_interaction", False)),  # maps written before it: the coordinates only
     )
-    if reg.intercept.shape != (NUM_PARAMETERS,) or reg.weights.shape != (3 * reg.count, NUM_PARAMETERS):
+    features = 3 * reg.count * (2 if reg.yaw_interaction else 1)
+    if reg.intercept.shape != (NUM_PARAMETERS,) or reg.weights.shape != (features, NUM_PARAMETERS):
         raise AssetError(
-            f"{path} maps to {reg.intercept.shape[0]} joint channels, the rig has {NUM_PARAMETERS}; rebuild it"
+            f"{path} maps {reg.weights.shape[0]} features to {reg.intercept.shape[0]} joint channels, the rig has "
+            f"{NUM_PARAMETERS} and its points {features} features; rebuild it"
         )
     return reg
 
 
 def _ridge_solutions(x: np.ndarray, y: np.ndarray, alphas) -> list[np.ndarray]:
-    """Ridge weights ``(F, P)`` of centred ``x (n, F)``, ``y (n, P)`` for each alpha (one SVD)."""
-    u, s, vt = np.linalg.svd(x, full_matrices=False)
-    uty = u.T @ y
-    return [vt.T @ ((s / (s * s + a))[:, None] * uty) for a in alphas]
+    """Ridge weights ``(F, P)`` of centred ``x (n, F)``, ``y (n, P)`` for each alpha > 0 (one eigendecomposition
+    of the ``(F, F)`` Gram matrix: a quarter of an SVD of ``x``'s cost when ``n`` is several times ``F``)."""
+    ev, v = np.linalg.eigh(x.T @ x)
+    vty = v.T @ (x.T @ y)
+    ev = np.clip(ev, 0.0, None)  # round-off below zero
+    return [v @ (vty / (ev + a)[:, None]) for a in alphas]
 
 
 def fit_identity_regressor(
@@ -262,6 +295,7 @@ def fit_identity_regressor(
     noise_floor: float = 1e-4,
     extra_residuals: np.ndarray | None = None,
     mirror: Callable[[np.ndarray], np.ndarray] | None = None,
+    yaw_interaction: bool = False,
     meta: dict | None = None,
 ) -> IdentityRegressor:
     """Learn the map from point sets to joint channels.
@@ -283,6 +317,7 @@ def fit_identity_regressor(
             made symmetric), so the map is left-right equivariant (a mirrored photo reads as the mirrored head)
             and learns from twice the photos; a photo and its mirror image stay in one fold, and the residuals
             are the real photos'.
+        yaw_interaction: the features include the coordinates times the face's yaw (:func:`regression_features`).
         meta: recorded with the map (the cross-validation tables are added).
 
     Returns:
@@ -302,10 +337,10 @@ def fit_identity_regressor(
     if mirror is not None:  # a symmetric reference: a mirrored photo's features are then its mirror image's
         perm = mirror_permutation(reference)
         reference = normalise_points(reference + normalise_points(mirror_points(reference, perm), reference))
-    x = normalise_points(p, reference).reshape(len(p), -1)
+    x = regression_features(p, reference, yaw_interaction)
     u = theta / span
     if mirror is not None:
-        xm_all = normalise_points(mirror_points(p, perm), reference).reshape(len(p), -1)
+        xm_all = regression_features(mirror_points(p, perm), reference, yaw_interaction)
         um_all = np.asarray(mirror(theta), np.float64) / span
         if um_all.shape != u.shape:
             raise ShapeError(f"fit_identity_regressor: mirror gave {um_all.shape}, expected {u.shape}")
@@ -344,6 +379,7 @@ def fit_identity_regressor(
         feature_mean=xm,
         intercept=um,
         residual=replace(gauss, mean=np.zeros(u.shape[1]), span=span, meta={}),
+        yaw_interaction=bool(yaw_interaction),
         meta={
             **(meta or {}),
             "photos": int(len(p)),
@@ -351,6 +387,7 @@ def fit_identity_regressor(
             "cv_mse_u": {str(a): float(m) for a, m in zip(alphas, mse)},
             "cv_explained": float(1.0 - mse[best] / total),
             "mirror_augmented": mirror is not None,
+            "yaw_interaction": bool(yaw_interaction),
             "residual_rank": gauss.rank,
             "residual_cv_log_likelihood": gauss.meta["cv_log_likelihood"],
         },
