@@ -9,7 +9,9 @@ ICT heads (:mod:`pipeline.identity_training`, ``jnr train --identity-regressor``
 1. the points are similarity-normalised (:func:`normalise_points`: centred, unit RMS size, rotated onto the
    training set's Procrustes mean by Kabsch), so the camera's distance, the head's pose and the image's size
    drop out;
-2. the ``3 N`` normalised coordinates are mapped linearly to range-normalised joint channels ``u = theta / span``
+2. the ``3 N`` normalised coordinates (and, in a map learned with ``yaw_interaction``, their differences from the
+   reference times the face's yaw: :func:`regression_features`) are mapped linearly to range-normalised joint
+   channels ``u = theta / span``
    (the units of :class:`pipeline.fitting.identity.IdentityPrior`), the ridge penalty chosen by cross-validation;
    every training photo is also learned from as its mirror image, the mirrored head's channels its target
    (:func:`mirror_permutation`);
@@ -275,8 +277,13 @@ def load_identity_regressor(path: str | Path | None = None) -> IdentityRegressor
 
 
 def _ridge_solutions(x: np.ndarray, y: np.ndarray, alphas) -> list[np.ndarray]:
-    """Ridge weights ``(F, P)`` of centred ``x (n, F)``, ``y (n, P)`` for each alpha > 0 (one eigendecomposition
-    of the ``(F, F)`` Gram matrix: a quarter of an SVD of ``x``'s cost when ``n`` is several times ``F``)."""
+    """Ridge weights ``(F, P)`` of centred ``x (n, F)``, ``y (n, P)`` for each alpha > 0: one SVD of ``x`` when
+    there are fewer rows than features, else one eigendecomposition of the ``(F, F)`` Gram matrix (cheaper than the
+    SVD when ``n`` is several times ``F``, as for the committed map)."""
+    if x.shape[0] < x.shape[1]:
+        u, s, vt = np.linalg.svd(x, full_matrices=False)
+        uty = u.T @ y
+        return [vt.T @ ((s / (s * s + a))[:, None] * uty) for a in alphas]
     ev, v = np.linalg.eigh(x.T @ x)
     vty = v.T @ (x.T @ y)
     ev = np.clip(ev, 0.0, None)  # round-off below zero
