@@ -108,8 +108,10 @@ def regression_features(points, reference: np.ndarray, yaw_interaction: bool = F
     (:func:`normalise_points` onto ``reference``), and with ``yaw_interaction`` ``(B, 6 N)``: followed by their
     difference from ``reference`` times the face's yaw (radians; the vertical component of the rotation vector
     that turned the points onto ``reference``), so the map's weights can change linearly with the turn of the
-    face (MediaPipe's errors on a turned face are not those on a frontal one). A mirrored face has the opposite
-    yaw, so a map learned from mirror images stays left-right equivariant."""
+    face (MediaPipe's errors on a turned face are not those on a frontal one). The yaw is taken in ``reference``'s
+    frame: where that frame's x axis is not the normal of the reference's plane of symmetry (the committed map's is
+    turned 12 deg from it), a mirrored face's yaw is not exactly the opposite, and a map learned from mirror images
+    is left-right equivariant only nearly (docs/fit_photo.md)."""
     p, rotation = _normalised_and_rotation(points, reference)
     x = p.reshape(-1, p.shape[-2] * 3)
     if not yaw_interaction:
