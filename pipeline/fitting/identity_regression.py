@@ -109,9 +109,8 @@ def regression_features(points, reference: np.ndarray, yaw_interaction: bool = F
     difference from ``reference`` times the face's yaw (radians; the vertical component of the rotation vector
     that turned the points onto ``reference``), so the map's weights can change linearly with the turn of the
     face (MediaPipe's errors on a turned face are not those on a frontal one). The yaw is taken in ``reference``'s
-    frame: where that frame's x axis is not the normal of the reference's plane of symmetry (the committed map's is
-    turned 12 deg from it), a mirrored face's yaw is not exactly the opposite, and a map learned from mirror images
-    is left-right equivariant only nearly (docs/fit_photo.md)."""
+    frame: a map learned from mirror images has a reference in its own plane of symmetry (:func:`symmetric_reference`),
+    so a mirrored face's yaw is exactly the opposite."""
     p, rotation = _normalised_and_rotation(points, reference)
     x = p.reshape(-1, p.shape[-2] * 3)
     if not yaw_interaction:
@@ -175,6 +174,31 @@ def mirror_permutation(reference: np.ndarray, iterations: int = 10) -> np.ndarra
     if not (perm[perm] == np.arange(len(perm))).all() or error > 0.05:
         raise InputError(f"mirror_permutation: the points are not mirror symmetric (pairs {error:.3f} apart)")
     return perm
+
+
+def symmetric_reference(reference: np.ndarray, perm: np.ndarray) -> np.ndarray:
+    """``(N, 3)`` a nearly symmetric point set made exactly mirror symmetric in its own plane of symmetry.
+
+    The set is turned so that the normal of its plane of symmetry (the main direction of the differences between
+    mirror partners ``perm``, :func:`mirror_permutation`) is +x (the sign nearest the set's own x), then averaged
+    with its mirror image (:func:`mirror_points`) and normalised (centred, unit RMS radius). A face's mirror
+    image then turns onto it by the mirrored rotation, so its yaw (:func:`regression_features`) is exactly the
+    opposite of the face's: a map learned with mirror images and the yaw interaction is exactly left-right
+    equivariant. (The Procrustes mean keeps a training photo's frame: the committed map's was 12 deg off.)
+
+    Raises:
+        ShapeError: ``reference`` not ``(N, 3)`` or ``perm`` not ``(N,)``.
+    """
+    r = _check_points(reference, None, "symmetric_reference")
+    perm = np.asarray(perm)
+    if r.ndim != 2 or perm.shape != (len(r),):
+        raise ShapeError(f"symmetric_reference: reference (N, 3) and perm (N,); got {r.shape}, {perm.shape}")
+    r = r - r.mean(0)
+    normal = np.linalg.svd(r - r[perm], full_matrices=False)[2][0]
+    normal = normal if normal[0] >= 0 else -normal
+    turn, _ = Rotation.align_vectors([[1.0, 0.0, 0.0]], [normal])
+    r = r @ turn.as_matrix().T
+    return normalise_points((r + mirror_points(r, perm)) / 2)
 
 
 def mirror_points(points, perm: np.ndarray) -> np.ndarray:
@@ -345,7 +369,7 @@ def fit_identity_regressor(
     reference = procrustes_mean(p)
     if mirror is not None:  # a symmetric reference: a mirrored photo's features are then its mirror image's
         perm = mirror_permutation(reference)
-        reference = normalise_points(reference + normalise_points(mirror_points(reference, perm), reference))
+        reference = symmetric_reference(reference, perm)
     x = regression_features(p, reference, yaw_interaction)
     u = theta / span
     if mirror is not None:

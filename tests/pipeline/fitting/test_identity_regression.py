@@ -145,6 +145,13 @@ def test_learning_from_mirror_images_gives_an_equivariant_and_better_map():
     flipped = ir.mirror_points(points[test], ir.mirror_permutation(both.reference))
     assert np.allclose(both.predict(flipped), mirror_u(both.predict(points[test])), atol=1e-6)
     assert not np.allclose(plain.predict(flipped), mirror_u(plain.predict(points[test])), atol=2e-2)
+    # with the yaw interaction too: the reference is turned into its own plane of symmetry, so a mirrored face's
+    # yaw is exactly the opposite (the Procrustes mean keeps a random photo's frame, here a random placement)
+    turning = fit_identity_regressor(
+        points[train], u[train] * span, span, components=(2,), mirror=mirror_u, yaw_interaction=True
+    )
+    flipped = ir.mirror_points(points[test], ir.mirror_permutation(turning.reference))
+    assert np.allclose(turning.predict(flipped), mirror_u(turning.predict(points[test])), atol=1e-6)
     err = lambda r: np.sqrt(((r.predict(points[test]) / span - u[test]) ** 2).mean())  # noqa: E731
     assert err(both) < 0.85 * err(plain), (err(both), err(plain))
 
