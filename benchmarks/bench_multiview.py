@@ -15,9 +15,11 @@ default focal (1.4 x 384 px). Scored: the NoW-style face-region scan-to-mesh med
 regions) of the fitted identity without expression against the true head without expression.
 
 Rows: 1 view (the best of the 10 single-view fits, an oracle pick; their mean; the most frontal view's, the one a
-user would pick), 3, 5, 10 views (the first k of the 10). Columns: ``jnr`` (the landmark refinement,
-:func:`pipeline.photo.multiview.fit_multiview`), ``jnr + photometric`` (with the photometric consistency,
-``--photometric``), ``asm`` (``--asm``; its 1-view row is the ASM pipeline on the view that was best for jnr).
+user would pick), 3, 5, 10 views (the first k of the 10), and every view found against the best single view on the
+same heads (with ``--landmarks detected`` a view count's row leaves out the heads where MediaPipe found fewer
+views). Columns: ``jnr`` (the landmark refinement, :func:`pipeline.photo.multiview.fit_multiview`), ``jnr +
+photometric`` (with the photometric consistency, ``--photometric``), ``asm`` (``--asm``; its 1-view row is the ASM
+pipeline on the view that was best for jnr).
 """
 
 from __future__ import annotations
@@ -154,6 +156,8 @@ def main() -> None:
         )
         for name, config in methods.items():
             counts = [(n, list(range(n))) for n in args.views if n <= len(lms)]  # detected: the views found
+            if name == "jnr" and len(lms) > 1 and len(lms) not in args.views:  # every head has an all-views row
+                counts.append((len(lms), list(range(len(lms)))))
             if name != "jnr":
                 counts = [(1, [best])] + counts
             for n, index in counts:
@@ -181,6 +185,7 @@ def main() -> None:
                     {
                         "head": head,
                         "views": n,
+                        "all_views": n == len(lms),
                         "method": name,
                         "s2m_median_mm": err["s2m_median_mm"],
                         "vertex_mean_mm": err["vertex_mean_mm"],
@@ -260,6 +265,32 @@ def summarise(records: list[dict], names: list[str], counts: list[int]) -> dict:
     frontal = [r["frontal_single_mm"] for r in records if "frontal_single_mm" in r]
     if frontal:  # (runs before issue 37's view weights did not record it)
         lines.append(f"| 1 (the most frontal view) | {np.mean(frontal):.3f} |" + " |" * (len(names) - 1))
+    # every view found against the best single view on the same heads (a view count's row leaves out the heads
+    # where the detector found fewer views)
+    best = {r["head"]: r["s2m_median_mm"] for r in records if r["views"] == 1 and "best_view" in r}
+    all_views = {}
+    for name in names:
+        pairs = [
+            (r["s2m_median_mm"], best[r["head"]])
+            for r in records
+            if r.get("all_views") and r["method"] == name and r["views"] > 1 and r["head"] in best
+        ]
+        if pairs:
+            fit, single = np.asarray(pairs).T
+            views = [r["views"] for r in records if r.get("all_views") and r["method"] == name and r["views"] > 1]
+            all_views[name] = {
+                "heads": len(pairs),
+                "mean_views": float(np.mean(views)),
+                "s2m_median_mm": float(fit.mean()),
+                "best_single_mm": float(single.mean()),
+                "better_heads": int((fit < single).sum()),
+            }
+            pad = " |" * (len(names) - 1)
+            lines.append(
+                f"| all views found ({np.mean(views):.1f} on average), {name}: {fit.mean():.3f} against the best "
+                f"single view's {single.mean():.3f} on the same {len(pairs)} heads, better on {(fit < single).sum()} |"
+                f"{pad}"
+            )
     heads = sorted({r["head"] for r in records})
     per_head = [
         "| head | model | " + " | ".join(f"{n} view{'s' if n > 1 else ''}" for n in counts) + " |",
@@ -276,6 +307,7 @@ def summarise(records: list[dict], names: list[str], counts: list[int]) -> dict:
         "table": rows,
         "mean_single_view_mm": mean_single,
         "frontal_single_view_mm": float(np.mean(frontal)) if frontal else None,
+        "all_views": all_views,
         "markdown": "\n".join(lines),
         "per_head_markdown": "\n".join(per_head),
     }

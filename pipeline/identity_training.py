@@ -187,7 +187,7 @@ def coefficient_map_residuals(coefficients: np.ndarray, theta: np.ndarray, folds
 def train_identity_regressor(
     out_path: str | Path | None = None,
     *,
-    heads: int = 8000,
+    heads: int = 10000,
     map_heads: int = 300,
     seed: int = 0,
     spp: int = 64,

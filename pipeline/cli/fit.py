@@ -329,7 +329,7 @@ FIT_DESCRIPTION = (
     "face's landmarks (MediaPipe's 478 points with the irises; dlib's 68 iBUG points when MediaPipe finds no "
     "face), place a pinhole camera (--focal, default 1.4 x the image's larger side) by solvePnP, then fit the "
     "landmarks by Levenberg-Marquardt (~0.5 s) with an identity prior: when MediaPipe found the face, the head "
-    "its 3D mesh says (a map learned from 16,000 photographed synthetic heads; faces turned up to 30 deg), else "
+    "its 3D mesh says (a map learned from 20,000 photographed synthetic heads; faces turned up to 30 deg), else "
     "the synthetic head population's (--set landmarks.regression.enabled=false: always that). --photometric "
     "adds a stage that renders the head (Mitsuba 3 on the CPU; the face's median colour, ambient + directional "
     "or SH light) and moves its identity along the prior's main directions to "

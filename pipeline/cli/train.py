@@ -137,10 +137,10 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     tr.add_argument(
         "--identity-regressor",
         action="store_true",
-        help="instead: photograph 16,000 ICT heads drawn afresh (8,000 from ICT's own distribution, 8,000 from "
+        help="instead: photograph 20,000 ICT heads drawn afresh (10,000 from ICT's own distribution, 10,000 from "
         "one 1.5 x as wide; half with an expression; random pose, skin, light and focal length), read each with "
         "MediaPipe, and learn the map from its 478 3D points (and from their mirror images; its weights changing "
-        "with the face's yaw) to the joints that the photo fit's conditional identity prior uses (~4 h on 2 cores, "
+        "with the face's yaw) to the joints that the photo fit's conditional identity prior uses (~5 h on 2 cores, "
         "15 min from a full --cache; "
         "rig/assets/jnr_identity_regressor_v3.npz unless --out is given)",
     )

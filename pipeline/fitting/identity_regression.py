@@ -447,10 +447,13 @@ class IdentityRegressionConfig:
     enabled: bool = True
     """Use it (chosen on the validation photos of heldout heads 0-9 and 30-49: the fit's identity 0.878 x the
     template's against 0.966 x with the population prior; ``docs/fit_photo.md``)."""
-    lambda_identity: float = 0.1
-    """The conditional prior's weight (instead of ``prior.lambda_identity``; of 0.03 / 0.1 / 0.3 on the validation
-    photos, with the first map of 3,000 photos: identity 0.892 / 0.890 / 0.895 x the template, 4 / 4 / 3 photos
-    worse by more than 0.05 mm)."""
+    lambda_identity: float = 3.0
+    """The conditional prior's weight (instead of ``prior.lambda_identity``). Chosen on the validation photos with
+    the map of 20,000 photos (2026-12-08): 0.1 / 0.3 / 1 / 3 / 10 / 100 gave the fit's identity 0.866 / 0.863 /
+    0.864 / 0.862 / 0.862 / 0.862 x the template (median), mean change -0.159 / -0.162 / -0.162 / -0.163 / -0.163
+    / -0.163 mm, 4 photos worse by > 0.05 mm at every weight: the landmarks are the points the map already read,
+    so letting them move the identity again counts them twice (0.1 was chosen with the first map of 3,000 photos,
+    whose regressed head was less sure)."""
     start: bool = False
     """Start the joints at the regressed head (else at the template; the same fit on the validation photos)."""
     max_yaw_deg: float = 30.0
