@@ -141,7 +141,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
         "one 1.5 x as wide; half with an expression; random pose, skin, light and focal length), read each with "
         "MediaPipe, and learn the map from its 478 3D points (and from their mirror images; its weights changing "
         "with the face's yaw) to the joints that the photo fit's conditional identity prior uses (~5 h on 2 cores, "
-        "15 min from a full --cache; "
+        "25 min from a full --cache; "
         "rig/assets/jnr_identity_regressor_v3.npz unless --out is given)",
     )
     tr.add_argument(

@@ -184,7 +184,7 @@ def symmetric_reference(reference: np.ndarray, perm: np.ndarray) -> np.ndarray:
     with its mirror image (:func:`mirror_points`) and normalised (centred, unit RMS radius). A face's mirror
     image then turns onto it by the mirrored rotation, so its yaw (:func:`regression_features`) is exactly the
     opposite of the face's: a map learned with mirror images and the yaw interaction is exactly left-right
-    equivariant. (The Procrustes mean keeps a training photo's frame: the committed map's was 12 deg off.)
+    equivariant. (The Procrustes mean keeps a training photo's frame: the map of 16,000 photos' was 12 deg off.)
 
     Raises:
         ShapeError: ``reference`` not ``(N, 3)`` or ``perm`` not ``(N,)``.

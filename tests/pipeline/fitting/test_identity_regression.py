@@ -133,6 +133,20 @@ def test_mirror_partners_are_found_in_any_placement_and_refused_without_symmetry
         ir.mirror_permutation(rng.normal(size=(30, 3)))
 
 
+def test_the_symmetric_reference_is_its_own_mirror_image_about_the_x_axis():
+    rng = np.random.default_rng(9)
+    points, _, perm, _ = _symmetric_population(rng, 1, q=1, noise=0.003)  # one-sided fields: nearly symmetric
+    reference = ir.symmetric_reference(points[0], perm)  # placed at random: turned, scaled and shifted
+    assert np.allclose(ir.mirror_points(reference, perm), reference, atol=1e-12)
+    assert np.allclose(reference.mean(0), 0.0, atol=1e-12) and np.isclose(np.sqrt((reference**2).sum(-1).mean()), 1.0)
+    # the same shape as the set itself, nearer to it than its own mirror image is (about half its asymmetry)
+    own = normalise_points(points[0])
+    asymmetry = np.abs(normalise_points(ir.mirror_points(own, perm), own) - own).max()
+    assert np.abs(normalise_points(points[0], reference) - reference).max() < 0.75 * asymmetry
+    with pytest.raises(ShapeError, match="symmetric_reference"):
+        ir.symmetric_reference(points[0], perm[:-1])
+
+
 def test_learning_from_mirror_images_gives_an_equivariant_and_better_map():
     rng = np.random.default_rng(8)
     points, u, perm, mirror_u = _symmetric_population(rng, 215, noise=0.01)
