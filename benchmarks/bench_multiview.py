@@ -270,16 +270,15 @@ def summarise(records: list[dict], names: list[str], counts: list[int]) -> dict:
     best = {r["head"]: r["s2m_median_mm"] for r in records if r["views"] == 1 and "best_view" in r}
     all_views = {}
     for name in names:
-        pairs = [
-            (r["s2m_median_mm"], best[r["head"]])
-            for r in records
-            if r.get("all_views") and r["method"] == name and r["views"] > 1 and r["head"] in best
+        found = [
+            r for r in records if r.get("all_views") and r["method"] == name and r["views"] > 1 and r["head"] in best
         ]
-        if pairs:
-            fit, single = np.asarray(pairs).T
-            views = [r["views"] for r in records if r.get("all_views") and r["method"] == name and r["views"] > 1]
+        if found:
+            fit = np.array([r["s2m_median_mm"] for r in found])
+            single = np.array([best[r["head"]] for r in found])
+            views = [r["views"] for r in found]
             all_views[name] = {
-                "heads": len(pairs),
+                "heads": len(found),
                 "mean_views": float(np.mean(views)),
                 "s2m_median_mm": float(fit.mean()),
                 "best_single_mm": float(single.mean()),
@@ -288,7 +287,7 @@ def summarise(records: list[dict], names: list[str], counts: list[int]) -> dict:
             pad = " |" * (len(names) - 1)
             lines.append(
                 f"| all views found ({np.mean(views):.1f} on average), {name}: {fit.mean():.3f} against the best "
-                f"single view's {single.mean():.3f} on the same {len(pairs)} heads, better on {(fit < single).sum()} |"
+                f"single view's {single.mean():.3f} on the same {len(found)} heads, better on {(fit < single).sum()} |"
                 f"{pad}"
             )
     heads = sorted({r["head"] for r in records})
